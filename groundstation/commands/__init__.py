@@ -1,0 +1,17 @@
+"""The subcommands of the ``groundstation`` command line, one module each.
+
+Each module defines ``NAME``, ``HELP``, ``add_arguments(parser)`` and ``run(args) -> int``; it is
+registered here by name, and :mod:`groundstation.cli` builds the parser from this list. Modules
+are imported lazily so that ``groundstation inspect`` does not pay for Zenoh or the simulator.
+"""
+
+from __future__ import annotations
+
+COMMANDS: dict[str, str] = {
+    "inspect": "groundstation.commands.inspect",
+}
+"""Subcommand name -> module implementing it."""
+
+HELP: dict[str, str] = {
+    "inspect": "summary of a recording: span, epochs, gaps, marks, satellites",
+}

@@ -1,0 +1,262 @@
+"""The record types that flow through the pipeline: frames, decoded messages, status and events.
+
+Times are integers. ``t_host_ns`` is the host wall clock at reception (UNIX ns); GPS time is
+``gps_week`` + ``tow_ns`` or ``t_gps_ns`` (ns since the GPS epoch 1980-01-06). Units are in the
+field names. Every record is a frozen, slotted dataclass so it can be shared between tasks.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Any, Literal
+
+from groundstation.gpstime import NS_PER_WEEK
+
+GNSS_LETTERS = {0: "G", 1: "S", 2: "E", 3: "C", 4: "I", 5: "J", 6: "R", 7: "I"}
+"""RINEX system letter for each u-blox ``gnssId`` (4 is IMES, shown as I like NavIC)."""
+
+
+def sv_label(gnss: int, sv: int) -> str:
+    """RINEX-style satellite label, e.g. ``G05``; SBAS PRNs 120-158 become ``S20``-``S58``."""
+    letter = GNSS_LETTERS.get(gnss, "?")
+    if letter == "S" and sv >= 100:
+        sv -= 100
+    return f"{letter}{sv:02d}"
+
+
+@dataclass(frozen=True, slots=True)
+class Frame:
+    """One UBX frame with a valid checksum, exactly as it was received.
+
+    Attributes:
+        cls: message class byte.
+        id: message id byte.
+        payload: the payload bytes (without header and checksum).
+        raw: the whole frame, sync word to checksum.
+        t_host_ns: host time of the chunk that completed the frame.
+        offset: byte offset of the sync word in the stream since the framer started.
+    """
+
+    cls: int
+    id: int
+    payload: bytes
+    raw: bytes
+    t_host_ns: int
+    offset: int = 0
+
+    @property
+    def key(self) -> tuple[int, int]:
+        return (self.cls, self.id)
+
+
+@dataclass(frozen=True, slots=True)
+class SatObs:
+    """One satellite's measurement in a raw epoch.
+
+    ``lli`` follows RINEX: bit 0 lost lock since the previous epoch (cycle slip possible),
+    bit 1 half-cycle ambiguity unresolved. For RXM-RAW it is the receiver's own ``lli``; for
+    RXM-RAWX the decoder derives bit 1 from ``trkStat`` and leaves bit 0 to stateful consumers
+    (``slip`` is derived from the lock-time counter by :class:`~groundstation.ubx.decode.Decoder`).
+    """
+
+    gnss: int
+    sv: int
+    carrier_phase_cyc: float
+    pseudorange_m: float
+    doppler_hz: float
+    cno_dbhz: int
+    mes_qi: int | None
+    lli: int
+    half_cycle_unresolved: bool
+    slip: bool
+    sig_id: int = 0
+    freq_id: int = 0
+    locktime_ms: int | None = None
+    trk_stat: int | None = None
+    pr_valid: bool = True
+    cp_valid: bool = True
+    half_cycle_subtracted: bool = False
+    pr_stdev_idx: int | None = None
+    cp_stdev_idx: int | None = None
+    do_stdev_idx: int | None = None
+
+    @property
+    def label(self) -> str:
+        return sv_label(self.gnss, self.sv)
+
+
+@dataclass(frozen=True, slots=True)
+class RawEpoch:
+    """Raw measurements of one receiver epoch (RXM-RAW or RXM-RAWX)."""
+
+    gps_week: int
+    tow_ns: int
+    sats: tuple[SatObs, ...]
+    source: Literal["RXM-RAW", "RXM-RAWX"]
+    t_host_ns: int = 0
+    leap_s: int | None = None
+    clock_reset: bool = False
+
+    @property
+    def t_gps_ns(self) -> int:
+        return self.gps_week * NS_PER_WEEK + self.tow_ns
+
+
+@dataclass(frozen=True, slots=True)
+class TimeMark:
+    """A TIM-TM2 record: the camera's hot-shoe edges, time-tagged by the receiver.
+
+    Edge times are converted to GPS time (ns since the GPS epoch) whatever the time base; an
+    edge the receiver has not seen yet (week 0) is ``None``. ``flags`` keeps every bit as sent.
+    """
+
+    channel: int
+    count: int
+    rising_t_gps_ns: int | None
+    falling_t_gps_ns: int | None
+    new_rising: bool
+    new_falling: bool
+    time_base: int
+    valid: bool
+    acc_ns: int
+    t_host_ns: int
+    flags: int = 0
+    mode_running: bool = False
+    run: bool = False
+    utc_valid: bool = False
+    leap_s_applied: int = 0
+
+    @property
+    def time_base_name(self) -> str:
+        return {0: "receiver", 1: "GPS", 2: "UTC"}.get(self.time_base, f"unknown({self.time_base})")
+
+
+@dataclass(frozen=True, slots=True)
+class Subframe:
+    """One navigation-data subframe as the receiver forwarded it.
+
+    ``words`` are the receiver's 32-bit words: RXM-SFRB (u-blox 6) carries 24 data bits per word
+    with parity stripped; RXM-SFRBX carries the 30-bit GPS words with parity in the low 6 bits.
+    """
+
+    gnss: int
+    sv: int
+    words: tuple[int, ...]
+    source: Literal["RXM-SFRB", "RXM-SFRBX"]
+    channel: int = 0
+    sig_id: int = 0
+    freq_id: int = 0
+    t_host_ns: int = 0
+
+    def data_words(self) -> tuple[int, ...]:
+        """The 24 data bits of each word (GPS L1 C/A layout), parity removed."""
+        if self.source == "RXM-SFRBX":
+            return tuple((w >> 6) & 0xFFFFFF for w in self.words)
+        return tuple(w & 0xFFFFFF for w in self.words)
+
+
+@dataclass(frozen=True, slots=True)
+class Ephemeris:
+    """A GPS broadcast ephemeris as delivered by AID-EPH: subframes 1-3, words 3-10.
+
+    The words are 24 data bits each (parity stripped). ``how`` is the hand-over word; 0 means
+    the receiver had no ephemeris for the satellite.
+    """
+
+    sv: int
+    how: int
+    sf1: tuple[int, ...]
+    sf2: tuple[int, ...]
+    sf3: tuple[int, ...]
+    t_host_ns: int = 0
+
+    @property
+    def valid(self) -> bool:
+        return self.how != 0 and len(self.sf1) == 8
+
+
+@dataclass(frozen=True, slots=True)
+class NavSolution:
+    """The receiver's own fix (metre level): NAV-SOL, NAV-PVT or NAV-POSLLH."""
+
+    source: str
+    tow_ns: int
+    gps_week: int | None
+    fix_type: int
+    fix_ok: bool
+    num_sv: int | None
+    ecef_m: tuple[float, float, float] | None
+    lat_deg: float | None
+    lon_deg: float | None
+    height_m: float | None
+    h_acc_m: float | None
+    v_acc_m: float | None
+    p_acc_m: float | None
+    t_host_ns: int = 0
+
+
+@dataclass(frozen=True, slots=True)
+class SvInfoSat:
+    gnss: int
+    sv: int
+    cno_dbhz: int
+    elev_deg: int
+    azim_deg: int
+    used: bool
+    quality: int
+    healthy: bool
+
+    @property
+    def label(self) -> str:
+        return sv_label(self.gnss, self.sv)
+
+
+@dataclass(frozen=True, slots=True)
+class SvInfo:
+    """Per-satellite tracking state from NAV-SVINFO or NAV-SAT."""
+
+    source: str
+    tow_ns: int
+    sats: tuple[SvInfoSat, ...]
+    t_host_ns: int = 0
+
+
+@dataclass(frozen=True, slots=True)
+class UndecodedFrame:
+    """A frame with a valid checksum that pyubx2 could not parse; its bytes are kept."""
+
+    frame: Frame
+    error: str
+
+
+Record = RawEpoch | TimeMark | Subframe | Ephemeris | NavSolution | SvInfo | UndecodedFrame | Frame
+"""What the decoder hands downstream: a decoded record, or the frame itself."""
+
+
+def to_jsonable(record: Any) -> Any:
+    """Convert a record (or anything nested in one) to plain JSON types; bytes become hex."""
+    if dataclasses.is_dataclass(record) and not isinstance(record, type):
+        return {f.name: to_jsonable(getattr(record, f.name)) for f in dataclasses.fields(record)}
+    if isinstance(record, (bytes, bytearray, memoryview)):
+        return bytes(record).hex()
+    if isinstance(record, (tuple, list)):
+        return [to_jsonable(v) for v in record]
+    if isinstance(record, dict):
+        return {str(k): to_jsonable(v) for k, v in record.items()}
+    return record
+
+
+@dataclass(frozen=True, slots=True)
+class Event:
+    """Something that happened, for the operator and the record: outages, dropouts, alerts.
+
+    ``kind`` is a dotted name (``source.outage``, ``link.dropout``, ``recorder.behind`` ...);
+    ``data`` holds plain JSON values only.
+    """
+
+    kind: str
+    t_host_ns: int
+    message: str
+    severity: Literal["info", "warning", "error"] = "info"
+    data: dict[str, Any] = dataclasses.field(default_factory=dict)
