@@ -1,0 +1,329 @@
+"""The live pipeline and daemon: source -> framer -> decoder -> fanout -> sinks, in one TaskGroup.
+
+:class:`Pipeline` wires the stages; :func:`run_daemon` is the entry point for ``groundstation
+run``, the demo and replay. Shutdown (stop event, SIGINT/SIGTERM, ``duration_s`` or the end of
+a file source) drains in order: the source stops first, the framer's waiting bytes are flushed
+through the decoder, the other sinks finish, and the recorder finishes last (MCAP summary
+written).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import signal
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from groundstation.config import Settings
+from groundstation.errors import GroundstationError
+from groundstation.live.fanout import Fanout, InboxStats, Item, Overflow, RawChunk, Sink, SinkSpec
+from groundstation.live.recorder import RecorderSink
+from groundstation.live.sources import Source, make_source
+from groundstation.records import Event, Frame, UndecodedFrame
+from groundstation.storage.recorder import SessionRecorder, register_record_topic
+from groundstation.ubx.decode import Decoder
+from groundstation.ubx.framer import UbxFramer
+
+log = logging.getLogger("groundstation.daemon")
+
+
+@dataclass(frozen=True, slots=True)
+class PipelineStatus:
+    """The daemon's own counters, published every ``status_interval_s`` (``/groundstation/status``
+    until the monitor's Status takes over that role)."""
+
+    t_host_ns: int
+    source: str
+    source_connected: bool | None
+    bytes_in: int
+    chunks: int
+    frames: int
+    garbage_bytes: int
+    bad_checksum: int
+    records: int
+    undecodable: int
+    queued: dict[str, int]
+    dropped: dict[str, int]
+
+
+register_record_topic(PipelineStatus, "/groundstation/status")
+
+
+@dataclass(frozen=True, slots=True)
+class RunSummary:
+    """What a pipeline run did, for the command line and for tests."""
+
+    session_id: str
+    files: tuple[Path, ...]
+    sidecars: tuple[Path, ...]
+    stopped_by: str
+    duration_s: float
+    bytes_in: int
+    chunks: int
+    frames: int
+    garbage_bytes: int
+    records: int
+    events: int
+    outages: int
+    queues: tuple[InboxStats, ...]
+    frames_by_type: dict[str, int] = field(default_factory=dict)
+
+
+class Pipeline:
+    """One live pipeline: a source, the framer and decoder, a fanout and its sinks.
+
+    Args:
+        settings: resolved settings.
+        source: overrides the configured source (the simulator, an MCAP replay ...).
+        sinks: extra sinks (monitor, Zenoh publisher) with their queue policies.
+        record: add the recorder sink (MCAP + sidecar) as configured.
+        clock: UNIX ns clock.
+        on_file: called with each recording file as it is created.
+    """
+
+    def __init__(
+        self,
+        settings: Settings,
+        *,
+        source: Source | None = None,
+        sinks: Sequence[SinkSpec] = (),
+        record: bool = True,
+        clock: Callable[[], int] = time.time_ns,
+        on_file: Callable[[Path], None] | None = None,
+    ) -> None:
+        self.settings = settings
+        self._clock = clock
+        self.fanout = Fanout(clock=clock)
+        self.framer = UbxFramer(settings.framer.max_payload_bytes)
+        self.decoder = Decoder()
+        self.source: Source = source or make_source(settings.source, self.publish, clock=clock)
+        self.specs: list[SinkSpec] = []
+        self.recorder: RecorderSink | None = None
+        if record:
+            rec = settings.recorder
+            session = SessionRecorder(
+                rec.out_dir, settings.station, receiver=settings.receiver,
+                configuration=settings.to_jsonable(), chunk_size_bytes=rec.chunk_size_bytes,
+                compression=rec.compression, flush_interval_ns=int(rec.flush_interval_s * 1e9),
+                rotate_size_bytes=int(rec.rotate_size_mb * 1e6),
+                rotate_duration_ns=int(rec.rotate_duration_s * 1e9), sidecar=rec.sidecar,
+                clock=clock,
+            )
+            self.recorder = RecorderSink(session, rec.flush_interval_s, on_file, clock=clock)
+            self.specs.append(
+                SinkSpec(self.recorder, settings.queues.recorder, Overflow.NEVER_DROP)
+            )
+        for spec in sinks:
+            self.add_sink(spec.sink, spec.maxsize, spec.overflow)
+        self.chunks = 0
+        self.records = 0
+        self.events = 0
+        self._stopping = False
+        self.stopped_by = ""
+
+    def add_sink(self, sink: Sink, maxsize: int, overflow: Overflow) -> None:
+        """Register a sink before :meth:`run` (the recorder, if any, always finishes last)."""
+        if any(s.sink.name == sink.name for s in self.specs):
+            raise ValueError(f"a sink named {sink.name!r} is already registered")
+        self.specs.append(SinkSpec(sink, maxsize, overflow))
+
+    # -- the synchronous core ---------------------------------------------------------------
+
+    def publish(self, item: Item) -> None:
+        """Hand an item (record, event, status) to every sink."""
+        if isinstance(item, Event):
+            self.events += 1
+        self.fanout.publish(item)
+
+    def ingest(self, chunk: bytes, t_host_ns: int) -> None:
+        """One chunk from the source: raw bytes first, then what they decode to."""
+        self.chunks += 1
+        self.fanout.publish(RawChunk(chunk, t_host_ns))
+        self._decode(self.framer.feed(chunk, t_host_ns))
+
+    def _decode(self, frames: list[Frame]) -> None:
+        for frame in frames:
+            record = self.decoder.decode(frame)
+            if isinstance(record, (Frame, UndecodedFrame)):
+                continue  # its bytes are already in /ubx/raw
+            self.records += 1
+            self.fanout.publish(record)
+
+    def status(self) -> PipelineStatus:
+        fs = self.framer.stats
+        state = getattr(self.source, "state", None)
+        connected = getattr(state, "connected", None)
+        return PipelineStatus(
+            t_host_ns=self._clock(),
+            source=self.source.name,
+            source_connected=connected if isinstance(connected, bool) else None,
+            bytes_in=fs.bytes_in,
+            chunks=self.chunks,
+            frames=fs.frames,
+            garbage_bytes=fs.garbage_bytes,
+            bad_checksum=fs.bad_checksum,
+            records=self.records,
+            undecodable=self.decoder.stats.undecodable,
+            queued={s.name: s.queued for s in self.fanout.stats},
+            dropped={s.name: s.dropped for s in self.fanout.stats},
+        )
+
+    # -- tasks ------------------------------------------------------------------------------
+
+    async def _wait_for_sinks(self) -> None:
+        """A source that can wait (a file) pauses while any inbox is more than half full."""
+        while any(len(i) > i.maxsize // 2 for i in self.fanout.inboxes):
+            await asyncio.sleep(0.002)
+
+    async def _ingest_loop(self) -> None:
+        chunks = self.source.chunks()
+        try:
+            async for chunk, t_host_ns in chunks:
+                self.ingest(chunk, t_host_ns)
+                if self.source.can_wait:
+                    await self._wait_for_sinks()
+            self.stopped_by = self.stopped_by or "end of source"
+        except asyncio.CancelledError:
+            task = asyncio.current_task()
+            if not self._stopping or task is None:
+                raise
+            task.uncancel()  # our own orderly stop, not a cancellation of the daemon
+        finally:
+            with contextlib.suppress(Exception):
+                await chunks.aclose()  # type: ignore[attr-defined]
+            # Bytes still waiting in the framer: recover what frames they hold.
+            self._decode(self.framer.flush(self._clock()))
+            log.info("source %s stopped (%s)", self.source.name, self.stopped_by)
+
+    async def _status_loop(self) -> None:
+        interval = self.settings.status_interval_s
+        while True:
+            await asyncio.sleep(interval)
+            self.publish(self.status())
+
+    async def run(
+        self, stop_event: asyncio.Event | None = None, *, handle_signals: bool = False
+    ) -> RunSummary:
+        """Run until stopped: ``stop_event`` set, a signal (if handled), ``duration_s`` elapsed
+        or the source ended. Returns a summary once the recorder has finished.
+
+        Raises:
+            GroundstationError: when the source cannot be used at all (e.g. a missing file).
+        """
+        stop = stop_event if stop_event is not None else asyncio.Event()
+        loop = asyncio.get_running_loop()
+        handled: list[signal.Signals] = []
+        if handle_signals:
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                def on_signal(sig: signal.Signals = sig) -> None:
+                    log.info("%s: stopping", sig.name)
+                    self.stopped_by = self.stopped_by or sig.name
+                    stop.set()
+                loop.add_signal_handler(sig, on_signal)
+                handled.append(sig)
+        t0 = time.monotonic()
+        try:
+            await self._run(stop)
+        except BaseExceptionGroup as group:
+            ours = group.subgroup(lambda e: isinstance(e, GroundstationError))
+            if ours is not None:
+                raise ours.exceptions[0] from group
+            raise
+        finally:
+            for sig in handled:
+                loop.remove_signal_handler(sig)
+        return self.summary(time.monotonic() - t0)
+
+    async def _run(self, stop: asyncio.Event) -> None:
+        inboxes = [
+            (spec, self.fanout.add_inbox(spec.sink.name, spec.maxsize, spec.overflow))
+            for spec in self.specs
+        ]
+        if self.recorder is not None:
+            self.recorder.open()  # the file exists (and is announced) before data flows
+        duration = self.settings.duration_s
+        async with asyncio.TaskGroup() as tg:
+            sink_tasks = {
+                spec.sink.name: tg.create_task(
+                    spec.sink.consume(inbox, self.publish), name=f"sink:{spec.sink.name}"
+                )
+                for spec, inbox in inboxes
+            }
+            status_task = tg.create_task(self._status_loop(), name="status")
+            ingest_task = tg.create_task(self._ingest_loop(), name="ingest")
+            stop_task = tg.create_task(stop.wait(), name="stop")
+            waits: set[asyncio.Task[Any]] = {ingest_task, stop_task}
+            timeout = duration if duration > 0 else None
+            done, _ = await asyncio.wait(waits, timeout=timeout,
+                                         return_when=asyncio.FIRST_COMPLETED)
+            if not done:
+                self.stopped_by = self.stopped_by or f"duration {duration:g} s"
+            elif stop_task in done:
+                self.stopped_by = self.stopped_by or "stop requested"
+            # 1. the source first (its finally flushes the framer through the decoder)
+            self._stopping = True
+            if not ingest_task.done():
+                ingest_task.cancel()
+            await asyncio.wait({ingest_task})
+            stop_task.cancel()
+            status_task.cancel()
+            self.publish(self.status())
+            # 2. the other sinks drain and finish, 3. the recorder last
+            others = [n for n in sink_tasks if self.recorder is None or n != self.recorder.name]
+            self.fanout.close(others)
+            if others:
+                await asyncio.wait({sink_tasks[n] for n in others})
+            self.fanout.close()
+
+    def summary(self, duration_s: float) -> RunSummary:
+        from groundstation.ubx.decode import message_name
+
+        fs = self.framer.stats
+        rec = self.recorder.recorder.stats if self.recorder is not None else None
+        state = getattr(self.source, "state", None)
+        return RunSummary(
+            session_id=rec.session_id if rec else "",
+            files=rec.files if rec else (),
+            sidecars=rec.sidecars if rec else (),
+            stopped_by=self.stopped_by or "stopped",
+            duration_s=duration_s,
+            bytes_in=fs.bytes_in,
+            chunks=self.chunks,
+            frames=fs.frames,
+            garbage_bytes=fs.garbage_bytes,
+            records=self.records,
+            events=self.events,
+            outages=int(getattr(state, "outages", 0)),
+            queues=self.fanout.stats,
+            frames_by_type={message_name(*k): n for k, n in sorted(fs.frames_by_type.items())},
+        )
+
+
+async def run_daemon(
+    settings: Settings,
+    *,
+    stop_event: asyncio.Event | None = None,
+    source: Source | None = None,
+    sinks: Sequence[SinkSpec] = (),
+    record: bool = True,
+    handle_signals: bool = False,
+    on_file: Callable[[Path], None] | None = None,
+) -> RunSummary:
+    """Build a :class:`Pipeline` and run it (see :meth:`Pipeline.run`).
+
+    Args:
+        settings: resolved settings (``load_settings``).
+        stop_event: set it to stop in order.
+        source: overrides ``settings.source`` (simulator, replay).
+        sinks: extra sinks, e.g. ``SinkSpec(publisher, 2000, Overflow.DROP_OLDEST)``.
+        record: write the MCAP and sidecar.
+        handle_signals: SIGINT/SIGTERM stop the daemon in order (the command line sets this).
+        on_file: called with each recording file as it is created.
+    """
+    pipeline = Pipeline(settings, source=source, sinks=sinks, record=record, on_file=on_file)
+    return await pipeline.run(stop_event, handle_signals=handle_signals)

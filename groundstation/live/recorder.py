@@ -1,0 +1,88 @@
+"""The recorder sink: drains its inbox into a :class:`SessionRecorder`, flushing on a timer.
+
+Never drops (its inbox's policy is ``NEVER_DROP``); closes the chunk and flushes MCAP and sidecar
+at least every ``flush_interval_s``, even when no data arrives, and writes the MCAP summary
+when the inbox is closed and drained.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+from groundstation.live.fanout import Inbox, InboxClosed, Item, RawChunk
+from groundstation.storage.recorder import SessionRecorder
+
+log = logging.getLogger("groundstation.recorder")
+
+
+class RecorderSink:
+    """A :class:`~groundstation.live.fanout.Sink` that records everything it receives.
+
+    Args:
+        recorder: the session recorder (opened by :meth:`open` or by ``consume``).
+        flush_interval_s: the longest time between flushes.
+        on_file: called with the path of each new file (first one and rotations).
+        clock: UNIX ns clock for items that carry no host time.
+    """
+
+    name = "recorder"
+
+    def __init__(
+        self,
+        recorder: SessionRecorder,
+        flush_interval_s: float,
+        on_file: Callable[[Path], None] | None = None,
+        *,
+        clock: Callable[[], int] = time.time_ns,
+    ) -> None:
+        self._clock = clock
+        self.recorder = recorder
+        self.flush_interval_s = flush_interval_s
+        self._on_file = on_file
+        self._opened = False
+        self._files_seen = 0
+
+    def open(self) -> Path:
+        """Create the first file now (so its path is known before data flows)."""
+        if not self._opened:
+            self.recorder.open()
+            self._opened = True
+            self._notify_files()
+        path = self.recorder.current_file
+        assert path is not None
+        return path
+
+    def _notify_files(self) -> None:
+        files = self.recorder.stats.files
+        if self._on_file is not None:
+            for path in files[self._files_seen:]:
+                self._on_file(path)
+        self._files_seen = len(files)
+
+    def write(self, item: Item) -> None:
+        """Record one item (synchronously)."""
+        if isinstance(item, RawChunk):
+            self.recorder.write_raw(item.data, item.t_host_ns)
+            if len(self.recorder.stats.files) != self._files_seen:
+                self._notify_files()
+        else:
+            # log_time is the host time the record's bytes arrived (events: when they happened).
+            t = getattr(item, "t_host_ns", 0)
+            self.recorder.write_record(item, t if isinstance(t, int) and t > 0 else self._clock())
+
+    async def consume(self, inbox: Inbox, publish: Callable[[Item], None]) -> None:
+        self.open()
+        try:
+            while True:
+                try:
+                    item = await inbox.get(timeout_s=self.flush_interval_s)
+                except InboxClosed:
+                    break
+                if item is not None:
+                    self.write(item)
+                self.recorder.maybe_flush()
+        finally:
+            self.recorder.close()

@@ -1,0 +1,269 @@
+"""MCAP reading and writing: the one module that imports the ``mcap`` library.
+
+Writing: :class:`McapFileWriter` wraps ``mcap.writer.Writer`` with lazy channel registration,
+an explicit flush (closes the chunk in progress and flushes the file, so a killed process loses
+at most what arrived since) and an idempotent :meth:`~McapFileWriter.finish`. Files are created
+exclusively: an existing file is never overwritten.
+
+Reading: :func:`iter_messages` reads linearly (streaming), which works the same for finished
+files and for files whose writer died: it returns every message up to the last complete chunk
+and stops quietly at the torn tail. :func:`read_summary` uses the seeking reader's summary when
+the file was finished.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, BinaryIO
+
+from mcap.reader import make_reader
+from mcap.records import Channel, Message, Metadata, Schema
+from mcap.stream_reader import StreamReader
+from mcap.writer import CompressionType, Writer
+
+log = logging.getLogger("groundstation.storage")
+
+_COMPRESSION = {
+    "zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE
+}
+RAW_TOPIC = "/ubx/raw"
+
+
+@dataclass(frozen=True, slots=True)
+class ChannelSpec:
+    """What a channel carries: topic, message encoding and (optionally) its schema."""
+
+    topic: str
+    message_encoding: str
+    schema_name: str = ""
+    schema_encoding: str = ""
+    schema_data: bytes = b""
+
+
+def json_channel(topic: str, schema: dict[str, Any]) -> ChannelSpec:
+    """A JSON channel with a JSON Schema (its ``title`` names the schema)."""
+    return ChannelSpec(
+        topic, "json", str(schema.get("title", topic)), "jsonschema",
+        json.dumps(schema, separators=(",", ":")).encode(),
+    )
+
+
+class McapFileWriter:
+    """One MCAP file being written.
+
+    Args:
+        path: the file to create; it must not exist.
+        chunk_size_bytes: chunk size target; chunks are also closed by :meth:`flush`.
+        compression: ``zstd``, ``lz4`` or ``none``.
+        library: the writer identification in the MCAP header.
+
+    Raises:
+        FileExistsError: if ``path`` exists (recordings are never overwritten).
+    """
+
+    def __init__(
+        self,
+        path: Path,
+        *,
+        chunk_size_bytes: int = 64 * 1024,
+        compression: str = "zstd",
+        library: str = "groundstation",
+    ) -> None:
+        self.path = path
+        self._file: BinaryIO = path.open("xb")
+        self._writer = Writer(
+            self._file, chunk_size=chunk_size_bytes, compression=_COMPRESSION[compression]
+        )
+        self._writer.start(profile="", library=library)
+        self._schemas: dict[str, int] = {}
+        self._channels: dict[ChannelSpec, int] = {}
+        self._finished = False
+        self.messages = 0
+
+    def __enter__(self) -> McapFileWriter:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.finish()
+
+    def channel_id(self, spec: ChannelSpec) -> int:
+        """The channel id for ``spec``, registering schema and channel on first use."""
+        cid = self._channels.get(spec)
+        if cid is None:
+            schema_id = 0
+            if spec.schema_name:
+                key = spec.schema_name + "\0" + spec.schema_data.decode()
+                schema_id = self._schemas.get(key, 0)
+                if not schema_id:
+                    schema_id = self._writer.register_schema(
+                        spec.schema_name, spec.schema_encoding, spec.schema_data
+                    )
+                    self._schemas[key] = schema_id
+            cid = self._writer.register_channel(spec.topic, spec.message_encoding, schema_id)
+            self._channels[spec] = cid
+        return cid
+
+    def add(self, spec: ChannelSpec, data: bytes, log_time_ns: int, publish_time_ns: int) -> None:
+        """Add one message on the channel described by ``spec``."""
+        self._writer.add_message(
+            self.channel_id(spec), log_time=log_time_ns, data=data, publish_time=publish_time_ns,
+            sequence=self.messages & 0xFFFFFFFF,
+        )
+        self.messages += 1
+
+    def add_metadata(self, name: str, data: dict[str, str]) -> None:
+        self._writer.add_metadata(name, data)
+
+    def flush(self) -> None:
+        """Close the chunk in progress and flush the file (no fsync)."""
+        if not self._finished:
+            self._writer.flush()  # type: ignore[no-untyped-call]
+
+    @property
+    def size_bytes(self) -> int:
+        """Bytes written to the file so far (excluding the chunk in progress)."""
+        return self._file.tell()
+
+    def finish(self) -> None:
+        """Write the summary and footer and close the file; safe to call twice."""
+        if self._finished:
+            return
+        self._finished = True
+        try:
+            self._writer.finish()  # type: ignore[no-untyped-call]
+        finally:
+            self._file.close()
+
+
+# -- reading --------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class McapMessage:
+    """One message as read back, with its channel's description."""
+
+    topic: str
+    message_encoding: str
+    schema_name: str
+    log_time_ns: int
+    publish_time_ns: int
+    sequence: int
+    data: bytes
+
+
+@dataclass(slots=True)
+class ReadReport:
+    """Filled in while :func:`iter_messages` runs: how the file ended."""
+
+    finished: bool = False
+    truncated: bool = False
+    error: str = ""
+    messages: int = 0
+    metadata: dict[str, dict[str, str]] = field(default_factory=dict)
+
+
+def iter_messages(
+    path: Path | str,
+    topics: Iterable[str] | None = None,
+    report: ReadReport | None = None,
+) -> Iterator[McapMessage]:
+    """Every message of an MCAP file in file order, finished or not.
+
+    A file whose writer was killed ends in a torn record; everything before the last complete
+    chunk is returned and the tail is reported in ``report`` (not raised).
+
+    Args:
+        path: the MCAP file.
+        topics: only these topics (all when ``None``).
+        report: optional :class:`ReadReport` filled in as reading goes.
+    """
+    wanted = None if topics is None else set(topics)
+    rep = report if report is not None else ReadReport()
+    schemas: dict[int, Schema] = {}
+    channels: dict[int, Channel] = {}
+    with Path(path).open("rb") as f:
+        records = StreamReader(f, skip_magic=False).records
+        while True:
+            try:
+                record = next(records)
+            except StopIteration:
+                rep.finished = True
+                return
+            except Exception as err:
+                # A torn tail fails in the record parser, the decompressor or a length check,
+                # depending on where the writer stopped: all of them end the readable part.
+                rep.truncated = True
+                rep.error = f"{type(err).__name__}: {err}"
+                log.debug("%s: readable part ends: %s", path, rep.error)
+                return
+            if isinstance(record, Message):
+                ch = channels.get(record.channel_id)
+                if ch is None:
+                    continue
+                if wanted is not None and ch.topic not in wanted:
+                    continue
+                schema = schemas.get(ch.schema_id)
+                rep.messages += 1
+                yield McapMessage(
+                    ch.topic, ch.message_encoding, schema.name if schema else "",
+                    record.log_time, record.publish_time, record.sequence, bytes(record.data),
+                )
+            elif isinstance(record, Channel):
+                channels[record.id] = record
+            elif isinstance(record, Schema):
+                schemas[record.id] = record
+            elif isinstance(record, Metadata):
+                rep.metadata[record.name] = dict(record.metadata)
+
+
+def iter_raw_chunks(path: Path | str) -> Iterator[tuple[bytes, int]]:
+    """The ``/ubx/raw`` chunks of a recording as ``(data, log_time_ns)``, finished or not.
+
+    Concatenating the data gives exactly the bytes the daemon received, in order.
+    """
+    for msg in iter_messages(path, topics=(RAW_TOPIC,)):
+        yield msg.data, msg.log_time_ns
+
+
+def read_metadata(path: Path | str) -> dict[str, dict[str, str]]:
+    """The metadata records of a recording (name -> key/value), finished or not."""
+    rep = ReadReport()
+    for _ in iter_messages(path, topics=(), report=rep):
+        pass
+    return rep.metadata
+
+
+@dataclass(frozen=True, slots=True)
+class SummaryInfo:
+    """The summary section of a finished file."""
+
+    message_count: int
+    chunk_count: int
+    start_time_ns: int
+    end_time_ns: int
+    messages_by_topic: dict[str, int]
+
+
+def read_summary(path: Path | str) -> SummaryInfo | None:
+    """The summary of a finished recording via the seeking reader; ``None`` if unfinished."""
+    with Path(path).open("rb") as f:
+        try:
+            summary = make_reader(f).get_summary()
+        except Exception as err:  # an unfinished file's tail is not a footer: anything may fail
+            log.debug("%s: no summary: %s", path, err)
+            return None
+    if summary is None or summary.statistics is None:
+        return None
+    stats = summary.statistics
+    by_topic: dict[str, int] = {}
+    for cid, n in stats.channel_message_counts.items():
+        topic = summary.channels[cid].topic
+        by_topic[topic] = by_topic.get(topic, 0) + n
+    return SummaryInfo(
+        stats.message_count, stats.chunk_count, stats.message_start_time,
+        stats.message_end_time, by_topic,
+    )
