@@ -9,9 +9,11 @@ from __future__ import annotations
 
 COMMANDS: dict[str, str] = {
     "inspect": "groundstation.commands.inspect",
+    "run": "groundstation.commands.run",
 }
 """Subcommand name -> module implementing it."""
 
 HELP: dict[str, str] = {
     "inspect": "summary of a recording: span, epochs, gaps, marks, satellites",
+    "run": "the live daemon: receive, decode and record a station's stream",
 }
