@@ -65,6 +65,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except GroundstationError as err:
         print(f"groundstation {args.command}: error: {err}", file=sys.stderr)
         return EXIT_FAILURE
+    except BrokenPipeError:  # output piped into head & co.
+        sys.stderr.close()
+        return EXIT_OK
     except KeyboardInterrupt:
         print(f"groundstation {args.command}: interrupted", file=sys.stderr)
         return 130

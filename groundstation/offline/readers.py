@@ -43,9 +43,9 @@ def iter_chunks(path: str | Path, chunk_bytes: int = CHUNK_BYTES) -> Iterator[tu
     p = Path(path)
     fmt = detect_format(p)
     if fmt == "mcap":
-        from groundstation.storage import mcapfile  # the one module that owns the mcap library
+        from groundstation.storage import mcapio  # the one module that owns the mcap library
 
-        yield from mcapfile.iter_raw_chunks(p)
+        yield from mcapio.iter_raw_chunks(p)
         return
     try:
         if fmt == "gzip":

@@ -235,7 +235,9 @@ class Decoder:
 
     # -- time marks ---------------------------------------------------------------------------
 
-    def _edge_gps_ns(self, week: int, tow_ms: int, sub_ns: int, time_base: int) -> tuple[int | None, int]:
+    def _edge_gps_ns(
+        self, week: int, tow_ms: int, sub_ns: int, time_base: int
+    ) -> tuple[int | None, int]:
         if week == 0 and tow_ms == 0 and sub_ns == 0:
             return None, 0
         t = gpstime.gps_ns_from_ms(week, tow_ms, sub_ns)

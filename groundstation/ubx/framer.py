@@ -292,7 +292,9 @@ class UbxFramer:
         return len(sentence)
 
 
-def iter_frames(data: bytes, t_host_ns: int = 0, max_payload: int = DEFAULT_MAX_PAYLOAD) -> list[Frame]:
+def iter_frames(
+    data: bytes, t_host_ns: int = 0, max_payload: int = DEFAULT_MAX_PAYLOAD
+) -> list[Frame]:
     """All frames of a complete byte string (convenience for tests and offline tools)."""
     framer = UbxFramer(max_payload)
     frames = framer.feed(data, t_host_ns)

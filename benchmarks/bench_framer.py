@@ -1,0 +1,85 @@
+"""Framer and framer+decoder throughput on the largest real recording, against pyubx2.
+
+Run: python benchmarks/bench_framer.py [PATH]
+The reference is pyubx2's own UBXReader (framing + parsing every UBX message) on the same bytes in
+the same process, so the ratio holds across machines.
+"""
+
+from __future__ import annotations
+
+import gzip
+import io
+import sys
+import time
+from pathlib import Path
+
+from pyubx2 import UBXReader
+
+from groundstation.ubx.decode import Decoder
+from groundstation.ubx.framer import UbxFramer
+
+DEFAULT = (
+    Path(__file__).resolve().parents[2]
+    / "shared/data/real/jdesbonnet__GNSS_RTK_data/20181104/rover-20181104-1634.ubx.gz"
+)
+CHUNK = 4096  # what a serial read returns at most, roughly
+
+
+def load(path: Path) -> bytes:
+    return gzip.decompress(path.read_bytes()) if path.suffix == ".gz" else path.read_bytes()
+
+
+def best_of(n: int, fn: object) -> float:
+    times = []
+    for _ in range(n):
+        t0 = time.perf_counter()
+        fn()  # type: ignore[operator]
+        times.append(time.perf_counter() - t0)
+    return min(times)
+
+
+def main() -> int:
+    path = Path(sys.argv[1]) if len(sys.argv) > 1 else DEFAULT
+    if not path.exists():
+        print(f"input not found: {path} (pass a .ubx or .ubx.gz)", file=sys.stderr)
+        return 2
+    data = load(path)
+    mb = len(data) / 1e6
+    n_frames = 0
+
+    def frame_only() -> None:
+        nonlocal n_frames
+        framer = UbxFramer()
+        n = 0
+        for i in range(0, len(data), CHUNK):
+            n += len(framer.feed(data[i : i + CHUNK], i))
+        n += len(framer.flush())
+        n_frames = n
+
+    def frame_and_decode() -> None:
+        framer = UbxFramer()
+        decoder = Decoder()
+        for i in range(0, len(data), CHUNK):
+            for f in framer.feed(data[i : i + CHUNK], i):
+                decoder.decode(f)
+        for f in framer.flush():
+            decoder.decode(f)
+
+    def pyubx2_reader() -> None:
+        for _ in UBXReader(io.BytesIO(data), protfilter=2, quitonerror=0):
+            pass
+
+    t_frame = best_of(3, frame_only)
+    t_decode = best_of(2, frame_and_decode)
+    t_ref = best_of(2, pyubx2_reader)
+    print(f"input: {path.name}, {mb:.2f} MB, {n_frames} UBX frames")
+    for label, t in (("framer only", t_frame), ("framer + decoder", t_decode),
+                     ("pyubx2 UBXReader", t_ref)):
+        print(f"{label:<18} {t:7.3f} s  {n_frames / t:10.0f} frames/s  {mb / t:7.1f} MB/s")
+    print(f"ratio framer+decoder / pyubx2 = {t_decode / t_ref:.2f} (lower is faster)")
+    print(f"ratio framer only / pyubx2    = {t_frame / t_ref:.3f}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

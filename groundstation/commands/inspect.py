@@ -1,0 +1,86 @@
+"""``groundstation inspect``: a recording's span, messages, damage, epochs, gaps and marks."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+from groundstation import gpstime
+from groundstation.offline.inspect import Summary, inspect_path
+
+NAME = "inspect"
+HELP = "summary of a recording: span, epochs, gaps, marks, satellites"
+MAX_GAPS_SHOWN = 20
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("path", help="recording: .ubx, .ubx.gz, raw log or .mcap")
+    parser.add_argument("--json", action="store_true", help="print one JSON object")
+    parser.add_argument(
+        "--max-payload", type=int, default=8192, help="longest UBX payload accepted (bytes)"
+    )
+
+
+def run(args: argparse.Namespace) -> int:
+    summary = inspect_path(args.path, max_payload=args.max_payload)
+    if args.json:
+        json.dump(summary.as_json(), sys.stdout, indent=2)
+        sys.stdout.write("\n")
+    else:
+        sys.stdout.write(format_summary(summary))
+    return 0
+
+
+def format_summary(s: Summary) -> str:
+    lines = [f"{s.path}  ({s.format}, {s.bytes:,} bytes)"]
+    if s.first_epoch_t_gps_ns is not None and s.last_epoch_t_gps_ns is not None:
+        dur = (s.last_epoch_t_gps_ns - s.first_epoch_t_gps_ns) / 1e9
+        first = gpstime.gps_to_datetime(s.first_epoch_t_gps_ns)
+        last = gpstime.gps_to_datetime(s.last_epoch_t_gps_ns)
+        lines.append(
+            f"span      {gpstime.format_gps(s.first_epoch_t_gps_ns)} .. "
+            f"{gpstime.format_gps(s.last_epoch_t_gps_ns)}  ({dur:.1f} s)"
+        )
+        lines.append(f"          {first:%Y-%m-%d %H:%M:%S} .. {last:%H:%M:%S} UTC")
+    else:
+        lines.append("span      no epochs with a GPS time")
+    lines.append(
+        f"frames    {s.frames:,} valid, {s.damaged_frames} damaged "
+        f"(bad checksum {s.damage['bad_checksum']}, too long {s.damage['too_long']}, "
+        f"truncated {s.damage['truncated']}), {s.garbage_bytes:,} garbage bytes"
+    )
+    if s.nmea_sentences or s.rtcm3_frames:
+        lines.append(f"foreign   {s.nmea_sentences} NMEA sentences, {s.rtcm3_frames} RTCM3 frames")
+    if s.undecodable:
+        lines.append(f"          {s.undecodable} frames pyubx2 could not parse (bytes kept)")
+    lines.append("messages")
+    for name, n in s.messages.items():
+        lines.append(f"  {name:<14} {n:>8}")
+    interval = f"{s.epoch_interval_s:g} s" if s.epoch_interval_s else "n/a"
+    extra = f", {s.empty_epochs} without time or measurements" if s.empty_epochs else ""
+    lines.append(
+        f"epochs    {s.epochs} at {interval} interval, up to {s.max_sats_per_epoch} "
+        f"measurements{extra}"
+    )
+    lines.append(f"gaps      {len(s.gaps)} gaps, {s.missing_epochs} epochs missing")
+    for g in s.gaps[:MAX_GAPS_SHOWN]:
+        lines.append(
+            f"  after {gpstime.format_gps(g.after_t_gps_ns)}: {g.missing_epochs} missing "
+            f"({g.duration_s:.1f} s between epochs)"
+        )
+    if len(s.gaps) > MAX_GAPS_SHOWN:
+        lines.append(f"  ... {len(s.gaps) - MAX_GAPS_SHOWN} more (use --json for all)")
+    tm = s.timemarks
+    lines.append(
+        f"marks     {tm.records} TIM-TM2 records, {tm.falling} new falling edges, "
+        f"{tm.rising} new rising edges, {tm.count_jumps} count jumps "
+        f"({tm.missed_marks} marks missed), {tm.repeated_counts} repeated"
+    )
+    if tm.records:
+        lines.append(
+            f"          count {tm.first_count} .. {tm.last_count}, time base "
+            f"{', '.join(tm.time_bases)}"
+        )
+    lines.append(f"satellites {len(s.satellites)}: {' '.join(s.satellites)}")
+    return "\n".join(lines) + "\n"

@@ -1,0 +1,221 @@
+"""Summary of a recording: span, message counts, damage, epochs and gaps, time marks, satellites.
+
+Sans-I/O: :class:`Inspector` takes frames (from any source) and returns a :class:`Summary`;
+:func:`inspect_path` wires it to a file through the same framer and decoder as the daemon.
+"""
+
+from __future__ import annotations
+
+import statistics
+from collections import Counter
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+from groundstation import gpstime
+from groundstation.offline.readers import detect_format, iter_chunks
+from groundstation.records import Frame, RawEpoch, TimeMark, UndecodedFrame
+from groundstation.ubx.decode import Decoder, message_name
+from groundstation.ubx.framer import DEFAULT_MAX_PAYLOAD, FramerStats, UbxFramer
+
+
+@dataclass(frozen=True, slots=True)
+class Gap:
+    """Missing epochs between two received ones."""
+
+    after_t_gps_ns: int
+    before_t_gps_ns: int
+    missing_epochs: int
+    duration_s: float
+
+    def as_json(self) -> dict[str, Any]:
+        return {
+            "after": gpstime.format_gps(self.after_t_gps_ns),
+            "before": gpstime.format_gps(self.before_t_gps_ns),
+            "after_t_gps_ns": self.after_t_gps_ns,
+            "before_t_gps_ns": self.before_t_gps_ns,
+            "missing_epochs": self.missing_epochs,
+            "duration_s": round(self.duration_s, 3),
+        }
+
+
+@dataclass(frozen=True, slots=True)
+class TimeMarkSummary:
+    records: int = 0
+    falling: int = 0
+    rising: int = 0
+    count_jumps: int = 0
+    missed_marks: int = 0
+    repeated_counts: int = 0
+    first_count: int | None = None
+    last_count: int | None = None
+    time_bases: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True, slots=True)
+class Summary:
+    """What ``groundstation inspect`` reports."""
+
+    path: str
+    format: str
+    bytes: int
+    messages: dict[str, int]
+    frames: int
+    damaged_frames: int
+    damage: dict[str, int]
+    garbage_bytes: int
+    nmea_sentences: int
+    rtcm3_frames: int
+    undecodable: int
+    epochs: int
+    empty_epochs: int
+    epoch_sources: dict[str, int]
+    epoch_interval_s: float | None
+    first_epoch_t_gps_ns: int | None
+    last_epoch_t_gps_ns: int | None
+    gaps: tuple[Gap, ...]
+    missing_epochs: int
+    timemarks: TimeMarkSummary
+    satellites: tuple[str, ...]
+    max_sats_per_epoch: int
+
+    def as_json(self) -> dict[str, Any]:
+        d = asdict(self)
+        d["gaps"] = [g.as_json() for g in self.gaps]
+        d["timemarks"] = asdict(self.timemarks)
+        d["satellites"] = list(self.satellites)
+        d["span"] = None
+        if self.first_epoch_t_gps_ns is not None and self.last_epoch_t_gps_ns is not None:
+            d["span"] = {
+                "first": gpstime.format_gps(self.first_epoch_t_gps_ns),
+                "last": gpstime.format_gps(self.last_epoch_t_gps_ns),
+                "first_utc": gpstime.gps_to_datetime(self.first_epoch_t_gps_ns).isoformat(),
+                "last_utc": gpstime.gps_to_datetime(self.last_epoch_t_gps_ns).isoformat(),
+                "duration_s": (self.last_epoch_t_gps_ns - self.first_epoch_t_gps_ns) / 1e9,
+            }
+        return d
+
+
+@dataclass(slots=True)
+class Inspector:
+    """Accumulates frames and produces a :class:`Summary`."""
+
+    decoder: Decoder = field(default_factory=Decoder)
+    messages: Counter[str] = field(default_factory=Counter)
+    epoch_times: set[int] = field(default_factory=set)
+    empty_epochs: int = 0
+    epoch_sources: Counter[str] = field(default_factory=Counter)
+    sats: set[str] = field(default_factory=set)
+    max_sats: int = 0
+    marks: list[TimeMark] = field(default_factory=list)
+    undecodable: int = 0
+
+    def add(self, frame: Frame) -> None:
+        self.messages[message_name(frame.cls, frame.id)] += 1
+        record = self.decoder.decode(frame)
+        if isinstance(record, RawEpoch):
+            # A receiver without a time fix (week 0) or without measurements makes no epoch.
+            if record.gps_week == 0 or not record.sats:
+                self.empty_epochs += 1
+                return
+            self.epoch_times.add(record.t_gps_ns)
+            self.epoch_sources[record.source] += 1
+            self.max_sats = max(self.max_sats, len(record.sats))
+            self.sats.update(s.label for s in record.sats)
+        elif isinstance(record, TimeMark):
+            self.marks.append(record)
+        elif isinstance(record, UndecodedFrame):
+            self.undecodable += 1
+
+    def summary(self, stats: FramerStats, *, path: str = "", fmt: str = "") -> Summary:
+        times = sorted(self.epoch_times)
+        interval_ns = _nominal_interval_ns(times)
+        gaps: list[Gap] = []
+        if interval_ns:
+            for a, b in zip(times, times[1:], strict=False):
+                d = b - a
+                if d > interval_ns * 3 // 2:
+                    missing = round(d / interval_ns) - 1
+                    gaps.append(Gap(a, b, max(missing, 1), d / 1e9))
+        return Summary(
+            path=path,
+            format=fmt,
+            bytes=stats.bytes_in,
+            messages=dict(sorted(self.messages.items())),
+            frames=stats.frames,
+            damaged_frames=stats.damaged_frames,
+            damage={
+                "bad_checksum": stats.bad_checksum,
+                "too_long": stats.too_long,
+                "truncated": stats.truncated,
+            },
+            garbage_bytes=stats.garbage_bytes,
+            nmea_sentences=stats.nmea_sentences,
+            rtcm3_frames=stats.rtcm3_frames,
+            undecodable=self.undecodable,
+            epochs=len(times),
+            empty_epochs=self.empty_epochs,
+            epoch_sources=dict(self.epoch_sources),
+            epoch_interval_s=interval_ns / 1e9 if interval_ns else None,
+            first_epoch_t_gps_ns=times[0] if times else None,
+            last_epoch_t_gps_ns=times[-1] if times else None,
+            gaps=tuple(gaps),
+            missing_epochs=sum(g.missing_epochs for g in gaps),
+            timemarks=summarise_marks(self.marks),
+            satellites=tuple(sorted(self.sats)),
+            max_sats_per_epoch=self.max_sats,
+        )
+
+
+def _nominal_interval_ns(times: list[int]) -> int | None:
+    """The receiver's epoch interval: the median spacing, rounded to the millisecond."""
+    diffs = [b - a for a, b in zip(times, times[1:], strict=False) if b > a]
+    if not diffs:
+        return None
+    med = statistics.median_low(diffs)
+    return max(1_000_000, round(med / 1_000_000) * 1_000_000)
+
+
+def summarise_marks(marks: list[TimeMark]) -> TimeMarkSummary:
+    """Counts of records, new edges, and count continuity (jumps mean lost marks)."""
+    if not marks:
+        return TimeMarkSummary()
+    jumps = missed = repeated = 0
+    prev: dict[int, TimeMark] = {}
+    for m in marks:
+        last = prev.get(m.channel)
+        if last is not None:
+            step = (m.count - last.count) & 0xFFFF
+            if step > 1:
+                jumps += 1
+                missed += step - 1
+            elif m.new_falling and m.falling_t_gps_ns == last.falling_t_gps_ns:
+                repeated += 1  # the same exposure reported twice
+        prev[m.channel] = m
+    return TimeMarkSummary(
+        records=len(marks),
+        falling=sum(m.new_falling for m in marks),
+        rising=sum(m.new_rising for m in marks),
+        count_jumps=jumps,
+        missed_marks=missed,
+        repeated_counts=repeated,
+        first_count=marks[0].count,
+        last_count=marks[-1].count,
+        time_bases=tuple(sorted({m.time_base_name for m in marks})),
+    )
+
+
+def inspect_path(path: str | Path, max_payload: int = DEFAULT_MAX_PAYLOAD) -> Summary:
+    """Read a recording through the framer and decoder and summarise it."""
+    p = Path(path)
+    fmt = detect_format(p)
+    framer = UbxFramer(max_payload)
+    insp = Inspector()
+    last_t = 0
+    for chunk, t_host_ns in iter_chunks(p):
+        last_t = t_host_ns
+        for frame in framer.feed(chunk, t_host_ns):
+            insp.add(frame)
+    for frame in framer.flush(last_t):
+        insp.add(frame)
+    return insp.summary(framer.stats, path=str(p), fmt=fmt)

@@ -1,0 +1,97 @@
+"""Small UBX streams the tests build themselves: RXM-RAW epochs, TIM-TM2 marks, damage."""
+
+from __future__ import annotations
+
+import random
+import struct
+
+from groundstation.gpstime import NS_PER_WEEK
+from groundstation.ubx.build import build_frame
+
+WEEK = 2300
+TOW0_MS = 345_600_000
+
+
+def rxm_raw(week: int, tow_ms: int, sats: list[tuple[int, int]]) -> bytes:
+    """An RXM-RAW frame; ``sats`` are (prn, lli) with made-up but plausible values."""
+    body = struct.pack("<iHBB", tow_ms, week, len(sats), 0)
+    for prn, lli in sats:
+        body += struct.pack(
+            "<ddfBbbB",
+            110_000_000.125 + prn * 1000.5 + tow_ms / 1000.0,
+            21_000_000.5 + prn * 100.25,
+            -1234.5 + prn,
+            prn,
+            7,
+            40 + prn % 10,
+            lli,
+        )
+    return build_frame(0x02, 0x10, body)
+
+
+def tim_tm2(
+    count: int,
+    week: int,
+    falling_ms: int,
+    falling_sub_ns: int,
+    rising_ms: int | None,
+    rising_sub_ns: int = 0,
+    *,
+    new_falling: bool = True,
+    new_rising: bool = False,
+    time_base: int = 1,
+) -> bytes:
+    """A TIM-TM2 frame as a LEA-6T in running mode with both edges would send it."""
+    flags = 0x01 | 0x02 | (time_base << 3) | 0x20 | 0x40
+    flags |= 0x04 if new_falling else 0
+    flags |= 0x80 if new_rising else 0
+    wn_r = week if rising_ms is not None else 0
+    body = struct.pack(
+        "<BBHHHIIIIL",
+        0,
+        flags,
+        count,
+        wn_r,
+        week,
+        rising_ms or 0,
+        rising_sub_ns,
+        falling_ms,
+        falling_sub_ns,
+        21,
+    )
+    return build_frame(0x0D, 0x03, body)
+
+
+def flight_stream(
+    n_epochs: int = 50, *, drop_epochs: set[int] | None = None, mark_every: int = 5
+) -> tuple[bytes, list[bytes]]:
+    """A 5 Hz stream of RXM-RAW epochs with a mark (falling, then rising 14 ms later) every
+    ``mark_every`` epochs. Returns the stream and the list of its frames in order."""
+    drop = drop_epochs or set()
+    frames: list[bytes] = []
+    count = 0
+    for k in range(n_epochs):
+        tow = TOW0_MS + 200 * k
+        if k in drop:
+            continue
+        frames.append(rxm_raw(WEEK, tow, [(p, 0) for p in (3, 7, 11, 19, 23)]))
+        if k % mark_every == 2:
+            fall_ms, fall_sub = tow + 57, 123_456
+            frames.append(tim_tm2(count, WEEK, fall_ms, fall_sub, None))
+            count += 1
+            frames.append(
+                tim_tm2(
+                    count, WEEK, fall_ms, fall_sub, fall_ms + 14, fall_sub + 160_000,
+                    new_falling=False, new_rising=True,
+                )
+            )
+    return b"".join(frames), frames
+
+
+def t_gps_ns(week: int, tow_ms: int, sub_ns: int = 0) -> int:
+    return week * NS_PER_WEEK + tow_ms * 1_000_000 + sub_ns
+
+
+def garbage(rng: random.Random, n: int) -> bytes:
+    """Random bytes that cannot start a frame (no 0xB5), so they never form a valid one."""
+    return bytes(rng.choice([b for b in range(256) if b != 0xB5]) for _ in range(n))
