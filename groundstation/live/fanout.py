@@ -94,6 +94,7 @@ class Inbox:
         """Enqueue without waiting, applying the overflow policy."""
         if self._closed:
             return
+        event: Event | None = None
         if len(self._items) >= self.maxsize:
             if self.overflow is Overflow.DROP_OLDEST:
                 self._items.popleft()
@@ -102,25 +103,27 @@ class Inbox:
                 if (self._last_drop_event_ns is None
                         or now - self._last_drop_event_ns >= self._drop_interval_ns):
                     self._last_drop_event_ns = now
-                    self._on_event(Event(
+                    event = Event(
                         "fanout.dropped", now,
                         f"sink {self.name} is slow: {self.dropped} item(s) dropped so far",
                         "warning", {"sink": self.name, "dropped": self.dropped},
-                    ))
+                    )
             else:
                 self.over_limit += 1
                 if not self.behind:
                     self.behind = True
                     log.warning("sink %s fell behind (%d items queued)", self.name, len(self))
-                    self._on_event(Event(
+                    event = Event(
                         f"{self.name}.behind", self._clock(),
                         f"{self.name} is falling behind: {len(self)} items queued "
                         "(nothing is dropped)", "error",
                         {"sink": self.name, "queued": len(self), "limit": self.maxsize},
-                    ))
+                    )
         self._items.append(item)
         self.high_water = max(self.high_water, len(self._items))
         self._ready.set()
+        if event is not None:  # after the item: the event goes through the fanout (and here)
+            self._on_event(event)
 
     def close(self) -> None:
         """No more items; the sink drains what is queued, then :meth:`get` raises."""

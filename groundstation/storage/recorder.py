@@ -185,7 +185,9 @@ class SessionRecorder:
         else:  # pragma: no cover - ten thousand files in one second
             raise FileExistsError(f"no free file name for {stem} in {self.out_dir}")
         self._mcap = mcap
-        self._ubx = side.open("xb") if self.sidecar else None
+        # Unbuffered: every received byte is in the OS's hands at once, so a killed daemon's
+        # sidecar holds everything it received (the MCAP loses at most one flush interval).
+        self._ubx = side.open("xb", buffering=0) if self.sidecar else None
         self._files.append(path)
         if self.sidecar:
             self._sidecars.append(side)
