@@ -260,3 +260,95 @@ class Event:
     message: str
     severity: Literal["info", "warning", "error"] = "info"
     data: dict[str, Any] = dataclasses.field(default_factory=dict)
+
+
+STATUS_SCHEMA_VERSION = 1
+"""Version of the status/event/mark JSON payloads (MCAP and Zenoh); bump on breaking change."""
+
+
+@dataclass(frozen=True, slots=True)
+class Dropout:
+    """A run of missing epochs: the first and last missing epoch times and how many."""
+
+    start_t_gps_ns: int
+    end_t_gps_ns: int
+    missing_epochs: int
+    duration_s: float
+    ongoing: bool = False
+
+
+@dataclass(frozen=True, slots=True)
+class LinkStatus:
+    """The radio link as the monitor sees it."""
+
+    epoch_interval_s: float | None
+    epochs: int
+    last_epoch_t_gps_ns: int | None
+    last_byte_age_s: float | None
+    bytes_per_s: float
+    frames_per_s: float
+    bytes_in: int
+    frames: int
+    damaged_frames: int
+    garbage_bytes: int
+    completeness_10s: float | None
+    completeness_60s: float | None
+    completeness_session: float | None
+    dropouts: int
+    missing_epochs: int
+    current_dropout: Dropout | None
+    recent_dropouts: tuple[Dropout, ...]
+    source_connected: bool | None
+    source_outages: int
+
+
+@dataclass(frozen=True, slots=True)
+class SatStatus:
+    """One satellite's tracking state."""
+
+    sv: str
+    cno_dbhz: int
+    elev_deg: int | None
+    azim_deg: int | None
+    lock_s: float
+    clean_phase_s: float
+    half_cycle_unresolved: bool
+    slips: int
+    last_slip_age_s: float | None
+    mes_qi: int | None
+    used: bool | None
+    state: Literal["clean", "half_cycle", "slipped", "code_only"]
+
+
+@dataclass(frozen=True, slots=True)
+class MarkStatus:
+    """Camera time marks so far."""
+
+    marks: int
+    last_count: int | None
+    last_falling_t_gps_ns: int | None
+    last_pulse_width_ms: float | None
+    missed: int
+    duplicates: int
+    in_dropout: int
+    multi_in_epoch: int
+    rate_per_min: float
+    last_acc_ns: int | None
+
+
+@dataclass(frozen=True, slots=True)
+class Status:
+    """The 1 Hz status snapshot (MCAP ``/groundstation/status``, Zenoh ``.../status``)."""
+
+    schema: int
+    station: str
+    t_host_ns: int
+    session_id: str
+    link: LinkStatus
+    sats: tuple[SatStatus, ...]
+    ppk_ready: int
+    tracked: int
+    half_cycle_fraction: float
+    marks: MarkStatus
+    alerts: tuple[str, ...]
+    recording: dict[str, Any] = dataclasses.field(default_factory=dict)

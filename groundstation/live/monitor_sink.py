@@ -1,0 +1,89 @@
+"""The monitor as a pipeline sink: feeds :class:`Monitor` with items and the wall clock.
+
+It also samples the free space of the recording directory, and publishes the monitor's status
+(1 Hz) and events back into the pipeline, where the recorder and the Zenoh publisher take them.
+"""
+
+from __future__ import annotations
+
+import logging
+import shutil
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+from groundstation.live.fanout import Inbox, InboxClosed, Item, RawChunk
+from groundstation.live.monitor import Monitor
+from groundstation.records import Event, Status
+
+log = logging.getLogger("groundstation.monitor")
+
+TICK_S = 0.1
+DISK_CHECK_S = 5.0
+
+
+class MonitorSink:
+    """Runs a :class:`Monitor` inside the live pipeline.
+
+    Args:
+        monitor: the state machine.
+        disk_path: directory whose free space is watched (the recording directory).
+        clock: UNIX ns clock; replay passes a clock that follows the recorded host times.
+    """
+
+    name = "monitor"
+
+    def __init__(
+        self,
+        monitor: Monitor,
+        *,
+        disk_path: Path | None = None,
+        clock: Callable[[], int] = time.time_ns,
+    ) -> None:
+        self.monitor = monitor
+        self.disk_path = disk_path
+        self._clock = clock
+        self._next_disk_check = 0.0
+        self.last_status: Status | None = None
+
+    def _check_disk(self) -> None:
+        if self.disk_path is None or time.monotonic() < self._next_disk_check:
+            return
+        self._next_disk_check = time.monotonic() + DISK_CHECK_S
+        try:
+            usage = shutil.disk_usage(self.disk_path)
+        except OSError as err:
+            log.debug("disk usage of %s: %s", self.disk_path, err)
+            return
+        self.monitor.set_disk_free(usage.free / 1e6)
+
+    def step(self, item: Item | None, publish: Callable[[Item], None]) -> None:
+        """One item (or a clock tick when ``None``) through the monitor."""
+        now = self._clock()
+        if item is not None and not isinstance(item, Status):
+            if isinstance(item, Event) and item.kind.startswith(("alert.", "link.", "sat.",
+                                                                  "mark.")):
+                pass  # our own events coming back through the fanout
+            elif isinstance(item, RawChunk):
+                self.monitor.on_bytes(len(item.data), item.t_host_ns)
+            else:
+                for ev in self.monitor.observe(item, now):
+                    publish(ev)
+        self._check_disk()
+        status, events = self.monitor.tick(now)
+        for ev in events:
+            publish(ev)
+        if status is not None:
+            self.last_status = status
+            publish(status)
+
+    async def consume(self, inbox: Inbox, publish: Callable[[Item], None]) -> None:
+        while True:
+            try:
+                item = await inbox.get(timeout_s=TICK_S)
+            except InboxClosed:
+                break
+            self.step(item, publish)
+        final = self.monitor.status(self._clock())
+        self.last_status = final
+        publish(final)

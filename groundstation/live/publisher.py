@@ -1,0 +1,153 @@
+"""The Zenoh publisher sink: status, time marks, events and session news for the solver and views.
+
+Each time mark is put on the bus the moment the sink receives it; the queryables answer with all
+marks of the session and the latest status, so a subscriber that joins late catches up. A Zenoh
+failure never stops recording: the sink keeps draining its inbox, counts what it could not
+publish and retries the session every few seconds.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import time
+from collections.abc import Callable
+from typing import Any
+
+from groundstation.bus import Bus, BusSettings, encode, key, open_bus
+from groundstation.errors import GroundstationError
+from groundstation.live.fanout import Inbox, InboxClosed, Item, RawChunk
+from groundstation.records import Event, RawEpoch, Status, TimeMark
+
+log = logging.getLogger("groundstation.publisher")
+
+RETRY_S = 5.0
+
+
+class ZenohPublisherSink:
+    """Publishes a station's pipeline items on Zenoh.
+
+    Args:
+        station: the station name (key ``groundstation/<station>/...``).
+        settings: how to join the bus.
+        publish_epochs: also put every RawEpoch on ``.../epoch``.
+        publish_raw: also put every raw chunk on ``.../ubx`` (remote recording).
+        clock: UNIX ns clock.
+    """
+
+    name = "publisher"
+
+    def __init__(
+        self,
+        station: str,
+        settings: BusSettings,
+        *,
+        publish_epochs: bool = False,
+        publish_raw: bool = False,
+        clock: Callable[[], int] = time.time_ns,
+    ) -> None:
+        self.station = station
+        self.settings = settings
+        self.publish_epochs = publish_epochs
+        self.publish_raw = publish_raw
+        self._clock = clock
+        self.bus: Bus | None = None
+        self._last_try = 0.0
+        self.marks: list[bytes] = []
+        self.latest_status: bytes | None = None
+        self.session: dict[str, Any] = {"state": "started", "files": []}
+        self.published = 0
+        self.failed = 0
+        self._unavailable_reported = False
+
+    # -- the bus, opened lazily and re-opened after failures ---------------------------------
+
+    async def _connect(self, publish: Callable[[Item], None]) -> None:
+        now = time.monotonic()
+        if self.bus is not None or (self._last_try and now - self._last_try < RETRY_S):
+            return
+        self._last_try = now
+        loop = asyncio.get_running_loop()
+        try:  # opening may take a moment: keep the event loop (and the recorder) going
+            bus = await loop.run_in_executor(None, open_bus, self.settings)
+        except GroundstationError as err:
+            if not self._unavailable_reported:
+                self._unavailable_reported = True
+                log.warning("%s; recording goes on, retrying every %g s", err, RETRY_S)
+                publish(Event("zenoh.unavailable", self._clock(), str(err), "warning",
+                              {"retry_s": RETRY_S}))
+            return
+        self.bus = bus
+        st = self.station
+        bus.queryable(key(st, "q/timemarks"), lambda: list(self.marks))
+        bus.queryable(
+            key(st, "q/status"), lambda: [self.latest_status] if self.latest_status else []
+        )
+        bus.liveliness_token(key(st, "alive"))
+        if self._unavailable_reported:
+            self._unavailable_reported = False
+            publish(Event("zenoh.available", self._clock(), "Zenoh session open again", "info"))
+        self._put("session", encode("session", self.session, station=st))
+        log.info("publishing on Zenoh as %s (%s, listen %s, connect %s)", key(st, "**"),
+                 self.settings.mode, list(self.settings.listen), list(self.settings.connect))
+
+    def _put(self, leaf: str, payload: bytes) -> None:
+        if self.bus is None:
+            self.failed += 1
+            return
+        try:
+            self.bus.put(key(self.station, leaf), payload)
+            self.published += 1
+        except Exception as err:  # the session broke: drop it and retry later
+            self.failed += 1
+            log.warning("Zenoh put on %s failed: %s", leaf, err)
+            self._drop_bus()
+
+    def _drop_bus(self) -> None:
+        bus, self.bus = self.bus, None
+        if bus is not None:
+            bus.close()
+
+    # -- the sink -------------------------------------------------------------------------
+
+    def handle(self, item: Item) -> None:
+        """Publish one item (synchronous; also used by replay)."""
+        st = self.station
+        if isinstance(item, TimeMark):
+            payload = encode("timemark", item, station=st, index=len(self.marks))
+            self.marks.append(payload)
+            self._put("timemark", payload)
+        elif isinstance(item, Status):
+            self.latest_status = encode("status", item)
+            self._put("status", self.latest_status)
+        elif isinstance(item, Event):
+            self._put("event", encode("event", item, station=st))
+            if item.kind == "recorder.file_opened":
+                path = item.data.get("path")
+                if path and path not in self.session["files"]:
+                    self.session["files"].append(path)
+                    self.session["session_id"] = item.data.get("session_id", "")
+                    self._put("session", encode("session", self.session, station=st))
+        elif isinstance(item, RawEpoch):
+            if self.publish_epochs:
+                self._put("epoch", encode("epoch", item, station=st))
+        elif isinstance(item, RawChunk) and self.publish_raw:
+            self._put("ubx", item.data)
+
+    async def consume(self, inbox: Inbox, publish: Callable[[Item], None]) -> None:
+        await self._connect(publish)
+        try:
+            while True:
+                try:
+                    item = await inbox.get(timeout_s=1.0)
+                except InboxClosed:
+                    break
+                if self.bus is None:
+                    await self._connect(publish)
+                if item is not None:
+                    self.handle(item)
+        finally:
+            self.session["state"] = "finished"
+            self.session["marks"] = len(self.marks)
+            self._put("session", encode("session", self.session, station=self.station))
+            self._drop_bus()

@@ -1,0 +1,165 @@
+"""The sans-I/O monitor on synthetic epochs: dropouts, marks, slips, half cycles, alerts."""
+
+from __future__ import annotations
+
+import pytest
+
+from groundstation.gpstime import NS_PER_S, NS_PER_WEEK
+from groundstation.live.monitor import Monitor, MonitorThresholds
+from groundstation.records import Event, RawEpoch, SatObs, Status, TimeMark
+
+HOST0 = 1_700_000_000 * NS_PER_S
+
+
+def sat(prn: int, lli: int = 0, mes_qi: int = 7) -> SatObs:
+    return SatObs(0, prn, 1e8 + prn, 2e7, 100.0, 45, mes_qi, lli, bool(lli & 2), bool(lli & 1))
+
+
+def epoch(t_gps_ns: int, sats: list[SatObs] | None = None) -> RawEpoch:
+    week, tow = divmod(t_gps_ns, NS_PER_WEEK)
+    return RawEpoch(week, tow, tuple(sats or [sat(p) for p in (2, 5, 7, 9, 12, 15, 20)]), "RXM-RAW")
+
+
+def mark(count: int, t_gps_ns: int) -> TimeMark:
+    return TimeMark(0, count, None, t_gps_ns, False, True, 1, True, 20, 0)
+
+
+class Run:
+    """Feeds a monitor as the pipeline would: each epoch arrives 80 ms after its GPS time."""
+
+    def __init__(self, interval_ns: int, t0: int, **th: float) -> None:
+        self.m = Monitor("test", MonitorThresholds(**th))  # type: ignore[arg-type]
+        self.interval = interval_ns
+        self.t0 = t0
+        self.events: list[Event] = []
+        self.statuses: list[Status] = []
+
+    def host(self, t_gps_ns: int) -> int:
+        return HOST0 + (t_gps_ns - self.t0) + 80_000_000
+
+    def tick_until(self, host_ns: int, step_ns: int = 100_000_000) -> None:
+        t = getattr(self, "_clock", HOST0)
+        while t < host_ns:
+            t += step_ns
+            st, ev = self.m.tick(t)
+            self.events += ev
+            if st:
+                self.statuses.append(st)
+        self._clock = t
+
+    def feed(self, item: RawEpoch | TimeMark, t_gps_ns: int) -> None:
+        h = self.host(t_gps_ns)
+        self.tick_until(h)
+        self.m.on_bytes(300, h)
+        self.events += self.m.observe(item, h)
+
+    def kinds(self, kind: str) -> list[Event]:
+        return [e for e in self.events if e.kind == kind]
+
+
+@pytest.mark.parametrize("interval_ms", [1000, 500, 200])
+def test_no_false_dropout_across_week_rollover(interval_ms: int) -> None:
+    iv = interval_ms * 1_000_000
+    t0 = 2047 * NS_PER_WEEK + NS_PER_WEEK - 120 * NS_PER_S  # two minutes before rollover
+    run = Run(iv, t0)
+    for k in range(int(240e9 // iv)):
+        t = t0 + k * iv
+        run.feed(epoch(t), t)
+    assert run.m.interval_ns == iv
+    assert run.kinds("link.dropout") == []
+    assert run.kinds("link.dropout_started") == []
+    assert run.statuses and run.statuses[-1].link.completeness_session == 1.0
+    assert run.m.epochs == int(240e9 // iv)
+
+
+def test_every_dropout_reported_with_exact_bounds() -> None:
+    iv = 200_000_000
+    t0 = 2300 * NS_PER_WEEK + 100 * NS_PER_S
+    holes = {(50, 50), (100, 104), (300, 330), (500, 501)}
+    missing = {k for a, b in holes for k in range(a, b + 1)}
+    run = Run(iv, t0)
+    for k in range(600):
+        if k not in missing:
+            run.feed(epoch(t0 + k * iv), t0 + k * iv)
+    got = {((e.data["start_t_gps_ns"] - t0) // iv, (e.data["end_t_gps_ns"] - t0) // iv)
+           for e in run.kinds("link.dropout")}
+    assert got == holes
+    assert run.m.missing_epochs == len(missing)
+    # the 31-epoch (6.2 s) hole was seen from the clock while it lasted, and alerted
+    started = run.kinds("link.dropout_started")
+    assert len(started) >= 1
+    hole_start_host = run.host(t0 + 300 * iv)
+    assert any(0 <= e.t_host_ns - hole_start_host <= NS_PER_S for e in started)
+    raised = [e for e in run.kinds("alert.raised") if e.data["alert"] == "dropout_long"]
+    cleared = [e for e in run.kinds("alert.cleared") if e.data["alert"] == "dropout_long"]
+    assert len(raised) == 1 and len(cleared) == 1
+
+
+def test_ongoing_dropout_visible_within_one_second() -> None:
+    iv = 1_000_000_000
+    t0 = 2100 * NS_PER_WEEK
+    run = Run(iv, t0)
+    for k in range(20):
+        run.feed(epoch(t0 + k * iv), t0 + k * iv)
+    expected_next = run.host(t0 + 20 * iv)
+    run.tick_until(expected_next + NS_PER_S)
+    started = run.kinds("link.dropout_started")
+    assert len(started) == 1
+    assert started[0].t_host_ns - expected_next <= NS_PER_S
+    st = run.m.status(expected_next + NS_PER_S)
+    assert st.link.current_dropout is not None and st.link.current_dropout.ongoing
+
+
+def test_missed_duplicate_and_in_dropout_marks() -> None:
+    iv = 200_000_000
+    t0 = 2200 * NS_PER_WEEK
+    run = Run(iv, t0, marks_missed_hold_s=5)
+    count = 0
+    for k in range(200):
+        t = t0 + k * iv
+        if not 60 <= k <= 70:
+            run.feed(epoch(t), t)
+        if k % 5 == 0:
+            if k in (100, 110):
+                count += 1  # the receiver never sent these
+                continue
+            run.feed(mark(count, t + 50_000_000), t + 60_000_000)
+            if k == 150:
+                run.feed(mark(count, t + 50_000_000), t + 70_000_000)  # sent twice
+            count += 1
+    missed = run.kinds("mark.missed")
+    assert [e.data["missed"] for e in missed] == [1, 1]
+    assert run.m.missed == 2
+    assert run.m.duplicates == 1
+    # marks at k=60, 65, 70 were taken while the link was down
+    assert run.m.marks_in_dropout == 3
+    alerts = [(e.kind, e.data["alert"]) for e in run.events if e.kind.startswith("alert.")]
+    assert ("alert.raised", "marks_missed") in alerts
+    assert ("alert.cleared", "marks_missed") in alerts
+
+
+def test_slip_and_half_cycle_episodes_and_ppk_ready() -> None:
+    iv = 200_000_000
+    t0 = 2200 * NS_PER_WEEK
+    run = Run(iv, t0, clean_phase_s=10, ppk_ready_min=6)
+    for k in range(200):
+        t = t0 + k * iv
+        sats = [sat(p) for p in (2, 5, 7, 9, 12, 15, 20)]
+        if 20 <= k < 40:
+            sats[0] = sat(2, lli=2)  # half cycle unresolved for 4 s
+        if k == 80:
+            sats[1] = sat(5, lli=1)  # a slip
+        if 120 <= k < 125:
+            sats[2] = sat(7, lli=3)  # slip with half cycle
+        run.feed(epoch(t, sats), t)
+    assert len(run.kinds("sat.half_cycle_set")) == 2
+    assert len(run.kinds("sat.half_cycle_cleared")) == 2
+    slips = run.kinds("sat.slip")
+    assert [e.data["sv"] for e in slips] == ["G05", *["G07"] * 5]
+    final = run.m.status(run.host(t0 + 199 * iv))
+    # G07 clean again for 15 s, others longer: all 7 PPK-ready with a 10 s requirement
+    assert final.ppk_ready == 7
+    states = {s.sv: s.state for s in final.sats}
+    assert states["G02"] == "clean" and states["G07"] == "slipped"
+    ppk_alerts = [e.data["alert"] for e in run.kinds("alert.raised")]
+    assert "ppk_ready_low" in ppk_alerts  # G02 + G05 not clean 10 s after the first episodes
