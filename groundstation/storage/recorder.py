@@ -9,6 +9,7 @@ extensible with :func:`register_record_topic`), with ``publish_time`` = GPS time
 
 from __future__ import annotations
 
+import dataclasses
 import datetime as dt
 import json
 import logging
@@ -73,15 +74,30 @@ def _json_bytes(obj: Any) -> bytes:
     return json.dumps(obj, separators=(",", ":"), allow_nan=False, default=str).encode()
 
 
-def _clean_floats(value: Any) -> Any:
-    """NaN and infinities are not JSON: they become null."""
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    if isinstance(value, list):
-        return [_clean_floats(v) for v in value]
-    if isinstance(value, dict):
-        return {k: _clean_floats(v) for k, v in value.items()}
-    return value
+_FIELD_NAMES: dict[type, tuple[str, ...]] = {}
+
+
+def plain_json(value: Any) -> Any:
+    """:func:`records.to_jsonable`, but NaN/infinity become null and field names are cached per
+    class (half of the recorder's time went to generic dataclass introspection)."""
+    t = type(value)
+    if t is int or t is str or t is bool or value is None:
+        return value
+    if t is float:
+        return value if math.isfinite(value) else None
+    if t is tuple or t is list:
+        return [plain_json(v) for v in value]
+    names = _FIELD_NAMES.get(t)
+    if names is None:
+        if dataclasses.is_dataclass(value) and not isinstance(value, type):
+            names = _FIELD_NAMES[t] = tuple(f.name for f in dataclasses.fields(value))
+        elif isinstance(value, dict):
+            return {str(k): plain_json(v) for k, v in value.items()}
+        elif isinstance(value, (bytes, bytearray, memoryview)):
+            return bytes(value).hex()
+        else:
+            return to_jsonable(value)
+    return {n: plain_json(getattr(value, n)) for n in names}
 
 
 @dataclass(frozen=True, slots=True)
@@ -264,7 +280,7 @@ class SessionRecorder:
         spec = ROUTES.get(type(record))
         if spec is None:
             return False
-        body = {"type": type(record).__name__, **_clean_floats(to_jsonable(record))}
+        body = {"type": type(record).__name__, **plain_json(record)}
         publish = self._publish_time_ns(record, log_time_ns)
         mcap = self._writer()
         mcap.add(spec, _json_bytes(body), log_time_ns, publish)
