@@ -1,0 +1,257 @@
+"""The live terminal view of a station, fed only by Zenoh: link, satellites, marks, alerts.
+
+:class:`WatchState` folds bus payloads (status, events, time marks) into what is shown;
+:func:`render` turns it into a rich renderable; :func:`run_watch` subscribes and refreshes.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+from rich.console import Console, Group, RenderableType
+from rich.live import Live
+from rich.panel import Panel
+from rich.table import Table
+from rich.text import Text
+
+from groundstation import gpstime
+from groundstation.bus import Bus, BusSettings, decode, key
+
+STALE_AFTER_S = 3.0
+TIMELINE_S = 300
+TIMELINE_COLS = 60
+
+STATE_STYLE = {
+    "clean": "bold green",
+    "half_cycle": "bold yellow",
+    "slipped": "bold red",
+    "code_only": "dim",
+}
+
+
+@dataclass
+class WatchState:
+    """What the view knows, updated from bus payloads (thread-safe through ``lock``)."""
+
+    station: str
+    status: dict[str, Any] | None = None
+    status_rx_s: float | None = None
+    marks: list[dict[str, Any]] = field(default_factory=list)
+    events: deque[dict[str, Any]] = field(default_factory=lambda: deque(maxlen=8))
+    session: dict[str, Any] | None = None
+    alive: bool | None = None
+    received: int = 0
+    lock: threading.Lock = field(default_factory=threading.Lock)
+
+    def on_payload(self, key_expr: str, payload: bytes, now_s: float | None = None) -> None:
+        try:
+            msg = decode(payload)
+        except ValueError:
+            return
+        now_s = time.monotonic() if now_s is None else now_s
+        with self.lock:
+            self.received += 1
+            kind = msg.get("type")
+            if kind == "status":
+                self.status = msg
+                self.status_rx_s = now_s
+            elif kind == "timemark":
+                self._add_mark(msg)
+            elif kind == "event":
+                self.events.append(msg)
+            elif kind == "session":
+                self.session = msg
+
+    def _add_mark(self, msg: dict[str, Any]) -> None:
+        idx = msg.get("index")
+        if isinstance(idx, int) and any(m.get("index") == idx for m in self.marks[-50:]):
+            return  # already had it (queryable and subscription overlap)
+        self.marks.append(msg)
+
+    def on_alive(self, _key: str, alive: bool) -> None:
+        with self.lock:
+            self.alive = alive
+
+    def stale(self, now_s: float | None = None) -> bool:
+        now_s = time.monotonic() if now_s is None else now_s
+        return self.status_rx_s is None or now_s - self.status_rx_s > STALE_AFTER_S
+
+
+def _bar(value: float, lo: float, hi: float, width: int = 12) -> str:
+    frac = min(1.0, max(0.0, (value - lo) / (hi - lo)))
+    full = int(frac * width)
+    return "█" * full + "░" * (width - full)
+
+
+def _fmt(v: Any, spec: str = "", none: str = "-") -> str:
+    return none if v is None else format(v, spec)
+
+
+def timeline(link: dict[str, Any], cols: int = TIMELINE_COLS, span_s: int = TIMELINE_S) -> Text:
+    """One character per ``span_s/cols`` seconds: green received, red a dropout in it."""
+    last = link.get("last_epoch_t_gps_ns")
+    text = Text()
+    if last is None:
+        return Text("no epochs yet", style="dim")
+    bucket_ns = span_s * 1_000_000_000 // cols
+    start = last - span_s * 1_000_000_000
+    bad = [0] * cols
+    drops = list(link.get("recent_dropouts") or [])
+    if link.get("current_dropout"):
+        drops.append(link["current_dropout"])
+    for d in drops:
+        a = max(d["start_t_gps_ns"], start)
+        b = min(d["end_t_gps_ns"], last + bucket_ns)
+        if b < start:
+            continue
+        for i in range((a - start) // bucket_ns, min(cols, (b - start) // bucket_ns + 1)):
+            if 0 <= i < cols:
+                bad[i] += 1
+    for b in bad:
+        text.append("▇" if not b else "▁", style="green" if not b else "bold red")
+    return text
+
+
+def render(state: WatchState, now_s: float | None = None) -> RenderableType:
+    """The whole screen for the current state."""
+    with state.lock:
+        st = state.status
+        stale = state.stale(now_s)
+        marks = list(state.marks)
+        events = list(state.events)
+        session = state.session
+        alive = state.alive
+    title = Text(f"groundstation watch · station {state.station}", style="bold")
+    if st is None:
+        msg = "waiting for status on " + key(state.station, "status")
+        return Panel(Text(msg, style="yellow"), title=title)
+    link = st["link"]
+    head = Text()
+    if stale:
+        head.append(" STALE: no status for more than 3 s ", style="bold white on red")
+        if alive is False:
+            head.append(" daemon gone ", style="bold white on red")
+    else:
+        head.append(" LIVE ", style="bold black on green")
+    sess = (session or {}).get("files") or []
+    head.append(f"  session {st.get('session_id') or '-'}")
+    if sess:
+        head.append(f"  file {sess[-1]}", style="dim")
+
+    cur = link.get("current_dropout")
+    comp = link.get("completeness_60s")
+    link_line = Text()
+    link_line.append("LINK ", style="bold")
+    interval = link.get("epoch_interval_s")
+    link_line.append(f"{1 / interval:.0f} Hz  " if interval else "rate ?  ")
+    link_line.append(f"60 s {_fmt(comp and comp * 100, '.1f')}%  ",
+                     style="green" if comp and comp > 0.98 else "bold red")
+    sess_comp = link.get("completeness_session")
+    link_line.append(f"session {_fmt(sess_comp and sess_comp * 100, '.1f')}%  ")
+    link_line.append(f"{link.get('bytes_per_s', 0):.0f} B/s  ")
+    link_line.append(f"dropouts {link.get('dropouts', 0)} ({link.get('missing_epochs', 0)} "
+                     "epochs)  ")
+    link_line.append(f"damaged {link.get('damaged_frames', 0)}  ")
+    age = link.get("last_byte_age_s")
+    link_line.append(f"last byte {_fmt(age, '.1f')} s ago")
+    if cur:
+        link_line.append(f"  DROPOUT NOW {cur['duration_s']:.1f} s", style="bold white on red")
+    if link.get("source_connected") is False:
+        link_line.append("  SOURCE LOST", style="bold white on red")
+
+    sats = Table(expand=False, box=None, padding=(0, 1))
+    for col in ("SV", "el", "az", "C/N0", "", "lock s", "clean s", "slips", "½", "state"):
+        sats.add_column(col, justify="right" if col not in ("SV", "", "state") else "left")
+    for s in st.get("sats", []):
+        style = STATE_STYLE.get(s["state"], "")
+        sats.add_row(
+            s["sv"], _fmt(s.get("elev_deg")), _fmt(s.get("azim_deg")), str(s["cno_dbhz"]),
+            Text(_bar(s["cno_dbhz"], 20, 50), style="cyan"), f"{s['lock_s']:.0f}",
+            f"{s['clean_phase_s']:.0f}", str(s["slips"]),
+            Text("½", style="bold yellow") if s["half_cycle_unresolved"] else "",
+            Text(s["state"], style=style),
+        )
+    ppk = Text()
+    ppk.append("PPK-ready ", style="bold")
+    ready = st.get("ppk_ready", 0)
+    ppk.append(f" {ready} ", style="bold black on green" if ready >= 5 else "bold white on red")
+    ppk.append(f" of {st.get('tracked', 0)} tracked, half-cycle "
+               f"{st.get('half_cycle_fraction', 0) * 100:.0f}%")
+
+    ms = st["marks"]
+    mark_line = Text()
+    mark_line.append("MARKS ", style="bold")
+    mark_line.append(f"{ms['marks']}  last count {_fmt(ms.get('last_count'))}  ")
+    lt = ms.get("last_falling_t_gps_ns")
+    if lt:
+        mark_line.append(f"at {gpstime.gps_to_datetime(lt):%H:%M:%S.%f} UTC  ")
+    mark_line.append(f"missed {ms['missed']}  ", style="bold red" if ms["missed"] else "")
+    mark_line.append(f"in dropout {ms['in_dropout']}  ",
+                     style="bold yellow" if ms["in_dropout"] else "")
+    mark_line.append(f"pulse {_fmt(ms.get('last_pulse_width_ms'), '.1f')} ms  "
+                     f"{ms.get('rate_per_min', 0):.1f}/min  received {len(marks)}")
+
+    alerts = st.get("alerts") or []
+    alert_text = Text()
+    if alerts:
+        for a in alerts:
+            alert_text.append(f" ⚠ {a}\n", style="bold white on red")
+    else:
+        alert_text.append(" no alerts", style="green")
+    ev_text = Text()
+    for e in events[-6:]:
+        when = time.strftime("%H:%M:%S", time.localtime(e.get("t_host_ns", 0) / 1e9))
+        ev_text.append(f"{when} {e.get('kind', '?'):<22} {e.get('message', '')}\n",
+                       style="yellow" if e.get("severity") == "warning" else "")
+    body = Group(
+        head, link_line, Text("last 5 min ") + timeline(link), Text(""), ppk, sats, Text(""),
+        mark_line, Text(""), Text("ALERTS", style="bold"), alert_text,
+        Text("EVENTS", style="bold"), ev_text,
+    )
+    return Panel(body, title=title, border_style="red" if stale or alerts else "green")
+
+
+def connect(
+    station: str, settings: BusSettings, state: WatchState
+) -> Bus:
+    """Open the bus, subscribe to the station, and catch up from its queryables."""
+    from groundstation.bus import open_bus
+
+    bus = open_bus(settings)
+    bus.subscribe(key(station, "**"), state.on_payload)
+    bus.subscribe_liveliness(key(station, "alive"), state.on_alive)
+    for k, payload in bus.get(key(station, "q/timemarks"), timeout_s=2.0):
+        state.on_payload(k, payload)
+    for k, payload in bus.get(key(station, "q/status"), timeout_s=2.0):
+        state.on_payload(k, payload)
+    return bus
+
+
+def run_watch(
+    station: str,
+    settings: BusSettings,
+    *,
+    console: Console | None = None,
+    duration_s: float = 0.0,
+    refresh_hz: float = 4.0,
+    stop: Callable[[], bool] = lambda: False,
+) -> WatchState:
+    """Show the station until Ctrl-C, ``duration_s`` elapsed or ``stop()`` is true."""
+    console = console or Console()
+    state = WatchState(station)
+    bus = connect(station, settings, state)
+    t_end = time.monotonic() + duration_s if duration_s > 0 else None
+    try:
+        with Live(render(state), console=console, refresh_per_second=refresh_hz,
+                  screen=False, transient=False) as live:
+            while not stop() and (t_end is None or time.monotonic() < t_end):
+                time.sleep(1 / refresh_hz)
+                live.update(render(state))
+    finally:
+        bus.close()
+    return state
