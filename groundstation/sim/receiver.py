@@ -1,0 +1,300 @@
+"""A simulated L1 receiver: clock, tracking, squaring loop and the raw observations it measures.
+
+Observation model (RINEX sign conventions, as u-blox RXM-RAW reports them):
+
+- pseudorange ``P = rho + c (dt_r - dt_s + TGD) + I + T + e_P``
+- carrier phase ``L = (rho + c (dt_r - dt_s) - I + T) / lambda + N (+ 1/2 while the half-cycle
+  ambiguity is unresolved) + e_L`` cycles
+- Doppler ``D = -d/dt(rho + c (dt_r - dt_s)) / lambda`` Hz (positive when approaching)
+
+``rho`` is the geometric range from the satellite at transmission time, rotated into the ECEF frame
+of the reception time (Earth rotation during the signal's travel), to the antenna at the *true*
+reception time ``t = t_rx - dt_r``; the satellite clock includes the relativistic correction.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from groundstation.geodesy import ecef_to_llh, enu_rotation
+from groundstation.gnss.atmosphere import klobuchar_delay_m, saastamoinen_delay_m
+from groundstation.gnss.orbit import (
+    C_M_S,
+    L1_WAVELENGTH_M,
+    rotate_earth,
+    sat_state,
+    toe_gps_ns,
+)
+from groundstation.gpstime import NS_PER_S, NS_PER_WEEK
+from groundstation.sim.constellation import Constellation
+
+FloatArray = NDArray[np.float64]
+PositionFn = Callable[[FloatArray], tuple[FloatArray, FloatArray]]
+"""Seconds since the simulation start (true GPS time) -> (ECEF position, ECEF velocity)."""
+
+MAX_CHANNELS = 16
+
+
+@dataclass(frozen=True, slots=True)
+class SquaringModel:
+    """Half-cycle and slip behaviour of the squaring carrier loop.
+
+    Attributes:
+        half_cycle_mean_s: mean time until the half-cycle ambiguity is resolved after lock,
+            static and in flight (exponential, plus ``half_cycle_min_s``).
+        half_cycle_min_s: shortest unresolved period (the receiver needs a preamble).
+        slip_rate_per_h: cycle slips (loss of lock) per satellite and hour, static and flight.
+        acquisition_s: delay from rising above the mask to the first measurement.
+    """
+
+    half_cycle_mean_s: tuple[float, float] = (2.0, 4.0)
+    half_cycle_min_s: float = 0.6
+    slip_rate_per_h: tuple[float, float] = (0.3, 12.0)
+    acquisition_s: float = 3.0
+
+
+@dataclass(frozen=True, slots=True)
+class ReceiverConfig:
+    """One receiver's characteristics.
+
+    Attributes:
+        name: ``rover`` or ``base``.
+        clock_bias_s: clock offset at the start (receiver time minus GPS time).
+        clock_drift_s_s: clock drift (s/s).
+        clock_walk_s_s_sqrt_s: random-walk density of the drift.
+        elevation_mask_deg: satellites below are not tracked.
+        code_sigma_m: pseudorange noise at 45 dBHz.
+        phase_sigma_m: carrier-phase noise at 45 dBHz.
+        doppler_sigma_hz: Doppler noise at 45 dBHz.
+        cno_offset_db: added to the elevation-dependent C/N0 (antenna, airframe).
+        squaring: the carrier-loop model.
+    """
+
+    name: str
+    clock_bias_s: float = 1.5e-4
+    clock_drift_s_s: float = 2.0e-8
+    clock_walk_s_s_sqrt_s: float = 2.0e-11
+    elevation_mask_deg: float = 7.0
+    code_sigma_m: float = 0.3
+    phase_sigma_m: float = 0.002
+    doppler_sigma_hz: float = 0.05
+    cno_offset_db: float = 0.0
+    squaring: SquaringModel = field(default_factory=SquaringModel)
+
+
+@dataclass(frozen=True, slots=True)
+class LockEvent:
+    """A loss of lock (cycle slip) or a new acquisition, for the truth file."""
+
+    sv: int
+    t_rx_ns: int
+    kind: str  # "acquired" | "slip"
+    half_cycle_s: float
+
+
+@dataclass(slots=True)
+class Observations:
+    """Everything a receiver measured; arrays are (epochs, satellites) unless noted.
+
+    ``svs`` gives the column order. ``tracked`` marks the measurements reported.
+    """
+
+    name: str
+    svs: tuple[int, ...]
+    t_rx_ns: NDArray[np.int64]  # (epochs,) receiver time tags, GPS ns
+    clock_bias_s: FloatArray  # (epochs,)
+    pos_ecef_m: FloatArray  # (epochs, 3) at true reception time
+    tracked: NDArray[np.bool_]
+    pseudorange_m: FloatArray
+    carrier_phase_cyc: FloatArray
+    doppler_hz: FloatArray
+    cno_dbhz: NDArray[np.int8]
+    lli: NDArray[np.uint8]
+    mes_qi: NDArray[np.int8]
+    elevation_deg: FloatArray
+    azimuth_deg: FloatArray
+    events: list[LockEvent]
+
+
+def _runs(mask: NDArray[np.bool_]) -> list[tuple[int, int]]:
+    """[start, stop) index pairs of the True runs of a 1-D mask."""
+    padded = np.concatenate(([False], mask, [False]))
+    edges = np.flatnonzero(np.diff(padded.astype(np.int8)))
+    return [(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2], strict=True)]
+
+
+def observe(
+    constellation: Constellation,
+    config: ReceiverConfig,
+    start_gps_ns: int,
+    n_epochs: int,
+    interval_ns: int,
+    position: PositionFn,
+    in_flight: Callable[[FloatArray], NDArray[np.bool_]],
+    rng: np.random.Generator,
+    iono_scale: float = 1.1,
+) -> Observations:
+    """Simulate one receiver's raw measurements at ``n_epochs`` epochs.
+
+    Args:
+        constellation: satellites and ephemerides.
+        config: the receiver.
+        start_gps_ns: first epoch (receiver time tag, on the ``interval_ns`` grid).
+        n_epochs: number of epochs.
+        interval_ns: measurement interval (200 ms for 5 Hz).
+        position: antenna ECEF position and velocity at seconds since ``start_gps_ns``.
+        in_flight: whether each of those times is in flight (for the squaring model).
+        rng: the random generator (the caller seeds it).
+        iono_scale: true ionosphere relative to the broadcast Klobuchar model.
+    """
+    svs = constellation.svs
+    n_sv = len(svs)
+    t_rx_ns = start_gps_ns + np.arange(n_epochs, dtype=np.int64) * interval_ns
+    t_rel_s = (t_rx_ns - start_gps_ns) / NS_PER_S
+    dt_s = interval_ns / NS_PER_S
+    walk = np.cumsum(rng.normal(0.0, config.clock_walk_s_s_sqrt_s * np.sqrt(dt_s), n_epochs))
+    drift = config.clock_drift_s_s + walk
+    bias = config.clock_bias_s + np.concatenate(([0.0], np.cumsum(drift[:-1] * dt_s)))
+    t_true_s = t_rel_s - bias
+    pos, vel = position(t_true_s)
+    lat, lon, h = ecef_to_llh(*(float(v) for v in pos[0]))
+    rot = np.array(enu_rotation(lat, lon), dtype=np.float64)
+    # Height of every epoch (the rover climbs 30 m: the troposphere must follow it).
+    h_epoch = h + (pos - pos[0]) @ rot[2]
+    flying = in_flight(t_true_s)
+    tow_s = ((t_rx_ns % NS_PER_WEEK) / NS_PER_S).astype(np.float64)
+
+    shape = (n_epochs, n_sv)
+    pr = np.zeros(shape)
+    cp = np.zeros(shape)
+    dop = np.zeros(shape)
+    el = np.full(shape, -90.0)
+    az = np.zeros(shape)
+    cno = np.zeros(shape, dtype=np.int8)
+    lli = np.zeros(shape, dtype=np.uint8)
+    mesqi = np.zeros(shape, dtype=np.int8)
+    tracked = np.zeros(shape, dtype=bool)
+    events: list[LockEvent] = []
+    sq = config.squaring
+
+    for j, sv in enumerate(svs):
+        # Which ephemeris issue the receiver would use at each epoch (nearest toe).
+        issues = constellation.ephemerides[sv]
+        toes = np.array([toe_gps_ns(e) for e in issues], dtype=np.int64)
+        which = np.argmin(np.abs(t_rx_ns[:, None] - toes[None, :]), axis=1)
+        rho = np.zeros(n_epochs)
+        rho_dot = np.zeros(n_epochs)
+        clk = np.zeros(n_epochs)
+        clk_dot = np.zeros(n_epochs)
+        los_enu = np.zeros((n_epochs, 3))
+        tgd = np.zeros(n_epochs)
+        for k, eph in enumerate(issues):
+            sel = which == k
+            if not np.any(sel):
+                continue
+            # True reception time relative to toe (ns integers first, then seconds).
+            dt_toe = (t_rx_ns[sel] - toes[k]) / NS_PER_S - bias[sel]
+            tau = np.full(dt_toe.shape, 0.075)
+            for _ in range(3):
+                st = sat_state(eph, dt_toe - tau)
+                sat_pos = rotate_earth(st.pos_m, tau)
+                diff = sat_pos - pos[sel]
+                rng_m = np.linalg.norm(diff, axis=1)
+                tau = rng_m / C_M_S
+            sat_vel = rotate_earth(st.vel_m_s, tau)
+            u = diff / rng_m[:, None]
+            rho[sel] = rng_m
+            rho_dot[sel] = np.einsum("ij,ij->i", u, sat_vel - vel[sel])
+            clk[sel] = st.clock_s
+            clk_dot[sel] = st.clock_drift_s_s
+            los_enu[sel] = u @ rot.T
+            tgd[sel] = eph.tgd_s
+        elev = np.degrees(np.arcsin(np.clip(los_enu[:, 2], -1.0, 1.0)))
+        azim = np.degrees(np.arctan2(los_enu[:, 0], los_enu[:, 1])) % 360.0
+        el[:, j] = elev
+        az[:, j] = azim
+        visible = elev >= config.elevation_mask_deg
+        iono = iono_scale * klobuchar_delay_m(
+            constellation.iono.alpha, constellation.iono.beta, lat, lon, azim,
+            np.maximum(elev, 0.0), tow_s,
+        )
+        trop = 1.02 * saastamoinen_delay_m(lat, h_epoch, np.maximum(elev, 1.0))
+        sin_el = np.sin(np.radians(np.clip(elev, 0.0, 90.0)))
+        cno_f = 30.0 + 19.0 * sin_el**0.5 + config.cno_offset_db + rng.normal(0, 0.7, n_epochs)
+        cno_f -= 2.0 * flying
+        cno_i = np.clip(np.round(cno_f), 15, 55).astype(np.int8)
+        scale = 10.0 ** ((45.0 - cno_i.astype(np.float64)) / 20.0)
+        clock_term = C_M_S * (bias - clk)
+        pr_j = rho + clock_term + C_M_S * tgd + iono + trop
+        pr_j += rng.normal(0.0, 1.0, n_epochs) * config.code_sigma_m * scale
+        ph_m = rho + clock_term - iono + trop
+        ph_m += rng.normal(0.0, 1.0, n_epochs) * config.phase_sigma_m * scale
+        dop_j = -(rho_dot + C_M_S * (drift - clk_dot)) / L1_WAVELENGTH_M
+        dop_j += rng.normal(0.0, 1.0, n_epochs) * config.doppler_sigma_hz * scale
+        cyc = ph_m / L1_WAVELENGTH_M
+
+        amb = np.zeros(n_epochs)
+        half = np.zeros(n_epochs, dtype=bool)
+        slip = np.zeros(n_epochs, dtype=bool)
+        track = np.zeros(n_epochs, dtype=bool)
+        acq_epochs = int(round(sq.acquisition_s / dt_s))
+        for a, b in _runs(visible):
+            a = a + acq_epochs if a > 0 else a
+            if a >= b:
+                continue
+            track[a:b] = True
+            # Lock segments: split the run at cycle slips (rate depends on flight state).
+            rates = np.where(flying[a + 1 : b], sq.slip_rate_per_h[1], sq.slip_rate_per_h[0])
+            hits = np.flatnonzero(rng.random(b - a - 1) < rates / 3600.0 * dt_s) + a + 1
+            bounds = [a, *(int(i) for i in hits), b]
+            for s0, s1 in zip(bounds[:-1], bounds[1:], strict=True):
+                mean = sq.half_cycle_mean_s[1 if flying[s0] else 0]
+                hc_s = sq.half_cycle_min_s + float(rng.exponential(mean))
+                n_half = min(s1 - s0, int(np.ceil(hc_s / dt_s)))
+                # Integer ambiguity: the receiver starts the phase near the code (in cycles).
+                n_int = np.round(pr_j[s0] / L1_WAVELENGTH_M - cyc[s0]) + rng.integers(-5, 6)
+                amb[s0:s1] = n_int
+                half[s0 : s0 + n_half] = True
+                slip[s0] = True
+                events.append(
+                    LockEvent(sv, int(t_rx_ns[s0]), "acquired" if s0 == a else "slip", hc_s)
+                )
+        cp_j = cyc + amb + 0.5 * half
+        order_ok = track
+        tracked[:, j] = order_ok
+        pr[:, j] = np.where(order_ok, pr_j, 0.0)
+        cp[:, j] = np.where(order_ok, cp_j, 0.0)
+        dop[:, j] = np.where(order_ok, dop_j, 0.0)
+        cno[:, j] = np.where(order_ok, cno_i, 0)
+        lli[:, j] = np.where(order_ok, slip.astype(np.uint8) | (half.astype(np.uint8) << 1), 0)
+        mesqi[:, j] = np.where(order_ok, np.where(slip, 5, np.where(half, 6, 7)), 0)
+
+    # A LEA-6T has 16 channels: keep the highest satellites when more are visible.
+    over = tracked.sum(axis=1) > MAX_CHANNELS
+    for i in np.flatnonzero(over):
+        keep = np.argsort(-np.where(tracked[i], el[i], -999.0))[:MAX_CHANNELS]
+        row = np.zeros(n_sv, dtype=bool)
+        row[keep] = True
+        tracked[i] &= row
+
+    return Observations(
+        name=config.name,
+        svs=svs,
+        t_rx_ns=t_rx_ns,
+        clock_bias_s=bias,
+        pos_ecef_m=pos,
+        tracked=tracked,
+        pseudorange_m=pr,
+        carrier_phase_cyc=cp,
+        doppler_hz=dop,
+        cno_dbhz=cno,
+        lli=lli,
+        mes_qi=mesqi,
+        elevation_deg=el,
+        azimuth_deg=az,
+        events=events,
+    )

@@ -1,0 +1,237 @@
+"""The rover's path: static start, take-off, lawnmower survey lines, landing, static end.
+
+Every leg between waypoints has a trapezoidal speed profile (the copter stops at each waypoint),
+so position, velocity and the time a given distance is reached are all closed-form. Positions are
+local east/north/up metres at the take-off point, converted to ECEF in bulk.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from groundstation.geodesy import enu_rotation, llh_to_ecef
+
+FloatArray = NDArray[np.float64]
+
+DEFAULT_SITE_LLH = (49.01300, 8.40400, 165.0)
+"""Take-off point: a field near Karlsruhe (ETRS89 / UTM 32N), ellipsoidal height in metres."""
+DEFAULT_BASE_ENU_M = (-260.0, 180.0, 1.5)
+"""Base antenna relative to the take-off point: a few hundred metres away, on a tripod."""
+
+
+@dataclass(frozen=True, slots=True)
+class TrajectoryConfig:
+    """Shape and timing of the flight.
+
+    Attributes:
+        static_start_s: static initialisation before take-off.
+        static_end_s: static period after landing.
+        height_m: survey height above the take-off point.
+        speed_m_s: cruise speed on the lines.
+        climb_m_s: vertical speed in take-off and landing.
+        accel_m_s2: acceleration at the ends of each leg.
+        line_length_m: length of one survey line.
+        line_spacing_m: distance between neighbouring lines.
+        n_lines: number of lines, flown in alternating directions.
+        heading_deg: direction of the first line (clockwise from north).
+        dwell_s: hover at each waypoint.
+        exposure_spacing_m: distance between camera exposures on the lines.
+        site_llh: take-off point (deg, deg, m).
+    """
+
+    static_start_s: float = 60.0
+    static_end_s: float = 60.0
+    height_m: float = 30.0
+    speed_m_s: float = 2.0
+    climb_m_s: float = 1.5
+    accel_m_s2: float = 1.0
+    line_length_m: float = 100.0
+    line_spacing_m: float = 20.0
+    n_lines: int = 4
+    heading_deg: float = 30.0
+    dwell_s: float = 1.0
+    exposure_spacing_m: float = 2.0
+    site_llh: tuple[float, float, float] = DEFAULT_SITE_LLH
+
+    @classmethod
+    def for_duration(
+        cls, duration_s: float, template: TrajectoryConfig | None = None
+    ) -> TrajectoryConfig:
+        """A configuration whose whole span is about ``duration_s``: a quarter static at each
+        end, the flight in between with as many (and as long) lines as ``template`` allows."""
+        base = template if template is not None else cls()
+        static = max(duration_s * 0.25, 2.0)
+        budget = duration_s - 2 * static
+        length = base.line_length_m
+        n = base.n_lines
+        while True:
+            trial = replace(base, static_start_s=static, static_end_s=static,
+                            line_length_m=length, n_lines=n)
+            flight = Trajectory(trial).flight_s
+            if flight <= budget or (n == 1 and length <= 10.0):
+                break
+            if n > 1:
+                n -= 1
+            else:
+                length = max(10.0, length * 0.7)
+        # Give any remainder to the static periods so the total matches.
+        extra = max(0.0, budget - flight) / 2
+        return replace(trial, static_start_s=static + extra, static_end_s=static + extra)
+
+
+@dataclass(frozen=True, slots=True)
+class Leg:
+    """A straight move between two waypoints, trapezoidal speed, starting at ``t0_s``."""
+
+    t0_s: float
+    start_enu_m: tuple[float, float, float]
+    end_enu_m: tuple[float, float, float]
+    v_max_m_s: float
+    accel_m_s2: float
+    is_line: bool
+
+    @property
+    def length_m(self) -> float:
+        return math.dist(self.start_enu_m, self.end_enu_m)
+
+    def _profile(self) -> tuple[float, float, float]:
+        """(time to accelerate, top speed, total time)."""
+        d, a, v = self.length_m, self.accel_m_s2, self.v_max_m_s
+        if d <= v * v / a:  # triangular: never reaches v
+            v = math.sqrt(d * a)
+        ta = v / a
+        cruise = (d - v * ta) / v if v > 0 else 0.0
+        return ta, v, 2 * ta + cruise
+
+    @property
+    def duration_s(self) -> float:
+        return self._profile()[2]
+
+    def distance(self, tau_s: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """Distance along the leg and speed at times since the leg started."""
+        ta, v, total = self._profile()
+        a = self.accel_m_s2
+        t = np.clip(tau_s, 0.0, total)
+        d_acc = 0.5 * a * ta * ta
+        s = np.where(
+            t < ta,
+            0.5 * a * t * t,
+            np.where(t <= total - ta, d_acc + v * (t - ta),
+                     self.length_m - 0.5 * a * (total - t) ** 2),
+        )
+        spd = np.where(t < ta, a * t, np.where(t <= total - ta, v, a * (total - t)))
+        return s, spd
+
+    def time_at_distance(self, s_m: float) -> float:
+        """Seconds after the leg start at which the distance ``s_m`` is reached."""
+        ta, v, total = self._profile()
+        a = self.accel_m_s2
+        d_acc = 0.5 * a * ta * ta
+        if s_m <= d_acc:
+            return math.sqrt(2 * s_m / a)
+        if s_m <= self.length_m - d_acc:
+            return ta + (s_m - d_acc) / v
+        return total - math.sqrt(max(0.0, 2 * (self.length_m - s_m) / a))
+
+
+@dataclass(frozen=True, slots=True)
+class Exposure:
+    """A planned camera exposure: seconds since the trajectory start, line index."""
+
+    t_s: float
+    line: int
+
+
+class Trajectory:
+    """The rover's antenna path; times in seconds since the start of the simulation."""
+
+    def __init__(self, config: TrajectoryConfig) -> None:
+        self.config = config
+        c = config
+        self.origin_ecef_m = llh_to_ecef(*c.site_llh)
+        self._rot = np.array(enu_rotation(c.site_llh[0], c.site_llh[1]), dtype=np.float64)
+        h = math.radians(c.heading_deg)
+        along = (math.sin(h), math.cos(h))
+        across = (math.cos(h), -math.sin(h))
+        pts: list[tuple[tuple[float, float, float], float, float, bool]] = []
+        up = (0.0, 0.0, c.height_m)
+        pts.append((up, c.climb_m_s, c.accel_m_s2 * 0.5, False))
+        for k in range(c.n_lines):
+            off = (k * c.line_spacing_m * across[0], k * c.line_spacing_m * across[1])
+            a = (off[0], off[1], c.height_m)
+            b = (off[0] + c.line_length_m * along[0], off[1] + c.line_length_m * along[1],
+                 c.height_m)
+            first, second = (a, b) if k % 2 == 0 else (b, a)
+            pts.append((first, c.speed_m_s * 2, c.accel_m_s2, False))
+            pts.append((second, c.speed_m_s, c.accel_m_s2, True))
+        pts.append((up, c.speed_m_s * 2, c.accel_m_s2, False))
+        pts.append(((0.0, 0.0, 0.0), c.climb_m_s, c.accel_m_s2 * 0.5, False))
+        legs: list[Leg] = []
+        t = c.static_start_s
+        here = (0.0, 0.0, 0.0)
+        for target, v, acc, is_line in pts:
+            if math.dist(here, target) < 1e-9:
+                continue
+            leg = Leg(t, here, target, v, acc, is_line)
+            legs.append(leg)
+            t += leg.duration_s + c.dwell_s
+            here = target
+        self.legs = tuple(legs)
+        self.takeoff_s = c.static_start_s
+        self.landing_s = t
+        self.flight_s = t - c.static_start_s
+        self.duration_s = t + c.static_end_s
+        self._starts = np.array([lg.t0_s for lg in legs], dtype=np.float64)
+
+    def enu(self, t_s: ArrayLike) -> tuple[FloatArray, FloatArray]:
+        """Local ENU position and velocity (m, m/s) at times ``t_s``; shape (..., 3)."""
+        t = np.asarray(t_s, dtype=np.float64)
+        pos = np.zeros(t.shape + (3,), dtype=np.float64)
+        vel = np.zeros(t.shape + (3,), dtype=np.float64)
+        idx = np.searchsorted(self._starts, t, side="right") - 1
+        for i, leg in enumerate(self.legs):
+            sel = idx == i
+            if not np.any(sel):
+                continue
+            s, spd = leg.distance(t[sel] - leg.t0_s)
+            d = np.subtract(leg.end_enu_m, leg.start_enu_m) / max(leg.length_m, 1e-12)
+            pos[sel] = np.asarray(leg.start_enu_m) + s[:, None] * d
+            vel[sel] = spd[:, None] * d
+        if self.legs:
+            last = self.legs[-1]
+            after = t >= last.t0_s + last.duration_s
+            pos[after] = last.end_enu_m
+            vel[after] = 0.0
+        return pos, vel
+
+    def ecef(self, t_s: ArrayLike) -> tuple[FloatArray, FloatArray]:
+        """ECEF position and velocity (m, m/s) at times ``t_s``; shape (..., 3)."""
+        pos, vel = self.enu(t_s)
+        return pos @ self._rot + np.asarray(self.origin_ecef_m), vel @ self._rot
+
+    def enu_to_ecef(self, enu_m: tuple[float, float, float]) -> tuple[float, float, float]:
+        x = np.asarray(enu_m, dtype=np.float64) @ self._rot + np.asarray(self.origin_ecef_m)
+        return float(x[0]), float(x[1]), float(x[2])
+
+    def exposures(self) -> list[Exposure]:
+        """Exposures every ``exposure_spacing_m`` along each survey line."""
+        out: list[Exposure] = []
+        spacing = self.config.exposure_spacing_m
+        line = 0
+        for leg in self.legs:
+            if not leg.is_line:
+                continue
+            s = spacing / 2
+            while s < leg.length_m:
+                out.append(Exposure(leg.t0_s + leg.time_at_distance(s), line))
+                s += spacing
+            line += 1
+        return out
+
+    def phase(self, t_s: float) -> str:
+        """``static``, ``flight`` or ``static`` again: for the squaring model and summaries."""
+        return "flight" if self.takeoff_s <= t_s < self.landing_s else "static"
