@@ -1,0 +1,115 @@
+"""``groundstation simulate``: a realistic LEA-6T stream to a file, a pty or a TCP port."""
+
+from __future__ import annotations
+
+import argparse
+import os
+import socket
+import sys
+import time
+import tty
+from collections.abc import Iterator
+from pathlib import Path
+
+from groundstation.errors import ConfigError
+from groundstation.sim.faults import FaultConfig
+from groundstation.sim.stream import SimConfig, paced, simulate
+
+NAME = "simulate"
+HELP = "realistic u-blox stream to a pty, TCP port or file, with faults"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    out = parser.add_mutually_exclusive_group()
+    out.add_argument("--out", metavar="FILE.ubx", help="write the rover stream to a file")
+    out.add_argument("--pty", action="store_true", help="serve the stream on a new pty")
+    out.add_argument("--tcp", metavar="PORT", type=int, help="serve on 127.0.0.1:PORT")
+    parser.add_argument("--base-out", metavar="FILE.ubx", help="write the base stream here")
+    parser.add_argument("--duration", metavar="S", type=float, default=600.0,
+                        help="simulated span in seconds (default 600)")
+    parser.add_argument("--speed", default=None,
+                        help="1 (real time), N (N times faster) or max; default: max for "
+                        "--out, 1 for --pty/--tcp")
+    parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--faults", default="none", metavar="none|default|FILE")
+    parser.add_argument("--truth", metavar="FILE", help="write the truth JSON here")
+
+
+def _speed(value: str | None, live: bool) -> float | None:
+    if value is None:
+        return 1.0 if live else None
+    if value == "max":
+        return None
+    try:
+        speed = float(value)
+    except ValueError as err:
+        raise ConfigError("speed", f"expected 1, N or max, not {value!r}") from err
+    if speed <= 0:
+        raise ConfigError("speed", "must be positive")
+    return speed
+
+
+def _serve_pty(chunks: Iterator[tuple[int, bytes]]) -> None:
+    master, slave = os.openpty()
+    tty.setraw(slave)
+    print(os.ttyname(slave), flush=True)
+    try:
+        for _, chunk in chunks:
+            os.write(master, chunk)
+        # Let the reader drain the buffer before the pty disappears.
+        time.sleep(1.0)
+    finally:
+        os.close(master)
+        os.close(slave)
+
+
+def _serve_tcp(port: int, chunks: Iterator[tuple[int, bytes]]) -> None:
+    with socket.create_server(("127.0.0.1", port)) as server:
+        print(f"listening on tcp://127.0.0.1:{port}", flush=True)
+        conn, peer = server.accept()
+        print(f"client {peer[0]}:{peer[1]} connected", file=sys.stderr, flush=True)
+        with conn:
+            for _, chunk in chunks:
+                conn.sendall(chunk)
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.duration <= 0:
+        raise ConfigError("duration", "must be positive")
+    faults = FaultConfig.load(args.faults)
+    live = bool(args.pty or args.tcp)
+    speed = _speed(args.speed, live)
+    started = time.monotonic()
+    result = simulate(SimConfig(duration_s=args.duration, seed=args.seed, faults=faults,
+                                with_base=bool(args.base_out) or not live))
+    gen_s = time.monotonic() - started
+    if args.truth:
+        result.write_truth(args.truth)
+    if args.base_out:
+        Path(args.base_out).write_bytes(result.base_bytes)
+    log = result.fault_log
+    summary = (
+        f"simulated {args.duration:.0f} s in {gen_s:.1f} s: "
+        f"{result.truth['receivers']['rover']['epochs']} epochs, "
+        f"{len(result.truth['exposures'])} exposures, {log.frames_sent} frames, "
+        f"{log.frames_sent - log.frames_intact} damaged by faults"
+    )
+    if args.pty:
+        print(summary, file=sys.stderr)
+        _serve_pty(paced(result.rover_chunks, speed))
+        return 0
+    if args.tcp:
+        print(summary, file=sys.stderr)
+        _serve_tcp(args.tcp, paced(result.rover_chunks, speed))
+        return 0
+    out = args.out or "sim_rover.ubx"
+    with open(out, "wb") as fh:
+        for _, chunk in paced(result.rover_chunks, speed):
+            fh.write(chunk)
+    print(summary)
+    print(f"rover stream: {out}")
+    if args.base_out:
+        print(f"base stream: {args.base_out}")
+    if args.truth:
+        print(f"truth: {args.truth}")
+    return 0
