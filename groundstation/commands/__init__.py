@@ -10,10 +10,12 @@ from __future__ import annotations
 COMMANDS: dict[str, str] = {
     "inspect": "groundstation.commands.inspect",
     "run": "groundstation.commands.run",
+    "simulate": "groundstation.commands.simulate",
 }
 """Subcommand name -> module implementing it."""
 
 HELP: dict[str, str] = {
     "inspect": "summary of a recording: span, epochs, gaps, marks, satellites",
     "run": "the live daemon: receive, decode and record a station's stream",
+    "simulate": "realistic u-blox stream to a pty, TCP port or file, with faults",
 }
