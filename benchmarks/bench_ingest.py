@@ -1,0 +1,118 @@
+"""Ingest benchmarks: daemon CPU at a sustained 115200-baud pty stream, and max file ingest rate.
+
+Usage::
+
+    /work/venv/bin/python benchmarks/bench_ingest.py [--seconds 20] [--file-mb 20]
+
+1. ``groundstation run`` as a real process on a pty, fed at 11520 B/s (115200 baud, 8N1) with
+   a real LEA-6T capture (or a generated stream when ../shared/data is absent); CPU use =
+   process CPU time (user + system, from /proc) / wall time over the feeding window.
+2. The whole pipeline (file source -> framer -> decoder -> recorder with MCAP + sidecar) in
+   process, from a file as fast as possible: MB/s and frames/s.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import os
+import platform
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+import tty
+from pathlib import Path
+
+from groundstation.config import FileSourceSettings, RecorderSettings, Settings
+from groundstation.live.daemon import run_daemon
+from groundstation.ubx.build import build_frame
+
+REPO = Path(__file__).resolve().parents[1]
+REAL = REPO.parent / "shared" / "data" / "real" / "tridge__pyUblox" / "data" / "6P-raw-PPP.ubx"
+
+
+def stream_bytes() -> tuple[bytes, str]:
+    if REAL.exists():
+        return REAL.read_bytes(), f"real capture {REAL.name}"
+    out = bytearray()
+    for i in range(2000):
+        out += build_frame(0x02, 0x10, bytes(8 + 24 * (i % 10)))
+    return bytes(out), "generated RXM-RAW frames"
+
+
+def cpu_seconds(pid: int) -> float:
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    utime, stime = int(fields[11]), int(fields[12])
+    return (utime + stime) / os.sysconf("SC_CLK_TCK")
+
+
+def bench_serial(seconds: float, data: bytes) -> dict[str, float]:
+    rate = 11520.0
+    with tempfile.TemporaryDirectory() as tmp:
+        master, slave = os.openpty()
+        tty.setraw(slave)
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "groundstation.cli", "-q", "run", "--port",
+             os.ttyname(slave), "--out-dir", tmp, "--station", "bench"],
+            cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+        )
+        time.sleep(2.0)  # imports and port open
+        cpu0, t0 = cpu_seconds(proc.pid), time.monotonic()
+        sent = 0
+        piece = 64
+        while (now := time.monotonic()) - t0 < seconds:
+            due = int((now - t0) * rate)
+            while sent < due:
+                chunk = data[sent % len(data) : sent % len(data) + min(piece, due - sent)]
+                sent += os.write(master, chunk)
+            time.sleep(0.005)
+        cpu1, t1 = cpu_seconds(proc.pid), time.monotonic()
+        proc.send_signal(signal.SIGTERM)
+        rc = proc.wait(timeout=30)
+        os.close(master)
+        os.close(slave)
+        ubx = next(Path(tmp).glob("*.ubx")).stat().st_size
+    return {"wall_s": t1 - t0, "cpu_s": cpu1 - cpu0, "cpu_pct": 100 * (cpu1 - cpu0) / (t1 - t0),
+            "bytes_sent": sent, "bytes_recorded": ubx, "exit": rc}
+
+
+def bench_file(megabytes: float, data: bytes) -> dict[str, float]:
+    with tempfile.TemporaryDirectory() as tmp:
+        src = Path(tmp) / "in.ubx"
+        reps = max(1, int(megabytes * 1e6 / len(data)))
+        src.write_bytes(data * reps)
+        settings = Settings(
+            source=FileSourceSettings(path=src, read_size_bytes=4096), station="bench",
+            recorder=RecorderSettings(out_dir=Path(tmp) / "out"),
+        )
+        cpu0, t0 = time.process_time(), time.perf_counter()
+        summary = asyncio.run(run_daemon(settings))
+        wall, cpu = time.perf_counter() - t0, time.process_time() - cpu0
+    return {"bytes": summary.bytes_in, "frames": summary.frames, "records": summary.records,
+            "wall_s": wall, "cpu_s": cpu, "mb_per_s": summary.bytes_in / 1e6 / wall,
+            "frames_per_s": summary.frames / wall}
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--seconds", type=float, default=20.0, help="serial feeding time")
+    parser.add_argument("--file-mb", type=float, default=20.0, help="size of the file test")
+    args = parser.parse_args()
+    data, what = stream_bytes()
+    print(f"# host: {platform.machine()} {platform.python_implementation()} "
+          f"{platform.python_version()}, {os.cpu_count()} CPUs; stream: {what}")
+    s = bench_serial(args.seconds, data)
+    print(f"serial 115200 baud: {s['cpu_pct']:.1f} % CPU ({s['cpu_s']:.2f} s CPU over "
+          f"{s['wall_s']:.1f} s wall), {int(s['bytes_sent'])} bytes sent, "
+          f"{int(s['bytes_recorded'])} recorded, exit {int(s['exit'])}")
+    f = bench_file(args.file_mb, data)
+    print(f"file max rate: {f['mb_per_s']:.2f} MB/s, {f['frames_per_s']:.0f} frames/s "
+          f"({int(f['bytes'])} bytes, {int(f['frames'])} frames, {int(f['records'])} records "
+          f"in {f['wall_s']:.1f} s, {f['cpu_s']:.1f} s CPU)")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
