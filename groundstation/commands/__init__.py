@@ -11,6 +11,7 @@ COMMANDS: dict[str, str] = {
     "inspect": "groundstation.commands.inspect",
     "run": "groundstation.commands.run",
     "simulate": "groundstation.commands.simulate",
+    "rinex": "groundstation.commands.rinex",
 }
 """Subcommand name -> module implementing it."""
 
@@ -18,4 +19,5 @@ HELP: dict[str, str] = {
     "inspect": "summary of a recording: span, epochs, gaps, marks, satellites",
     "run": "the live daemon: receive, decode and record a station's stream",
     "simulate": "realistic u-blox stream to a pty, TCP port or file, with faults",
+    "rinex": "MCAP/.ubx -> RINEX 2.11/3.04 obs + nav + time-mark table",
 }
