@@ -113,22 +113,30 @@ class FramerSettings:
 
 @dataclass(frozen=True, slots=True)
 class ZenohSettings:
-    """Placeholder for the Zenoh publisher (wired by another issue)."""
+    """The Zenoh publisher: loopback only and no multicast scouting unless configured."""
 
-    enabled: bool = False
+    enabled: bool = True
     mode: Literal["peer", "client", "router"] = "peer"
     listen: tuple[str, ...] = ("tcp/127.0.0.1:7447",)
     connect: tuple[str, ...] = ()
     scouting: bool = False
+    publish_epochs: bool = False
+    publish_raw: bool = False
 
 
 @dataclass(frozen=True, slots=True)
 class MonitorSettings:
-    """Placeholder for the link/tracking monitor (wired by another issue)."""
+    """The real-time monitor and its alert thresholds."""
 
-    enabled: bool = False
-    status_interval_s: float = 1.0
-    dropout_threshold_s: float = 0.5
+    enabled: bool = True
+    dropout_alert_s: float = 2.0
+    ppk_ready_min: int = 5
+    clean_phase_s: float = 30.0
+    half_cycle_fraction_max: float = 0.3
+    no_data_s: float = 3.0
+    disk_free_min_mb: float = 500.0
+    elevation_mask_deg: float = 15.0
+    marks_missed_hold_s: float = 30.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -201,8 +209,20 @@ SCHEMA: dict[str, dict[str, _T]] = {
         "listen": "strlist",
         "connect": "strlist",
         "scouting": bool,
+        "publish_epochs": bool,
+        "publish_raw": bool,
     },
-    "monitor": {"enabled": bool, "status_interval_s": float, "dropout_threshold_s": float},
+    "monitor": {
+        "enabled": bool,
+        "dropout_alert_s": float,
+        "ppk_ready_min": int,
+        "clean_phase_s": float,
+        "half_cycle_fraction_max": float,
+        "no_data_s": float,
+        "disk_free_min_mb": float,
+        "elevation_mask_deg": float,
+        "marks_missed_hold_s": float,
+    },
 }
 """Every key the configuration accepts, by section ("" = top level)."""
 
@@ -390,6 +410,11 @@ def build_settings(merged: dict[str, dict[str, Any]]) -> Settings:
     zen = merged["zenoh"]
     if "mode" in zen and zen["mode"] not in ("peer", "client", "router"):
         raise ConfigError("zenoh.mode", f"must be peer, client or router, got {zen['mode']!r}")
+    for key, value in merged["monitor"].items():
+        if key != "enabled":
+            _positive(f"monitor.{key}", value, allow_zero=key in ("ppk_ready_min",
+                                                                 "disk_free_min_mb",
+                                                                 "elevation_mask_deg"))
     if "station" in top and not str(top["station"]).strip():
         raise ConfigError("station", "must not be empty")
     if "station" in top and any(c in top["station"] for c in "/\\ \t"):

@@ -27,6 +27,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--station", help="station name (names the recording files)")
     parser.add_argument("--out-dir", type=Path, metavar="DIR", help="directory for recordings")
     parser.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
+    parser.add_argument("--no-zenoh", action="store_true", help="do not publish on Zenoh")
+    parser.add_argument("--zenoh-listen", action="append", metavar="ENDPOINT",
+                        help="Zenoh listen endpoint (default tcp/127.0.0.1:7447; repeatable)")
+    parser.add_argument("--zenoh-connect", action="append", metavar="ENDPOINT",
+                        help="Zenoh endpoint to connect to (a router or the solver; repeatable)")
 
 
 def overrides_from_args(args: argparse.Namespace) -> dict[str, Any]:
@@ -56,6 +61,15 @@ def overrides_from_args(args: argparse.Namespace) -> dict[str, Any]:
         layer["recorder"] = {"out_dir": args.out_dir}
     if args.duration is not None:
         layer["duration_s"] = args.duration
+    zenoh: dict[str, Any] = {}
+    if getattr(args, "no_zenoh", False):
+        zenoh["enabled"] = False
+    if getattr(args, "zenoh_listen", None):
+        zenoh["listen"] = list(args.zenoh_listen)
+    if getattr(args, "zenoh_connect", None):
+        zenoh["connect"] = list(args.zenoh_connect)
+    if zenoh:
+        layer["zenoh"] = zenoh
     return layer
 
 

@@ -19,12 +19,16 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from groundstation.bus import BusSettings
 from groundstation.config import Settings
 from groundstation.errors import GroundstationError
 from groundstation.live.fanout import Fanout, InboxStats, Item, Overflow, RawChunk, Sink, SinkSpec
+from groundstation.live.monitor import Monitor, MonitorThresholds
+from groundstation.live.monitor_sink import MonitorSink
+from groundstation.live.publisher import ZenohPublisherSink
 from groundstation.live.recorder import RecorderSink
 from groundstation.live.sources import Source, make_source
-from groundstation.records import Event, Frame, UndecodedFrame
+from groundstation.records import Event, Frame, Status, UndecodedFrame
 from groundstation.storage.recorder import SessionRecorder, register_record_topic
 from groundstation.ubx.decode import Decoder
 from groundstation.ubx.framer import UbxFramer
@@ -34,8 +38,8 @@ log = logging.getLogger("groundstation.daemon")
 
 @dataclass(frozen=True, slots=True)
 class PipelineStatus:
-    """The daemon's own counters, published every ``status_interval_s`` (``/groundstation/status``
-    until the monitor's Status takes over that role)."""
+    """The daemon's own counters, published every ``status_interval_s`` on
+    ``/groundstation/pipeline``; the monitor folds them into its Status."""
 
     t_host_ns: int
     source: str
@@ -51,7 +55,8 @@ class PipelineStatus:
     dropped: dict[str, int]
 
 
-register_record_topic(PipelineStatus, "/groundstation/status")
+register_record_topic(PipelineStatus, "/groundstation/pipeline")
+register_record_topic(Status, "/groundstation/status")
 
 
 @dataclass(frozen=True, slots=True)
@@ -72,6 +77,18 @@ class RunSummary:
     outages: int
     queues: tuple[InboxStats, ...]
     frames_by_type: dict[str, int] = field(default_factory=dict)
+
+
+def make_monitor(settings: Settings) -> Monitor:
+    """A monitor with the configured thresholds."""
+    m = settings.monitor
+    return Monitor(settings.station, MonitorThresholds(
+        dropout_alert_s=m.dropout_alert_s, ppk_ready_min=m.ppk_ready_min,
+        clean_phase_s=m.clean_phase_s, half_cycle_fraction_max=m.half_cycle_fraction_max,
+        no_data_s=m.no_data_s, disk_free_min_mb=m.disk_free_min_mb,
+        elevation_mask_deg=m.elevation_mask_deg, marks_missed_hold_s=m.marks_missed_hold_s,
+        status_interval_s=settings.status_interval_s,
+    ))
 
 
 class Pipeline:
@@ -114,10 +131,39 @@ class Pipeline:
                 rotate_duration_ns=int(rec.rotate_duration_s * 1e9), sidecar=rec.sidecar,
                 clock=clock,
             )
-            self.recorder = RecorderSink(session, rec.flush_interval_s, on_file, clock=clock)
+            user_on_file = on_file
+
+            def announce(path: Path) -> None:
+                self.publish(Event(
+                    "recorder.file_opened", self._clock(), f"recording to {path}", "info",
+                    {"path": str(path), "session_id": session.session_id},
+                ))
+                if user_on_file is not None:
+                    user_on_file(path)
+
+            self.recorder = RecorderSink(session, rec.flush_interval_s, announce, clock=clock)
             self.specs.append(
                 SinkSpec(self.recorder, settings.queues.recorder, Overflow.NEVER_DROP)
             )
+        self.monitor: MonitorSink | None = None
+        self.publisher: ZenohPublisherSink | None = None
+        if settings.monitor.enabled:
+            self.monitor = MonitorSink(
+                make_monitor(settings),
+                disk_path=settings.recorder.out_dir if record else None,
+                clock=clock,
+            )
+            self.specs.append(SinkSpec(self.monitor, settings.queues.monitor,
+                                       Overflow.DROP_OLDEST))
+        if settings.zenoh.enabled:
+            z = settings.zenoh
+            self.publisher = ZenohPublisherSink(
+                settings.station,
+                BusSettings(mode=z.mode, listen=z.listen, connect=z.connect, scouting=z.scouting),
+                publish_epochs=z.publish_epochs, publish_raw=z.publish_raw, clock=clock,
+            )
+            self.specs.append(SinkSpec(self.publisher, settings.queues.publisher,
+                                       Overflow.DROP_OLDEST))
         for spec in sinks:
             self.add_sink(spec.sink, spec.maxsize, spec.overflow)
         self.chunks = 0

@@ -374,7 +374,10 @@ class Monitor:
     # -- events from elsewhere ------------------------------------------------------------
 
     def _on_event(self, ev: Event, now_ns: int, events: list[Event]) -> None:
-        if ev.kind == "source.lost":
+        if ev.kind == "recorder.file_opened":
+            self.recording["file"] = ev.data.get("path")
+            self.session_id = str(ev.data.get("session_id") or self.session_id)
+        elif ev.kind == "source.lost":
             self.source_connected = False
         elif ev.kind == "source.connected":
             self.source_connected = True

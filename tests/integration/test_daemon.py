@@ -2,21 +2,18 @@
 
 from __future__ import annotations
 
-import contextlib
 import json
 import os
 import signal
 import subprocess
 import sys
-import threading
 import time
-import tty
-from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 from mcap.reader import make_reader
 from mcap.stream_reader import StreamReader
+from peers import Daemon, Pty
 
 from groundstation.ubx.build import build_frame
 
@@ -25,104 +22,9 @@ SHARED_DATA = REPO.parent / "shared" / "data"
 REAL_CAPTURE = SHARED_DATA / "real" / "tridge__pyUblox" / "data" / "6P-raw-PPP.ubx"
 
 
-class Pty:
-    """A pty pair reachable through a symlink that can be pulled and plugged back."""
-
-    def __init__(self, link: Path) -> None:
-        self.link = link
-        self.master = -1
-        self.slave = -1
-        self.plug()
-
-    def plug(self) -> None:
-        self.master, self.slave = os.openpty()
-        tty.setraw(self.slave)
-        tmp = self.link.with_suffix(".new")
-        tmp.unlink(missing_ok=True)
-        os.symlink(os.ttyname(self.slave), tmp)
-        os.replace(tmp, self.link)
-
-    def unplug(self) -> None:
-        self.link.unlink()
-        os.close(self.master)
-        os.close(self.slave)
-
-    def write(self, data: bytes, piece: int = 1024) -> None:
-        for i in range(0, len(data), piece):
-            view = memoryview(data)[i : i + piece]
-            while view:
-                n = os.write(self.master, view)
-                view = view[n:]
-
-    def close(self) -> None:
-        for fd in (self.master, self.slave):
-            with contextlib.suppress(OSError):
-                os.close(fd)
-
-
-class Daemon:
-    """`python -m groundstation.cli run ...` with its stderr collected line by line."""
-
-    def __init__(self, *args: str) -> None:
-        self.proc = subprocess.Popen(
-            [sys.executable, "-m", "groundstation.cli", "run", *args],
-            cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-        )
-        self.lines: list[tuple[float, str]] = []
-        self._thread = threading.Thread(target=self._pump, daemon=True)
-        self._thread.start()
-
-    def _pump(self) -> None:
-        assert self.proc.stderr is not None
-        for line in self.proc.stderr:
-            self.lines.append((time.monotonic(), line))
-
-    def wait_for(self, text: str, timeout_s: float = 10.0, after: float = 0.0) -> float:
-        """Monotonic time at which a stderr line containing ``text`` appeared."""
-        deadline = time.monotonic() + timeout_s
-        while time.monotonic() < deadline:
-            for t, line in list(self.lines):
-                if t >= after and text in line:
-                    return t
-            if self.proc.poll() is not None:
-                break
-            time.sleep(0.02)
-        raise AssertionError(f"no {text!r} within {timeout_s} s; stderr:\n" + self.stderr)
-
-    @property
-    def stderr(self) -> str:
-        return "".join(line for _, line in self.lines)
-
-    def stop(self, sig: int = signal.SIGTERM, timeout_s: float = 15.0) -> tuple[int, str]:
-        self.proc.send_signal(sig)
-        out, _ = self.proc.communicate(timeout=timeout_s)
-        self._thread.join(timeout=2)
-        return self.proc.returncode, out
-
-    def kill(self) -> None:
-        if self.proc.poll() is None:
-            self.proc.kill()
-            self.proc.wait(timeout=10)
-
-
-@pytest.fixture
-def pty(tmp_path: Path) -> Iterator[Pty]:
-    p = Pty(tmp_path / "ttyGS0")
-    yield p
-    p.close()
-
-
-@pytest.fixture
-def daemons() -> Iterator[list[Daemon]]:
-    started: list[Daemon] = []
-    yield started
-    for d in started:
-        d.kill()
-
-
 def start(daemons: list[Daemon], pty: Pty, out: Path, *extra: str) -> Daemon:
     d = Daemon("--port", str(pty.link), "--baud", "115200", "--station", "t",
-               "--out-dir", str(out), *extra)
+               "--out-dir", str(out), "--no-zenoh", *extra)
     daemons.append(d)
     d.wait_for("connected")  # pyserial flushes the input queue on open: write only after
     return d

@@ -1,0 +1,105 @@
+"""Real peers for integration tests: a pty pair that can be unplugged, and the daemon as a
+real process with its stderr collected."""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+import tty
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def free_port() -> int:
+    """A TCP port nobody listens on right now (for a Zenoh endpoint)."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port: int = s.getsockname()[1]
+        return port
+
+
+class Pty:
+    """A pty pair reachable through a symlink that can be pulled and plugged back."""
+
+    def __init__(self, link: Path) -> None:
+        self.link = link
+        self.master = -1
+        self.slave = -1
+        self.plug()
+
+    def plug(self) -> None:
+        self.master, self.slave = os.openpty()
+        tty.setraw(self.slave)
+        tmp = self.link.with_suffix(".new")
+        tmp.unlink(missing_ok=True)
+        os.symlink(os.ttyname(self.slave), tmp)
+        os.replace(tmp, self.link)
+
+    def unplug(self) -> None:
+        self.link.unlink()
+        os.close(self.master)
+        os.close(self.slave)
+
+    def write(self, data: bytes, piece: int = 1024) -> None:
+        for i in range(0, len(data), piece):
+            view = memoryview(data)[i : i + piece]
+            while view:
+                n = os.write(self.master, view)
+                view = view[n:]
+
+    def close(self) -> None:
+        for fd in (self.master, self.slave):
+            with contextlib.suppress(OSError):
+                os.close(fd)
+
+
+class Daemon:
+    """`python -m groundstation.cli run ...` with its stderr collected line by line."""
+
+    def __init__(self, *args: str, command: str = "run") -> None:
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "groundstation.cli", command, *args],
+            cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        )
+        self.lines: list[tuple[float, str]] = []
+        self._thread = threading.Thread(target=self._pump, daemon=True)
+        self._thread.start()
+
+    def _pump(self) -> None:
+        assert self.proc.stderr is not None
+        for line in self.proc.stderr:
+            self.lines.append((time.monotonic(), line))
+
+    def wait_for(self, text: str, timeout_s: float = 10.0, after: float = 0.0) -> float:
+        """Monotonic time at which a stderr line containing ``text`` appeared."""
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            for t, line in list(self.lines):
+                if t >= after and text in line:
+                    return t
+            if self.proc.poll() is not None:
+                break
+            time.sleep(0.02)
+        raise AssertionError(f"no {text!r} within {timeout_s} s; stderr:\n" + self.stderr)
+
+    @property
+    def stderr(self) -> str:
+        return "".join(line for _, line in self.lines)
+
+    def stop(self, sig: int = signal.SIGTERM, timeout_s: float = 15.0) -> tuple[int, str]:
+        self.proc.send_signal(sig)
+        out, _ = self.proc.communicate(timeout=timeout_s)
+        self._thread.join(timeout=2)
+        return self.proc.returncode, out
+
+    def kill(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.kill()
+            self.proc.wait(timeout=10)
