@@ -97,10 +97,11 @@ def collect_ephemerides(data: bytes | memoryview, index: FrameIndex, week_hint: 
         payload = bytes(mv[s : s + int(index.length[i])])
         subframes: list[tuple[int, tuple[int, ...]]] = []
         if key == RXM_SFRBX:
-            if len(payload) < 48 or payload[0] != 0 or payload[4] != 10:
+            if len(payload) < 48 or payload[0] != 0 or payload[2] != 0 or payload[4] != 10:
                 continue
-            # Subframes 1-3 repeat every 30 s with only the HOW changing: check each once.
-            # Subframe 4 matters only for page 18 (ionosphere, UTC).
+            # GPS L1 C/A LNAV only (sigId 0; L2C and L5 carry CNAV). Subframes 1-3 repeat
+            # every 30 s with only the HOW changing: check each once. Subframe 4 matters only
+            # for page 18 (ionosphere, UTC).
             raw_words = struct.unpack_from("<10I", payload, 8)
             sid = (raw_words[1] >> 8) & 0x7
             if sid == 5 or (sid == 4 and (raw_words[2] >> 22) & 0x3F != 56):

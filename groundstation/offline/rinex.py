@@ -437,7 +437,28 @@ def write_obs(
     total = len(rec_row)
     with path.open("w", encoding="ascii", newline="\n") as f:
         f.write(_obs_header(obs, info, types_by_sys, v3, t_rows, interval_ns))
-        for r, t in enumerate(t_rows.tolist()):
+        fast = v3 and all(len(t) == 4 for t in types_by_sys.values())
+        if fast:
+            # One signal per system (the common single-frequency case): a line per measurement.
+            labels = [f"{s_}{(p_ - 100 if s_ == 'S' else p_):02d}"
+                      for s_, p_ in zip(rec_sys, rec_prn, strict=True)]
+            sat_lines = [lab + ch + "\n" for lab, ch in zip(labels, chunks, strict=True)]
+            bounds = np.searchsorted(np.asarray(rec_row, dtype=np.int64),
+                                     np.arange(t_rows.size + 1)).tolist()
+            ev_arr = np.asarray(ev, dtype=np.int64)
+            ev_bounds = np.searchsorted(ev_arr, t_rows, side="right").tolist()
+            prev_ev = 0
+            for r, t in enumerate(t_rows.tolist()):
+                for e in ev[prev_ev : ev_bounds[r]]:
+                    lines.append(_epoch_line(e, 5, 0, True, []))
+                n_ev += ev_bounds[r] - prev_ev
+                prev_ev = ev_bounds[r]
+                k0, k1 = bounds[r], bounds[r + 1]
+                if k1 > k0:
+                    lines.append(_epoch_line(t, 0, k1 - k0, True, labels[k0:k1]))
+                    lines.extend(sat_lines[k0:k1])
+            ev_i = prev_ev
+        for r, t in enumerate([] if fast else t_rows.tolist()):
             while ev_i < len(ev) and ev[ev_i] <= t:
                 lines.append(_epoch_line(ev[ev_i], 5, 0, v3, []))
                 ev_i += 1
@@ -889,6 +910,17 @@ def convert(
         if t is not None and marks_mod.locate(t, written, interval).in_dropout:
             in_gap += 1
     notes: list[str] = []
+    if block.source == "RXM-RAWX" and block.meas.size:
+        pairs = block.meas["gnssId"].astype(np.int64) * 256 + block.meas["sigId"]
+        v1 = block.header["version"][block.epoch] >= 1
+        uniq, counts = np.unique(pairs[v1], return_counts=True)
+        unknown = [
+            f"gnssId {g // 256} sigId {g % 256} ({n})"
+            for g, n in zip(uniq.tolist(), counts.tolist(), strict=True)
+            if (g // 256, g % 256) not in SIGNAL_CODES
+        ]
+        if unknown:
+            notes.append("signals without a RINEX 3.04 code here, left out: " + ", ".join(unknown))
     if math.isfinite(approx[0]) and approx == (0.0, 0.0, 0.0):
         notes.append("no NAV-SOL/NAV-PVT fix: APPROX POSITION XYZ is zero")
     if not nav.ephemerides:
