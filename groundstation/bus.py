@@ -132,9 +132,14 @@ class Bus:
         self._declared.append(sub)
 
     def get(self, selector: str, timeout_s: float = 2.0) -> list[tuple[str, bytes]]:
-        """Query: every successful reply as (key, payload)."""
+        """Query: every successful reply as (key, payload), in order and unconsolidated (a
+        queryable may answer several times on one key, as ``q/timemarks`` does)."""
         out = []
-        for reply in self._session.get(selector, timeout=timeout_s):
+        replies = self._session.get(
+            selector, timeout=timeout_s,
+            consolidation=zenoh.QueryConsolidation(zenoh.ConsolidationMode.NONE),
+        )
+        for reply in replies:
             ok = reply.ok
             if ok is not None:
                 out.append((str(ok.key_expr), ok.payload.to_bytes()))

@@ -283,6 +283,7 @@ class LinkStatus:
 
     epoch_interval_s: float | None
     epochs: int
+    first_epoch_t_gps_ns: int | None
     last_epoch_t_gps_ns: int | None
     last_byte_age_s: float | None
     bytes_per_s: float

@@ -539,6 +539,7 @@ class Monitor:
         link = LinkStatus(
             epoch_interval_s=self.interval_ns / 1e9 if self.interval_ns else None,
             epochs=self.epochs,
+            first_epoch_t_gps_ns=self.first_epoch_ns,
             last_epoch_t_gps_ns=self.last_epoch_ns,
             last_byte_age_s=(now_ns - self.last_byte_ns) / 1e9 if self.last_byte_ns else None,
             bytes_per_s=self._rate(self._bytes, now_ns),

@@ -93,8 +93,10 @@ def _fmt(v: Any, spec: str = "", none: str = "-") -> str:
 
 
 def timeline(link: dict[str, Any], cols: int = TIMELINE_COLS, span_s: int = TIMELINE_S) -> Text:
-    """One character per ``span_s/cols`` seconds: green received, red a dropout in it."""
+    """One character per ``span_s/cols`` seconds: green received, red a dropout in it, blank
+    before the session started."""
     last = link.get("last_epoch_t_gps_ns")
+    first = link.get("first_epoch_t_gps_ns") or last
     text = Text()
     if last is None:
         return Text("no epochs yet", style="dim")
@@ -112,8 +114,11 @@ def timeline(link: dict[str, Any], cols: int = TIMELINE_COLS, span_s: int = TIME
         for i in range((a - start) // bucket_ns, min(cols, (b - start) // bucket_ns + 1)):
             if 0 <= i < cols:
                 bad[i] += 1
-    for b in bad:
-        text.append("▇" if not b else "▁", style="green" if not b else "bold red")
+    for i, b in enumerate(bad):
+        if start + (i + 1) * bucket_ns <= first:
+            text.append("·", style="dim")
+        else:
+            text.append("▇" if not b else "▁", style="green" if not b else "bold red")
     return text
 
 
