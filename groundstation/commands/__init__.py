@@ -12,8 +12,8 @@ COMMANDS: dict[str, str] = {
     "run": "groundstation.commands.run",
     "simulate": "groundstation.commands.simulate",
     "rinex": "groundstation.commands.rinex",
-    "configure": "groundstation.commands.configure",
     "watch": "groundstation.commands.watch",
+    "demo": "groundstation.commands.demo",
 }
 """Subcommand name -> module implementing it."""
 
@@ -22,6 +22,6 @@ HELP: dict[str, str] = {
     "run": "the live daemon: receive, decode and record a station's stream",
     "simulate": "realistic u-blox stream to a pty, TCP port or file, with faults",
     "rinex": "MCAP/.ubx -> RINEX 2.11/3.04 obs + nav + time-mark table",
-    "configure": "send receiver configuration (CFG-*) and check ACKs",
     "watch": "live terminal view of a station over Zenoh",
+    "demo": "simulator + daemon + live view, the embedded default",
 }

@@ -35,7 +35,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--truth", metavar="FILE", help="write the truth JSON here")
 
 
-def _speed(value: str | None, live: bool) -> float | None:
+def parse_speed(value: str | None, live: bool) -> float | None:
+    """``--speed``: 1 (real time), N (N times faster) or max (None); default by output."""
     if value is None:
         return 1.0 if live else None
     if value == "max":
@@ -78,7 +79,7 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError("duration", "must be positive")
     faults = FaultConfig.load(args.faults)
     live = bool(args.pty or args.tcp)
-    speed = _speed(args.speed, live)
+    speed = parse_speed(args.speed, live)
     started = time.monotonic()
     result = simulate(SimConfig(duration_s=args.duration, seed=args.seed, faults=faults,
                                 with_base=bool(args.base_out) or not live))

@@ -1,0 +1,147 @@
+"""``groundstation demo``: a simulated flight through a pty into the daemon, with a live view."""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import sys
+from pathlib import Path
+from typing import Any
+
+from groundstation.commands.simulate import parse_speed
+from groundstation.errors import ConfigError
+
+NAME = "demo"
+HELP = "simulator + daemon + live view, the embedded default"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--flight", type=float, default=300.0, metavar="S",
+                        help="length of the simulated flight, static ends included (default 300)")
+    parser.add_argument("--speed", default="1", help="1 (real time, default), N or max")
+    parser.add_argument("--duration", type=float, default=0.0, metavar="S",
+                        help="stop after S seconds of wall time (default: end of the flight)")
+    parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--faults", default="default", metavar="none|default|FILE",
+                        help="link and mark faults to inject (default: default)")
+    parser.add_argument("--out-dir", type=Path, default=Path("flights"), metavar="DIR")
+    parser.add_argument("--station", default="demo")
+    parser.add_argument("--zenoh-listen", action="append", metavar="ENDPOINT",
+                        help="Zenoh endpoint to publish on (default tcp/127.0.0.1:7447)")
+    parser.add_argument("--no-zenoh", action="store_true", help="do not publish on Zenoh")
+    parser.add_argument("--no-view", action="store_true", help="no live view, just the summary")
+
+
+def run(args: argparse.Namespace) -> int:
+    from groundstation.demo import DemoOptions, run_demo
+
+    if args.flight < 60:
+        raise ConfigError("flight", "must be at least 60 s (static, take-off, lines, landing)")
+    if args.duration < 0:
+        raise ConfigError("duration", "must be >= 0")
+    opts = DemoOptions(
+        flight_s=args.flight, speed=parse_speed(args.speed, live=True), seed=args.seed,
+        faults=args.faults, duration_s=args.duration, out_dir=args.out_dir,
+        station=args.station, zenoh=not args.no_zenoh,
+        zenoh_listen=tuple(args.zenoh_listen or ["tcp/127.0.0.1:7447"]),
+    )
+    speed = "as fast as possible" if opts.speed is None else f"x{opts.speed:g}"
+
+    def ready(info: dict[str, Any]) -> None:
+        print(f"demo: simulated {opts.flight_s:g} s flight ({speed}) on pty {info['pty']}",
+              file=sys.stderr, flush=True)
+        if info["zenoh"]:
+            endpoints = info["zenoh"]
+            connect = "" if endpoints == ["tcp/127.0.0.1:7447"] else f" --connect {endpoints[0]}"
+            print(f"demo: publishing on Zenoh {', '.join(endpoints)} (watch it from another "
+                  f"terminal: groundstation watch --station {opts.station}{connect})",
+                  file=sys.stderr, flush=True)
+        print("demo: Ctrl-C ends it cleanly", file=sys.stderr, flush=True)
+
+    def on_file(path: Path) -> None:
+        pass  # the recorder logs the path; the summary lists every file
+
+    interactive = sys.stdout.isatty() and not args.no_view
+    if interactive:
+        result = _run_with_view(opts, ready, on_file)
+    else:
+        result = asyncio.run(run_demo(opts, on_payload=lambda k, p: None, ready=ready,
+                                      on_file=on_file))
+    _print_summary(result)
+    return 0
+
+
+def _run_with_view(opts: Any, ready: Any, on_file: Any) -> Any:
+    from rich.console import Console
+    from rich.live import Live
+
+    from groundstation.demo import run_demo
+    from groundstation.view.watch import WatchState, render
+
+    state = WatchState(opts.station)
+    console = Console()
+    _log_through(console)
+
+    async def main() -> Any:
+        with Live(render(state), console=console, auto_refresh=False, transient=False) as live:
+
+            async def refresh() -> None:
+                while True:
+                    live.update(render(state), refresh=True)
+                    await asyncio.sleep(0.25)
+
+            task = asyncio.create_task(refresh(), name="view")
+            try:
+                return await run_demo(opts, on_payload=lambda k, p: state.on_payload(k, p),
+                                      ready=ready, on_file=on_file)
+            finally:
+                task.cancel()
+                live.update(render(state), refresh=True)
+
+    return asyncio.run(main())
+
+
+def _log_through(console: Any) -> None:
+    """Log lines above the live view instead of through it."""
+    import logging
+
+    from rich.logging import RichHandler
+
+    root = logging.getLogger()
+    level = root.level
+    for h in list(root.handlers):
+        root.removeHandler(h)
+    root.addHandler(RichHandler(console=console, show_path=False, level=level))
+
+
+def _print_summary(result: Any) -> None:
+    s = result.summary
+    truth = result.sim.truth
+    injected = truth["fault_summary"]
+    st = result.last_status
+    print(f"demo finished: {s.stopped_by} after {s.duration_s:.1f} s")
+    lost = result.bytes_written - s.bytes_in
+    print(f"  received {s.bytes_in:,} of the {result.bytes_written:,} bytes written into the pty"
+          f"{'' if lost == 0 else f' ({lost:,} not read before the end)'}: {s.frames:,} frames, "
+          f"{s.garbage_bytes:,} garbage bytes, {s.records:,} records")
+    if st is not None:
+        link, marks = st.link, st.marks
+        print(f"  link: {link.epochs} epochs at {link.epoch_interval_s or 0:g} s, "
+              f"{link.dropouts} dropouts ({link.missing_epochs} epochs missing; simulator "
+              f"injected {len(injected['epochs_lost_tow_ms'])}), {link.damaged_frames} damaged "
+              f"frames")
+        print(f"  marks: {marks.marks} received, {marks.missed} missed, {marks.duplicates} "
+              f"duplicates, {marks.in_dropout} inside dropouts "
+              f"(simulator: {len(truth['exposures'])} exposures)")
+        print(f"  satellites: {st.tracked} tracked, {st.ppk_ready} PPK-ready; alerts: "
+              f"{'; '.join(st.alerts) or 'none'}")
+    for path in s.files:
+        print(f"  MCAP:        {path}")
+    for path in s.sidecars:
+        print(f"  raw UBX:     {path}")
+    print(f"  base UBX:    {result.base_path}")
+    print(f"  truth:       {result.truth_path}")
+    if result.endpoint:
+        print(f"  Zenoh:       groundstation/{result.station}/** on {result.endpoint}")
+    if s.files:
+        print(f"next: groundstation inspect {s.files[0]}")

@@ -1,0 +1,200 @@
+"""The demo: the simulator feeds the daemon through a real pty; the daemon records and publishes.
+
+It wires a simulated flight (rover and base), a pseudo-terminal that stands in for the Wi232
+radio's USB serial port, the live pipeline reading it with pyserial (recorder, monitor, Zenoh
+publisher) and an in-process view sink for the terminal. What it writes goes to one directory:
+the MCAP and raw sidecar of the session, the base station's stream and the simulator's truth.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import os
+import threading
+import tty
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from groundstation.bus import encode
+from groundstation.config import load_settings
+from groundstation.live.daemon import Pipeline, RunSummary
+from groundstation.live.fanout import Inbox, InboxClosed, Item, Overflow
+from groundstation.records import Event, Status, TimeMark
+from groundstation.sim.faults import FaultConfig
+from groundstation.sim.stream import SimConfig, SimResult, paced, simulate
+
+log = logging.getLogger("groundstation.demo")
+
+DRAIN_S = 2.0
+
+
+@dataclass(frozen=True, slots=True)
+class DemoOptions:
+    flight_s: float = 300.0
+    speed: float | None = 1.0
+    seed: int = 1
+    faults: str = "default"
+    duration_s: float = 0.0
+    out_dir: Path = Path("flights")
+    station: str = "demo"
+    zenoh_listen: tuple[str, ...] = ("tcp/127.0.0.1:7447",)
+    zenoh: bool = True
+
+
+@dataclass(frozen=True, slots=True)
+class DemoResult:
+    summary: RunSummary
+    sim: SimResult
+    base_path: Path
+    truth_path: Path
+    pty_path: str
+    last_status: Status | None
+    endpoint: str | None
+    station: str
+    bytes_written: int
+
+
+class ViewSink:
+    """Hands status, events and marks to a callback as bus payloads (the terminal view)."""
+
+    name = "view"
+
+    def __init__(self, on_payload: Callable[[str, bytes], None], station: str) -> None:
+        self._on_payload = on_payload
+        self.station = station
+        self.last_status: Status | None = None
+        self._marks = 0
+
+    async def consume(self, inbox: Inbox, publish: Callable[[Item], None]) -> None:
+        while True:
+            try:
+                item = await inbox.get()
+            except InboxClosed:
+                return
+            if isinstance(item, Status):
+                self.last_status = item
+                self._on_payload("status", encode("status", item))
+            elif isinstance(item, Event):
+                self._on_payload("event", encode("event", item, station=self.station))
+            elif isinstance(item, TimeMark):
+                self._on_payload("timemark", encode("timemark", item, index=self._marks))
+                self._marks += 1
+
+
+class PtyFeeder:
+    """Writes the simulated stream into the master side of a pty, paced, in a thread."""
+
+    def __init__(self, chunks: list[tuple[int, bytes]], speed: float | None) -> None:
+        self.master, self.slave = os.openpty()
+        tty.setraw(self.slave)
+        self.path = os.ttyname(self.slave)
+        self._chunks = chunks
+        self._speed = speed
+        self._stop = threading.Event()
+        self.done = threading.Event()
+        self.bytes_written = 0
+        self._thread = threading.Thread(target=self._run, name="pty-feeder", daemon=True)
+
+    def start(self) -> None:
+        self._thread.start()
+
+    def _run(self) -> None:
+        try:
+            for _, chunk in paced(self._chunks, self._speed):
+                if self._stop.is_set():
+                    return
+                view = memoryview(chunk)
+                while view:
+                    n = os.write(self.master, view)
+                    view = view[n:]
+                self.bytes_written += len(chunk)
+        except OSError as err:
+            log.warning("pty writer stopped: %s", err)
+        finally:
+            self.done.set()
+
+    def stop(self) -> None:
+        self._stop.set()
+
+    def close(self) -> None:
+        self._stop.set()
+        for fd in (self.master, self.slave):
+            with contextlib.suppress(OSError):
+                os.close(fd)
+
+
+async def run_demo(
+    opts: DemoOptions,
+    *,
+    on_payload: Callable[[str, bytes], None] | None = None,
+    on_file: Callable[[Path], None] | None = None,
+    ready: Callable[[dict[str, Any]], None] | None = None,
+) -> DemoResult:
+    """Simulate, feed the pty, run the pipeline until the flight ends, ``duration_s`` passes or
+    the process is interrupted; return what happened and where it went."""
+    faults = FaultConfig.load(opts.faults)
+    sim = simulate(SimConfig(duration_s=opts.flight_s, seed=opts.seed, faults=faults))
+    opts.out_dir.mkdir(parents=True, exist_ok=True)
+    feeder = PtyFeeder(sim.rover_chunks, opts.speed)
+    overrides: dict[str, Any] = {
+        "station": opts.station,
+        "receiver": "simulated u-blox LEA-6T (groundstation.sim)",
+        "source": {"port": feeder.path, "baud": 115200},
+        "recorder": {"out_dir": opts.out_dir},
+        "zenoh": {"enabled": opts.zenoh, "listen": list(opts.zenoh_listen)},
+    }
+    settings = load_settings(None, environ={}, overrides=overrides)
+    view = ViewSink(on_payload, opts.station) if on_payload is not None else None
+    pipeline = Pipeline(settings, on_file=on_file)
+    if view is not None:
+        pipeline.add_sink(view, 1000, Overflow.DROP_OLDEST)
+    stop = asyncio.Event()
+
+    async def stop_when_flight_ends() -> None:
+        while not feeder.done.is_set():  # polled: an executor thread would block the exit
+            await asyncio.sleep(0.1)
+        await asyncio.sleep(DRAIN_S)  # let the daemon read what is still in the pty
+        pipeline.stopped_by = pipeline.stopped_by or "end of simulated flight"
+        stop.set()
+
+    async def stop_after_duration() -> None:
+        await asyncio.sleep(opts.duration_s)
+        pipeline.stopped_by = pipeline.stopped_by or f"duration {opts.duration_s:g} s"
+        stop.set()
+
+    watchers = [asyncio.create_task(stop_when_flight_ends(), name="flight-end")]
+    if opts.duration_s > 0:
+        watchers.append(asyncio.create_task(stop_after_duration(), name="duration"))
+    if ready is not None:
+        ready({"pty": feeder.path, "out_dir": str(opts.out_dir),
+               "zenoh": list(opts.zenoh_listen) if opts.zenoh else None,
+               "flight_s": opts.flight_s, "speed": opts.speed})
+    runner = asyncio.create_task(pipeline.run(stop, handle_signals=True), name="pipeline")
+    # the serial source opens the pty (and flushes its input) before the first byte is written
+    for _ in range(200):
+        if getattr(getattr(pipeline.source, "state", None), "connected", False):
+            break
+        await asyncio.sleep(0.01)
+    feeder.start()
+    try:
+        summary = await runner
+    finally:
+        feeder.close()
+        for w in watchers:
+            w.cancel()
+    stem = summary.files[0].stem if summary.files else f"{opts.station}_demo"
+    base_path = opts.out_dir / f"{stem}_base.ubx"
+    base_path.write_bytes(sim.base_bytes)
+    truth_path = opts.out_dir / f"{stem}.truth.json"
+    sim.write_truth(truth_path)
+    return DemoResult(
+        summary=summary, sim=sim, base_path=base_path, truth_path=truth_path,
+        pty_path=feeder.path, last_status=view.last_status if view else None,
+        endpoint=opts.zenoh_listen[0] if opts.zenoh and opts.zenoh_listen else None,
+        station=opts.station,
+        bytes_written=feeder.bytes_written,
+    )

@@ -1,0 +1,51 @@
+"""`groundstation demo` end to end: simulator -> pty -> daemon -> MCAP, as a user runs it."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+from peers import REPO
+
+from groundstation.offline.inspect import inspect_path
+from groundstation.storage import iter_raw_chunks
+
+
+def test_demo_records_everything_and_says_where(tmp_path: Path) -> None:
+    out = tmp_path / "flights"
+    proc = subprocess.run(
+        [sys.executable, "-m", "groundstation.cli", "demo", "--flight", "90", "--speed", "max",
+         "--out-dir", str(out), "--no-zenoh", "--seed", "4"],
+        cwd=tmp_path, capture_output=True, text=True, timeout=120, check=False,
+    )
+    assert proc.returncode == 0, proc.stderr
+    stdout = proc.stdout
+    assert "demo finished: end of simulated flight" in stdout
+    (mcap,) = out.glob("demo_*.mcap")
+    (sidecar,) = [p for p in out.glob("demo_*.ubx") if not p.stem.endswith("_base")]
+    (base,) = out.glob("demo_*_base.ubx")
+    (truth_path,) = out.glob("demo_*.truth.json")
+    for p in (mcap, sidecar, base, truth_path):
+        assert str(p) in stdout
+    raw = b"".join(c for c, _ in iter_raw_chunks(mcap))
+    assert raw == sidecar.read_bytes()
+    assert f"received {len(raw):,} of the {len(raw):,} bytes" in stdout
+    truth = json.loads(truth_path.read_text())
+    lost = truth["fault_summary"]["epochs_lost_tow_ms"]
+    summary = inspect_path(mcap)
+    assert summary.missing_epochs == len(lost)
+    assert f"({len(lost)} epochs missing; simulator injected {len(lost)})" in stdout
+    assert summary.timemarks.falling == len(truth["exposures"]) - sum(
+        e["missed"] for e in truth["exposures"])
+    assert inspect_path(base).damaged_frames == 0
+
+
+def test_demo_bad_option_exits_2(tmp_path: Path) -> None:
+    proc = subprocess.run(
+        [sys.executable, "-m", "groundstation.cli", "demo", "--flight", "10"],
+        cwd=REPO, capture_output=True, text=True, timeout=60, check=False,
+    )
+    assert proc.returncode == 2
+    assert "flight" in proc.stderr
