@@ -1,0 +1,1 @@
+"""Post-flight solver: positions -> marks -> photos -> lever arm -> outputs (see pipeline.py)."""

@@ -1,0 +1,565 @@
+"""Photos to time marks: EXIF capture times, burst spreading, clock offset, one-to-one pairing.
+
+The matching core (:func:`match`) is sans-I/O: it takes photo times on the camera clock and mark
+times in GPS seconds. EXIF reading and writing (the ``exif`` library) live here too, at the edge:
+:func:`read_photo`, :func:`scan_photos`, :func:`write_gps_copy`, :func:`make_jpeg`.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import math
+import re
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import numpy.typing as npt
+
+from groundstation import gpstime
+from groundstation.errors import InputError
+
+FloatArray = npt.NDArray[np.float64]
+
+MAX_PAIR_S = 0.75
+"""A photo and a mark further apart than this (after the clock offset) are never paired."""
+MIN_PAIR_TOLERANCE_S = 0.1
+"""Floor of the adaptive pairing tolerance (photos with sub-second times)."""
+TRUNCATION_MARGIN_S = 0.1
+"""Slack beyond its EXIF second allowed for a whole-second photo (offset estimate, clock drift)."""
+REFINE_STEP_S = 0.01
+REFINE_HALF_WIDTH_S = 0.5
+VOTE_BIN_S = 0.05
+MAX_VOTE_BINS = 1 << 24
+
+BURST_SPREAD_S: dict[int, tuple[float, ...]] = {
+    1: (0.0,),
+    2: (-0.25, 0.25),
+    3: (-0.33, 0.0, 0.33),
+    4: (-0.40, -0.15, 0.15, 0.40),
+}
+"""Offsets from the middle of the EXIF second for photos that share it, by file order
+(DOMAIN.md §8); larger bursts are spread evenly."""
+
+JPEG_SUFFIXES = (".jpg", ".jpeg", ".jpe")
+
+
+@dataclass(frozen=True, slots=True)
+class Photo:
+    """One photo's capture time as the camera wrote it.
+
+    Attributes:
+        name: file name.
+        path: full path.
+        exif_second_ns: ``DateTimeOriginal`` as UNIX ns, read as UTC (whole seconds).
+        subsec_ns: ``SubSecTimeOriginal`` in ns, or ``None`` when absent.
+        utc_offset_s: ``OffsetTimeOriginal`` in seconds east of UTC, or ``None``.
+        time_tag: which EXIF tag gave the time (``DateTimeOriginal`` or ``DateTime``).
+        error: why the photo has no usable time (then the times are 0).
+    """
+
+    name: str
+    path: str
+    exif_second_ns: int
+    subsec_ns: int | None = None
+    utc_offset_s: int | None = None
+    time_tag: str = "DateTimeOriginal"
+    error: str = ""
+
+    @property
+    def usable(self) -> bool:
+        return not self.error
+
+    @property
+    def utc_second_ns(self) -> int:
+        """The EXIF second on the UTC scale when the camera stated its zone, else as written."""
+        return self.exif_second_ns - (self.utc_offset_s or 0) * gpstime.NS_PER_S
+
+
+def natural_key(name: str) -> tuple[tuple[int, int | str], ...]:
+    """Sort key that orders ``IMG_9.JPG`` before ``IMG_10.JPG``."""
+    return tuple(
+        (0, int(part)) if part.isdigit() else (1, part.lower())
+        for part in re.split(r"(\d+)", name)
+        if part
+    )
+
+
+def parse_exif_datetime(text: str) -> dt.datetime:
+    """``YYYY:MM:DD HH:MM:SS`` (EXIF) as a naive datetime."""
+    return dt.datetime.strptime(text.strip().rstrip("\x00"), "%Y:%m:%d %H:%M:%S")
+
+
+def parse_subsec(text: str) -> int | None:
+    """``SubSecTimeOriginal`` (decimal fraction digits) as ns; ``None`` if empty or invalid."""
+    digits = text.strip().rstrip("\x00").strip()
+    if not digits.isdigit():
+        return None
+    return int((digits + "000000000")[:9])
+
+
+def parse_utc_offset(text: str) -> int | None:
+    """``OffsetTimeOriginal`` (``+02:00``) as seconds east of UTC."""
+    m = re.fullmatch(r"\s*([+-])(\d\d):(\d\d)\s*\x00*", text)
+    if not m:
+        return None
+    s = int(m.group(2)) * 3600 + int(m.group(3)) * 60
+    return s if m.group(1) == "+" else -s
+
+
+def _unix_ns(naive: dt.datetime) -> int:
+    return int(naive.replace(tzinfo=dt.UTC).timestamp()) * gpstime.NS_PER_S
+
+
+def read_photo(path: str | Path) -> Photo:
+    """The EXIF capture time of one JPEG (never raises for bad photos: see ``Photo.error``)."""
+    from exif import Image  # the one module that owns the exif library
+
+    p = Path(path)
+    try:
+        img = Image(p.read_bytes())
+    except OSError as err:
+        return Photo(p.name, str(p), 0, error=f"cannot read: {err}")
+    except Exception as err:  # the exif library raises plain exceptions on odd files
+        return Photo(p.name, str(p), 0, error=f"no readable EXIF: {err}")
+    if not img.has_exif:
+        return Photo(p.name, str(p), 0, error="no EXIF")
+    tag = "DateTimeOriginal"
+    text = _get(img, "datetime_original")
+    if not text:
+        tag, text = "DateTime", _get(img, "datetime")
+    if not text:
+        return Photo(p.name, str(p), 0, error="no DateTimeOriginal")
+    try:
+        second = _unix_ns(parse_exif_datetime(text))
+    except ValueError:
+        return Photo(p.name, str(p), 0, error=f"bad {tag} {text!r}")
+    sub = _get(img, "subsec_time_original")
+    off = _get(img, "offset_time_original")
+    return Photo(
+        p.name, str(p), second,
+        parse_subsec(sub) if sub else None,
+        parse_utc_offset(off) if off else None,
+        tag,
+    )
+
+
+def _get(img: object, attr: str) -> str:
+    try:
+        value = img.get(attr)  # type: ignore[attr-defined]
+    except Exception:  # a damaged tag must not cost the whole photo
+        return ""
+    return str(value) if value is not None else ""
+
+
+def scan_photos(directory: str | Path) -> list[Photo]:
+    """Every JPEG in ``directory`` (not recursive), in natural file-name order."""
+    d = Path(directory)
+    if not d.is_dir():
+        raise InputError(f"{d}: not a directory")
+    files = sorted(
+        (p for p in d.iterdir() if p.suffix.lower() in JPEG_SUFFIXES and p.is_file()),
+        key=lambda p: natural_key(p.name),
+    )
+    return [read_photo(p) for p in files]
+
+
+# -- times on the camera clock ------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class PhotoTimes:
+    """Estimated capture times of photos on the camera clock (GPS-scale seconds).
+
+    Attributes:
+        t_s: best estimate per photo (NaN when the photo has no usable time).
+        spread_s: where in its EXIF second a whole-second photo was put, relative to the middle
+            (0 for a single photo, ±0.25 ... in bursts); NaN for photos with sub-second times.
+        precise: the photo has ``SubSecTimeOriginal``.
+    """
+
+    t_s: FloatArray
+    spread_s: FloatArray
+    precise: npt.NDArray[np.bool_]
+
+
+def photo_times(photos: Sequence[Photo]) -> PhotoTimes:
+    """Best capture time of each photo, in GPS-scale seconds of the camera clock.
+
+    With ``SubSecTimeOriginal`` the time is exact to the camera clock. Without it, photos that
+    share an EXIF second (consecutive in file order) are spread over it as
+    :data:`BURST_SPREAD_S` says; a single photo sits in the middle of its second. UTC offsets the
+    camera declared are removed and leap seconds added, so what is left between these times and
+    GPS time is the camera clock's own error. Unusable photos give NaN.
+    """
+    out = np.full(len(photos), np.nan)
+    spread_out = np.full(len(photos), np.nan)
+    precise = np.zeros(len(photos), bool)
+    i = 0
+    while i < len(photos):
+        ph = photos[i]
+        if not ph.usable:
+            i += 1
+            continue
+        base = gpstime.unix_to_gps_ns(ph.utc_second_ns)
+        if ph.subsec_ns is not None:
+            out[i] = base / 1e9 + ph.subsec_ns / 1e9
+            precise[i] = True
+            i += 1
+            continue
+        j = i + 1
+        while (
+            j < len(photos)
+            and photos[j].usable
+            and photos[j].subsec_ns is None
+            and photos[j].utc_second_ns == ph.utc_second_ns
+        ):
+            j += 1
+        n = j - i
+        spread = BURST_SPREAD_S.get(n) or tuple((k + 0.5) / n - 0.5 for k in range(n))
+        for k in range(n):
+            out[i + k] = base / 1e9 + 0.5 + spread[k]
+            spread_out[i + k] = spread[k]
+        i = j
+    return PhotoTimes(out, spread_out, precise)
+
+
+def photo_times_s(photos: Sequence[Photo]) -> FloatArray:
+    """Just the times of :func:`photo_times`."""
+    return photo_times(photos).t_s
+
+
+# -- clock offset -------------------------------------------------------------------------------
+
+
+def _vote_offsets(photo_s: FloatArray, mark_s: FloatArray, window_s: float) -> list[float]:
+    """Candidate offsets (mark − photo), best first, by voting on every pairwise difference.
+
+    The histogram of all photo-mark differences is a cross-correlation of the two event
+    trains; it is computed with an FFT in O(B log B) (B bins of :data:`VOTE_BIN_S`), then summed
+    over ``±window_s``: the value at an offset is the number of pairs within the window.
+    """
+    p0, m0 = float(photo_s.min()), float(mark_s.min())
+    span = float(photo_s.max() - p0) + float(mark_s.max() - m0)
+    w = max(VOTE_BIN_S, span / MAX_VOTE_BINS)
+    ip = np.round((photo_s - p0) / w).astype(np.int64)
+    im = np.round((mark_s - m0) / w).astype(np.int64)
+    lp, lm = int(ip.max()) + 1, int(im.max()) + 1
+    size = 1 << int(math.ceil(math.log2(lp + lm)))
+    a = np.bincount(im, minlength=lm).astype(np.float64)
+    b = np.bincount(lp - 1 - ip, minlength=lp).astype(np.float64)  # reversed photo train
+    corr = np.fft.irfft(np.fft.rfft(a, size) * np.fft.rfft(b, size), size)[: lp + lm - 1]
+    corr = np.rint(corr)
+    half = max(1, int(round(window_s / w)))
+    csum = np.concatenate([[0.0], np.cumsum(corr)])
+    idx = np.arange(corr.size)
+    votes = csum[np.minimum(idx + half + 1, corr.size)] - csum[np.maximum(idx - half, 0)]
+    # lag index k means mark bin - photo bin = k - (lp - 1)
+    offsets = m0 - p0 + (idx - (lp - 1)) * w
+    out: list[float] = []
+    for k in np.argsort(-votes, kind="stable")[:2000].tolist():
+        if votes[k] <= 0:
+            break
+        if all(abs(offsets[k] - o) > 2 * window_s for o in out):
+            out.append(float(offsets[k]))
+        if len(out) >= 8:
+            break
+    return out
+
+
+def _residuals(shifted: FloatArray, mark_sorted: FloatArray) -> FloatArray:
+    """Signed distance from each shifted photo time to its nearest mark."""
+    j = np.searchsorted(mark_sorted, shifted)
+    lo = mark_sorted[np.clip(j - 1, 0, mark_sorted.size - 1)]
+    hi = mark_sorted[np.clip(j, 0, mark_sorted.size - 1)]
+    r_lo, r_hi = lo - shifted, hi - shifted
+    return np.where(np.abs(r_lo) <= np.abs(r_hi), r_lo, r_hi)
+
+
+def _cost(photo_s: FloatArray, mark_sorted: FloatArray, offset: float, cap: float) -> float:
+    r = _residuals(photo_s + offset, mark_sorted)
+    return float(np.sum(np.minimum(np.abs(r), cap)))
+
+
+def estimate_offset(
+    photo_s: FloatArray, mark_s: FloatArray, max_pair_s: float = MAX_PAIR_S
+) -> tuple[float, int]:
+    """Camera clock offset (GPS − camera, seconds) and how many photos it pairs within the window.
+
+    Voting picks candidates (:func:`_vote_offsets`); each is refined to :data:`REFINE_STEP_S`
+    within ±:data:`REFINE_HALF_WIDTH_S` by minimising the capped residual sum; the candidate
+    that pairs most photos wins (then the smaller residual sum).
+    """
+    ph = photo_s[np.isfinite(photo_s)]
+    mk = np.unique(mark_s[np.isfinite(mark_s)])
+    if ph.size == 0 or mk.size == 0:
+        return 0.0, 0
+    best: tuple[int, float, float] | None = None
+    steps = np.arange(-REFINE_HALF_WIDTH_S, REFINE_HALF_WIDTH_S + 1e-9, REFINE_STEP_S)
+    for cand in _vote_offsets(ph, mk, max_pair_s):
+        costs = [_cost(ph, mk, cand + s, max_pair_s) for s in steps.tolist()]
+        k = int(np.argmin(costs))
+        off = cand + float(steps[k])
+        paired = int(np.sum(np.abs(_residuals(ph + off, mk)) <= max_pair_s))
+        key = (paired, -costs[k], off)
+        if best is None or key[:2] > best[:2]:
+            best = key
+    assert best is not None
+    return round(best[2] / REFINE_STEP_S) * REFINE_STEP_S, best[0]
+
+
+# -- pairing ------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class Pair:
+    """A photo and its mark; ``residual_s`` = mark − (photo + offset)."""
+
+    photo: int
+    mark: int
+    residual_s: float
+
+
+@dataclass(frozen=True, slots=True)
+class MatchResult:
+    """Photos paired with marks, and what is left over on each side.
+
+    Attributes:
+        offset_s: camera clock offset, GPS − camera (after the declared UTC offset and leap
+            seconds): add it to a photo's time to get GPS time.
+        tolerance_s: the pairing window used (adaptive, at most :data:`MAX_PAIR_S`).
+        pairs: one-to-one pairs, in photo order.
+        unmatched_photos: photo indices with no mark (including photos without a usable time).
+        orphan_marks: mark indices with no photo.
+        duplicate_marks: mark indices dropped because an earlier mark has the same time.
+        photo_s: the estimated capture time of each photo on the camera clock (GPS-scale s).
+        residual_sigma_s: robust σ of the pair residuals.
+    """
+
+    offset_s: float
+    tolerance_s: float
+    pairs: tuple[Pair, ...]
+    unmatched_photos: tuple[int, ...]
+    orphan_marks: tuple[int, ...]
+    duplicate_marks: tuple[int, ...]
+    photo_s: FloatArray
+    residual_sigma_s: float
+
+    def mark_of_photo(self) -> dict[int, int]:
+        return {p.photo: p.mark for p in self.pairs}
+
+
+def greedy_pairs(
+    photo_s: FloatArray,
+    mark_s: FloatArray,
+    offset_s: float,
+    tolerance_s: float | FloatArray,
+    upper_s: FloatArray | None = None,
+) -> list[Pair]:
+    """One-to-one pairs, closest first, each photo and mark used once, none outside the window.
+
+    The window of residuals (mark − photo − offset) is ``±tolerance_s`` (one value or one per
+    photo), or ``[-tolerance_s, upper_s]`` per photo when ``upper_s`` is given.
+    """
+    order = np.argsort(mark_s, kind="stable")
+    ms = mark_s[order]
+    shifted = photo_s + offset_s
+    lower = np.broadcast_to(np.asarray(tolerance_s, dtype=np.float64), shifted.shape)
+    upper = lower if upper_s is None else upper_s
+    lo = np.searchsorted(ms, shifted - lower, side="left")
+    hi = np.searchsorted(ms, shifted + upper, side="right")
+    cnt = np.where(np.isfinite(shifted), hi - lo, 0)
+    ph = np.repeat(np.arange(photo_s.size), cnt)
+    starts = np.repeat(lo, cnt)
+    within = np.arange(ph.size) - np.repeat(np.cumsum(cnt) - cnt, cnt)
+    mk = order[starts + within]
+    res = mark_s[mk] - shifted[ph]
+    cand = np.argsort(np.abs(res), kind="stable")
+    used_p: set[int] = set()
+    used_m: set[int] = set()
+    pairs: list[Pair] = []
+    for c in cand.tolist():
+        p, m = int(ph[c]), int(mk[c])
+        if p in used_p or m in used_m:
+            continue
+        used_p.add(p)
+        used_m.add(m)
+        pairs.append(Pair(p, m, float(res[c])))
+    pairs.sort(key=lambda x: x.photo)
+    return pairs
+
+
+def match(
+    photo_s: FloatArray | PhotoTimes,
+    mark_t_gps_ns: Sequence[int | None],
+    *,
+    max_pair_s: float = MAX_PAIR_S,
+    offset_s: float | None = None,
+) -> MatchResult:
+    """Pair photos (camera-clock times, best from :func:`photo_times`) with marks (GPS ns).
+
+    Duplicate marks (same time as an earlier one) are set aside. The clock offset is estimated
+    (:func:`estimate_offset`) unless given. The pairing window is at most ``±max_pair_s`` and
+    narrower where the photo's timing says so:
+
+    - photos with sub-second times: 5 robust σ of their first-pass residuals, at least
+      :data:`MIN_PAIR_TOLERANCE_S`, so they do not grab a stray mark;
+    - whole-second photos: the shot happened inside its EXIF second, so the residual lies in
+      ``[-0.5 - spread, 0.5 - spread]`` (plus :data:`TRUNCATION_MARGIN_S` for the offset).
+
+    Plain arrays of times are treated as whole-second photos of unknown spread (``±max_pair_s``).
+    """
+    if isinstance(photo_s, PhotoTimes):
+        times = photo_s
+    else:
+        n = photo_s.size
+        times = PhotoTimes(photo_s, np.full(n, np.nan), np.zeros(n, bool))
+    photo_s = times.t_s
+    exact = times.precise
+    mark_s = np.array(
+        [t / 1e9 if t is not None else np.nan for t in mark_t_gps_ns], dtype=np.float64
+    )
+    seen: set[float] = set()
+    dups: list[int] = []
+    for i, t in enumerate(mark_s.tolist()):
+        if math.isnan(t):
+            continue
+        if t in seen:
+            dups.append(i)
+        seen.add(t)
+    valid_marks = mark_s.copy()
+    valid_marks[dups] = np.nan
+    if offset_s is None:
+        offset_s, _ = estimate_offset(photo_s, valid_marks, max_pair_s)
+    usable_marks = np.nan_to_num(valid_marks, nan=-1e18)
+    first = greedy_pairs(photo_s, usable_marks, offset_s, max_pair_s)
+    sigma = max_pair_s
+    r = np.array([p.residual_s for p in first if exact[p.photo]])
+    if r.size >= 3:
+        sigma = float(1.4826 * np.median(np.abs(r - np.median(r))))
+    tol_precise = min(max_pair_s, max(MIN_PAIR_TOLERANCE_S, 5.0 * sigma))
+    has_spread = np.isfinite(times.spread_s) & ~exact
+    spread = np.nan_to_num(times.spread_s)
+    lower = np.where(
+        exact, tol_precise,
+        np.where(has_spread, np.minimum(max_pair_s, 0.5 + spread + TRUNCATION_MARGIN_S),
+                 max_pair_s),
+    )
+    upper = np.where(
+        exact, tol_precise,
+        np.where(has_spread, np.minimum(max_pair_s, 0.5 - spread + TRUNCATION_MARGIN_S),
+                 max_pair_s),
+    )
+    tol = np.maximum(lower, upper)
+    pairs = greedy_pairs(photo_s, usable_marks, offset_s, lower, upper)
+    paired_p = {p.photo for p in pairs}
+    paired_m = {p.mark for p in pairs}
+    dup_set = set(dups)
+    unmatched = tuple(i for i in range(photo_s.size) if i not in paired_p)
+    orphans = tuple(
+        i for i in range(mark_s.size)
+        if i not in paired_m and i not in dup_set and not math.isnan(mark_s[i])
+    )
+    return MatchResult(
+        offset_s, float(tol.max()) if tol.size else max_pair_s, tuple(pairs), unmatched,
+        orphans, tuple(dups), photo_s, sigma,
+    )
+
+
+def reconciliation_lines(
+    result: MatchResult, photos: Sequence[Photo], mark_t_gps_ns: Sequence[int | None]
+) -> list[str]:
+    """Human-readable reconciliation: offset, counts, every unmatched photo and orphan mark."""
+    lines = [
+        (f"camera clock offset (GPS - camera): {result.offset_s:+.2f} s "
+        f"({_hms(result.offset_s)})"),
+        (f"pairing window {result.tolerance_s:.2f} s, "
+        f"residual sigma {result.residual_sigma_s:.3f} s"),
+        (f"photos {len(photos)}, marks {len(mark_t_gps_ns)}: {len(result.pairs)} paired, "
+        f"{len(result.unmatched_photos)} photos without mark, {len(result.orphan_marks)} marks "
+        f"without photo, {len(result.duplicate_marks)} duplicate marks dropped"),
+    ]
+    for i in result.unmatched_photos:
+        ph = photos[i]
+        why = ph.error or "no mark within the window"
+        t = result.photo_s[i] + result.offset_s
+        when = "" if math.isnan(t) else f" (would be {gpstime.format_gps(int(t * 1e9))})"
+        lines.append(f"  photo without mark: {ph.name}: {why}{when}")
+    for i in result.orphan_marks:
+        t = mark_t_gps_ns[i]
+        lines.append(f"  mark without photo: #{i} at {gpstime.format_gps(t) if t else '?'}")
+    return lines
+
+
+def _hms(seconds: float) -> str:
+    sign = "-" if seconds < 0 else "+"
+    s = abs(seconds)
+    h, rem = divmod(s, 3600)
+    m, sec = divmod(rem, 60)
+    return f"{sign}{int(h)}h{int(m):02d}m{sec:05.2f}s"
+
+
+# -- writing ------------------------------------------------------------------------------------
+
+
+def make_jpeg(
+    datetime_original: dt.datetime | None,
+    *,
+    subsec: str | None = None,
+    offset_time: str | None = None,
+) -> bytes:
+    """A valid 8×8 grey baseline JPEG with the given EXIF capture time (tests and the demo).
+
+    The image is hand-made (one DC-only block, one-symbol Huffman tables) so no imaging library
+    is needed; the EXIF block is written by the ``exif`` library like any camera's.
+    """
+    from exif import Image
+
+    dqt = b"\xff\xdb\x00\x43\x00" + bytes([1] * 64)
+    sof = b"\xff\xc0\x00\x0b\x08\x00\x08\x00\x08\x01\x01\x11\x00"
+    # DC table 0 and AC table 0: one code of length 1 each (DC category 0, AC end of block).
+    dht = (
+        b"\xff\xc4\x00\x14\x00" + bytes([1] + [0] * 15) + b"\x00"
+        + b"\xff\xc4\x00\x14\x10" + bytes([1] + [0] * 15) + b"\x00"
+    )
+    sos = b"\xff\xda\x00\x08\x01\x01\x00\x00\x3f\x00"
+    # DC diff 0 (code '0') then EOB (code '0'), padded with ones: a mid-grey block.
+    scan = b"\x3f"
+    app0 = b"\xff\xe0\x00\x10JFIF\x00\x01\x01\x00\x00\x01\x00\x01\x00\x00"
+    jpeg = b"\xff\xd8" + app0 + dqt + sof + dht + sos + scan + b"\xff\xd9"
+    if datetime_original is None:
+        return jpeg
+    img = Image(jpeg)
+    img.datetime_original = datetime_original.strftime("%Y:%m:%d %H:%M:%S")
+    if subsec is not None:
+        img.subsec_time_original = subsec
+    if offset_time is not None:
+        img.offset_time_original = offset_time
+    return bytes(img.get_file())
+
+
+def _dms(value: float) -> tuple[float, float, float]:
+    v = abs(value)
+    d = math.floor(v)
+    m = math.floor((v - d) * 60)
+    s = (v - d - m / 60) * 3600
+    return float(d), float(m), round(s, 6)
+
+
+def write_gps_copy(src: Path, dst: Path, lat_deg: float, lon_deg: float, h_m: float) -> None:
+    """Copy a photo to ``dst`` with EXIF GPS position tags set; ``src`` is only read."""
+    from exif import Image
+
+    if src.resolve() == dst.resolve():
+        raise InputError(f"{dst}: refusing to overwrite the original photo")
+    img = Image(src.read_bytes())
+    img.gps_latitude = _dms(lat_deg)
+    img.gps_latitude_ref = "N" if lat_deg >= 0 else "S"
+    img.gps_longitude = _dms(lon_deg)
+    img.gps_longitude_ref = "E" if lon_deg >= 0 else "W"
+    img.gps_altitude = abs(round(h_m, 3))
+    img.gps_altitude_ref = 0 if h_m >= 0 else 1
+    img.gps_map_datum = "WGS-84"
+    dst.write_bytes(img.get_file())
+

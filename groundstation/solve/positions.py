@@ -1,0 +1,585 @@
+"""Antenna trajectories: RTKLIB ``.pos`` import, the rnx2rtkp engine, the receiver's own fix.
+
+Every source yields a :class:`Trajectory` (GPS ns, ECEF metres, RTKLIB quality, σ east/north/up)
+and is registered by name in :data:`POSITION_SOURCES`; the pipeline picks one by name.
+"""
+
+from __future__ import annotations
+
+import gzip
+import logging
+import math
+import re
+import shutil
+import subprocess
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import ClassVar, Protocol
+
+import numpy as np
+import numpy.typing as npt
+
+from groundstation import gpstime
+from groundstation.errors import ConfigError, GroundstationError, InputError
+from groundstation.geodesy import ecef_to_llh, enu_rotation, llh_to_ecef
+from groundstation.records import NavSolution
+
+log = logging.getLogger("groundstation.solve")
+
+Q_FIX, Q_FLOAT, Q_SBAS, Q_DGPS, Q_SINGLE, Q_PPP = 1, 2, 3, 4, 5, 6
+QUALITY_NAMES = {1: "fix", 2: "float", 3: "sbas", 4: "dgps", 5: "single", 6: "ppp", 0: "none"}
+
+FloatArray = npt.NDArray[np.float64]
+IntArray = npt.NDArray[np.int64]
+
+
+class ToolMissingError(GroundstationError):
+    """An external program (RTKLIB ``rnx2rtkp``) is not installed."""
+
+
+class EngineError(GroundstationError):
+    """An external positioning engine ran but failed or produced nothing."""
+
+
+@dataclass(frozen=True, slots=True)
+class Trajectory:
+    """Antenna positions at the epochs of a solution, sorted by time.
+
+    Attributes:
+        t_gps_ns: epoch times, ns since the GPS epoch (int64, strictly increasing).
+        ecef_m: (n, 3) WGS84 ECEF positions.
+        quality: RTKLIB Q per epoch (1 fix, 2 float, 3 sbas, 4 dgps, 5 single, 6 ppp).
+        sd_enu_m: (n, 3) standard deviations east, north, up (NaN when unknown).
+        ns: satellites used (0 when unknown).
+        ratio: ambiguity validation ratio (NaN when unknown).
+        source: where it came from (file name or engine).
+        metre_level: the receiver's own fix, not a carrier-phase solution.
+    """
+
+    t_gps_ns: IntArray
+    ecef_m: FloatArray
+    quality: IntArray
+    sd_enu_m: FloatArray
+    ns: IntArray
+    ratio: FloatArray
+    source: str
+    metre_level: bool = False
+    notes: tuple[str, ...] = ()
+
+    def __len__(self) -> int:
+        return int(self.t_gps_ns.size)
+
+    @property
+    def fixed_fraction(self) -> float:
+        return float(np.mean(self.quality == Q_FIX)) if len(self) else 0.0
+
+
+def make_trajectory(
+    t_gps_ns: Sequence[int] | IntArray,
+    ecef_m: Sequence[Sequence[float]] | FloatArray,
+    quality: Sequence[int] | IntArray,
+    *,
+    sd_enu_m: FloatArray | None = None,
+    ns: IntArray | None = None,
+    ratio: FloatArray | None = None,
+    source: str = "",
+    metre_level: bool = False,
+    notes: Iterable[str] = (),
+) -> Trajectory:
+    """A :class:`Trajectory` from columns, sorted by time, duplicate epochs dropped (first kept)."""
+    t = np.asarray(t_gps_ns, dtype=np.int64)
+    n = t.size
+    xyz = np.asarray(ecef_m, dtype=np.float64).reshape(n, 3)
+    q = np.asarray(quality, dtype=np.int64).reshape(n)
+    sd = np.full((n, 3), np.nan) if sd_enu_m is None else np.asarray(sd_enu_m, float).reshape(n, 3)
+    nsv = np.zeros(n, np.int64) if ns is None else np.asarray(ns, np.int64).reshape(n)
+    rat = np.full(n, np.nan) if ratio is None else np.asarray(ratio, float).reshape(n)
+    order = np.argsort(t, kind="stable")
+    t = t[order]
+    keep = np.ones(n, bool)
+    keep[1:] = np.diff(t) > 0
+    idx = order[keep]
+    return Trajectory(
+        t[keep], xyz[idx], q[idx], sd[idx], nsv[idx], rat[idx], source, metre_level, tuple(notes)
+    )
+
+
+# -- RTKLIB .pos files --------------------------------------------------------------------------
+
+_TIME_SYSTEMS = ("GPST", "UTC", "JST")
+_JST_OFFSET_NS = 9 * 3600 * gpstime.NS_PER_S
+
+
+@dataclass(frozen=True, slots=True)
+class PosLayout:
+    """How the rows of a ``.pos`` file are laid out (from its header or guessed)."""
+
+    time_system: str = "GPST"
+    time_form: str = "calendar"  # "calendar" (yyyy/mm/dd hh:mm:ss) or "tow" (week tow)
+    coords: str = "xyz"  # "xyz", "llh" or "enu"
+    dms: bool = False
+    columns: tuple[str, ...] = ()
+    ref_ecef_m: tuple[float, float, float] | None = None
+
+
+_DEFAULT_COLUMNS = {
+    "xyz": ("x", "y", "z", "q", "ns", "sdx", "sdy", "sdz", "sdxy", "sdyz", "sdzx", "age", "ratio"),
+    "llh": ("lat", "lon", "h", "q", "ns", "sdn", "sde", "sdu", "sdne", "sdeu", "sdun", "age",
+            "ratio"),
+    "enu": ("e", "n", "u", "q", "ns", "sde", "sdn", "sdu", "sden", "sdnu", "sdue", "age", "ratio"),
+}
+_HEADER_NAMES = {
+    "x-ecef": "x", "y-ecef": "y", "z-ecef": "z",
+    "latitude": "lat", "longitude": "lon", "height": "h",
+    "e-baseline": "e", "n-baseline": "n", "u-baseline": "u",
+}
+
+
+def _header_column(token: str) -> str:
+    base = token.split("(")[0].strip().lower()
+    return _HEADER_NAMES.get(base, base)
+
+
+def _parse_ref(text: str) -> tuple[float, float, float] | None:
+    vals = [float(v) for v in text.split()]
+    if len(vals) == 6:  # dms latitude and longitude
+        lat = math.copysign(abs(vals[0]) + vals[1] / 60 + vals[2] / 3600, vals[0] or 1.0)
+        lon = math.copysign(abs(vals[3]) + vals[4] / 60 + vals[5] / 3600, vals[3] or 1.0)
+        return llh_to_ecef(lat, lon, 0.0)
+    if len(vals) != 3:
+        return None
+    if max(abs(v) for v in vals) > 1000.0 and abs(vals[0]) > 180.0:
+        return vals[0], vals[1], vals[2]
+    return llh_to_ecef(*vals)
+
+
+def _layout_from_header(header: list[str], first_row: list[str] | None) -> PosLayout:
+    time_system, time_form, coords, dms = "GPST", "calendar", "", False
+    columns: tuple[str, ...] = ()
+    ref: tuple[float, float, float] | None = None
+    for line in header:
+        body = line.lstrip("%").strip()
+        m = re.match(r"ref pos\s*:\s*(.*)$", body)
+        if m:
+            ref = _parse_ref(m.group(1))
+            continue
+        tokens = body.split()
+        if tokens and tokens[0] in _TIME_SYSTEMS and len(tokens) > 3:
+            time_system = tokens[0]
+            rest = tokens[1:]
+            dms = any("d'" in t for t in rest)
+            columns = tuple(_header_column(t) for t in rest)
+            if columns and columns[0] in ("x", "lat", "e"):
+                coords = {"x": "xyz", "lat": "llh", "e": "enu"}[columns[0]]
+    if first_row is not None:
+        time_form = "calendar" if "/" in first_row[0] else "tow"
+        if not coords:
+            coords, dms = _guess_coords(first_row)
+    if not coords:
+        coords = "xyz"
+    if not columns:
+        columns = _DEFAULT_COLUMNS[coords]
+    return PosLayout(time_system, time_form, coords, dms, columns, ref)
+
+
+def _guess_coords(row: list[str]) -> tuple[str, bool]:
+    """xyz / llh (decimal or dms) from the values of a header-less row."""
+    vals = [float(v) for v in row[2:8]]
+    if all(abs(v) > 1e5 for v in vals[:3]):
+        return "xyz", False
+    # dms rows: deg min sec deg min sec -> the 2nd and 5th values are whole minutes < 60.
+    if (
+        len(vals) >= 6
+        and vals[1] == int(vals[1]) and 0 <= vals[1] < 60
+        and vals[4] == int(vals[4]) and 0 <= vals[4] < 60
+        and 0 <= vals[2] < 60 and 0 <= vals[5] < 60 and abs(vals[3]) <= 180
+    ):
+        return "llh", True
+    if abs(vals[0]) <= 90 and abs(vals[1]) <= 180:
+        return "llh", False
+    return "enu", False
+
+
+def _row_time_ns(tokens: list[str], layout: PosLayout) -> int:
+    if layout.time_form == "calendar":
+        d = tokens[0].split("/")
+        hh, mm, ss = tokens[1].split(":")
+        sec, _, frac = ss.partition(".")
+        frac_ns = int((frac + "000000000")[:9]) if frac else 0
+        import datetime as dt
+
+        day = dt.datetime(int(d[0]), int(d[1]), int(d[2]), tzinfo=dt.UTC)
+        base_s = int((day - gpstime.GPS_EPOCH).total_seconds())
+        t = (base_s + int(hh) * 3600 + int(mm) * 60 + int(sec)) * gpstime.NS_PER_S + frac_ns
+    else:
+        week = int(tokens[0])
+        sec, _, frac = tokens[1].partition(".")
+        frac_ns = int((frac + "000000000")[:9]) if frac else 0
+        t = week * gpstime.NS_PER_WEEK + int(sec) * gpstime.NS_PER_S + frac_ns
+    if layout.time_system == "GPST":
+        return t
+    if layout.time_system == "JST":
+        t -= _JST_OFFSET_NS
+    return t + gpstime.leap_seconds_at_utc(t) * gpstime.NS_PER_S
+
+
+def _signed_sq(v: FloatArray) -> FloatArray:
+    """RTKLIB writes covariances as sign(c)·sqrt(|c|); undo it."""
+    return np.sign(v) * v * v
+
+
+def parse_pos(
+    text: str | Iterable[str],
+    *,
+    source: str = "",
+    ref_ecef_m: tuple[float, float, float] | None = None,
+) -> Trajectory:
+    """Parse RTKLIB solution text (``out-solformat`` xyz, llh or enu; any time form/system).
+
+    Handles: GPST, UTC and JST times, as ``yyyy/mm/dd hh:mm:ss.sss`` or ``week tow``; latitude
+    and longitude in degrees or d m s; Q and ns as integers or floats; covariance columns; extra
+    columns (age, ratio, velocities). Without a header the layout is guessed from the values.
+
+    Args:
+        text: the file content, or its lines.
+        source: name recorded in the trajectory.
+        ref_ecef_m: base position for ``enu`` files whose header lacks ``ref pos``.
+
+    Raises:
+        InputError: no solution rows, or an ``enu`` file without a reference position.
+    """
+    lines = text.splitlines() if isinstance(text, str) else list(text)
+    header = [ln for ln in lines if ln.startswith("%")]
+    rows = [ln.split() for ln in lines if ln.strip() and not ln.startswith(("%", "#"))]
+    if not rows:
+        raise InputError(f"{source or 'pos'}: no solution rows")
+    layout = _layout_from_header(header, rows[0])
+    ref = layout.ref_ecef_m or ref_ecef_m
+    ncoord = 6 if layout.dms else 3
+    # Map every named column to its token index (the time takes two tokens).
+    names = list(layout.columns)
+    index: dict[str, int] = {}
+    pos = 2
+    for i, name in enumerate(names):
+        index[name] = pos
+        pos += 3 if (layout.dms and i < 2) else 1
+    n = len(rows)
+    t = np.empty(n, np.int64)
+    vals = np.full((n, pos - 2 if pos > 2 else 0), np.nan)
+    try:
+        for k, r in enumerate(rows):
+            t[k] = _row_time_ns(r, layout)
+            m = min(len(r) - 2, vals.shape[1])
+            vals[k, :m] = [float(v) for v in r[2 : 2 + m]]
+    except (ValueError, IndexError) as err:
+        raise InputError(f"{source or 'pos'}: row {k + 1}: cannot parse {' '.join(r)!r}") from err
+
+    def col(name: str) -> FloatArray:
+        i = index.get(name)
+        return vals[:, i - 2] if i is not None and i - 2 < vals.shape[1] else np.full(n, np.nan)
+
+    if layout.coords == "xyz":
+        xyz = np.column_stack([col("x"), col("y"), col("z")])
+    else:
+        if layout.coords == "llh":
+            if layout.dms:
+                c = vals[:, :ncoord]
+                lat = np.sign(c[:, 0] + 0.0) * (np.abs(c[:, 0]) + c[:, 1] / 60 + c[:, 2] / 3600)
+                lon = np.sign(c[:, 3] + 0.0) * (np.abs(c[:, 3]) + c[:, 4] / 60 + c[:, 5] / 3600)
+                lat = np.where(c[:, 0] == 0, np.abs(lat), lat)
+                lon = np.where(c[:, 3] == 0, np.abs(lon), lon)
+                h = vals[:, ncoord]
+            else:
+                lat, lon, h = col("lat"), col("lon"), col("h")
+            xyz = np.array([llh_to_ecef(a, b, c) for a, b, c in zip(lat, lon, h, strict=True)])
+        else:
+            if ref is None:
+                raise InputError(
+                    f"{source or 'pos'}: enu (baseline) solution without a reference position"
+                )
+            rot = np.array(enu_rotation(*ecef_to_llh(*ref)[:2]))
+            enu = np.column_stack([col("e"), col("n"), col("u")])
+            xyz = np.asarray(ref) + enu @ rot
+    q = np.nan_to_num(col("q"), nan=0.0).astype(np.int64)
+    nsv = np.nan_to_num(col("ns"), nan=0.0).astype(np.int64)
+    if layout.coords == "xyz":
+        sd = _sd_enu_from_xyz(
+            xyz, col("sdx"), col("sdy"), col("sdz"), col("sdxy"), col("sdyz"), col("sdzx")
+        )
+    else:
+        sd = np.column_stack([col("sde"), col("sdn"), col("sdu")])
+    return make_trajectory(
+        t, xyz, q, sd_enu_m=sd, ns=nsv, ratio=col("ratio"), source=source,
+        notes=(f"RTKLIB .pos ({layout.coords}, {layout.time_system}, {layout.time_form})",),
+    )
+
+
+def _sd_enu_from_xyz(
+    xyz: FloatArray, sdx: FloatArray, sdy: FloatArray, sdz: FloatArray,
+    sdxy: FloatArray, sdyz: FloatArray, sdzx: FloatArray,
+) -> FloatArray:
+    n = xyz.shape[0]
+    cov = np.zeros((n, 3, 3))
+    cov[:, 0, 0], cov[:, 1, 1], cov[:, 2, 2] = sdx**2, sdy**2, sdz**2
+    off = [(0, 1, sdxy), (1, 2, sdyz), (2, 0, sdzx)]
+    for i, j, v in off:
+        c = _signed_sq(np.nan_to_num(v))
+        cov[:, i, j] = c
+        cov[:, j, i] = c
+    if n == 0:
+        return np.zeros((0, 3))
+    lat, lon, _ = ecef_to_llh(*np.mean(xyz, axis=0))
+    rot = np.array(enu_rotation(lat, lon))
+    enu_cov = rot @ cov @ rot.T
+    diag = np.einsum("nii->ni", enu_cov)
+    return np.asarray(np.sqrt(np.clip(diag, 0.0, None)), dtype=np.float64)
+
+
+def read_pos(path: str | Path, ref_ecef_m: tuple[float, float, float] | None = None) -> Trajectory:
+    """Read an RTKLIB ``.pos`` file (plain or ``.gz``)."""
+    p = Path(path)
+    try:
+        data = p.read_bytes()
+        if data[:2] == b"\x1f\x8b":
+            data = gzip.decompress(data)
+    except FileNotFoundError as err:
+        raise InputError(f"{p}: no such file") from err
+    except OSError as err:
+        raise InputError(f"{p}: cannot read: {err}") from err
+    except (EOFError, gzip.BadGzipFile) as err:
+        raise InputError(f"{p}: damaged gzip: {err}") from err
+    return parse_pos(data.decode("ascii", "replace"), source=p.name, ref_ecef_m=ref_ecef_m)
+
+
+# -- the receiver's own fix ---------------------------------------------------------------------
+
+
+def trajectory_from_nav(solutions: Iterable[NavSolution], source: str = "receiver") -> Trajectory:
+    """The receiver's own fixes (NAV-SOL / NAV-PVT / NAV-POSLLH), flagged metre-level (Q 5).
+
+    NAV-POSLLH and NAV-PVT carry no week number; it is taken from the nearest message that does.
+    """
+    sols = [s for s in solutions if s.ecef_m is not None and s.fix_ok]
+    weeks = [s.gps_week for s in sols if s.gps_week is not None]
+    if not sols:
+        raise InputError(f"{source}: no valid receiver fix (NAV-SOL/NAV-PVT/NAV-POSLLH)")
+    if not weeks:
+        raise InputError(f"{source}: receiver fixes without a GPS week (no NAV-SOL)")
+    week = weeks[0]
+    t, xyz, sd = [], [], []
+    for s in sols:
+        if s.gps_week is not None:
+            week = s.gps_week
+        assert s.ecef_m is not None
+        t.append(week * gpstime.NS_PER_WEEK + s.tow_ns)
+        xyz.append(s.ecef_m)
+        h = s.h_acc_m if s.h_acc_m is not None else s.p_acc_m
+        v = s.v_acc_m if s.v_acc_m is not None else s.p_acc_m
+        hh = float("nan") if h is None else h / math.sqrt(2)
+        sd.append((hh, hh, float("nan") if v is None else v))
+    return make_trajectory(
+        t, xyz, [Q_SINGLE] * len(t), sd_enu_m=np.array(sd), source=source, metre_level=True,
+        notes=("receiver's own fix: metre-level, not a carrier-phase solution",),
+    )
+
+
+# -- RTKLIB engine ------------------------------------------------------------------------------
+
+RNX2RTKP = "rnx2rtkp"
+
+RTKLIB_L1_KINEMATIC: dict[str, str] = {
+    "pos1-posmode": "kinematic",
+    "pos1-frequency": "l1",
+    "pos1-soltype": "combined",
+    "pos1-elmask": "15",
+    "pos1-navsys": "1",  # GPS only
+    "pos1-tropopt": "saas",
+    "pos1-ionoopt": "brdc",
+    "pos1-ephem": "brdc",
+    "pos2-armode": "fix-and-hold",
+    "pos2-arthres": "3.0",
+    "pos2-arlockcnt": "5",
+    "pos2-arelmask": "15",
+    "out-solformat": "xyz",
+    "out-outhead": "on",
+    "out-outopt": "on",
+    "out-timesys": "gpst",
+    "out-timeform": "hms",
+    "out-timendec": "6",
+    "ant2-postype": "xyz",
+}
+"""Configuration of :func:`rtklib_config` for u-blox L1 kinematic work (DOMAIN.md §6)."""
+
+
+def rtklib_config(
+    base_ecef_m: tuple[float, float, float], overrides: dict[str, str] | None = None
+) -> str:
+    """An rnx2rtkp configuration file (``key=value`` lines) with the base coordinates set."""
+    opts = dict(RTKLIB_L1_KINEMATIC)
+    opts["ant2-pos1"], opts["ant2-pos2"], opts["ant2-pos3"] = (f"{v:.4f}" for v in base_ecef_m)
+    opts.update(overrides or {})
+    return "".join(f"{k:<18} ={v}\n" for k, v in opts.items())
+
+
+def rnx2rtkp_command(
+    exe: str, conf: Path, out: Path, rover_obs: Path, base_obs: Path, nav: Sequence[Path]
+) -> list[str]:
+    """The argument list (no shell) that runs rnx2rtkp on rover + base + navigation files."""
+    return [exe, "-k", str(conf), "-o", str(out), str(rover_obs), str(base_obs), *map(str, nav)]
+
+
+Progress = Callable[[str, float], None]
+
+
+def _to_rinex(path: Path, work: Path, progress: Progress | None) -> tuple[Path, list[Path]]:
+    """(obs, [nav]) for a RINEX observation file or a recording converted by our RINEX writer."""
+    name = path.name.lower()
+    if re.search(r"\.(obs|rnx|\d\do)(\.gz)?$", name):
+        navs = [
+            p for p in path.parent.glob(path.name.split(".")[0] + "*")
+            if re.search(r"\.(nav|\d\d[ngp])$", p.name.lower())
+        ]
+        return path, navs
+    from groundstation.offline import rinex  # the RINEX writer, imported only when converting
+
+    def prog(stage: str, frac: float) -> None:
+        if progress is not None:
+            progress(f"rinex {path.name}: {stage}", frac)
+
+    res = rinex.convert(path, work, rinex.RinexOptions(version="3.04"), prog)
+    return res.obs_path, [res.nav_path] if res.ephemerides else []
+
+
+def run_rnx2rtkp(
+    rover: Path,
+    base: Path,
+    base_ecef_m: tuple[float, float, float],
+    work_dir: Path,
+    *,
+    exe: str | None = None,
+    overrides: dict[str, str] | None = None,
+    progress: Progress | None = None,
+    timeout_s: float = 3600.0,
+) -> Path:
+    """Convert rover and base to RINEX if needed, run rnx2rtkp, return the ``.pos`` path.
+
+    Raises:
+        ToolMissingError: rnx2rtkp is not installed.
+        EngineError: rnx2rtkp failed or wrote no solution.
+    """
+    exe_path = shutil.which(exe or RNX2RTKP)
+    if exe_path is None:
+        raise ToolMissingError(
+            f"{exe or RNX2RTKP} not found: install RTKLIB (e.g. `apt-get install rtklib`) "
+            "or give a solution with --positions FILE.pos"
+        )
+    work_dir.mkdir(parents=True, exist_ok=True)
+    rover_obs, rover_nav = _to_rinex(rover, work_dir / "rover", progress)
+    base_obs, base_nav = _to_rinex(base, work_dir / "base", progress)
+    nav = rover_nav + base_nav
+    if not nav:
+        raise EngineError("no navigation data (ephemerides) in the rover or base recording")
+    conf = work_dir / "rnx2rtkp.conf"
+    conf.write_text(rtklib_config(base_ecef_m, overrides), encoding="ascii")
+    out = work_dir / "rover.pos"
+    cmd = rnx2rtkp_command(exe_path, conf, out, rover_obs, base_obs, nav)
+    log.info("running %s", " ".join(cmd))
+    if progress is not None:
+        progress("rnx2rtkp", 0.0)
+    try:
+        proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout_s, check=False)
+    except subprocess.TimeoutExpired as err:
+        raise EngineError(f"rnx2rtkp did not finish within {timeout_s:.0f} s") from err
+    if progress is not None:
+        progress("rnx2rtkp", 1.0)
+    if proc.returncode != 0 or not out.exists() or out.stat().st_size == 0:
+        tail = (proc.stderr or proc.stdout or "").strip().splitlines()[-3:]
+        raise EngineError(f"rnx2rtkp failed (exit {proc.returncode}): {' / '.join(tail)}")
+    return out
+
+
+# -- the registry -------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class SourceOptions:
+    """Everything a position source may need; each source reads what it uses."""
+
+    flight: Path | None = None
+    positions: Path | None = None
+    base: Path | None = None
+    base_ecef_m: tuple[float, float, float] | None = None
+    work_dir: Path | None = None
+    nav_solutions: tuple[NavSolution, ...] = field(default_factory=tuple)
+    rtklib_overrides: dict[str, str] = field(default_factory=dict)
+
+
+class PositionSource(Protocol):
+    """A way of getting the antenna trajectory of a flight."""
+
+    name: ClassVar[str]
+
+    def trajectory(self, opts: SourceOptions, progress: Progress | None = None) -> Trajectory: ...
+
+
+class PosFileSource:
+    """An existing RTKLIB solution file (``--positions``)."""
+
+    name: ClassVar[str] = "pos"
+
+    def trajectory(self, opts: SourceOptions, progress: Progress | None = None) -> Trajectory:
+        if opts.positions is None:
+            raise ConfigError("--positions", "a .pos file is required")
+        return read_pos(opts.positions, opts.base_ecef_m)
+
+
+class RtklibSource:
+    """rnx2rtkp on the flight and a base (``--base`` + ``--base-xyz``)."""
+
+    name: ClassVar[str] = "rtklib"
+
+    def trajectory(self, opts: SourceOptions, progress: Progress | None = None) -> Trajectory:
+        if opts.flight is None:
+            raise ConfigError("FLIGHT", "a rover recording is required")
+        if opts.base is None:
+            raise ConfigError("--base", "a base recording (.obs or .ubx) is required")
+        if opts.base_ecef_m is None:
+            raise ConfigError("--base-xyz", "the base's known ECEF coordinates are required")
+        work = opts.work_dir or opts.flight.parent / "rtklib"
+        out = run_rnx2rtkp(
+            opts.flight, opts.base, opts.base_ecef_m, work,
+            overrides=opts.rtklib_overrides, progress=progress,
+        )
+        traj = read_pos(out)
+        return Trajectory(
+            traj.t_gps_ns, traj.ecef_m, traj.quality, traj.sd_enu_m, traj.ns, traj.ratio,
+            "rnx2rtkp", False, (*traj.notes, f"rnx2rtkp solution {out}"),
+        )
+
+
+class ReceiverSource:
+    """The receiver's own fix from the recording (metre level; for checks, never for mapping)."""
+
+    name: ClassVar[str] = "receiver"
+
+    def trajectory(self, opts: SourceOptions, progress: Progress | None = None) -> Trajectory:
+        return trajectory_from_nav(opts.nav_solutions)
+
+
+POSITION_SOURCES: dict[str, type[PositionSource]] = {
+    PosFileSource.name: PosFileSource,
+    RtklibSource.name: RtklibSource,
+    ReceiverSource.name: ReceiverSource,
+}
+"""Position source name -> class."""
+
+
+def get_source(name: str) -> PositionSource:
+    """The position source registered under ``name``."""
+    try:
+        return POSITION_SOURCES[name]()
+    except KeyError as err:
+        raise ConfigError(
+            "positions.source", f"unknown source {name!r} (known: {', '.join(POSITION_SOURCES)})"
+        ) from err
