@@ -14,6 +14,7 @@ COMMANDS: dict[str, str] = {
     "rinex": "groundstation.commands.rinex",
     "watch": "groundstation.commands.watch",
     "demo": "groundstation.commands.demo",
+    "replay": "groundstation.commands.replay",
 }
 """Subcommand name -> module implementing it."""
 
@@ -24,4 +25,5 @@ HELP: dict[str, str] = {
     "rinex": "MCAP/.ubx -> RINEX 2.11/3.04 obs + nav + time-mark table",
     "watch": "live terminal view of a station over Zenoh",
     "demo": "simulator + daemon + live view, the embedded default",
+    "replay": "MCAP/.ubx through the live pipeline (to Zenoh), at xN or max speed",
 }

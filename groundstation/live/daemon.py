@@ -101,6 +101,7 @@ class Pipeline:
         record: add the recorder sink (MCAP + sidecar) as configured.
         clock: UNIX ns clock.
         on_file: called with each recording file as it is created.
+        monitor_data_clock: the monitor's time is the items' host times (replay).
     """
 
     def __init__(
@@ -112,6 +113,7 @@ class Pipeline:
         record: bool = True,
         clock: Callable[[], int] = time.time_ns,
         on_file: Callable[[Path], None] | None = None,
+        monitor_data_clock: bool = False,
     ) -> None:
         self.settings = settings
         self._clock = clock
@@ -151,7 +153,7 @@ class Pipeline:
             self.monitor = MonitorSink(
                 make_monitor(settings),
                 disk_path=settings.recorder.out_dir if record else None,
-                clock=clock,
+                clock=clock, data_clock=monitor_data_clock,
             )
             self.specs.append(SinkSpec(self.monitor, settings.queues.monitor,
                                        Overflow.DROP_OLDEST))

@@ -28,7 +28,9 @@ class MonitorSink:
     Args:
         monitor: the state machine.
         disk_path: directory whose free space is watched (the recording directory).
-        clock: UNIX ns clock; replay passes a clock that follows the recorded host times.
+        clock: UNIX ns clock.
+        data_clock: replay: time is the host reception time the items carry, and the monitor
+            is ticked every 100 ms of that time between items, as the live daemon did.
     """
 
     name = "monitor"
@@ -39,10 +41,13 @@ class MonitorSink:
         *,
         disk_path: Path | None = None,
         clock: Callable[[], int] = time.time_ns,
+        data_clock: bool = False,
     ) -> None:
         self.monitor = monitor
         self.disk_path = disk_path
         self._clock = clock
+        self.data_clock = data_clock
+        self._data_now: int | None = None
         self._next_disk_check = 0.0
         self.last_status: Status | None = None
 
@@ -57,9 +62,33 @@ class MonitorSink:
             return
         self.monitor.set_disk_free(usage.free / 1e6)
 
+    def _now(self, item: Item | None, publish: Callable[[Item], None]) -> int | None:
+        if not self.data_clock:
+            return self._clock()
+        t = getattr(item, "t_host_ns", None) if item is not None else None
+        if not isinstance(t, int) or t <= 0:
+            return self._data_now
+        if self._data_now is not None:
+            tick = self._data_now + int(TICK_S * 1e9)
+            while tick < t:  # the ticks the live daemon made while waiting for this item
+                self._emit(*self.monitor.tick(tick), publish)
+                tick += int(TICK_S * 1e9)
+        self._data_now = max(t, self._data_now or t)
+        return self._data_now
+
+    def _emit(self, status: Status | None, events: list[Event],
+              publish: Callable[[Item], None]) -> None:
+        for ev in events:
+            publish(ev)
+        if status is not None:
+            self.last_status = status
+            publish(status)
+
     def step(self, item: Item | None, publish: Callable[[Item], None]) -> None:
         """One item (or a clock tick when ``None``) through the monitor."""
-        now = self._clock()
+        now = self._now(item, publish)
+        if now is None:
+            return
         if item is not None and not isinstance(item, Status):
             if isinstance(item, Event) and item.kind.startswith(("alert.", "link.", "sat.",
                                                                   "mark.")):
@@ -70,12 +99,7 @@ class MonitorSink:
                 for ev in self.monitor.observe(item, now):
                     publish(ev)
         self._check_disk()
-        status, events = self.monitor.tick(now)
-        for ev in events:
-            publish(ev)
-        if status is not None:
-            self.last_status = status
-            publish(status)
+        self._emit(*self.monitor.tick(now), publish)
 
     async def consume(self, inbox: Inbox, publish: Callable[[Item], None]) -> None:
         while True:
@@ -84,6 +108,7 @@ class MonitorSink:
             except InboxClosed:
                 break
             self.step(item, publish)
-        final = self.monitor.status(self._clock())
+        end = self._data_now if self.data_clock and self._data_now else self._clock()
+        final = self.monitor.status(end)
         self.last_status = final
         publish(final)
