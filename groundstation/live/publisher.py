@@ -22,6 +22,7 @@ from groundstation.records import Event, RawEpoch, Status, TimeMark
 log = logging.getLogger("groundstation.publisher")
 
 RETRY_S = 5.0
+FLUSH_BEFORE_CLOSE_S = 0.3
 
 
 class ZenohPublisherSink:
@@ -150,4 +151,6 @@ class ZenohPublisherSink:
             self.session["state"] = "finished"
             self.session["marks"] = len(self.marks)
             self._put("session", encode("session", self.session, station=self.station))
+            if self.bus is not None:
+                await asyncio.sleep(FLUSH_BEFORE_CLOSE_S)  # let the last puts leave the host
             self._drop_bus()

@@ -105,6 +105,7 @@ def test_marks_status_and_late_joiner(tmp_path: Path, pty: Pty, daemons: list[Da
         replies = late.get(key(STATION, "q/timemarks"), timeout_s=3.0)
         assert [decode(p)["count"] for _, p in replies] == list(range(20))
         col2 = Collector(late)
+        time.sleep(0.5)  # let the subscription reach the daemon
         rc, _ = d.stop(signal.SIGTERM)
         assert rc == 0, d.stderr
         wait_until(lambda: any(s.get("state") == "finished" for s in col2.of("session")), 5)
