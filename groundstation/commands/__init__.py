@@ -15,6 +15,7 @@ COMMANDS: dict[str, str] = {
     "watch": "groundstation.commands.watch",
     "demo": "groundstation.commands.demo",
     "replay": "groundstation.commands.replay",
+    "solve": "groundstation.commands.solve",
 }
 """Subcommand name -> module implementing it."""
 
@@ -26,4 +27,5 @@ HELP: dict[str, str] = {
     "watch": "live terminal view of a station over Zenoh",
     "demo": "simulator + daemon + live view, the embedded default",
     "replay": "MCAP/.ubx through the live pipeline (to Zenoh), at xN or max speed",
+    "solve": "post-flight: positions -> marks -> photos -> lever arm -> outputs",
 }

@@ -288,15 +288,19 @@ def estimate_offset(
     """Camera clock offset (GPS − camera, seconds) and how many photos it pairs within the window.
 
     Voting picks candidates (:func:`_vote_offsets`); each is refined to :data:`REFINE_STEP_S`
-    within ±:data:`REFINE_HALF_WIDTH_S` by minimising the capped residual sum; the candidate
-    that pairs most photos wins (then the smaller residual sum).
+    within ±(window + one vote bin), at least ±:data:`REFINE_HALF_WIDTH_S`, by minimising the
+    capped residual sum; the candidate that pairs most photos wins (then the smaller residual
+    sum).
     """
     ph = photo_s[np.isfinite(photo_s)]
     mk = np.unique(mark_s[np.isfinite(mark_s)])
     if ph.size == 0 or mk.size == 0:
         return 0.0, 0
     best: tuple[int, float, float] | None = None
-    steps = np.arange(-REFINE_HALF_WIDTH_S, REFINE_HALF_WIDTH_S + 1e-9, REFINE_STEP_S)
+    # The vote is a box sum, flat over up to twice the window when marks are regular: search
+    # the whole plateau, not just ±REFINE_HALF_WIDTH_S around its first bin.
+    half = max(REFINE_HALF_WIDTH_S, max_pair_s + VOTE_BIN_S)
+    steps = np.arange(-half, half + 1e-9, REFINE_STEP_S)
     for cand in _vote_offsets(ph, mk, max_pair_s):
         costs = [_cost(ph, mk, cand + s, max_pair_s) for s in steps.tolist()]
         k = int(np.argmin(costs))

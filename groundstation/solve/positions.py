@@ -254,7 +254,10 @@ def parse_pos(
     rows = [ln.split() for ln in lines if ln.strip() and not ln.startswith(("%", "#"))]
     if not rows:
         raise InputError(f"{source or 'pos'}: no solution rows")
-    layout = _layout_from_header(header, rows[0])
+    try:
+        layout = _layout_from_header(header, rows[0])
+    except (ValueError, IndexError) as err:
+        raise InputError(f"{source or 'pos'}: cannot parse {' '.join(rows[0])!r}") from err
     ref = layout.ref_ecef_m or ref_ecef_m
     ncoord = 6 if layout.dms else 3
     # Map every named column to its token index (the time takes two tokens).

@@ -1,0 +1,162 @@
+"""``groundstation solve``: post-flight positions -> marks -> photos -> lever arm -> outputs."""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from pathlib import Path
+
+from groundstation.errors import ConfigError
+from groundstation.solve import interpolate as interp
+from groundstation.solve.pipeline import SolveResult, SolveSettings, solve
+
+NAME = "solve"
+HELP = "post-flight: positions -> marks -> photos -> lever arm -> outputs"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("flight", help="rover recording: .mcap, .ubx or .ubx.gz")
+    parser.add_argument("--out", required=True, help="output directory (created)")
+    parser.add_argument("--positions", help="RTKLIB solution (.pos, .pos.gz); no base needed")
+    parser.add_argument("--base", help="base observations (.obs RINEX or .ubx recording)")
+    parser.add_argument("--base-xyz", help="known base position, ECEF metres: X,Y,Z")
+    parser.add_argument(
+        "--source", help="position source: pos, rtklib or receiver (default from the options)"
+    )
+    parser.add_argument("--photos", help="directory of the flight's JPEGs")
+    parser.add_argument("--lever-arm", help="lever arm in the camera frame, metres: X,Y,Z")
+    parser.add_argument("--eo", help="exterior orientations: name, X, Y, Z, omega, phi, kappa")
+    parser.add_argument("--epsg", help="output CRS (default: the WGS84 UTM zone)")
+    parser.add_argument("--interp", default="linear", help="linear, spline or smoother")
+    parser.add_argument("--edge", default="falling", help="falling, rising or mid")
+    parser.add_argument("--shutter-delay-ms", default="0", help="added to the mark time (ms)")
+    parser.add_argument(
+        "--max-gap", default=str(interp.DEFAULT_MAX_GAP_S),
+        help="flag marks between epochs further apart than this (s)",
+    )
+    parser.add_argument(
+        "--exif", action="store_true", help="write copies of the photos with EXIF GPS tags"
+    )
+    parser.add_argument("--no-progress", action="store_true", help="no progress on stderr")
+
+
+def _triple(option: str, text: str | None) -> tuple[float, float, float] | None:
+    if text is None:
+        return None
+    parts = text.replace(" ", "").split(",")
+    try:
+        vals = tuple(float(p) for p in parts)
+    except ValueError as err:
+        raise ConfigError(option, f"expected X,Y,Z numbers, got {text!r}") from err
+    if len(vals) != 3 or not all(math.isfinite(v) for v in vals):
+        raise ConfigError(option, f"expected three finite numbers X,Y,Z, got {text!r}")
+    return vals[0], vals[1], vals[2]
+
+
+def _number(option: str, text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError as err:
+        raise ConfigError(option, f"not a number: {text!r}") from err
+    if not math.isfinite(v):
+        raise ConfigError(option, f"not a finite number: {text!r}")
+    return v
+
+
+def settings_from_args(args: argparse.Namespace) -> SolveSettings:
+    """Resolve and check the command line (every problem is a ConfigError naming the option)."""
+    if args.positions is None and args.base is None and args.source != "receiver":
+        raise ConfigError(
+            "--positions", "give --positions FILE.pos or --base BASE --base-xyz X,Y,Z"
+        )
+    if args.positions is not None and args.base is not None:
+        raise ConfigError("--base", "use either --positions or --base, not both")
+    if args.base is not None and args.base_xyz is None:
+        raise ConfigError("--base-xyz", "required with --base (the base's known ECEF position)")
+    if args.interp not in interp.INTERPOLATORS:
+        raise ConfigError("--interp", f"{args.interp!r}: choose linear, spline or smoother")
+    if args.edge not in interp.EDGES:
+        raise ConfigError("--edge", f"{args.edge!r}: choose falling, rising or mid")
+    epsg = None
+    if args.epsg is not None:
+        text = str(args.epsg).upper().removeprefix("EPSG:")
+        if not text.isdigit():
+            raise ConfigError("--epsg", f"expected an EPSG code number, got {args.epsg!r}")
+        epsg = int(text)
+    max_gap = _number("--max-gap", args.max_gap)
+    if max_gap <= 0:
+        raise ConfigError("--max-gap", "must be positive")
+    for opt, val in (("--positions", args.positions), ("--base", args.base), ("--eo", args.eo)):
+        if val is not None and not Path(val).is_file():
+            raise ConfigError(opt, f"{val}: no such file")
+    if args.photos is not None and not Path(args.photos).is_dir():
+        raise ConfigError("--photos", f"{args.photos}: not a directory")
+    return SolveSettings(
+        flight=Path(args.flight),
+        out_dir=Path(args.out),
+        positions=Path(args.positions) if args.positions else None,
+        base=Path(args.base) if args.base else None,
+        base_ecef_m=_triple("--base-xyz", args.base_xyz),
+        source=args.source,
+        photos=Path(args.photos) if args.photos else None,
+        lever_arm_m=_triple("--lever-arm", args.lever_arm),
+        eo=Path(args.eo) if args.eo else None,
+        epsg=epsg,
+        interp=args.interp,
+        edge=args.edge,
+        shutter_delay_ms=_number("--shutter-delay-ms", args.shutter_delay_ms),
+        max_gap_s=max_gap,
+        exif_copies=bool(args.exif),
+    )
+
+
+class _Progress:
+    """One self-overwriting line per stage on stderr."""
+
+    def __init__(self, enabled: bool) -> None:
+        self.enabled = enabled and sys.stderr.isatty()
+        self.stage = ""
+
+    def __call__(self, stage: str, fraction: float) -> None:
+        if not self.enabled:
+            if stage != self.stage:
+                self.stage = stage
+                print(f"solve: {stage} ...", file=sys.stderr)
+            return
+        if stage != self.stage and self.stage:
+            sys.stderr.write("\n")
+        self.stage = stage
+        bar = "#" * int(fraction * 30)
+        sys.stderr.write(f"\r{stage:<40} [{bar:<30}] {fraction:4.0%}")
+        sys.stderr.flush()
+
+    def done(self) -> None:
+        if self.enabled and self.stage:
+            sys.stderr.write("\n")
+
+
+def run(args: argparse.Namespace) -> int:
+    settings = settings_from_args(args)
+    progress = _Progress(not args.no_progress)
+    try:
+        result = solve(settings, progress if not args.no_progress else None)
+    finally:
+        progress.done()
+    sys.stdout.write(format_result(result))
+    return 0
+
+
+def format_result(r: SolveResult) -> str:
+    s = r.summary()
+    lines = [
+        (f"positions  {r.trajectory.source}: {s['epochs']} epochs, "
+        f"{float(s['fixed_fraction']):.1%} fixed"),  # type: ignore[arg-type]
+        (f"marks      {s['marks']}: {s['marks_positioned']} positioned, {s['marks_fixed']} fixed, "
+        f"{s['marks_in_gap']} in data gaps"),
+    ]
+    if r.match is not None:
+        lines.extend(r.reconciliation[:3])
+    lines.extend(f"note       {n}" for n in r.notes)
+    lines.extend(f"wrote      {p}" for p in r.files)
+    return "\n".join(lines) + "\n"

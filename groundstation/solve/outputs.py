@@ -1,0 +1,347 @@
+"""Solver outputs: cameras.csv, ODM geo.txt, Metashape/Pix4D CSV, GeoJSON, EXIF GPS copies.
+
+Rows are built by the pipeline (:class:`CameraRow`); the writers only format them. Writers are
+registered in :data:`WRITERS` by file name. Coordinates in the chosen EPSG come from pyproj
+(:class:`Projector`, the one place that imports it); heights are WGS84 ellipsoidal.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from groundstation import gpstime
+from groundstation.errors import ConfigError, InputError
+from groundstation.solve.interpolate import flag_names
+from groundstation.solve.positions import QUALITY_NAMES
+
+FloatArray = npt.NDArray[np.float64]
+
+
+class Projector:
+    """WGS84 (lat, lon, ellipsoidal h) ↔ a target EPSG through pyproj; heights pass through."""
+
+    def __init__(self, epsg: int) -> None:
+        from pyproj import CRS, Transformer
+        from pyproj.exceptions import CRSError
+
+        try:
+            self.crs = CRS.from_epsg(epsg)
+        except CRSError as err:
+            raise ConfigError("--epsg", f"unknown EPSG code {epsg}: {err}") from err
+        self.epsg = epsg
+        self.projected = bool(self.crs.is_projected)
+        self.name = self.crs.name
+        self._fwd = Transformer.from_crs("EPSG:4979", self.crs, always_xy=True)
+        self._inv = Transformer.from_crs(self.crs, "EPSG:4979", always_xy=True)
+
+    def forward(self, lat_deg: FloatArray, lon_deg: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """(x, y) in the target CRS (easting, northing for a projected CRS; lon, lat else)."""
+        x, y = self._fwd.transform(np.asarray(lon_deg), np.asarray(lat_deg))
+        return np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64)
+
+    def inverse(self, x: FloatArray, y: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """(lat, lon) in degrees from target-CRS (x, y)."""
+        lon, lat = self._inv.transform(np.asarray(x), np.asarray(y))
+        return np.asarray(lat, dtype=np.float64), np.asarray(lon, dtype=np.float64)
+
+
+def utm_epsg(lat_deg: float, lon_deg: float) -> int:
+    """EPSG code of the WGS84 UTM zone containing a point (326xx north, 327xx south)."""
+    zone = int((lon_deg + 180.0) // 6.0) % 60 + 1
+    return (32600 if lat_deg >= 0 else 32700) + zone
+
+
+@dataclass(frozen=True, slots=True)
+class CameraRow:
+    """One photo's (or one mark's) camera position, ready to write.
+
+    Attributes:
+        photo: image file name ("" for a mark without photo).
+        mark: index of the mark in the flight (0-based), -1 for a photo without mark.
+        mark_count: the receiver's TIM-TM2 edge counter of that mark.
+        t_gps_ns: instant used (edge + shutter delay), -1 when none.
+        lat_deg, lon_deg, h_m: projection centre, WGS84 (ellipsoidal height).
+        x_m, y_m: projection centre in the output CRS.
+        sd_e_m, sd_n_m, sd_u_m: σ east, north, up.
+        quality: RTKLIB Q (0 = no position).
+        flags: ``FLAG_*`` mask from interpolation.
+        omega_deg, phi_deg, kappa_deg: attitude used for the lever arm (NaN if none).
+        attitude: ``eo`` (from the EO file), ``nadir-track`` (assumed) or ``none``.
+        antenna_x_m, antenna_y_m, antenna_h_m: antenna position before the lever arm.
+    """
+
+    photo: str
+    mark: int
+    mark_count: int
+    t_gps_ns: int
+    lat_deg: float
+    lon_deg: float
+    h_m: float
+    x_m: float
+    y_m: float
+    sd_e_m: float
+    sd_n_m: float
+    sd_u_m: float
+    quality: int
+    flags: int
+    omega_deg: float = math.nan
+    phi_deg: float = math.nan
+    kappa_deg: float = math.nan
+    attitude: str = "none"
+    antenna_x_m: float = math.nan
+    antenna_y_m: float = math.nan
+    antenna_h_m: float = math.nan
+
+    @property
+    def positioned(self) -> bool:
+        return math.isfinite(self.x_m) and math.isfinite(self.lat_deg)
+
+    @property
+    def flag_text(self) -> str:
+        return ";".join(flag_names(self.flags))
+
+
+@dataclass(frozen=True, slots=True)
+class SolveOutput:
+    """What the writers get: rows, CRS, trajectory for maps, notes for headers."""
+
+    rows: tuple[CameraRow, ...]
+    epsg: int
+    crs_name: str
+    projected: bool
+    trajectory_llh: FloatArray  # (n, 3) lat, lon, h of every epoch
+    trajectory_quality: npt.NDArray[np.int64]
+    trajectory_t_gps_ns: npt.NDArray[np.int64]
+    mark_llh: FloatArray  # (m, 3) antenna at every mark (NaN where none)
+    mark_t_gps_ns: npt.NDArray[np.int64]
+    notes: tuple[str, ...] = ()
+
+
+def _f(v: float, nd: int) -> str:
+    return "" if not math.isfinite(v) else f"{v:.{nd}f}"
+
+
+def _utc(t_gps_ns: int) -> str:
+    if t_gps_ns < 0:
+        return ""
+    unix_ns = gpstime.gps_to_unix_ns(t_gps_ns)
+    base = gpstime.gps_to_datetime(t_gps_ns).strftime("%Y-%m-%dT%H:%M:%S")
+    return f"{base}.{unix_ns % 10**9:09d}Z"
+
+
+CAMERAS_COLUMNS = (
+    "photo", "mark", "mark_count", "gps_week", "gps_tow_s", "utc",
+    "x_m", "y_m", "h_m", "lat_deg", "lon_deg", "sd_e_m", "sd_n_m", "sd_u_m",
+    "quality", "quality_name", "flags", "omega_deg", "phi_deg", "kappa_deg", "attitude",
+    "antenna_x_m", "antenna_y_m", "antenna_h_m",
+)
+"""Columns of ``cameras.csv``; x/y are in the output EPSG, h is WGS84 ellipsoidal."""
+
+
+def cameras_csv(out: SolveOutput) -> str:
+    """``cameras.csv``: one row per photo (and per orphan mark), every field the solver knows."""
+    buf = io.StringIO()
+    buf.write(f"# crs EPSG:{out.epsg} ({out.crs_name}); h = WGS84 ellipsoidal height\n")
+    for note in out.notes:
+        buf.write(f"# {note}\n")
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(CAMERAS_COLUMNS)
+    nd_xy = 3 if out.projected else 9
+    for r in out.rows:
+        week, tow = ("", "")
+        if r.t_gps_ns >= 0:
+            wk, tow_ns = gpstime.week_tow(r.t_gps_ns)
+            week, tow = str(wk), f"{tow_ns // 10**9}.{tow_ns % 10**9:09d}"
+        w.writerow([
+            r.photo, r.mark if r.mark >= 0 else "", r.mark_count if r.mark >= 0 else "",
+            week, tow, _utc(r.t_gps_ns),
+            _f(r.x_m, nd_xy), _f(r.y_m, nd_xy), _f(r.h_m, 3),
+            _f(r.lat_deg, 9), _f(r.lon_deg, 9),
+            _f(r.sd_e_m, 3), _f(r.sd_n_m, 3), _f(r.sd_u_m, 3),
+            r.quality, QUALITY_NAMES.get(r.quality, str(r.quality)), r.flag_text,
+            _f(r.omega_deg, 4), _f(r.phi_deg, 4), _f(r.kappa_deg, 4), r.attitude,
+            _f(r.antenna_x_m, nd_xy), _f(r.antenna_y_m, nd_xy), _f(r.antenna_h_m, 3),
+        ])
+    return buf.getvalue()
+
+
+def _photo_rows(out: SolveOutput) -> list[CameraRow]:
+    return [r for r in out.rows if r.photo and r.positioned]
+
+
+def geo_txt(out: SolveOutput) -> str:
+    """OpenDroneMap ``geo.txt``: ``EPSG:N`` then ``image x y z yaw pitch roll horz vert``.
+
+    Angles are written as 0 (ODM uses them only for radiometric calibration and accepts 0 when
+    unknown); horizontal accuracy is the larger of σ east and north.
+    """
+    lines = [f"EPSG:{out.epsg}"]
+    nd = 3 if out.projected else 9
+    for r in _photo_rows(out):
+        horz = max(r.sd_e_m, r.sd_n_m)
+        lines.append(
+            f"{r.photo} {r.x_m:.{nd}f} {r.y_m:.{nd}f} {r.h_m:.3f} 0 0 0 "
+            f"{_f(horz, 3) or '0'} {_f(r.sd_u_m, 3) or '0'}"
+        )
+    return "\n".join(lines) + "\n"
+
+
+REFERENCE_COLUMNS = (
+    "label", "x_east", "y_north", "z_height", "sd_x_m", "sd_y_m", "sd_z_m",
+    "omega_deg", "phi_deg", "kappa_deg",
+)
+
+
+def reference_csv(out: SolveOutput) -> str:
+    """Metashape "Import Reference" CSV (comma, header row, ``#`` comment with the CRS)."""
+    buf = io.StringIO()
+    buf.write(f"# EPSG:{out.epsg} {out.crs_name}; z = WGS84 ellipsoidal height\n")
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(REFERENCE_COLUMNS)
+    nd = 3 if out.projected else 9
+    for r in _photo_rows(out):
+        w.writerow([
+            r.photo, _f(r.x_m, nd), _f(r.y_m, nd), _f(r.h_m, 3),
+            _f(r.sd_e_m, 3), _f(r.sd_n_m, 3), _f(r.sd_u_m, 3),
+            _f(r.omega_deg, 4), _f(r.phi_deg, 4), _f(r.kappa_deg, 4),
+        ])
+    return buf.getvalue()
+
+
+PIX4D_COLUMNS = ("imagename", "Y", "X", "Z", "accuracy_horz", "accuracy_vert")
+
+
+def pix4d_csv(out: SolveOutput) -> str:
+    """Pix4D image geolocation CSV: name, Y (northing/lat), X (easting/lon), Z, accuracies."""
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(PIX4D_COLUMNS)
+    nd = 3 if out.projected else 9
+    for r in _photo_rows(out):
+        w.writerow([
+            r.photo, _f(r.y_m, nd), _f(r.x_m, nd), _f(r.h_m, 3),
+            _f(max(r.sd_e_m, r.sd_n_m), 3), _f(r.sd_u_m, 3),
+        ])
+    return buf.getvalue()
+
+
+def _clean(v: float) -> float | None:
+    return v if math.isfinite(v) else None
+
+
+def geojson(out: SolveOutput) -> str:
+    """GeoJSON (RFC 7946, WGS84 lon/lat/h): trajectory segments by quality, marks, photos."""
+    feats: list[dict[str, Any]] = []
+    llh, q = out.trajectory_llh, out.trajectory_quality
+    start = 0
+    for i in range(1, len(q) + 1):
+        if i == len(q) or q[i] != q[start]:
+            seg = llh[start : min(i + 1, len(q))]
+            if len(seg) >= 2:
+                feats.append({
+                    "type": "Feature",
+                    "geometry": {
+                        "type": "LineString",
+                        "coordinates": [[round(b, 9), round(a, 9), round(h, 3)] for a, b, h in
+                                        seg.tolist()],
+                    },
+                    "properties": {
+                        "kind": "trajectory", "quality": int(q[start]),
+                        "quality_name": QUALITY_NAMES.get(int(q[start]), str(q[start])),
+                        "start_utc": _utc(int(out.trajectory_t_gps_ns[start])),
+                    },
+                })
+            start = i
+    for k, (a, b, h) in enumerate(out.mark_llh.tolist()):
+        if not math.isfinite(a):
+            continue
+        feats.append({
+            "type": "Feature",
+            "geometry": {"type": "Point", "coordinates": [round(b, 9), round(a, 9), round(h, 3)]},
+            "properties": {"kind": "mark", "mark": k, "utc": _utc(int(out.mark_t_gps_ns[k]))},
+        })
+    for r in out.rows:
+        if not r.photo or not r.positioned:
+            continue
+        feats.append({
+            "type": "Feature",
+            "geometry": {
+                "type": "Point",
+                "coordinates": [round(r.lon_deg, 9), round(r.lat_deg, 9), round(r.h_m, 3)],
+            },
+            "properties": {
+                "kind": "photo", "photo": r.photo, "mark": r.mark, "utc": _utc(r.t_gps_ns),
+                "quality": r.quality, "flags": r.flag_text, "sd_e_m": _clean(r.sd_e_m),
+                "sd_n_m": _clean(r.sd_n_m), "sd_u_m": _clean(r.sd_u_m), "attitude": r.attitude,
+            },
+        })
+    return json.dumps({"type": "FeatureCollection", "features": feats}, separators=(",", ":"))
+
+
+WRITERS: dict[str, Callable[[SolveOutput], str]] = {
+    "cameras.csv": cameras_csv,
+    "geo.txt": geo_txt,
+    "reference.csv": reference_csv,
+    "pix4d.csv": pix4d_csv,
+    "cameras.geojson": geojson,
+}
+"""Output file name -> writer (text)."""
+
+
+def write_all(out: SolveOutput, directory: Path) -> list[Path]:
+    """Write every registered output into ``directory``; returns the paths."""
+    directory.mkdir(parents=True, exist_ok=True)
+    paths = []
+    for name, writer in WRITERS.items():
+        p = directory / name
+        p.write_text(writer(out), encoding="utf-8")
+        paths.append(p)
+    return paths
+
+
+def check_output_dir(out_dir: Path, inputs: Sequence[Path]) -> None:
+    """Refuse an output directory that is (or is inside) an input directory of photos.
+
+    Raises:
+        ConfigError: ``--out`` points at or into an input directory.
+    """
+    o = out_dir.resolve()
+    for d in inputs:
+        r = d.resolve()
+        if o == r or r in o.parents:
+            raise ConfigError("--out", f"{out_dir} is inside the input directory {d}")
+
+
+def write_exif_copies(
+    rows: Sequence[CameraRow], photo_dir: Path, out_dir: Path
+) -> list[Path]:
+    """Copies of the photos with EXIF GPS tags from their camera positions (originals untouched).
+
+    Raises:
+        ConfigError: ``out_dir`` is the photo directory or inside it.
+    """
+    from groundstation.solve.photos import write_gps_copy
+
+    check_output_dir(out_dir, [photo_dir])
+    out_dir.mkdir(parents=True, exist_ok=True)
+    written = []
+    for r in rows:
+        if not r.photo or not r.positioned:
+            continue
+        src = photo_dir / r.photo
+        if not src.is_file():
+            raise InputError(f"{src}: photo vanished")
+        dst = out_dir / r.photo
+        write_gps_copy(src, dst, r.lat_deg, r.lon_deg, r.h_m)
+        written.append(dst)
+    return written

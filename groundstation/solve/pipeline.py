@@ -1,0 +1,402 @@
+"""The post-flight chain: flight -> marks -> positions -> photos -> lever arm -> output files.
+
+:func:`solve` is what ``groundstation solve`` and the solver service call; it takes resolved
+:class:`SolveSettings` and an optional progress callback and returns a :class:`SolveResult`.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import numpy.typing as npt
+
+from groundstation import gpstime
+from groundstation.errors import ConfigError, InputError
+from groundstation.geodesy import ecef_to_llh, enu_rotation
+from groundstation.offline.marks import Mark, build_marks
+from groundstation.offline.readers import iter_chunks
+from groundstation.records import NavSolution, TimeMark
+from groundstation.solve import interpolate as mi
+from groundstation.solve import leverarm, outputs, photos, positions, report
+from groundstation.ubx.decode import NAV_POSLLH, NAV_PVT, NAV_SOL, TIM_TM2, Decoder
+from groundstation.ubx.framer import UbxFramer
+
+log = logging.getLogger("groundstation.solve")
+
+Progress = Callable[[str, float], None]
+_WANTED = {TIM_TM2, NAV_SOL, NAV_PVT, NAV_POSLLH}
+
+
+@dataclass(frozen=True, slots=True)
+class SolveSettings:
+    """Resolved options of one solve (see ``groundstation solve --help``)."""
+
+    flight: Path
+    out_dir: Path
+    positions: Path | None = None
+    base: Path | None = None
+    base_ecef_m: tuple[float, float, float] | None = None
+    source: str | None = None
+    photos: Path | None = None
+    lever_arm_m: tuple[float, float, float] | None = None
+    eo: Path | None = None
+    epsg: int | None = None
+    interp: str = "linear"
+    edge: mi.Edge = "falling"
+    shutter_delay_ms: float = 0.0
+    max_gap_s: float = mi.DEFAULT_MAX_GAP_S
+    exif_copies: bool = False
+    kappa_offset_deg: float = 0.0
+
+    def source_name(self) -> str:
+        """The position source: explicit, else ``pos`` with --positions, ``rtklib`` with --base."""
+        if self.source:
+            return self.source
+        if self.positions is not None:
+            return "pos"
+        if self.base is not None:
+            return "rtklib"
+        raise ConfigError(
+            "--positions", "give --positions FILE.pos or --base BASE --base-xyz X,Y,Z"
+        )
+
+
+@dataclass(frozen=True, slots=True)
+class FlightRecords:
+    """What the solver needs from a recording."""
+
+    timemarks: tuple[TimeMark, ...]
+    nav: tuple[NavSolution, ...]
+    frames: int
+    damaged: int
+
+
+@dataclass(frozen=True, slots=True)
+class SolveResult:
+    """Everything a solve produced, for the command line, the service and the tests."""
+
+    rows: tuple[outputs.CameraRow, ...]
+    marks: tuple[Mark, ...]
+    mark_positions: mi.MarkPositions
+    trajectory: positions.Trajectory
+    match: photos.MatchResult | None
+    lever: leverarm.LeverArmEstimate | None
+    files: tuple[Path, ...]
+    epsg: int
+    notes: tuple[str, ...] = field(default_factory=tuple)
+    reconciliation: tuple[str, ...] = field(default_factory=tuple)
+
+    def summary(self) -> dict[str, object]:
+        """Counts as plain JSON values (for the service's ``solution`` message)."""
+        mp = self.mark_positions
+        return {
+            "marks": len(self.marks),
+            "marks_positioned": mp.positioned,
+            "marks_in_gap": int(np.sum((mp.flags & mi.FLAG_GAP) != 0)),
+            "marks_fixed": int(np.sum(mp.quality == positions.Q_FIX)),
+            "photos_paired": len(self.match.pairs) if self.match else 0,
+            "photos_unmatched": len(self.match.unmatched_photos) if self.match else 0,
+            "orphan_marks": len(self.match.orphan_marks) if self.match else 0,
+            "clock_offset_s": self.match.offset_s if self.match else None,
+            "epochs": len(self.trajectory),
+            "fixed_fraction": self.trajectory.fixed_fraction,
+            "epsg": self.epsg,
+            "files": [str(p) for p in self.files],
+            "notes": list(self.notes),
+        }
+
+
+def read_flight(path: Path, progress: Progress | None = None) -> FlightRecords:
+    """TIM-TM2 and receiver fixes from a recording (``.ubx``, ``.ubx.gz``, ``.mcap``)."""
+    framer = UbxFramer()
+    decoder = Decoder()
+    tms: list[TimeMark] = []
+    nav: list[NavSolution] = []
+    size = max(path.stat().st_size if path.exists() else 1, 1)
+    got = 0
+    for chunk, t_host in iter_chunks(path):
+        got += len(chunk)
+        for fr in framer.feed(chunk, t_host):
+            if fr.key not in _WANTED:
+                continue
+            rec = decoder.decode(fr)
+            if isinstance(rec, TimeMark):
+                tms.append(rec)
+            elif isinstance(rec, NavSolution):
+                nav.append(rec)
+        if progress is not None:
+            progress("read flight", min(got / size, 1.0))
+    for fr in framer.flush():
+        if fr.key in _WANTED:
+            rec = decoder.decode(fr)
+            if isinstance(rec, TimeMark):
+                tms.append(rec)
+            elif isinstance(rec, NavSolution):
+                nav.append(rec)
+    st = framer.stats
+    return FlightRecords(tuple(tms), tuple(nav), st.frames, st.bad_checksum + st.truncated)
+
+
+def _validate(s: SolveSettings) -> None:
+    if s.interp not in mi.INTERPOLATORS:
+        raise ConfigError("--interp", f"unknown method {s.interp!r}")
+    if s.edge not in mi.EDGES:
+        raise ConfigError("--edge", f"unknown edge {s.edge!r}")
+    if not s.max_gap_s > 0:
+        raise ConfigError("--max-gap", "must be positive")
+    if not math.isfinite(s.shutter_delay_ms):
+        raise ConfigError("--shutter-delay-ms", "must be a number")
+    if s.source_name() not in positions.POSITION_SOURCES:
+        raise ConfigError("--source", f"unknown position source {s.source!r}")
+    if s.base is not None and s.base_ecef_m is None and s.positions is None:
+        raise ConfigError("--base-xyz", "the base's known coordinates are required with --base")
+    if s.photos is not None and not s.photos.is_dir():
+        raise ConfigError("--photos", f"{s.photos} is not a directory")
+    if s.photos is not None:
+        outputs.check_output_dir(s.out_dir, [s.photos])
+    if not s.flight.exists():
+        raise InputError(f"{s.flight}: no such file")
+
+
+def _gaps(t_gps_ns: npt.NDArray[np.int64], max_gap_s: float) -> list[tuple[float, float]]:
+    if t_gps_ns.size < 2:
+        return []
+    dt_s = np.diff(t_gps_ns) / 1e9
+    idx = np.flatnonzero(dt_s > max_gap_s)
+    t0 = t_gps_ns[0]
+    return [(float((t_gps_ns[i] - t0) / 1e9), float(dt_s[i])) for i in idx.tolist()]
+
+
+def solve(settings: SolveSettings, progress: Progress | None = None) -> SolveResult:
+    """Run the whole chain and write every output into ``settings.out_dir``.
+
+    Raises:
+        ConfigError: inconsistent settings (names the option).
+        InputError: unreadable inputs, no marks, no epochs.
+        positions.ToolMissingError: the RTKLIB engine was chosen and rnx2rtkp is missing.
+    """
+    s = settings
+    _validate(s)
+    notes: list[str] = []
+    rec = read_flight(s.flight, progress)
+    marks = tuple(build_marks(rec.timemarks))
+    log.info("%s: %d TIM-TM2 records, %d marks", s.flight.name, len(rec.timemarks), len(marks))
+    # Positions.
+    src = positions.get_source(s.source_name())
+    opts = positions.SourceOptions(
+        flight=s.flight, positions=s.positions, base=s.base, base_ecef_m=s.base_ecef_m,
+        work_dir=s.out_dir / "rtklib", nav_solutions=rec.nav,
+    )
+    traj = src.trajectory(opts, progress)
+    if len(traj) == 0:
+        raise InputError(f"{traj.source}: no epochs")
+    notes.extend(traj.notes)
+    if traj.metre_level:
+        notes.append("positions are the receiver's own fix: metre level, not for mapping")
+    # Positions at marks.
+    times = [
+        mi.mark_time_ns(m.falling_t_gps_ns, m.rising_t_gps_ns, s.edge, s.shutter_delay_ms)
+        for m in marks
+    ]
+    if progress is not None:
+        progress(f"interpolate ({s.interp})", 0.0)
+    mp = mi.interpolate(traj, times, s.interp, s.max_gap_s)
+    if progress is not None:
+        progress(f"interpolate ({s.interp})", 1.0)
+    notes.append(
+        f"marks: {len(marks)}, positioned {mp.positioned}, edge {s.edge}, shutter delay "
+        f"{s.shutter_delay_ms:g} ms, {s.interp} interpolation, "
+        f"{int(np.sum((mp.flags & mi.FLAG_GAP) != 0))} in gaps > {s.max_gap_s:g} s"
+    )
+    # Photos.
+    photo_list: list[photos.Photo] = []
+    match: photos.MatchResult | None = None
+    recon: list[str] = []
+    if s.photos is not None:
+        photo_list = photos.scan_photos(s.photos)
+        if progress is not None:
+            progress("photos", 0.5)
+        match = photos.match(photos.photo_times(photo_list), times)
+        recon = photos.reconciliation_lines(match, photo_list, times)
+        if progress is not None:
+            progress("photos", 1.0)
+    # Coordinates.
+    mark_llh = np.full((len(marks), 3), np.nan)
+    for i, xyz in enumerate(mp.ecef_m.tolist()):
+        if math.isfinite(xyz[0]):
+            mark_llh[i] = ecef_to_llh(*xyz)
+    traj_llh = np.array([ecef_to_llh(*xyz) for xyz in traj.ecef_m.tolist()])
+    epsg = s.epsg or outputs.utm_epsg(float(traj_llh[0, 0]), float(traj_llh[0, 1]))
+    proj = outputs.Projector(epsg)
+    # Which marks become rows: photos (paired or not), then orphan marks; or every mark.
+    entries: list[tuple[str, int]] = []
+    if match is not None:
+        by_photo = match.mark_of_photo()
+        entries = [(ph.name, by_photo.get(i, -1)) for i, ph in enumerate(photo_list)]
+        entries += [("", k) for k in match.orphan_marks]
+    else:
+        entries = [("", k) for k in range(len(marks))]
+    mk = np.array([k for _, k in entries], dtype=np.int64)
+    has = mk >= 0
+    llh = np.full((len(entries), 3), np.nan)
+    llh[has] = mark_llh[mk[has]]
+    ant_x, ant_y = proj.forward(llh[:, 0], llh[:, 1])
+    ant_h = llh[:, 2]
+    # Attitude per row: EO file by photo name, else nadir with κ along the track.
+    opk = np.full((len(entries), 3), np.nan)
+    attitude = ["none"] * len(entries)
+    eo_by_name: dict[str, leverarm.ExteriorOrientation] = {}
+    if s.eo is not None:
+        eo_by_name = {e.name: e for e in leverarm.read_eo(s.eo)}
+        for i, (name, _) in enumerate(entries):
+            e = eo_by_name.get(name) or eo_by_name.get(Path(name).stem)
+            if e is not None:
+                opk[i] = (e.omega_deg, e.phi_deg, e.kappa_deg)
+                attitude[i] = "eo"
+    # κ from the direction of travel: track order of the positioned marks.
+    if any(a == "none" for a in attitude):
+        order = np.argsort(np.where(has, mk, 1 << 40))
+        ok = order[np.isfinite(ant_x[order])]
+        if ok.size:
+            kap = leverarm.kappa_from_track_deg(ant_x[ok], ant_y[ok], s.kappa_offset_deg)
+            for j, row in enumerate(ok.tolist()):
+                if attitude[row] == "none":
+                    opk[row] = (0.0, 0.0, kap[j])
+                    attitude[row] = "nadir-track"
+    # Lever arm.
+    cam = np.column_stack([ant_x, ant_y, ant_h])
+    lever_est: leverarm.LeverArmEstimate | None = None
+    if not proj.projected:
+        notes.append(f"EPSG:{epsg} is not projected: lever arm applied in local east/north/up")
+    if s.lever_arm_m is not None:
+        use = np.isfinite(cam[:, 0]) & np.isfinite(opk[:, 0])
+        if proj.projected:
+            cam[use] = leverarm.apply_lever_arm(cam[use], opk[use], s.lever_arm_m)
+        else:
+            cam[use] = _apply_enu(llh[use], opk[use], s.lever_arm_m)
+        notes.append(
+            "lever arm (camera frame) " + ", ".join(f"{v:.3f}" for v in s.lever_arm_m) + " m "
+            "applied as camera = antenna - M^T L (DOMAIN.md §7)"
+        )
+    if any(a == "nadir-track" for a in attitude):
+        notes.append(
+            "no attitude for some photos: nadir camera assumed (omega = phi = 0), kappa from the "
+            "direction of travel (image x axis along track)"
+            + (f" + {s.kappa_offset_deg:g} deg" if s.kappa_offset_deg else "")
+        )
+    if eo_by_name:
+        sel = [i for i, a in enumerate(attitude) if a == "eo" and np.isfinite(ant_x[i])]
+        if len(sel) >= 2 and proj.projected:
+            eos = [eo_by_name.get(entries[i][0]) or eo_by_name[Path(entries[i][0]).stem]
+                   for i in sel]
+            eo_cam = np.array([(e.x_m, e.y_m, e.z_m) for e in eos])
+            ant = np.column_stack([ant_x[sel], ant_y[sel], ant_h[sel]])
+            lever_est = leverarm.estimate_lever_arm(ant, eo_cam, opk[sel])
+            notes.append(
+                "lever arm from EO images: "
+                + ", ".join(f"{v:.3f}" for v in lever_est.mean_m) + " m, sigma "
+                + ", ".join(f"{v:.3f}" for v in lever_est.sigma_m)
+                + f" m, {lever_est.inliers} images, {int(lever_est.outlier.sum())} outliers"
+            )
+    # Rows.
+    if proj.projected:
+        lat, lon = proj.inverse(cam[:, 0], cam[:, 1])
+    else:
+        lat, lon = cam[:, 1], cam[:, 0]
+    rows: list[outputs.CameraRow] = []
+    for i, (name, k) in enumerate(entries):
+        sd = mp.sd_enu_m[k] if k >= 0 else np.full(3, np.nan)
+        m = marks[k] if k >= 0 else None
+        rows.append(outputs.CameraRow(
+            photo=name, mark=k, mark_count=m.count if m else -1,
+            t_gps_ns=int(mp.t_gps_ns[k]) if k >= 0 else -1,
+            lat_deg=float(lat[i]), lon_deg=float(lon[i]), h_m=float(cam[i, 2]),
+            x_m=float(cam[i, 0]), y_m=float(cam[i, 1]),
+            sd_e_m=float(sd[0]), sd_n_m=float(sd[1]), sd_u_m=float(sd[2]),
+            quality=int(mp.quality[k]) if k >= 0 else 0,
+            flags=int(mp.flags[k]) if k >= 0 else 0,
+            omega_deg=float(opk[i, 0]), phi_deg=float(opk[i, 1]), kappa_deg=float(opk[i, 2]),
+            attitude=attitude[i],
+            antenna_x_m=float(ant_x[i]), antenna_y_m=float(ant_y[i]), antenna_h_m=float(ant_h[i]),
+        ))
+    out = outputs.SolveOutput(
+        rows=tuple(rows), epsg=epsg, crs_name=proj.name, projected=proj.projected,
+        trajectory_llh=traj_llh, trajectory_quality=traj.quality,
+        trajectory_t_gps_ns=traj.t_gps_ns, mark_llh=mark_llh, mark_t_gps_ns=mp.t_gps_ns,
+        notes=tuple(notes),
+    )
+    files = outputs.write_all(out, s.out_dir)
+    # Report.
+    te, tn = proj.forward(traj_llh[:, 0], traj_llh[:, 1])
+    if not proj.projected:
+        te, tn = _local_en(traj_llh)
+    t_rel = (traj.t_gps_ns - traj.t_gps_ns[0]) / 1e9
+    res_s = np.array([p.residual_s for p in match.pairs]) if match else np.zeros(0)
+    res_t = (
+        np.array([(mp.t_gps_ns[p.mark] - traj.t_gps_ns[0]) / 1e9 for p in match.pairs])
+        if match else np.zeros(0)
+    )
+    summary = [
+        ("flight", s.flight.name),
+        ("positions", f"{traj.source} ({len(traj)} epochs, {traj.fixed_fraction:.0%} fixed)"),
+        ("marks", f"{len(marks)} ({mp.positioned} positioned)"),
+        ("photos", f"{len(photo_list)}" + (f", {len(match.pairs)} paired" if match else "")),
+        ("CRS", f"EPSG:{epsg} {proj.name}"),
+        ("span", gpstime.format_gps(int(traj.t_gps_ns[0])) + " .. "
+         + gpstime.format_gps(int(traj.t_gps_ns[-1]))),
+    ]
+    data = report.ReportData(
+        title=f"groundstation solve: {s.flight.name}",
+        summary=summary,
+        track_en_m=np.column_stack([te, tn]),
+        track_quality=traj.quality,
+        track_t_s=t_rel,
+        marks_en_m=cam[:, :2] if proj.projected else np.zeros((0, 2)),
+        gaps=_gaps(traj.t_gps_ns, s.max_gap_s),
+        match_residual_s=res_s,
+        match_t_s=res_t,
+        lever_residual_m=lever_est.residual_m if lever_est else np.zeros(0),
+        lever_outlier=lever_est.outlier if lever_est else np.zeros(0, bool),
+        notes=notes,
+        reconciliation=recon,
+    )
+    rp = s.out_dir / "report.html"
+    rp.write_text(report.render(data), encoding="utf-8")
+    files.append(rp)
+    if s.exif_copies and s.photos is not None:
+        outputs.write_exif_copies(rows, s.photos, s.out_dir / "photos")
+        notes.append(f"EXIF GPS tags written to copies in {s.out_dir / 'photos'}")
+    return SolveResult(
+        tuple(rows), marks, mp, traj, match, lever_est, tuple(files), epsg, tuple(notes),
+        tuple(recon),
+    )
+
+
+def _local_en(llh: npt.NDArray[np.float64]) -> tuple[npt.NDArray[np.float64], ...]:
+    from groundstation.geodesy import llh_to_ecef
+
+    xyz = np.array([llh_to_ecef(*p) for p in llh.tolist()])
+    rot = np.array(enu_rotation(float(llh[0, 0]), float(llh[0, 1])))
+    enu = (xyz - xyz[0]) @ rot.T
+    return enu[:, 0], enu[:, 1]
+
+
+def _apply_enu(
+    llh: npt.NDArray[np.float64], opk: npt.NDArray[np.float64], lever: tuple[float, float, float]
+) -> npt.NDArray[np.float64]:
+    """Lever arm in the local east/north/up frame of each point; returns (lon, lat, h) rows."""
+    from groundstation.geodesy import llh_to_ecef
+
+    off = leverarm.lever_offsets(opk, lever)
+    out = np.empty_like(llh)
+    for i, ((la, lo, h), d) in enumerate(zip(llh.tolist(), off.tolist(), strict=True)):
+        rot = np.array(enu_rotation(la, lo))
+        xyz = np.array(llh_to_ecef(la, lo, h)) - rot.T @ np.array(d)
+        nla, nlo, nh = ecef_to_llh(*xyz)
+        out[i] = (nlo, nla, nh)
+    return out
