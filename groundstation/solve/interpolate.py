@@ -244,19 +244,29 @@ def natural_spline_m2(x: FloatArray, y: FloatArray) -> FloatArray:
         return m2
     h = np.diff(x)
     rhs = 6.0 * (np.diff(y[1:], axis=0) / h[1:, None] - np.diff(y[:-1], axis=0) / h[:-1, None])
-    diag = 2.0 * (h[:-1] + h[1:])
-    sub = h[1:-1].copy()  # sub- and super-diagonal are the same (symmetric)
+    diag = (2.0 * (h[:-1] + h[1:])).tolist()
+    sub = h[1:-1].tolist()  # sub- and super-diagonal are the same (symmetric)
     k = n - 2
-    c = np.zeros(k)
-    d = np.zeros((k, y.shape[1]))
-    c[0] = sub[0] / diag[0] if k > 1 else 0.0
-    d[0] = rhs[0] / diag[0]
+    # Thomas algorithm on Python floats (numpy scalars are ~10x slower in a loop).
+    cols = [rhs[:, j].tolist() for j in range(y.shape[1])]
+    c = [0.0] * k
+    dd = [[0.0] * k for _ in cols]
+    den = diag[0]
+    c[0] = sub[0] / den if k > 1 else 0.0
+    for j, col in enumerate(cols):
+        dd[j][0] = col[0] / den
     for i in range(1, k):
-        den = diag[i] - sub[i - 1] * c[i - 1]
+        s_prev = sub[i - 1]
+        den = diag[i] - s_prev * c[i - 1]
         c[i] = sub[i] / den if i < k - 1 else 0.0
-        d[i] = (rhs[i] - sub[i - 1] * d[i - 1]) / den
+        for j, col in enumerate(cols):
+            dj = dd[j]
+            dj[i] = (col[i] - s_prev * dj[i - 1]) / den
     for i in range(k - 2, -1, -1):
-        d[i] -= c[i] * d[i + 1]
+        ci = c[i]
+        for dj in dd:
+            dj[i] -= ci * dj[i + 1]
+    d = np.array(dd).T
     m2[1:-1] = d
     return m2
 

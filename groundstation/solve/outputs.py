@@ -246,7 +246,7 @@ def geojson(out: SolveOutput) -> str:
     start = 0
     for i in range(1, len(q) + 1):
         if i == len(q) or q[i] != q[start]:
-            seg = llh[start : min(i + 1, len(q))]
+            seg = llh[max(start - 1, 0) : i]  # joined to the previous run's last epoch
             if len(seg) >= 2:
                 feats.append({
                     "type": "Feature",

@@ -1,0 +1,155 @@
+"""Output formats (cameras.csv, geo.txt, Metashape/Pix4D CSV, GeoJSON, report) and CLI errors."""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from groundstation.cli import main
+from groundstation.errors import ConfigError
+from groundstation.solve import outputs, report
+from groundstation.solve.interpolate import FLAG_GAP, FLAG_NOT_FIXED
+
+T = 2022 * 604_800 * 10**9 + 217_373_138_511_198
+
+
+@pytest.fixture()
+def out() -> outputs.SolveOutput:
+    proj = outputs.Projector(25832)
+    lat = np.array([50.0, 50.0001, math.nan])
+    lon = np.array([9.0, 9.0001, math.nan])
+    x, y = proj.forward(lat, lon)
+    rows = (
+        outputs.CameraRow("IMG_0001.JPG", 0, 3, T, lat[0], lon[0], 150.0, x[0], y[0],
+                          0.01, 0.02, 0.03, 1, 0, 0.0, 0.0, 45.0, "nadir-track"),
+        outputs.CameraRow("IMG_0002.JPG", 1, 5, T + 10**9, lat[1], lon[1], 151.0, x[1], y[1],
+                          0.2, 0.1, 0.4, 2, FLAG_GAP | FLAG_NOT_FIXED),
+        outputs.CameraRow("IMG_0003.JPG", -1, -1, -1, lat[2], lon[2], math.nan, x[2], y[2],
+                          math.nan, math.nan, math.nan, 0, 0),
+        outputs.CameraRow("", 2, 7, T + 2 * 10**9, 50.0002, 9.0002, 152.0, 1.0, 2.0,
+                          0.01, 0.01, 0.02, 1, 0),
+    )
+    llh = np.array([[50.0, 9.0, 150.0], [50.0001, 9.0001, 151.0], [50.0002, 9.0002, 152.0]])
+    return outputs.SolveOutput(
+        rows=rows, epsg=25832, crs_name=proj.name, projected=True,
+        trajectory_llh=llh, trajectory_quality=np.array([1, 1, 2]),
+        trajectory_t_gps_ns=np.array([T, T + 10**9, T + 2 * 10**9]),
+        mark_llh=llh, mark_t_gps_ns=np.array([T, T + 10**9, T + 2 * 10**9]),
+        notes=("a note",),
+    )
+
+
+def test_projector_round_trip_and_utm_zone() -> None:
+    p = outputs.Projector(25832)
+    assert p.projected and "UTM zone 32N" in p.name
+    x, y = p.forward(np.array([50.0]), np.array([9.0]))
+    assert x[0] == pytest.approx(500_000.0, abs=0.01)  # 9°E is the central meridian
+    lat, lon = p.inverse(x, y)
+    assert lat[0] == pytest.approx(50.0) and lon[0] == pytest.approx(9.0)
+    assert outputs.utm_epsg(53.28, -9.06) == 32629
+    assert outputs.utm_epsg(-33.9, 18.4) == 32734
+    with pytest.raises(ConfigError) as err:
+        outputs.Projector(999999)
+    assert err.value.key == "--epsg"
+
+
+def test_cameras_csv(out: outputs.SolveOutput) -> None:
+    text = outputs.cameras_csv(out)
+    assert text.startswith("# crs EPSG:25832")
+    rows = list(csv.DictReader(ln for ln in text.splitlines() if not ln.startswith("#")))
+    assert tuple(rows[0]) == outputs.CAMERAS_COLUMNS
+    assert rows[0]["gps_week"] == "2022" and rows[0]["gps_tow_s"] == "217373.138511198"
+    assert rows[0]["utc"] == "2018-10-09T12:22:35.138511198Z"
+    assert rows[1]["flags"] == "gap;not_fixed" and rows[1]["quality_name"] == "float"
+    assert rows[2]["x_m"] == "" and rows[2]["mark"] == ""
+    assert rows[3]["photo"] == "" and rows[3]["mark_count"] == "7"
+
+
+def test_geo_txt(out: outputs.SolveOutput) -> None:
+    lines = outputs.geo_txt(out).splitlines()
+    assert lines[0] == "EPSG:25832"
+    assert len(lines) == 3  # unpositioned photos and marks without photo are left out
+    f = lines[1].split()
+    assert f[0] == "IMG_0001.JPG" and len(f) == 9
+    assert float(f[1]) == pytest.approx(500_000.0, abs=0.01)
+    assert f[4:7] == ["0", "0", "0"] and f[7] == "0.020" and f[8] == "0.030"
+
+
+def test_reference_and_pix4d(out: outputs.SolveOutput) -> None:
+    ref = outputs.reference_csv(out).splitlines()
+    assert ref[0].startswith("# EPSG:25832")
+    assert ref[1] == ",".join(outputs.REFERENCE_COLUMNS)
+    assert ref[2].startswith("IMG_0001.JPG,500000.000,")
+    assert ref[2].endswith(",0.0000,0.0000,45.0000")
+    pix = outputs.pix4d_csv(out).splitlines()
+    assert pix[0] == "imagename,Y,X,Z,accuracy_horz,accuracy_vert" and len(pix) == 3
+    name, y, x = pix[1].split(",")[:3]
+    assert name == "IMG_0001.JPG" and float(x) < float(y)
+
+
+def test_geojson_is_valid_rfc7946(out: outputs.SolveOutput) -> None:
+    gj = json.loads(outputs.geojson(out))
+    assert gj["type"] == "FeatureCollection"
+    kinds = [f["properties"]["kind"] for f in gj["features"]]
+    assert kinds.count("trajectory") == 2 and kinds.count("mark") == 3
+    assert kinds.count("photo") == 2
+    for f in gj["features"]:
+        assert f["type"] == "Feature" and f["geometry"]["type"] in ("Point", "LineString")
+        coords = f["geometry"]["coordinates"]
+        pts = coords if f["geometry"]["type"] == "LineString" else [coords]
+        for lon, lat, _h in pts:
+            assert lon == pytest.approx(9.0, abs=0.01) and lat == pytest.approx(50.0, abs=0.01)
+
+
+def test_write_all_and_report(out: outputs.SolveOutput, tmp_path: Path) -> None:
+    paths = outputs.write_all(out, tmp_path / "o")
+    assert sorted(p.name for p in paths) == sorted(outputs.WRITERS)
+    d = report.ReportData(
+        title="t", summary=[("a", "b")],
+        track_en_m=np.array([[0.0, 0.0], [1.0, 1.0], [2.0, 0.5]]),
+        track_quality=np.array([1, 2, 5]), track_t_s=np.array([0.0, 0.2, 1.6]),
+        marks_en_m=np.array([[0.5, 0.5]]), gaps=[(0.2, 1.4)],
+        match_residual_s=np.array([0.01, -0.02]), match_t_s=np.array([0.1, 1.0]),
+        lever_residual_m=np.array([0.001, 0.2]), lever_outlier=np.array([False, True]),
+        notes=["<n>"], reconciliation=["x"],
+    )
+    html = report.render(d)
+    assert html.count("<svg") == 4 and "&lt;n&gt;" in html and "<script" not in html
+
+
+def test_output_dir_inside_photos_is_refused(tmp_path: Path) -> None:
+    with pytest.raises(ConfigError) as err:
+        outputs.check_output_dir(tmp_path / "p" / "o", [tmp_path / "p"])
+    assert err.value.key == "--out"
+    outputs.check_output_dir(tmp_path / "o", [tmp_path / "p"])
+
+
+@pytest.mark.parametrize(
+    ("extra", "option"),
+    [
+        ([], "--positions"),
+        (["--base", "B"], "--base-xyz"),
+        (["--positions", "P", "--interp", "cubic"], "--interp"),
+        (["--positions", "P", "--edge", "up"], "--edge"),
+        (["--positions", "P", "--max-gap", "-1"], "--max-gap"),
+        (["--positions", "P", "--lever-arm", "1,2"], "--lever-arm"),
+        (["--positions", "P", "--epsg", "utm"], "--epsg"),
+        (["--positions", "P", "--shutter-delay-ms", "x"], "--shutter-delay-ms"),
+        (["--positions", "missing.pos"], "--positions"),
+    ],
+)
+def test_bad_arguments_exit_2_naming_the_option(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], extra: list[str], option: str
+) -> None:
+    pos = tmp_path / "P"
+    pos.write_text("x\n")
+    (tmp_path / "B").write_text("x\n")
+    args = [a if a not in ("P", "B") else str(tmp_path / a) for a in extra]
+    rc = main(["solve", str(tmp_path / "f.ubx"), "--out", str(tmp_path / "o"), *args])
+    assert rc == 2
+    assert option in capsys.readouterr().err
