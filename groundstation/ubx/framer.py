@@ -151,6 +151,9 @@ class UbxFramer:
         self._buf = bytearray()
         self._base = 0  # stream offset of self._buf[0]
         self._c = _Counters()
+        # Look-ahead while a frame waits for its claimed length: (its stream offset, the stream
+        # offset from which the search for a valid inner frame goes on).
+        self._lookahead: tuple[int, int] = (-1, 0)
 
     @property
     def stats(self) -> FramerStats:
@@ -245,6 +248,12 @@ class UbxFramer:
             if final:
                 c.truncated += 1
                 return -1
+            if self._valid_frame_inside(buf, i, n):
+                # A complete, valid frame inside the claimed span proves this header false
+                # (its length field is damage): give up on it now rather than hold every
+                # later frame back until the claimed length has arrived.
+                c.bad_checksum += 1
+                return -1
             return 0
         raw = bytes(buf[i:end])
         ck_a, ck_b = ubx_checksum(memoryview(raw)[2:-2])
@@ -257,6 +266,38 @@ class UbxFramer:
         c.frames_by_type[(cls, mid)] += 1
         c.frame_bytes += len(raw)
         return len(raw)
+
+    def _valid_frame_inside(self, buf: bytearray, i: int, n: int) -> bool:
+        """Whether a complete frame with a valid checksum starts after the sync word at ``i``
+        (and within the ``n`` bytes at hand). Resumes where the last call stopped."""
+        cand = self._base + i
+        owner, resume = self._lookahead
+        j = i + 2 if owner != cand else max(i + 2, resume - self._base)
+        earliest_open: int | None = None
+        while True:
+            j = buf.find(b"\xb5\x62", j, n)
+            if j < 0:
+                break
+            if j + HEADER_LEN > n:
+                earliest_open = j if earliest_open is None else earliest_open
+                break
+            length = buf[j + 4] | (buf[j + 5] << 8)
+            end = j + OVERHEAD + length
+            if length <= self.max_payload and end <= n:
+                body = memoryview(buf)[j + 2 : end - 2]
+                try:
+                    ck = ubx_checksum(body)
+                finally:
+                    body.release()
+                if ck == (buf[end - 2], buf[end - 1]):
+                    self._lookahead = (-1, 0)
+                    return True
+            elif length <= self.max_payload and earliest_open is None:
+                earliest_open = j  # not complete yet: look at it again next time
+            j += 1
+        resume_at = earliest_open if earliest_open is not None else max(i + 2, n - 1)
+        self._lookahead = (cand, self._base + resume_at)
+        return False
 
     def _try_rtcm3(self, buf: bytearray, i: int, n: int, final: bool) -> int:
         if i + 3 > n:

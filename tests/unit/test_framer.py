@@ -180,3 +180,19 @@ def test_property_intact_frames_survive_any_damage(
     for off, raw in intact:
         assert got.get(off) == raw, f"intact frame at {off} lost"
     assert framer.stats.pending_bytes == 0
+
+
+def test_false_long_header_does_not_hold_back_later_frames() -> None:
+    # A cut frame whose length field claims 8000 bytes, then ordinary traffic: each frame must
+    # come out as soon as it is complete, not once 8000 bytes have arrived.
+    bogus = b"\xb5\x62\x02\x10\x40\x1f" + bytes(10)
+    marks = [tim_tm2(k, 2000, 1000 + k, 0, None) for k in range(5)]
+    framer = UbxFramer()
+    assert framer.feed(bogus, 1) == []
+    out = []
+    for t, m in enumerate(marks, start=2):
+        got = framer.feed(m, t)
+        assert [f.raw for f in got] == [m], f"mark {t - 2} held back"
+        out += got
+    assert framer.stats.bad_checksum == 1
+    assert framer.stats.garbage_bytes == len(bogus)
