@@ -137,6 +137,7 @@ class MonitorSettings:
     disk_free_min_mb: float = 500.0
     elevation_mask_deg: float = 15.0
     marks_missed_hold_s: float = 30.0
+    no_frames_s: float = 5.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -222,6 +223,7 @@ SCHEMA: dict[str, dict[str, _T]] = {
         "disk_free_min_mb": float,
         "elevation_mask_deg": float,
         "marks_missed_hold_s": float,
+        "no_frames_s": float,
     },
 }
 """Every key the configuration accepts, by section ("" = top level)."""

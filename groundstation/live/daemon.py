@@ -53,6 +53,7 @@ class PipelineStatus:
     undecodable: int
     queued: dict[str, int]
     dropped: dict[str, int]
+    nmea_sentences: int = 0
 
 
 register_record_topic(PipelineStatus, "/groundstation/pipeline")
@@ -87,7 +88,7 @@ def make_monitor(settings: Settings) -> Monitor:
         clean_phase_s=m.clean_phase_s, half_cycle_fraction_max=m.half_cycle_fraction_max,
         no_data_s=m.no_data_s, disk_free_min_mb=m.disk_free_min_mb,
         elevation_mask_deg=m.elevation_mask_deg, marks_missed_hold_s=m.marks_missed_hold_s,
-        status_interval_s=settings.status_interval_s,
+        no_frames_s=m.no_frames_s, status_interval_s=settings.status_interval_s,
     ))
 
 
@@ -219,6 +220,7 @@ class Pipeline:
             undecodable=self.decoder.stats.undecodable,
             queued={s.name: s.queued for s in self.fanout.stats},
             dropped={s.name: s.dropped for s in self.fanout.stats},
+            nmea_sentences=fs.nmea_sentences,
         )
 
     # -- tasks ------------------------------------------------------------------------------

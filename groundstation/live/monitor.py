@@ -9,6 +9,9 @@ It watches what the operator must act on during a flight:
   clean continuous phase and the number of "PPK-ready" satellites;
 - the time marks: count continuity (missed marks), edges, pulse width, several marks in one
   epoch, marks that fall inside a dropout;
+- the bytes themselves: bytes that keep arriving while no frame checks out for
+  ``no_frames_s`` raise ``no_frames`` naming the likely cause (wrong baud rate or noise; the
+  receiver sending NMEA only when that is what the framer recognises);
 - alerts with configured thresholds, raised and cleared as events.
 
 Nothing here does I/O or reads a clock: :class:`MonitorSink` adapts it to the live pipeline.
@@ -40,6 +43,7 @@ RATE_WINDOW_NS = 5 * NS_PER_S
 INTERVAL_HISTORY = 25
 RECENT_DROPOUTS = 50
 LINK_HISTORY_NS = 600 * NS_PER_S  # epochs kept for the completeness windows and the timeline
+NO_FRAMES_MIN_BYTES = 64  # a few stray bytes after the last frame are no evidence of anything
 
 
 @dataclass(frozen=True, slots=True)
@@ -54,6 +58,7 @@ class MonitorThresholds:
     disk_free_min_mb: float = 500.0
     elevation_mask_deg: float = 15.0
     marks_missed_hold_s: float = 30.0
+    no_frames_s: float = 5.0
     status_interval_s: float = 1.0
 
 
@@ -123,6 +128,10 @@ class Monitor:
         self.garbage = 0
         self.source_connected: bool | None = None
         self.source_outages = 0
+        self.nmea_sentences = 0
+        self._frameless_since_ns: int | None = None  # first byte after the last frame progress
+        self._frameless_bytes = 0
+        self._frameless_nmea = 0
         # satellites
         self.sats: dict[str, _Sat] = {}
         self._svinfo: dict[str, tuple[int, int, bool]] = {}
@@ -151,8 +160,10 @@ class Monitor:
         """Take one pipeline item; return the events it causes."""
         events: list[Event] = []
         if isinstance(item, RawEpoch):
+            self._frames_progress(now_ns, events)
             self._on_epoch(item, now_ns, events)
         elif isinstance(item, TimeMark):
+            self._frames_progress(now_ns, events)
             self._on_mark(item, now_ns, events)
         elif isinstance(item, SvInfo):
             for s in item.sats:
@@ -165,7 +176,14 @@ class Monitor:
             # the pipeline's own counters (PipelineStatus)
             self.damaged = int(item.bad_checksum)
             self.garbage = int(item.garbage_bytes)
-            self.frames = int(getattr(item, "frames", self.frames))
+            frames = int(getattr(item, "frames", self.frames))
+            if frames > self.frames:
+                self._frames_progress(now_ns, events)
+            self.frames = frames
+            nmea = int(getattr(item, "nmea_sentences", 0))
+            if self._frameless_since_ns is not None:
+                self._frameless_nmea += max(0, nmea - self.nmea_sentences)
+            self.nmea_sentences = nmea
             connected = getattr(item, "source_connected", None)
             if isinstance(connected, bool):
                 self.source_connected = connected
@@ -175,6 +193,39 @@ class Monitor:
         self.bytes_in += n
         self.last_byte_ns = t_host_ns
         self._bytes.append((t_host_ns, n))
+        if self._frameless_since_ns is None:
+            self._frameless_since_ns = t_host_ns
+        self._frameless_bytes += n
+
+    def _frames_progress(self, now_ns: int, events: list[Event]) -> None:
+        """Valid frames arrived: the bytes make sense again."""
+        self._frameless_since_ns = None
+        self._frameless_bytes = 0
+        self._frameless_nmea = 0
+        self._clear("no_frames", now_ns, events)
+
+    def _check_frames(self, now_ns: int, events: list[Event]) -> None:
+        """Bytes arriving for ``no_frames_s`` without one valid UBX frame among them."""
+        since, last = self._frameless_since_ns, self.last_byte_ns
+        if since is None or last is None or self._frameless_bytes < NO_FRAMES_MIN_BYTES:
+            return
+        span_s = (last - since) / NS_PER_S
+        if span_s < self.th.no_frames_s:
+            return
+        if self._frameless_nmea:
+            cause = ("the receiver sends NMEA only (UBX output is off: run "
+                     "`groundstation configure` with the receiver's profile)")
+        else:
+            cause = ("wrong baud rate (bytes arrive but no frame checks out), "
+                     "or noise on the line")
+        self._raise(
+            "no_frames",
+            f"no valid frames for {span_s:.0f} s although {self._frameless_bytes} bytes "
+            f"arrived: likely cause: {cause}",
+            now_ns, events,
+            {"bytes": self._frameless_bytes, "nmea_sentences": self._frameless_nmea,
+             "likely_cause": "nmea_only" if self._frameless_nmea else "baud_or_noise"},
+        )
 
     def set_disk_free(self, free_mb: float) -> None:
         self.disk_free_mb = free_mb
@@ -448,6 +499,7 @@ class Monitor:
                             now_ns, events, {"fraction": round(frac, 3)})
             else:
                 self._clear("half_cycle_high", now_ns, events)
+        self._check_frames(now_ns, events)
         if (self._last_missed_ns is not None
                 and now_ns - self._last_missed_ns >= th.marks_missed_hold_s * NS_PER_S):
             self._clear("marks_missed", now_ns, events)

@@ -79,6 +79,10 @@ class MonitorSink:
     def _emit(self, status: Status | None, events: list[Event],
               publish: Callable[[Item], None]) -> None:
         for ev in events:
+            if ev.kind == "alert.raised":  # the journal shows what the operator must act on
+                log.warning("alert: %s", ev.message)
+            elif ev.kind == "alert.cleared":
+                log.info("alert %s", ev.message)
             publish(ev)
         if status is not None:
             self.last_status = status
