@@ -294,6 +294,9 @@ class Pipeline:
             (spec, self.fanout.add_inbox(spec.sink.name, spec.maxsize, spec.overflow))
             for spec in self.specs
         ]
+        claim = getattr(self.source, "claim", None)
+        if callable(claim):
+            claim()  # e.g. the serial port, exclusively: refused before any file exists
         if self.recorder is not None:
             self.recorder.open()  # the file exists (and is announced) before data flows
         duration = self.settings.duration_s

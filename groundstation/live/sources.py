@@ -4,12 +4,20 @@ A device source never ends because its device went away: it reports the loss as 
 reconnects with jittered exponential backoff and, once back, reports the outage with its start,
 end and duration. A serial device that vanishes (EIO, ENODEV, end of file on the tty, the device
 node removed) is noticed within ``stall_check_s``.
+
+A serial port is opened exclusively (``flock``, through pyserial's ``exclusive=True``), so two
+daemons never read the same radio (each would get a random half of the bytes). A port another
+process holds when the daemon starts is refused at once (:meth:`SerialSource.claim` raises
+:class:`~groundstation.errors.SourceError`, the command exits with status 1) before any
+recording file is created; if another process grabs the port while the daemon is waiting for
+an unplugged device, the daemon reports it and keeps retrying, so the session is not lost.
 """
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
+import errno
 import gzip
 import logging
 import os
@@ -26,7 +34,7 @@ from groundstation.config import (
     SourceSettings,
     TcpSourceSettings,
 )
-from groundstation.errors import InputError
+from groundstation.errors import InputError, SourceError
 from groundstation.records import Event
 
 EventSink = Callable[[Event], None]
@@ -36,7 +44,10 @@ class Source(Protocol):
     """Anything that yields ``(chunk, t_host_ns)``.
 
     ``can_wait`` says whether the source may be paused when a never-dropping sink falls
-    behind (a file can wait; a radio cannot, its bytes would be lost).
+    behind (a file can wait; a radio cannot, its bytes would be lost). A source may also
+    offer ``claim()``, which the pipeline calls before it creates any file: it takes what the
+    source needs exclusively and raises :class:`~groundstation.errors.SourceError` when that
+    is impossible (a serial port held by another daemon).
     """
 
     @property
@@ -50,6 +61,28 @@ class Source(Protocol):
 
 class DeviceVanished(Exception):
     """The device went away; the source reconnects."""
+
+
+class PortInUse(Exception):
+    """Another process holds the serial port (its exclusive lock)."""
+
+
+def lock_holder(path: str) -> int | None:
+    """The pid holding a ``flock`` on ``path`` (from ``/proc/locks``), if it can be told."""
+    try:
+        st = os.stat(path)
+        with open("/proc/locks", encoding="ascii") as f:
+            lines = f.read().splitlines()
+    except OSError:
+        return None
+    want = f"{os.major(st.st_dev):02x}:{os.minor(st.st_dev):02x}:{st.st_ino}"
+    for line in lines:
+        parts = line.split()
+        # "1: FLOCK  ADVISORY  WRITE 4242 00:1a:3 0 EOF" (blocked waiters carry a "->")
+        if len(parts) >= 6 and parts[1] == "FLOCK" and parts[5] == want:
+            with contextlib.suppress(ValueError):
+                return int(parts[4])
+    return None
 
 
 def backoff_delay_s(attempt: int, min_s: float, max_s: float, rand: Callable[[], float]) -> float:
@@ -142,17 +175,44 @@ class SerialSource:
         self.settings = settings
         self.name = f"serial:{settings.port}"
         self._clock = clock
-        self.state = _Reconnecting(self.name, logging.getLogger("groundstation.serial"),
-                                   on_event, clock, rand)
+        self._log = logging.getLogger("groundstation.serial")
+        self.state = _Reconnecting(self.name, self._log, on_event, clock, rand)
+        self._claimed: serial.Serial | None = None
 
     def _open(self) -> serial.Serial:
         s = self.settings
-        port = serial.Serial(
-            s.port, s.baud, bytesize=serial.EIGHTBITS, parity=serial.PARITY_NONE,
-            stopbits=serial.STOPBITS_ONE, timeout=0, xonxoff=False, rtscts=False,
-        )
+        try:
+            port = serial.Serial(
+                s.port, s.baud, bytesize=serial.EIGHTBITS, parity=serial.PARITY_NONE,
+                stopbits=serial.STOPBITS_ONE, timeout=0, xonxoff=False, rtscts=False,
+                exclusive=True,
+            )
+        except serial.SerialException as err:
+            if err.errno in (errno.EAGAIN, errno.EWOULDBLOCK):
+                pid = lock_holder(s.port)
+                by = f"process {pid}" if pid is not None else "another process"
+                raise PortInUse(f"{s.port} is in use by {by} (it holds the port's exclusive "
+                                "lock: is another groundstation daemon running on it?)") from err
+            raise
         os.set_blocking(port.fileno(), False)
         return port
+
+    def claim(self) -> None:
+        """Open the port now if it is there, exclusively, and keep it for :meth:`chunks`.
+
+        A missing device is not an error (the source waits for it to be plugged in).
+
+        Raises:
+            SourceError: another process holds the port.
+        """
+        if self._claimed is not None or not os.path.exists(self.settings.port):
+            return
+        try:
+            self._claimed = self._open()
+        except PortInUse as err:
+            raise SourceError(f"refusing to start: {err}") from err
+        except (serial.SerialException, OSError, ValueError) as err:
+            self._log.debug("claim of %s: %s (retried by the source)", self.settings.port, err)
 
     async def _read(self, fd: int) -> bytes:
         """One read as soon as the fd is readable; raises DeviceVanished on loss."""
@@ -193,7 +253,13 @@ class SerialSource:
         s = self.settings
         while True:
             try:
-                port = self._open()
+                port, self._claimed = self._claimed or self._open(), None
+            except PortInUse as err:
+                if not self.state.connects:
+                    raise SourceError(f"refusing to start: {err}") from err
+                self.state.lost(str(err))  # grabbed while our device was away: keep trying
+                await self.state.wait_before_retry(s.reconnect_min_s, s.reconnect_max_s)
+                continue
             except (serial.SerialException, OSError, ValueError) as err:
                 self.state.lost(f"cannot open: {err}")
                 await self.state.wait_before_retry(s.reconnect_min_s, s.reconnect_max_s)
