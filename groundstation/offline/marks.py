@@ -61,23 +61,6 @@ class Mark:
         return self.rising_t_gps_ns - self.falling_t_gps_ns
 
 
-def edge_gps_ns(
-    week: int, tow_ms: int, sub_ns: int, time_base: int, leap_s: int | None
-) -> tuple[int | None, int]:
-    """GPS ns of one TIM-TM2 edge and the leap seconds applied (UTC time base only).
-
-    All-zero fields mean the edge was never seen. ``leap_s`` is what the receiver last
-    declared; without it the leap-second table is used. Same rule as the live decoder.
-    """
-    if week == 0 and tow_ms == 0 and sub_ns == 0:
-        return None, 0
-    t = gpstime.gps_ns_from_ms(week, tow_ms, sub_ns)
-    if time_base != 2:
-        return t, 0
-    leap = leap_s if leap_s is not None else gpstime.leap_seconds_at_utc(t)
-    return t + leap * gpstime.NS_PER_S, leap
-
-
 def build_marks(records: Iterable[TimeMark]) -> list[Mark]:
     """Marks (one per pulse) from TIM-TM2 records in stream order.
 

@@ -37,6 +37,7 @@ from groundstation.offline import marks as marks_mod
 from groundstation.offline.ephemeris import NavResult, collect_ephemerides
 from groundstation.offline.readers import file_size, iter_chunks
 from groundstation.records import TimeMark
+from groundstation.ubx.decode import timemark_from_fields
 from groundstation.ubx.fastraw import (
     FrameIndex,
     RawBlock,
@@ -755,28 +756,9 @@ def _time_marks(
         ch, flags, count, wn_r, wn_f, ms_r, sub_r, ms_f, sub_f, acc = r
         j = bisect.bisect_right(offsets, int(index.start[i])) - 1
         leap = leap_by_offset[j][1] if j >= 0 else None
-        time_base = (flags >> 3) & 0x03
-        rising, leap_r = marks_mod.edge_gps_ns(wn_r, ms_r, sub_r, time_base, leap)
-        falling, leap_f = marks_mod.edge_gps_ns(wn_f, ms_f, sub_f, time_base, leap)
-        out.append(
-            TimeMark(
-                channel=ch,
-                count=count,
-                rising_t_gps_ns=rising,
-                falling_t_gps_ns=falling,
-                new_rising=bool(flags & 0x80),
-                new_falling=bool(flags & 0x04),
-                time_base=time_base,
-                valid=bool(flags & 0x40),
-                acc_ns=acc,
-                t_host_ns=0,
-                flags=flags,
-                mode_running=bool(flags & 0x01),
-                run=bool(flags & 0x02),
-                utc_valid=bool(flags & 0x20),
-                leap_s_applied=leap_f or leap_r,
-            )
-        )
+        out.append(timemark_from_fields(
+            ch, flags, count, wn_r, ms_r, sub_r, wn_f, ms_f, sub_f, acc, leap_s=leap, t_host_ns=0
+        ))
     return out
 
 

@@ -80,6 +80,51 @@ def _tow_ns_from_s(tow_s: float) -> int:
     return round(tow_s * 1e9)
 
 
+def edge_gps_ns(
+    week: int, tow_ms: int, sub_ns: int, time_base: int, leap_s: int | None
+) -> tuple[int | None, int]:
+    """GPS ns of one TIM-TM2 edge and the leap seconds applied (UTC time base only).
+
+    All-zero fields mean the edge was never seen. ``leap_s`` is what the receiver last declared;
+    without it the leap-second table is used.
+    """
+    if week == 0 and tow_ms == 0 and sub_ns == 0:
+        return None, 0
+    t = gpstime.gps_ns_from_ms(week, tow_ms, sub_ns)
+    if time_base != 2:
+        return t, 0
+    leap = leap_s if leap_s is not None else gpstime.leap_seconds_at_utc(t)
+    return t + leap * gpstime.NS_PER_S, leap
+
+
+def timemark_from_fields(
+    ch: int, flags: int, count: int, wn_r: int, ms_r: int, sub_r: int, wn_f: int, ms_f: int,
+    sub_f: int, acc_ns: int, *, leap_s: int | None, t_host_ns: int,
+) -> TimeMark:
+    """A :class:`TimeMark` from TIM-TM2's raw fields (the one place that maps them), edges on
+    GPS time whatever the time base."""
+    time_base = (flags >> 3) & 0x03
+    rising, leap_r = edge_gps_ns(wn_r, ms_r, sub_r, time_base, leap_s)
+    falling, leap_f = edge_gps_ns(wn_f, ms_f, sub_f, time_base, leap_s)
+    return TimeMark(
+        channel=ch,
+        count=count,
+        rising_t_gps_ns=rising,
+        falling_t_gps_ns=falling,
+        new_rising=bool(flags & 0x80),
+        new_falling=bool(flags & 0x04),
+        time_base=time_base,
+        valid=bool(flags & 0x40),
+        acc_ns=acc_ns,
+        t_host_ns=t_host_ns,
+        flags=flags,
+        mode_running=bool(flags & 0x01),
+        run=bool(flags & 0x02),
+        utc_valid=bool(flags & 0x20),
+        leap_s_applied=leap_f or leap_r,
+    )
+
+
 @dataclass(frozen=True, slots=True)
 class DecoderStats:
     decoded: dict[str, int]
@@ -235,38 +280,10 @@ class Decoder:
 
     # -- time marks ---------------------------------------------------------------------------
 
-    def _edge_gps_ns(
-        self, week: int, tow_ms: int, sub_ns: int, time_base: int
-    ) -> tuple[int | None, int]:
-        if week == 0 and tow_ms == 0 and sub_ns == 0:
-            return None, 0
-        t = gpstime.gps_ns_from_ms(week, tow_ms, sub_ns)
-        if time_base != 2:
-            return t, 0
-        leap = self.leap_s if self.leap_s is not None else gpstime.leap_seconds_at_utc(t)
-        return t + leap * gpstime.NS_PER_S, leap
-
     def _tim_tm2(self, msg: Any, frame: Frame) -> TimeMark:
-        flags = frame.payload[1]
-        time_base = (flags >> 3) & 0x03
-        rising, leap_r = self._edge_gps_ns(msg.wnR, msg.towMsR, msg.towSubMsR, time_base)
-        falling, leap_f = self._edge_gps_ns(msg.wnF, msg.towMsF, msg.towSubMsF, time_base)
-        return TimeMark(
-            channel=msg.ch,
-            count=msg.count,
-            rising_t_gps_ns=rising,
-            falling_t_gps_ns=falling,
-            new_rising=bool(flags & 0x80),
-            new_falling=bool(flags & 0x04),
-            time_base=time_base,
-            valid=bool(flags & 0x40),
-            acc_ns=msg.accEst,
-            t_host_ns=frame.t_host_ns,
-            flags=flags,
-            mode_running=bool(flags & 0x01),
-            run=bool(flags & 0x02),
-            utc_valid=bool(flags & 0x20),
-            leap_s_applied=leap_f or leap_r,
+        return timemark_from_fields(
+            msg.ch, frame.payload[1], msg.count, msg.wnR, msg.towMsR, msg.towSubMsR, msg.wnF,
+            msg.towMsF, msg.towSubMsF, msg.accEst, leap_s=self.leap_s, t_host_ns=frame.t_host_ns,
         )
 
     # -- navigation data ----------------------------------------------------------------------
