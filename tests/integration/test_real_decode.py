@@ -151,7 +151,7 @@ def test_observations_equal_convbin(shared_data: Path, rel: str) -> None:
     for t, sats in ref.epochs.items():
         assert t in ours, f"epoch {t} of convbin missing from our decode"
         for sat, vals in sats.items():
-            for code, (value, _lli, _ssi) in vals.items():
+            for code, (value, _lli) in vals.items():
                 if sat[0] not in "GR" or code[1:] != "1C" or sat not in ours[t]:
                     continue
                 mine = ours[t][sat][code]
