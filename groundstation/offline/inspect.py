@@ -6,13 +6,13 @@ Sans-I/O: :class:`Inspector` takes frames (from any source) and returns a :class
 
 from __future__ import annotations
 
-import statistics
 from collections import Counter
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
 from groundstation import gpstime
+from groundstation.offline.marks import nominal_interval_ns
 from groundstation.offline.readers import detect_format, iter_chunks
 from groundstation.records import Frame, RawEpoch, TimeMark, UndecodedFrame
 from groundstation.ubx.decode import Decoder, message_name
@@ -129,7 +129,7 @@ class Inspector:
 
     def summary(self, stats: FramerStats, *, path: str = "", fmt: str = "") -> Summary:
         times = sorted(self.epoch_times)
-        interval_ns = _nominal_interval_ns(times)
+        interval_ns = nominal_interval_ns(times)
         gaps: list[Gap] = []
         if interval_ns:
             for a, b in zip(times, times[1:], strict=False):
@@ -165,15 +165,6 @@ class Inspector:
             satellites=tuple(sorted(self.sats)),
             max_sats_per_epoch=self.max_sats,
         )
-
-
-def _nominal_interval_ns(times: list[int]) -> int | None:
-    """The receiver's epoch interval: the median spacing, rounded to the millisecond."""
-    diffs = [b - a for a, b in zip(times, times[1:], strict=False) if b > a]
-    if not diffs:
-        return None
-    med = statistics.median_low(diffs)
-    return max(1_000_000, round(med / 1_000_000) * 1_000_000)
 
 
 def summarise_marks(marks: list[TimeMark]) -> TimeMarkSummary:
