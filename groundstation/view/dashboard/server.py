@@ -1,0 +1,392 @@
+"""The dashboard's local web server: Zenoh in, the page and a Server-Sent Events stream out.
+
+:class:`Hub` subscribes to every station's status, events, time marks and session on the bus,
+discovers stations from their liveliness tokens, catches up from the ``q/status`` and
+``q/timemarks`` queryables whenever a daemon (re)appears, and folds everything into one
+:class:`~groundstation.view.dashboard.state.StationView` per station. :class:`DashboardServer`
+(standard library ``ThreadingHTTPServer``) serves the static page shipped in the package and
+pushes a JSON snapshot of the selected station over ``/events`` (chunked ``text/event-stream``)
+whenever something changes, and at least once a second so that staleness shows.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import queue
+import shutil
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from http import HTTPStatus
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from importlib import resources
+from pathlib import Path
+from typing import Any, Protocol
+from urllib.parse import parse_qs, urlsplit
+
+from groundstation.bus import KEY_ROOT, BusSettings, key, open_bus
+from groundstation.view.dashboard.state import PPK_READY_MIN, FileInfo, StationView
+
+log = logging.getLogger("groundstation.dashboard")
+
+LEAVES = ("status", "event", "timemark", "session")
+"""What the dashboard subscribes to (not ``epoch``/``ubx``: they are heavy and not shown)."""
+HEARTBEAT_S = 1.0
+MIN_PUSH_INTERVAL_S = 0.2
+SSE_RETRY_MS = 1000
+CATCH_UP_TIMEOUT_S = 2.0
+FILE_INFO_TTL_S = 2.0
+STATIC_TYPES = {
+    ".html": "text/html; charset=utf-8",
+    ".js": "text/javascript; charset=utf-8",
+    ".css": "text/css; charset=utf-8",
+    ".svg": "image/svg+xml",
+}
+
+
+class BusLike(Protocol):
+    """The part of :class:`groundstation.bus.Bus` the hub uses (a fake in unit tests)."""
+
+    def subscribe(self, key_expr: str, callback: Callable[[str, bytes], None]) -> None: ...
+
+    def subscribe_liveliness(
+        self, key_expr: str, callback: Callable[[str, bool], None]
+    ) -> None: ...
+
+    def get(self, selector: str, timeout_s: float = 2.0) -> list[tuple[str, bytes]]: ...
+
+    def close(self) -> None: ...
+
+
+def station_of(key_expr: str) -> str | None:
+    """``groundstation/<station>/...`` -> ``<station>``."""
+    parts = key_expr.split("/")
+    if len(parts) < 3 or parts[0] != KEY_ROOT or not parts[1]:
+        return None
+    return parts[1]
+
+
+class LocalFiles:
+    """Size of the recording and free disk space, when the daemon writes on this machine.
+
+    Cached for :data:`FILE_INFO_TTL_S` per path: every SSE push asks.
+    """
+
+    def __init__(self, clock: Callable[[], float] = time.monotonic) -> None:
+        self._clock = clock
+        self._cache: dict[str, tuple[float, FileInfo]] = {}
+        self._lock = threading.Lock()
+
+    def __call__(self, path: str) -> FileInfo:
+        now = self._clock()
+        with self._lock:
+            hit = self._cache.get(path)
+            if hit is not None and now - hit[0] < FILE_INFO_TTL_S:
+                return hit[1]
+        info = _probe(path)
+        with self._lock:
+            self._cache[path] = (now, info)
+        return info
+
+
+def _probe(path: str) -> FileInfo:
+    p = Path(path)
+    try:
+        size: int | None = p.stat().st_size
+    except OSError:
+        size = None
+    try:
+        usage = shutil.disk_usage(p.parent)
+        return FileInfo(size, usage.free, usage.total)
+    except OSError:
+        return FileInfo(size, None, None)
+
+
+@dataclass(frozen=True, slots=True)
+class DashboardSettings:
+    """What ``groundstation dashboard`` runs with.
+
+    Attributes:
+        stations: stations shown even before they are heard of (others are discovered).
+        bind: address of the web server (loopback by default).
+        port: web server port (0: any free port).
+        bus: how to join Zenoh.
+        ppk_ready_min: satellites with clean phase the PPK gauge asks for.
+    """
+
+    stations: tuple[str, ...] = ()
+    bind: str = "127.0.0.1"
+    port: int = 8080
+    bus: BusSettings = BusSettings(listen=(), connect=("tcp/127.0.0.1:7447",))
+    ppk_ready_min: int = PPK_READY_MIN
+
+
+class Hub:
+    """Every station's view, fed from the bus; thread-safe (Zenoh threads write, HTTP threads
+    read)."""
+
+    def __init__(
+        self,
+        stations: tuple[str, ...] = (),
+        *,
+        clock: Callable[[], float] = time.monotonic,
+        file_info: Callable[[str], FileInfo] | None = None,
+        ppk_ready_min: int = PPK_READY_MIN,
+    ) -> None:
+        self._clock = clock
+        self._file_info = file_info or LocalFiles(clock)
+        self.ppk_ready_min = ppk_ready_min
+        self.views: dict[str, StationView] = {s: StationView(s) for s in stations}
+        self.cond = threading.Condition()
+        self.version = 0
+        self.closed = False
+        self._bus: BusLike | None = None
+        self._catch_up: queue.Queue[str | None] = queue.Queue()
+        self._worker: threading.Thread | None = None
+
+    # -- bus side ------------------------------------------------------------------------
+
+    def attach(self, bus: BusLike) -> None:
+        """Subscribe to all stations, and catch up with the ones already listed."""
+        self._bus = bus
+        self._worker = threading.Thread(target=self._catch_up_loop, name="dashboard-catch-up",
+                                        daemon=True)
+        self._worker.start()
+        for leaf in LEAVES:
+            bus.subscribe(key("*", leaf), self.on_payload)
+        bus.subscribe_liveliness(key("*", "alive"), self.on_alive)
+        for station in list(self.views):
+            self._catch_up.put(station)
+
+    def _view(self, station: str) -> StationView:
+        view = self.views.get(station)
+        if view is None:
+            log.info("station %s discovered", station)
+            view = self.views[station] = StationView(station)
+        return view
+
+    def _changed(self) -> None:
+        self.version += 1
+        self.cond.notify_all()
+
+    def on_payload(self, key_expr: str, payload: bytes) -> None:
+        """A sample from the bus (on a Zenoh thread)."""
+        station = station_of(key_expr)
+        if station is None:
+            return
+        with self.cond:
+            if self._view(station).on_payload(key_expr, payload, self._clock()):
+                self._changed()
+
+    def on_alive(self, key_expr: str, alive: bool) -> None:
+        """A daemon's liveliness token appeared (daemon started) or went away."""
+        station = station_of(key_expr)
+        if station is None:
+            return
+        with self.cond:
+            self._view(station).on_alive(alive)
+            self._changed()
+        log.info("station %s %s", station, "alive" if alive else "gone")
+        if alive:
+            self._catch_up.put(station)  # a (re)started daemon: fetch its state now
+
+    def _catch_up_loop(self) -> None:
+        """Query a station's latest status and marks (off the Zenoh threads: ``get`` blocks)."""
+        while True:
+            station = self._catch_up.get()
+            if station is None or self._bus is None:
+                return
+            for leaf in ("q/status", "q/timemarks"):
+                try:
+                    replies = self._bus.get(key(station, leaf), timeout_s=CATCH_UP_TIMEOUT_S)
+                except Exception:  # the bus may be closing; the subscription still feeds us
+                    log.warning("query %s failed", key(station, leaf), exc_info=True)
+                    continue
+                for k, payload in replies:
+                    self.on_payload(k, payload)
+
+    def close(self) -> None:
+        with self.cond:
+            self.closed = True
+            self.cond.notify_all()
+        self._catch_up.put(None)
+        if self._worker is not None:
+            self._worker.join(timeout=CATCH_UP_TIMEOUT_S + 1)
+
+    # -- page side -------------------------------------------------------------------------
+
+    def stations(self) -> list[dict[str, Any]]:
+        now = self._clock()
+        with self.cond:
+            return [
+                {"name": v.station, "alive": v.alive, "stale": v.stale(now),
+                 "has_status": v.status is not None,
+                 "alerts": len((v.status or {}).get("alerts") or [])}
+                for v in sorted(self.views.values(), key=lambda v: v.station)
+            ]
+
+    def default_station(self) -> str | None:
+        with self.cond:
+            if not self.views:
+                return None
+            live = [s for s, v in self.views.items() if v.status is not None]
+            return live[0] if live else next(iter(self.views))
+
+    def document(self, station: str | None) -> dict[str, Any]:
+        """What one SSE message carries: the station list and the chosen station's view."""
+        chosen = station or self.default_station()
+        stations = self.stations()
+        now = self._clock()
+        with self.cond:
+            view = self.views.get(chosen) if chosen else None
+            snap = (view.snapshot(now, file_info=self._file_info,
+                                  ppk_ready_min=self.ppk_ready_min)
+                    if view is not None else None)
+        return {"stations": stations, "station": chosen, "view": snap,
+                "server_time_s": time.time()}
+
+
+class _Handler(BaseHTTPRequestHandler):
+    protocol_version = "HTTP/1.1"
+    server: DashboardHTTPServer
+
+    def log_message(self, format: str, *args: Any) -> None:  # noqa: A002 (stdlib signature)
+        log.debug("%s " + format, self.address_string(), *args)
+
+    def do_GET(self) -> None:
+        url = urlsplit(self.path)
+        query = parse_qs(url.query)
+        station = (query.get("station") or [""])[0] or None
+        hub = self.server.hub
+        if url.path == "/events":
+            self._events(station)
+        elif url.path == "/api/snapshot":
+            self._json(hub.document(station))
+        elif url.path == "/api/stations":
+            self._json(hub.stations())
+        elif url.path in ("/", "/index.html"):
+            self._static("index.html")
+        elif url.path.startswith("/static/"):
+            self._static(url.path.removeprefix("/static/"))
+        else:
+            self._send(HTTPStatus.NOT_FOUND, b"not found\n", "text/plain; charset=utf-8")
+
+    def _send(self, code: HTTPStatus, body: bytes, ctype: str) -> None:
+        self.send_response(code)
+        self.send_header("Content-Type", ctype)
+        self.send_header("Content-Length", str(len(body)))
+        self.send_header("Cache-Control", "no-store")
+        self.end_headers()
+        self.wfile.write(body)
+
+    def _json(self, doc: Any) -> None:
+        self._send(HTTPStatus.OK, json.dumps(doc).encode(), "application/json")
+
+    def _static(self, name: str) -> None:
+        if "/" in name or name.startswith(".") or Path(name).suffix not in STATIC_TYPES:
+            self._send(HTTPStatus.NOT_FOUND, b"not found\n", "text/plain; charset=utf-8")
+            return
+        res = resources.files("groundstation.view.dashboard").joinpath("static", name)
+        if not res.is_file():
+            self._send(HTTPStatus.NOT_FOUND, b"not found\n", "text/plain; charset=utf-8")
+            return
+        self._send(HTTPStatus.OK, res.read_bytes(), STATIC_TYPES[Path(name).suffix])
+
+    def _chunk(self, data: bytes) -> None:
+        self.wfile.write(f"{len(data):x}\r\n".encode() + data + b"\r\n")
+        self.wfile.flush()
+
+    def _events(self, station: str | None) -> None:
+        """Server-Sent Events: a snapshot on every change (at most every 0.2 s) and at least
+        every second; the browser's EventSource reconnects by itself (``retry``)."""
+        hub = self.server.hub
+        self.send_response(HTTPStatus.OK)
+        self.send_header("Content-Type", "text/event-stream; charset=utf-8")
+        self.send_header("Cache-Control", "no-store")
+        self.send_header("Transfer-Encoding", "chunked")
+        self.end_headers()
+        self.close_connection = True
+        seen = -1
+        try:
+            self._chunk(f"retry: {SSE_RETRY_MS}\n\n".encode())
+            while True:
+                with hub.cond:
+                    if hub.version == seen and not hub.closed:
+                        hub.cond.wait(HEARTBEAT_S)
+                    if hub.closed:
+                        break
+                    seen = hub.version
+                doc = json.dumps(hub.document(station), separators=(",", ":"))
+                self._chunk(f"event: snapshot\ndata: {doc}\n\n".encode())
+                time.sleep(MIN_PUSH_INTERVAL_S)
+            self.wfile.write(b"0\r\n\r\n")
+        except (BrokenPipeError, ConnectionResetError, TimeoutError):
+            log.debug("event stream closed by %s", self.address_string())
+
+
+class DashboardHTTPServer(ThreadingHTTPServer):
+    """``ThreadingHTTPServer`` that knows its hub."""
+
+    daemon_threads = True
+    block_on_close = False
+
+    def __init__(self, address: tuple[str, int], hub: Hub) -> None:
+        self.hub = hub
+        super().__init__(address, _Handler)
+
+    @property
+    def url(self) -> str:
+        host, port = self.server_address[:2]
+        return f"http://{host!s}:{port}/"
+
+
+class Dashboard:
+    """The bus, the hub and the web server together; a context manager."""
+
+    def __init__(self, settings: DashboardSettings,
+                 bus_factory: Callable[[BusSettings], BusLike] = open_bus) -> None:
+        self.settings = settings
+        self.hub = Hub(settings.stations, ppk_ready_min=settings.ppk_ready_min)
+        self.http = DashboardHTTPServer((settings.bind, settings.port), self.hub)
+        try:
+            self.bus = bus_factory(settings.bus)
+        except Exception:
+            self.http.server_close()
+            raise
+        self.hub.attach(self.bus)
+        self._thread: threading.Thread | None = None
+
+    @property
+    def url(self) -> str:
+        return self.http.url
+
+    def start(self) -> None:
+        """Serve in a background thread."""
+        self._thread = threading.Thread(target=self.http.serve_forever, name="dashboard-http",
+                                        daemon=True)
+        self._thread.start()
+
+    def close(self) -> None:
+        """Stop serving, end the event streams, leave the bus (reverse order of start)."""
+        errors: list[BaseException] = []
+        steps: list[Callable[[], None]] = [self.hub.close]
+        if self._thread is not None:  # shutdown() waits for serve_forever: only if it runs
+            steps.append(self.http.shutdown)
+        steps += [self.http.server_close, self.bus.close]
+        for step in steps:
+            try:
+                step()
+            except Exception as err:  # keep closing the rest
+                errors.append(err)
+        if self._thread is not None:
+            self._thread.join(timeout=5)
+        if errors:
+            log.warning("dashboard close: %s", "; ".join(map(str, errors)))
+
+    def __enter__(self) -> Dashboard:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

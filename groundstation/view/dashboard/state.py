@@ -1,0 +1,400 @@
+"""What the web dashboard knows about each station, folded from bus payloads (sans-I/O).
+
+:class:`StationView` takes the daemon's payloads (status, events, time marks, session,
+liveliness) with the receiving clock injected, and :meth:`StationView.snapshot` turns them into
+the JSON document the page draws: the latest status plus a 10-minute link timeline (epochs
+received against expected per bucket, dropouts, source outages, marks), the marks panel, the
+PPK-readiness figures, alerts, recent events and the session.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import re
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+from groundstation import gpstime
+from groundstation.bus import decode
+
+STALE_AFTER_S = 3.0
+"""No status for longer than this and the station is shown as stale."""
+TIMELINE_SPAN_S = 600
+TIMELINE_BUCKET_S = 5
+PPK_READY_MIN = 5
+"""Default of the monitor's ``ppk_ready_min`` threshold (the gauge's green line)."""
+EVENTS_KEPT = 40
+DROPOUTS_KEPT = 1000
+MARKS_KEPT = 3000
+"""Up to 5 marks a second over the timeline span."""
+_SESSION_TIME = re.compile(r"(\d{8}T\d{6}Z)$")
+
+NS = gpstime.NS_PER_S
+
+
+@dataclass(frozen=True, slots=True)
+class FileInfo:
+    """What the local file system says about the recording (when the daemon is local)."""
+
+    size_bytes: int | None
+    disk_free_bytes: int | None
+    disk_total_bytes: int | None
+
+
+def no_file_info(_path: str) -> FileInfo:
+    """The file-system probe for a remote daemon: nothing known."""
+    return FileInfo(None, None, None)
+
+
+@dataclass(slots=True)
+class _Span:
+    start_gps_ns: int
+    end_gps_ns: int | None  # None: still going on
+    missing_epochs: int = 0
+
+
+@dataclass
+class StationView:
+    """The dashboard's state for one station. Not thread-safe: the server holds a lock.
+
+    Attributes:
+        station: station name.
+        status: the latest status payload.
+        status_rx_s: receiving monotonic time of that status.
+        alive: liveliness of the daemon (None: never heard of it).
+        session: the latest ``session`` payload.
+        version: bumped on every change (the server pushes when it moves).
+    """
+
+    station: str
+    status: dict[str, Any] | None = None
+    status_rx_s: float | None = None
+    alive: bool | None = None
+    session: dict[str, Any] | None = None
+    version: int = 0
+    events: deque[dict[str, Any]] = field(default_factory=lambda: deque(maxlen=EVENTS_KEPT))
+    marks: deque[tuple[int, int]] = field(default_factory=lambda: deque(maxlen=MARKS_KEPT))
+    """(falling_t_gps_ns, index) of received marks."""
+    marks_received: int = 0
+    last_mark: dict[str, Any] | None = None
+    marks_in_dropout: set[int] = field(default_factory=set)
+    dropouts: dict[int, _Span] = field(default_factory=dict)
+    """Closed dropouts by first missing epoch (from status and ``link.dropout`` events)."""
+    pending_dropout_gps_ns: int | None = None
+    """Start of a dropout announced by ``link.dropout_started``, not yet in a status."""
+    outages: list[_Span] = field(default_factory=list)
+    """Source outages (host times mapped to GPS time through ``host_minus_gps_ns``)."""
+    host_minus_gps_ns: int | None = None
+    _offsets: deque[int] = field(default_factory=lambda: deque(maxlen=20))
+    _session_id: str | None = None
+
+    # -- folding ---------------------------------------------------------------------------
+
+    def on_payload(self, key_expr: str, payload: bytes, now_s: float) -> bool:
+        """Fold one bus payload; True if it changed the view."""
+        try:
+            msg = decode(payload)
+        except ValueError:
+            return False
+        kind = msg.get("type")
+        if kind == "status":
+            self._on_status(msg, now_s)
+        elif kind == "event":
+            self._on_event(msg)
+        elif kind == "timemark":
+            self._on_mark(msg)
+        elif kind == "session":
+            self.session = msg
+        else:
+            return False
+        self.version += 1
+        return True
+
+    def on_alive(self, alive: bool) -> None:
+        """The daemon's liveliness token appeared or went away."""
+        self.alive = alive
+        self.version += 1
+
+    def _reset_session(self, session_id: str) -> None:
+        """A new daemon session: what belonged to the previous one goes."""
+        self._session_id = session_id
+        self.marks.clear()
+        self.marks_received = 0
+        self.last_mark = None
+        self.marks_in_dropout.clear()
+        self.dropouts.clear()
+        self.pending_dropout_gps_ns = None
+        self.outages.clear()
+
+    def _on_status(self, msg: dict[str, Any], now_s: float) -> None:
+        sid = msg.get("session_id")
+        if isinstance(sid, str) and sid != self._session_id:
+            if self._session_id is not None:
+                self._reset_session(sid)
+            self._session_id = sid
+        self.status = msg
+        self.status_rx_s = now_s
+        link = msg.get("link") or {}
+        last = link.get("last_epoch_t_gps_ns")
+        t_host = msg.get("t_host_ns")
+        if isinstance(last, int) and isinstance(t_host, int) and not link.get("current_dropout"):
+            self._offsets.append(t_host - last)
+            self.host_minus_gps_ns = min(self._offsets)  # the least delayed reception
+        for d in link.get("recent_dropouts") or []:
+            self._add_dropout(d)
+        pending = self.pending_dropout_gps_ns
+        if pending is not None and isinstance(last, int) and last >= pending:
+            self.pending_dropout_gps_ns = None  # data came back; the dropout is closed
+        if link.get("source_connected") is False and not self._outage_open():
+            start = self._host_to_gps(int(t_host)) if isinstance(t_host, int) else None
+            if start is not None:
+                self.outages.append(_Span(start, None))
+
+    def _add_dropout(self, d: dict[str, Any]) -> None:
+        start, end = d.get("start_t_gps_ns"), d.get("end_t_gps_ns")
+        if isinstance(start, int) and isinstance(end, int):
+            self.dropouts[start] = _Span(start, end, int(d.get("missing_epochs") or 0))
+            if len(self.dropouts) > DROPOUTS_KEPT:  # a flaky link: keep the newest
+                for old in sorted(self.dropouts)[: len(self.dropouts) - DROPOUTS_KEPT]:
+                    del self.dropouts[old]
+
+    def _outage_open(self) -> bool:
+        return bool(self.outages) and self.outages[-1].end_gps_ns is None
+
+    def _host_to_gps(self, t_host_ns: int) -> int | None:
+        if self.host_minus_gps_ns is None:
+            return None
+        return t_host_ns - self.host_minus_gps_ns
+
+    def _on_event(self, msg: dict[str, Any]) -> None:
+        self.events.append(msg)
+        kind = msg.get("kind")
+        data = msg.get("data") or {}
+        if kind == "link.dropout_started":
+            start = data.get("start_t_gps_ns")
+            if isinstance(start, int):
+                self.pending_dropout_gps_ns = start
+        elif kind == "link.dropout":
+            self._add_dropout(data)
+            self.pending_dropout_gps_ns = None
+        elif kind == "mark.in_dropout":
+            t = data.get("t_gps_ns")
+            if isinstance(t, int):
+                self.marks_in_dropout.add(t)
+        elif kind == "source.lost":
+            start = data.get("start_ns")
+            gps = self._host_to_gps(int(start)) if isinstance(start, int) else None
+            if gps is not None and not self._outage_open():
+                self.outages.append(_Span(gps, None))
+        elif kind == "source.outage":
+            start, end = data.get("start_ns"), data.get("end_ns")
+            a = self._host_to_gps(int(start)) if isinstance(start, int) else None
+            b = self._host_to_gps(int(end)) if isinstance(end, int) else None
+            if a is not None and b is not None:
+                if self._outage_open():
+                    self.outages[-1] = _Span(a, b)
+                else:
+                    self.outages.append(_Span(a, b))
+        elif kind == "source.connected" and self._outage_open():
+            t = msg.get("t_host_ns")
+            gps = self._host_to_gps(int(t)) if isinstance(t, int) else None
+            self.outages[-1].end_gps_ns = gps if gps is not None else self.outages[-1].start_gps_ns
+
+    def _on_mark(self, msg: dict[str, Any]) -> None:
+        idx = msg.get("index")
+        idx = idx if isinstance(idx, int) else -1
+        if idx >= 0 and any(i == idx for _, i in list(self.marks)[-64:]):
+            return  # the queryable and the subscription overlap
+        t = msg.get("falling_t_gps_ns") or msg.get("rising_t_gps_ns")
+        if isinstance(t, int):
+            self.marks.append((t, idx))
+        self.marks_received += 1
+        self.last_mark = msg
+
+    # -- reading -------------------------------------------------------------------------------
+
+    def stale(self, now_s: float) -> bool:
+        """No status yet, or none for more than :data:`STALE_AFTER_S`."""
+        return self.status_rx_s is None or now_s - self.status_rx_s > STALE_AFTER_S
+
+    def status_age_s(self, now_s: float) -> float | None:
+        return None if self.status_rx_s is None else max(0.0, now_s - self.status_rx_s)
+
+    def gps_now_ns(self, now_s: float) -> int | None:
+        """GPS time at ``now_s`` as the daemon's clock would say, from the latest status.
+
+        Between statuses it runs on the local monotonic clock; it stops 3 s after the last
+        status so that a dead daemon's timeline stops moving instead of filling with gaps.
+        """
+        st = self.status
+        if st is None or self.status_rx_s is None:
+            return None
+        link = st.get("link") or {}
+        last = link.get("last_epoch_t_gps_ns")
+        t_host = st.get("t_host_ns")
+        if self.host_minus_gps_ns is not None and isinstance(t_host, int):
+            at_status = t_host - self.host_minus_gps_ns
+        elif isinstance(last, int):
+            at_status = last
+        else:
+            return None
+        ahead = min(max(0.0, now_s - self.status_rx_s), STALE_AFTER_S)
+        return at_status + int(ahead * NS)
+
+    def snapshot(
+        self, now_s: float, *, file_info: Callable[[str], FileInfo] = no_file_info,
+        ppk_ready_min: int = PPK_READY_MIN,
+    ) -> dict[str, Any]:
+        """The JSON document the page draws for this station."""
+        st = self.status or {}
+        link = dict(st.get("link") or {})
+        gps_now = self.gps_now_ns(now_s)
+        interval = link.get("epoch_interval_s")
+        out: dict[str, Any] = {
+            "station": self.station,
+            "has_status": self.status is not None,
+            "stale": self.stale(now_s),
+            "status_age_s": self.status_age_s(now_s),
+            "alive": self.alive,
+            "session_id": st.get("session_id"),
+            "t_host_ns": st.get("t_host_ns"),
+            "link": link,
+            "rate_hz": round(1 / interval, 2) if interval else None,
+            "sats": st.get("sats") or [],
+            "ppk": {
+                "ready": st.get("ppk_ready"), "tracked": st.get("tracked"),
+                "min": ppk_ready_min, "half_cycle_fraction": st.get("half_cycle_fraction"),
+            },
+            "alerts": list(st.get("alerts") or []),
+            "events": list(self.events)[-15:][::-1],
+            "timeline": self.timeline(gps_now),
+            "marks": self._marks_panel(st, gps_now),
+            "session": self._session_panel(st, file_info),
+        }
+        return out
+
+    def _marks_panel(self, st: dict[str, Any], gps_now: int | None) -> dict[str, Any]:
+        ms = dict(st.get("marks") or {})
+        last_t = ms.get("last_falling_t_gps_ns")
+        lm = self.last_mark
+        if lm is not None:
+            t = lm.get("falling_t_gps_ns")
+            if isinstance(t, int) and (not isinstance(last_t, int) or t > last_t):
+                last_t = t  # the time mark arrives before the next status
+                ms["last_count"] = lm.get("count")
+        ms["received"] = self.marks_received
+        ms["last_t_gps_ns"] = last_t
+        ms["last_utc"] = (gpstime.gps_to_datetime(last_t).strftime("%H:%M:%S.%f")[:-3]
+                          if isinstance(last_t, int) else None)
+        ms["last_age_s"] = (round((gps_now - last_t) / NS, 1)
+                            if isinstance(last_t, int) and gps_now is not None else None)
+        return ms
+
+    def _session_panel(
+        self, st: dict[str, Any], file_info: Callable[[str], FileInfo]
+    ) -> dict[str, Any]:
+        rec = st.get("recording") or {}
+        sess = self.session or {}
+        files = [str(f) for f in sess.get("files") or []]
+        path = rec.get("file") or (files[-1] if files else None)
+        sid = st.get("session_id") or sess.get("session_id")
+        started = _session_start_unix_ns(sid) if isinstance(sid, str) else None
+        t_host = st.get("t_host_ns")
+        info = file_info(str(path)) if path else no_file_info("")
+        return {
+            "id": sid,
+            "file": path,
+            "state": sess.get("state") or ("recording" if path else None),
+            "duration_s": ((t_host - started) / NS
+                           if isinstance(t_host, int) and started is not None else None),
+            "bytes_in": (st.get("link") or {}).get("bytes_in"),
+            "size_bytes": rec.get("bytes", info.size_bytes),
+            "disk_free_bytes": info.disk_free_bytes,
+            "disk_total_bytes": info.disk_total_bytes,
+        }
+
+    def timeline(
+        self, gps_now: int | None, span_s: int = TIMELINE_SPAN_S,
+        bucket_s: int = TIMELINE_BUCKET_S,
+    ) -> dict[str, Any]:
+        """The last ``span_s`` of the link, in GPS time, as offsets in seconds from its start.
+
+        ``buckets``: per ``bucket_s`` the epochs expected (after the first epoch, at the learned
+        rate) and received (expected minus those inside dropouts); ``dropouts``, ``outages``:
+        ``[start_s, end_s, ...]``; ``marks``: ``[t_s, in_dropout]``.
+        """
+        link = (self.status or {}).get("link") or {}
+        first = link.get("first_epoch_t_gps_ns")
+        interval_s = link.get("epoch_interval_s")
+        n = span_s // bucket_s
+        empty: dict[str, Any] = {"span_s": span_s, "bucket_s": bucket_s, "start_t_gps_ns": None,
+                 "first_s": None, "now_s": None, "buckets": [], "dropouts": [],
+                 "outages": [], "marks": []}
+        if gps_now is None or not isinstance(first, int) or not interval_s:
+            return empty
+        interval = round(interval_s * NS)
+        start = gps_now - span_s * NS
+        # Align the buckets to the session grid so they do not shimmer as time moves.
+        start -= (start - first) % (bucket_s * NS)
+
+        def rel(t: int) -> float:
+            return round((t - start) / NS, 3)
+
+        drops: list[tuple[int, int, bool, int]] = []  # start, end (inclusive slots), ongoing
+        for d in self.dropouts.values():
+            if d.end_gps_ns is not None and d.end_gps_ns >= start:
+                drops.append((d.start_gps_ns, d.end_gps_ns, False, d.missing_epochs))
+        cur = link.get("current_dropout")
+        ongoing_start = self.pending_dropout_gps_ns
+        if isinstance(cur, dict) and isinstance(cur.get("start_t_gps_ns"), int):
+            ongoing_start = (cur["start_t_gps_ns"] if ongoing_start is None
+                             else min(ongoing_start, cur["start_t_gps_ns"]))
+        if ongoing_start is not None and ongoing_start not in self.dropouts:
+            end = max(ongoing_start, gps_now - interval)
+            drops.append((ongoing_start, end, True, (end - ongoing_start) // interval + 1))
+        drops.sort()
+
+        last_epoch = link.get("last_epoch_t_gps_ns")
+        data_end = gps_now if ongoing_start is not None else (
+            last_epoch if isinstance(last_epoch, int) else gps_now)
+        buckets = []
+        for i in range(n + 1):
+            a = start + i * bucket_s * NS
+            b = a + bucket_s * NS
+            expected = _slots(first, interval, max(a, first), min(b, data_end + 1))
+            missing = sum(_slots(first, interval, max(a, ds), min(b, de + 1))
+                          for ds, de, _, _ in drops)
+            buckets.append([expected, max(0, expected - missing)])
+        outages = [[rel(max(o.start_gps_ns, start)),
+                    rel(o.end_gps_ns if o.end_gps_ns is not None else gps_now),
+                    o.end_gps_ns is None]
+                   for o in self.outages
+                   if (o.end_gps_ns is None or o.end_gps_ns >= start)]
+        marks = [[rel(t), t in self.marks_in_dropout] for t, _ in self.marks if t >= start]
+        return {
+            "span_s": span_s, "bucket_s": bucket_s, "start_t_gps_ns": start,
+            "first_s": rel(first), "now_s": rel(gps_now), "buckets": buckets,
+            "dropouts": [[rel(max(ds, start)), rel(de + interval), ongoing, missing]
+                         for ds, de, ongoing, missing in drops],
+            "outages": outages, "marks": marks,
+        }
+
+
+def _slots(first: int, interval: int, a: int, b: int) -> int:
+    """Epoch slots ``first + k*interval`` (k >= 0) in ``[a, b)``."""
+    if b <= a:
+        return 0
+    k0 = max(0, -(-(a - first) // interval))
+    k1 = max(0, -(-(b - first) // interval))
+    return max(0, k1 - k0)
+
+
+def _session_start_unix_ns(session_id: str) -> int | None:
+    """Session ids end with the UTC start time (``station_20250602T080000Z``)."""
+    m = _SESSION_TIME.search(session_id)
+    if m is None:
+        return None
+    when = dt.datetime.strptime(m.group(1), "%Y%m%dT%H%M%SZ").replace(tzinfo=dt.UTC)
+    return int(when.timestamp()) * NS

@@ -1,0 +1,387 @@
+// groundstation dashboard: draws the snapshots the local server pushes over /events (SSE).
+"use strict";
+
+const STALE_AFTER_S = 3.0;
+const SVG_NS = "http://www.w3.org/2000/svg";
+const STATE_TEXT = { clean: "clean", half_cycle: "½ cycle", slipped: "slipped", code_only: "code only" };
+
+// Test hook and debugging aid: what the page received and drew.
+const gs = (window.gsDashboard = { updates: 0, doc: null, rxAt: 0, errors: [], source: null });
+
+function $(id) { return document.getElementById(id); }
+
+function el(tag, attrs, text) {
+  const node = document.createElementNS(SVG_NS, tag);
+  for (const [k, v] of Object.entries(attrs || {})) node.setAttribute(k, String(v));
+  if (text !== undefined) node.textContent = text;
+  return node;
+}
+
+function setText(id, text, cls) {
+  const node = $(id);
+  node.textContent = text;
+  if (cls !== undefined) node.className = node.className.split(" ").filter(
+    (c) => !["good", "bad", "warn", "alarm"].includes(c)).concat(cls ? [cls] : []).join(" ");
+}
+
+function num(v, digits) {
+  return v === null || v === undefined ? "-" : Number(v).toFixed(digits || 0);
+}
+
+function pct(v) {
+  return v === null || v === undefined ? "-" : (v * 100).toFixed(v >= 0.9995 ? 0 : 1) + "%";
+}
+
+function bytes(v) {
+  if (v === null || v === undefined) return "-";
+  const units = ["B", "kB", "MB", "GB", "TB"];
+  let i = 0;
+  while (v >= 1000 && i < units.length - 1) { v /= 1000; i += 1; }
+  return v.toFixed(i === 0 ? 0 : 1) + " " + units[i];
+}
+
+function duration(s) {
+  if (s === null || s === undefined) return "-";
+  s = Math.max(0, Math.floor(s));
+  const h = Math.floor(s / 3600), m = Math.floor((s % 3600) / 60), sec = s % 60;
+  return (h ? h + ":" : "") + String(m).padStart(h ? 2 : 1, "0") + ":" + String(sec).padStart(2, "0");
+}
+
+function clear(node) { while (node.firstChild) node.removeChild(node.firstChild); }
+
+// -- connection --------------------------------------------------------------------------
+
+function selectedStation() {
+  return new URLSearchParams(window.location.search).get("station") || "";
+}
+
+function connect() {
+  if (gs.source) gs.source.close();
+  const station = selectedStation();
+  const url = "/events" + (station ? "?station=" + encodeURIComponent(station) : "");
+  const source = new EventSource(url);
+  gs.source = source;
+  source.addEventListener("snapshot", (ev) => {
+    let doc;
+    try { doc = JSON.parse(ev.data); } catch (err) { gs.errors.push(String(err)); return; }
+    gs.doc = doc;
+    gs.rxAt = performance.now();
+    gs.updates += 1;
+    try { render(doc); } catch (err) { gs.errors.push(String(err && err.stack || err)); throw err; }
+  });
+  // EventSource reconnects by itself (the server asks for 1 s); the badge says meanwhile.
+  source.onerror = () => { refreshBadge(); };
+}
+
+$("station").addEventListener("change", (ev) => {
+  const params = new URLSearchParams(window.location.search);
+  params.set("station", ev.target.value);
+  window.history.replaceState(null, "", "?" + params.toString());
+  connect();
+});
+
+// -- header ------------------------------------------------------------------------------
+
+function renderStations(doc) {
+  const select = $("station");
+  const names = doc.stations.map((s) => s.name);
+  const wanted = doc.station || "";
+  const existing = Array.from(select.options).map((o) => o.value);
+  if (existing.join("\n") !== names.join("\n")) {
+    clear(select);
+    for (const name of names) {
+      const opt = document.createElement("option");
+      opt.value = name;
+      opt.textContent = name;
+      select.appendChild(opt);
+    }
+  }
+  for (const opt of select.options) {
+    const s = doc.stations.find((x) => x.name === opt.value);
+    const mark = !s ? "" : s.stale ? (s.has_status ? "  ✕ stale" : "  … no data") : "  ● live";
+    opt.textContent = opt.value + mark + (s && s.alerts ? "  ⚠" + s.alerts : "");
+  }
+  if (wanted && select.value !== wanted) select.value = wanted;
+}
+
+function refreshBadge() {
+  const badge = $("badge"), detail = $("badge-detail");
+  const doc = gs.doc;
+  const sinceRx = (performance.now() - gs.rxAt) / 1000;
+  let state, text, info;
+  if (!doc || sinceRx > STALE_AFTER_S) {
+    state = doc ? "disconnected" : "waiting";
+    text = doc ? "NO SERVER" : "WAITING";
+    info = doc ? "dashboard server not answering for " + sinceRx.toFixed(0) + " s (retrying)"
+      : "connecting to the dashboard server";
+  } else if (!doc.view) {
+    state = "waiting"; text = "WAITING"; info = "no station on the bus yet";
+  } else if (!doc.view.has_status) {
+    state = "waiting"; text = "WAITING";
+    info = "no status from " + doc.view.station + " yet" + (doc.view.alive ? " (daemon up)" : "");
+  } else {
+    const age = (doc.view.status_age_s || 0) + sinceRx;
+    if (age > STALE_AFTER_S) {
+      state = "stale"; text = "STALE";
+      info = "no status for " + age.toFixed(0) + " s" +
+        (doc.view.alive === false ? " · daemon gone" : "") + " · values are old";
+    } else {
+      state = "live"; text = "LIVE";
+      info = (doc.view.session_id || "") + (doc.view.rate_hz ? " · " + doc.view.rate_hz + " Hz" : "");
+    }
+  }
+  badge.className = "badge " + state;
+  badge.textContent = text;
+  detail.textContent = info;
+  document.body.dataset.state = state;
+  const now = new Date();
+  $("clock").textContent = now.toISOString().substring(11, 19) + " UTC";
+}
+
+// -- sky plot ----------------------------------------------------------------------------
+
+function renderSky(sats) {
+  const svg = $("sky");
+  clear(svg);
+  svg.appendChild(el("circle", { class: "ring outer", r: 100 }));
+  for (const elev of [30, 60]) {
+    svg.appendChild(el("circle", { class: "ring", r: (90 - elev) / 90 * 100 }));
+    svg.appendChild(el("text", { class: "ring-label", x: 2, y: -(90 - elev) / 90 * 100 - 2 }, elev + "°"));
+  }
+  svg.appendChild(el("line", { class: "spoke", x1: -100, y1: 0, x2: 100, y2: 0 }));
+  svg.appendChild(el("line", { class: "spoke", x1: 0, y1: -100, x2: 0, y2: 100 }));
+  for (const [label, x, y] of [["N", 0, -110], ["E", 110, 0], ["S", 0, 110], ["W", -110, 0]]) {
+    svg.appendChild(el("text", { class: "card", x: x, y: y }, label));
+  }
+  const unplaced = [];
+  for (const s of sats) {
+    if (s.elev_deg === null || s.azim_deg === null || s.elev_deg === undefined) {
+      unplaced.push(s.sv);
+      continue;
+    }
+    const r = (90 - Math.max(0, Math.min(90, s.elev_deg))) / 90 * 100;
+    const az = s.azim_deg * Math.PI / 180;
+    const x = r * Math.sin(az), y = -r * Math.cos(az);
+    const g = el("g", { class: "sat-group", "data-sv": s.sv, "data-state": s.state });
+    const title = el("title", {}, s.sv + " · " + STATE_TEXT[s.state] + " · " + s.cno_dbhz +
+      " dBHz · el " + s.elev_deg + "° az " + s.azim_deg + "° · slips " + s.slips);
+    g.appendChild(title);
+    g.appendChild(el("circle", { class: "sat " + s.state, cx: x.toFixed(1), cy: y.toFixed(1), r: 10.5 }));
+    g.appendChild(el("text", { class: "sat-label " + s.state, x: x.toFixed(1), y: y.toFixed(1) },
+      s.sv.replace(/^G/, "").replace(/\/.*/, "")));
+    svg.appendChild(g);
+  }
+  $("sky-note").textContent = unplaced.length ? "no position yet: " + unplaced.join(" ") : "";
+}
+
+// -- C/N0 bars ---------------------------------------------------------------------------
+
+function renderCno(sats) {
+  const svg = $("cno");
+  clear(svg);
+  const W = 520, H = 300, top = 22, bottom = 250, lo = 20, hi = 55;
+  const y = (v) => bottom - (Math.max(lo, Math.min(hi, v)) - lo) / (hi - lo) * (bottom - top);
+  for (const ref of [30, 40, 50]) {
+    svg.appendChild(el("line", { class: "ref", x1: 26, x2: W, y1: y(ref), y2: y(ref) }));
+    svg.appendChild(el("text", { class: "ref-label", x: 0, y: y(ref) + 4 }, String(ref)));
+  }
+  const list = sats.slice().sort((a, b) => a.sv.localeCompare(b.sv));
+  if (!list.length) {
+    svg.appendChild(el("text", { class: "bar-value", x: W / 2, y: H / 2 }, "no satellites"));
+    return;
+  }
+  const slot = (W - 30) / Math.max(list.length, 8);
+  list.forEach((s, i) => {
+    const x = 30 + i * slot + slot * 0.12, w = slot * 0.76;
+    const v = s.cno_dbhz === null ? lo : s.cno_dbhz;
+    svg.appendChild(el("rect", { class: "bar " + s.state, x: x, y: y(v), width: w,
+      height: Math.max(1, bottom - y(v)), "data-sv": s.sv }));
+    svg.appendChild(el("text", { class: "bar-value", x: x + w / 2, y: y(v) - 4 }, num(s.cno_dbhz)));
+    svg.appendChild(el("text", { class: "bar-sv", x: x + w / 2, y: bottom + 17 }, s.sv));
+    const clean = s.state === "code_only" ? "—" : s.half_cycle_unresolved ? "½" :
+      num(s.clean_phase_s) + "s";
+    svg.appendChild(el("text", { class: "bar-clean", x: x + w / 2, y: bottom + 35 }, clean));
+  });
+}
+
+// -- PPK gauge ---------------------------------------------------------------------------
+
+function arc(r, a0, a1) {
+  // angles in [0, 1] along the upper half circle, left to right
+  const p = (a) => [(-Math.cos(a * Math.PI) * r).toFixed(2), (-Math.sin(a * Math.PI) * r).toFixed(2)];
+  const [x0, y0] = p(a0), [x1, y1] = p(a1);
+  return "M " + x0 + " " + y0 + " A " + r + " " + r + " 0 0 1 " + x1 + " " + y1;
+}
+
+function renderPpk(ppk) {
+  const svg = $("ppk");
+  clear(svg);
+  const ready = ppk.ready === null || ppk.ready === undefined ? 0 : ppk.ready;
+  const full = Math.max(12, (ppk.tracked || 0), ppk.min * 2);
+  const ok = ready >= ppk.min;
+  svg.appendChild(el("path", { class: "gauge-bg", d: arc(80, 0, 1) }));
+  if (ready > 0) {
+    svg.appendChild(el("path", { class: "gauge-fg " + (ok ? "good" : "bad"),
+      d: arc(80, 0, Math.min(1, ready / full)) }));
+  }
+  const m = ppk.min / full;
+  const mx = -Math.cos(m * Math.PI), my = -Math.sin(m * Math.PI);
+  svg.appendChild(el("line", { class: "gauge-min", x1: (mx * 64).toFixed(1), y1: (my * 64).toFixed(1),
+    x2: (mx * 96).toFixed(1), y2: (my * 96).toFixed(1) }));
+  setText("ppk-ready", ppk.ready === null || ppk.ready === undefined ? "-" : String(ppk.ready),
+    ok ? "good" : "bad");
+  $("ppk-min").textContent = String(ppk.min);
+  $("ppk-detail").textContent = "of " + num(ppk.tracked) + " tracked · half-cycle " +
+    (ppk.half_cycle_fraction === null || ppk.half_cycle_fraction === undefined ? "-" :
+      (ppk.half_cycle_fraction * 100).toFixed(0) + "%");
+}
+
+// -- marks -------------------------------------------------------------------------------
+
+function renderMarks(ms) {
+  setText("marks-count", num(ms.marks));
+  setText("marks-missed", num(ms.missed), ms.missed ? "alarm" : "good");
+  setText("marks-indrop", num(ms.in_dropout), ms.in_dropout ? "alarm" : "good");
+  setText("marks-rate", num(ms.rate_per_min, 1));
+  setText("marks-last", ms.last_utc ? ms.last_utc + (ms.last_age_s !== null ?
+    "  (" + num(ms.last_age_s, 0) + " s ago)" : "") : "none yet");
+  $("marks-detail").textContent = "count " + num(ms.last_count) + " · pulse " +
+    num(ms.last_pulse_width_ms, 1) + " ms · duplicates " + num(ms.duplicates) +
+    " · 2 in one epoch " + num(ms.multi_in_epoch) + " · received here " + num(ms.received);
+}
+
+// -- link timeline -----------------------------------------------------------------------
+
+function renderLink(view) {
+  const link = view.link || {};
+  const c60 = link.completeness_60s;
+  setText("link-60", pct(c60), c60 === null || c60 === undefined ? "" : c60 >= 0.98 ? "good" : "bad");
+  setText("link-session", pct(link.completeness_session));
+  setText("link-dropouts", num(link.dropouts) + " (" + num(link.missing_epochs) + " ep)",
+    link.dropouts ? "warn" : "");
+  const cur = link.current_dropout;
+  const ongoing = (view.timeline.dropouts || []).find((d) => d[2]);
+  if (cur || ongoing) {
+    const secs = cur ? cur.duration_s : ongoing[1] - ongoing[0];
+    setText("link-now", "DROPOUT " + num(secs, 1) + " s", "alarm");
+  } else {
+    setText("link-now", link.epochs ? "receiving" : "-", link.epochs ? "good" : "");
+  }
+  setText("link-rate", view.rate_hz ? view.rate_hz + " Hz" : "-");
+  setText("link-bps", num(link.bytes_per_s));
+  setText("link-damaged", num(link.damaged_frames), link.damaged_frames ? "warn" : "");
+  const src = link.source_connected;
+  setText("link-source", src === false ? "LOST" : src ? "connected" : "-", src === false ? "alarm" : "");
+  renderTimeline(view.timeline);
+}
+
+function renderTimeline(tl) {
+  const svg = $("timeline");
+  clear(svg);
+  const W = 1320;
+  const total = tl.span_s + tl.bucket_s;
+  const x = (t) => Math.max(0, Math.min(W, t / total * W));
+  for (let m = 60; m < total; m += 60) {
+    svg.appendChild(el("line", { class: "tl-grid", x1: x(m), x2: x(m), y1: 0, y2: 96 }));
+  }
+  if (tl.start_t_gps_ns === null) return;
+  const bw = tl.bucket_s / total * W;
+  if (tl.first_s > 0) {  // before the session's first epoch: nothing was expected
+    svg.appendChild(el("rect", { class: "tl-before", x: 0, y: 14, width: x(tl.first_s), height: 50 }));
+  }
+  tl.buckets.forEach(([expected, received], i) => {
+    const x0 = i * bw;
+    if (expected === 0) return;
+    const frac = received / expected;
+    const hOk = 50 * frac;
+    svg.appendChild(el("rect", { class: "tl-missing", x: x0 + 0.5, y: 14, width: bw - 1, height: 50 - hOk }));
+    svg.appendChild(el("rect", { class: "tl-ok", x: x0 + 0.5, y: 14 + 50 - hOk, width: bw - 1, height: hOk,
+      "data-expected": expected, "data-received": received }));
+  });
+  for (const [a, b, ongoing, missing] of tl.dropouts) {
+    svg.appendChild(el("rect", { class: "dropout" + (ongoing ? " ongoing" : ""), x: x(a), y: 66,
+      width: Math.max(4, x(b) - x(a)), height: 16, "data-missing": missing, "data-start": a }));
+  }
+  for (const [a, b, ongoing] of tl.outages) {
+    svg.appendChild(el("rect", { class: "outage" + (ongoing ? " ongoing" : ""), x: x(a), y: 84,
+      width: Math.max(4, x(b) - x(a)), height: 12 }));
+  }
+  for (const [t, inDrop] of tl.marks) {
+    svg.appendChild(el("line", { class: "mark" + (inDrop ? " in-dropout" : ""), x1: x(t), x2: x(t), y1: 0, y2: 12 }));
+  }
+  svg.appendChild(el("line", { class: "tl-now", x1: x(tl.now_s), x2: x(tl.now_s), y1: 0, y2: 96 }));
+}
+
+// -- session, alerts, events -------------------------------------------------------------
+
+function renderSession(s) {
+  const rec = $("rec");
+  const recording = s.file && s.state !== "finished";
+  rec.textContent = recording ? "● RECORDING" : s.state === "finished" ? "■ finished" : "not recording";
+  rec.className = "rec" + (recording ? " on" : "");
+  const file = $("sess-file");
+  file.textContent = s.file ? s.file.split("/").pop() : "-";
+  file.title = s.file || "";
+  $("sess-duration").textContent = duration(s.duration_s);
+  $("sess-bytes").textContent = bytes(s.size_bytes) + (s.bytes_in !== null && s.bytes_in !== undefined
+    ? " · in " + bytes(s.bytes_in) : "");
+  const low = s.disk_free_bytes !== null && s.disk_free_bytes !== undefined && s.disk_free_bytes < 1e9;
+  setText("sess-disk", s.disk_free_bytes === null || s.disk_free_bytes === undefined ? "unknown (remote)" :
+    bytes(s.disk_free_bytes) + " of " + bytes(s.disk_total_bytes), low ? "alarm" : "");
+}
+
+function renderAlerts(alerts) {
+  const ul = $("alerts");
+  clear(ul);
+  for (const a of alerts) {
+    const li = document.createElement("li");
+    li.textContent = "⚠ " + a;
+    ul.appendChild(li);
+  }
+  if (!alerts.length) {
+    const li = document.createElement("li");
+    li.className = "none";
+    li.textContent = "no alerts";
+    ul.appendChild(li);
+  }
+  const count = $("alert-count");
+  count.textContent = alerts.length + (alerts.length === 1 ? " alert" : " alerts");
+  count.className = "alert-count " + (alerts.length ? "some" : "none");
+}
+
+function renderEvents(events) {
+  const ul = $("events");
+  clear(ul);
+  for (const e of events) {
+    const li = document.createElement("li");
+    li.className = e.severity || "info";
+    const t = document.createElement("span");
+    t.className = "t";
+    t.textContent = new Date((e.t_host_ns || 0) / 1e6).toISOString().substring(11, 19);
+    li.appendChild(t);
+    li.appendChild(document.createTextNode(e.message || e.kind || ""));
+    li.title = e.kind || "";
+    ul.appendChild(li);
+  }
+}
+
+// -- the whole page ----------------------------------------------------------------------
+
+function render(doc) {
+  renderStations(doc);
+  const view = doc.view;
+  if (view) {
+    renderSky(view.sats);
+    renderCno(view.sats);
+    renderPpk(view.ppk);
+    renderMarks(view.marks);
+    renderLink(view);
+    renderSession(view.session);
+    renderAlerts(view.alerts);
+    renderEvents(view.events);
+  }
+  refreshBadge();
+}
+
+window.setInterval(refreshBadge, 500);
+connect();
