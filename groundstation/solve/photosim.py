@@ -7,6 +7,7 @@ Used by the tests, the matching benchmark and the demo flight. :func:`photo_scen
 from __future__ import annotations
 
 import datetime as dt
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -83,23 +84,9 @@ def photo_scenario(
             true_s.append(t)
             t += rng.uniform(1.3, 2.5)
     true_ns = [start_t_gps_ns + round(s * 1e9) for s in true_s]
-    photos: list[SimPhoto] = []
-    for k, tn in enumerate(true_ns):
-        unix_ns = gpstime.gps_to_unix_ns(tn)
-        cam_ns = unix_ns + round((zone_s + clock_error_s) * 1e9)
-        sec, frac = divmod(cam_ns, gpstime.NS_PER_S)
-        when = dt.datetime.fromtimestamp(sec, tz=dt.UTC).replace(tzinfo=None)
-        sign = "+" if zone_s >= 0 else "-"
-        zone = f"{sign}{abs(zone_s) // 3600:02d}:{abs(zone_s) % 3600 // 60:02d}"
-        photos.append(
-            SimPhoto(
-                f"IMG_{k + 1:04d}.JPG",
-                when,
-                f"{frac // 10_000_000:02d}" if subsec else None,
-                zone if write_zone else None,
-                tn,
-            )
-        )
+    photos = photos_at_times(
+        true_ns, clock_error_s=clock_error_s, zone_s=zone_s, write_zone=write_zone, subsec=subsec
+    )
     n_missing = int(round(missing_fraction * n_photos))
     lost = set(rng.choice(n_photos, size=n_missing, replace=False).tolist())
     kept = [(tn, k) for k, tn in enumerate(true_ns) if k not in lost]
@@ -119,15 +106,52 @@ def photo_scenario(
         else:
             extra_idx.append(i)
     return PhotoScenario(
-        tuple(photos), tuple(tn for tn, _ in marks), tuple(truth), clock_error_s, tuple(extra_idx)
+        photos, tuple(tn for tn, _ in marks), tuple(truth), clock_error_s, tuple(extra_idx)
     )
 
 
-def write_photo_set(scenario: PhotoScenario, directory: Path) -> list[Path]:
-    """Write every photo of a scenario as a real JPEG with EXIF; returns the paths."""
+def photos_at_times(
+    true_t_gps_ns: Sequence[int],
+    *,
+    clock_error_s: float = -(2 * 3600 + 17 * 60 + 23.37),
+    zone_s: int = 7200,
+    write_zone: bool = False,
+    subsec: bool = False,
+) -> tuple[SimPhoto, ...]:
+    """One photo per true shutter time (e.g. a simulated flight's exposures), in that order.
+
+    File names number the shots from ``IMG_0001.JPG``; the EXIF times are those of a camera
+    clock running local time (``zone_s`` east of UTC) plus ``clock_error_s``, in whole seconds
+    unless ``subsec``.
+    """
+    sign = "+" if zone_s >= 0 else "-"
+    zone = f"{sign}{abs(zone_s) // 3600:02d}:{abs(zone_s) % 3600 // 60:02d}"
+    photos: list[SimPhoto] = []
+    for k, tn in enumerate(true_t_gps_ns):
+        unix_ns = gpstime.gps_to_unix_ns(tn)
+        cam_ns = unix_ns + round((zone_s + clock_error_s) * 1e9)
+        sec, frac = divmod(cam_ns, gpstime.NS_PER_S)
+        when = dt.datetime.fromtimestamp(sec, tz=dt.UTC).replace(tzinfo=None)
+        photos.append(
+            SimPhoto(
+                f"IMG_{k + 1:04d}.JPG",
+                when,
+                f"{frac // 10_000_000:02d}" if subsec else None,
+                zone if write_zone else None,
+                tn,
+            )
+        )
+    return tuple(photos)
+
+
+def write_photo_set(
+    scenario: PhotoScenario | Sequence[SimPhoto], directory: Path
+) -> list[Path]:
+    """Write every photo of a scenario (or a sequence of photos) as a real JPEG with EXIF;
+    returns the paths."""
     directory.mkdir(parents=True, exist_ok=True)
     paths = []
-    for ph in scenario.photos:
+    for ph in scenario.photos if isinstance(scenario, PhotoScenario) else scenario:
         p = directory / ph.name
         p.write_bytes(make_jpeg(ph.exif_datetime, subsec=ph.subsec, offset_time=ph.offset_time))
         paths.append(p)
