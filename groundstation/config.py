@@ -85,6 +85,9 @@ class RecorderSettings:
         chunk_size_bytes: MCAP chunk size target (small, so a crash loses little).
         compression: MCAP chunk compression: ``zstd``, ``lz4`` or ``none``.
         sidecar: also write the raw bytes to a ``.ubx`` file.
+        backlog_mb: while writing fails (disk full), hold up to this much in memory; beyond
+            it decoded records, then new raw bytes, are dropped and counted.
+        retry_s: how often writing is tried again after a failure.
     """
 
     out_dir: Path = Path("recordings")
@@ -94,6 +97,8 @@ class RecorderSettings:
     chunk_size_bytes: int = 64 * 1024
     compression: Literal["zstd", "lz4", "none"] = "zstd"
     sidecar: bool = True
+    backlog_mb: float = 64.0
+    retry_s: float = 2.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -201,6 +206,8 @@ SCHEMA: dict[str, dict[str, _T]] = {
         "chunk_size_bytes": int,
         "compression": str,
         "sidecar": bool,
+        "backlog_mb": float,
+        "retry_s": float,
     },
     "queues": {"recorder": int, "monitor": int, "publisher": int},
     "framer": {"max_payload_bytes": int},
@@ -398,7 +405,7 @@ def build_settings(merged: dict[str, dict[str, Any]]) -> Settings:
     for key in ("rotate_size_mb", "rotate_duration_s"):
         if key in rec:
             _positive(f"recorder.{key}", rec[key], allow_zero=True)
-    for key in ("flush_interval_s", "chunk_size_bytes"):
+    for key in ("flush_interval_s", "chunk_size_bytes", "backlog_mb", "retry_s"):
         if key in rec:
             _positive(f"recorder.{key}", rec[key])
     if rec.get("flush_interval_s", 0.5) > 1.0:

@@ -29,7 +29,8 @@ from groundstation.live.publisher import ZenohPublisherSink
 from groundstation.live.recorder import RecorderSink
 from groundstation.live.sources import Source, make_source
 from groundstation.records import Event, Frame, Status, UndecodedFrame
-from groundstation.storage.recorder import SessionRecorder, register_record_topic
+from groundstation.storage.mcapio import ExactFile
+from groundstation.storage.recorder import FileOpener, SessionRecorder, register_record_topic
 from groundstation.ubx.decode import Decoder
 from groundstation.ubx.framer import UbxFramer
 
@@ -103,6 +104,8 @@ class Pipeline:
         clock: UNIX ns clock.
         on_file: called with each recording file as it is created.
         monitor_data_clock: the monitor's time is the items' host times (replay).
+        open_file: how the recorder creates its files (a test's fault hook; default
+            :class:`~groundstation.storage.mcapio.ExactFile`).
     """
 
     def __init__(
@@ -115,6 +118,7 @@ class Pipeline:
         clock: Callable[[], int] = time.time_ns,
         on_file: Callable[[Path], None] | None = None,
         monitor_data_clock: bool = False,
+        open_file: FileOpener | None = None,
     ) -> None:
         self.settings = settings
         self._clock = clock
@@ -132,7 +136,9 @@ class Pipeline:
                 compression=rec.compression, flush_interval_ns=int(rec.flush_interval_s * 1e9),
                 rotate_size_bytes=int(rec.rotate_size_mb * 1e6),
                 rotate_duration_ns=int(rec.rotate_duration_s * 1e9), sidecar=rec.sidecar,
-                clock=clock,
+                clock=clock, backlog_bytes_max=int(rec.backlog_mb * 1e6),
+                retry_interval_ns=int(rec.retry_s * 1e9),
+                open_file=open_file or ExactFile,
             )
             user_on_file = on_file
 

@@ -20,6 +20,7 @@ Nothing here does I/O or reads a clock: :class:`MonitorSink` adapts it to the li
 from __future__ import annotations
 
 import bisect
+import errno
 import statistics
 from collections import deque
 from dataclasses import dataclass, field
@@ -43,6 +44,7 @@ RATE_WINDOW_NS = 5 * NS_PER_S
 INTERVAL_HISTORY = 25
 RECENT_DROPOUTS = 50
 LINK_HISTORY_NS = 600 * NS_PER_S  # epochs kept for the completeness windows and the timeline
+DISK_FULL_ERRNOS = (errno.ENOSPC, errno.EDQUOT)
 NO_FRAMES_MIN_BYTES = 64  # a few stray bytes after the last frame are no evidence of anything
 
 
@@ -435,6 +437,18 @@ class Monitor:
         elif ev.kind == "source.outage":
             self.source_outages += 1
             self.source_connected = True
+        elif ev.kind == "recorder.write_failed":
+            name = "disk_full" if ev.data.get("errno") in DISK_FULL_ERRNOS else "recording_failed"
+            self._raise(name, ev.message, now_ns, events,
+                        {"error": ev.data.get("error", ""), "errno": ev.data.get("errno", 0)})
+        elif ev.kind == "recorder.dropped":
+            for name in ("disk_full", "recording_failed"):
+                alert = self.alerts.get(name)
+                if alert is not None:  # the alert now says what is being lost
+                    alert.message = f"{alert.message.split('; ')[0]}; {ev.message}"
+        elif ev.kind == "recorder.recovered":
+            self._clear("disk_full", now_ns, events)
+            self._clear("recording_failed", now_ns, events)
         elif ev.kind.endswith(".behind") and ev.kind.startswith("recorder"):
             self.recorder_behind = True
             self._raise("recorder_behind", ev.message, now_ns, events)

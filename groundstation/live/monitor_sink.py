@@ -100,8 +100,7 @@ class MonitorSink:
             elif isinstance(item, RawChunk):
                 self.monitor.on_bytes(len(item.data), item.t_host_ns)
             else:
-                for ev in self.monitor.observe(item, now):
-                    publish(ev)
+                self._emit(None, self.monitor.observe(item, now), publish)
         self._check_disk()
         self._emit(*self.monitor.tick(now), publish)
 

@@ -2,7 +2,10 @@
 
 Never drops (its inbox's policy is ``NEVER_DROP``); closes the chunk and flushes MCAP and sidecar
 at least every ``flush_interval_s``, even when no data arrives, and writes the MCAP summary
-when the inbox is closed and drained.
+when the inbox is closed and drained. When writing fails (a full disk) the session recorder
+holds the data and retries (``storage/recorder.py``); this sink publishes what it reports
+(``recorder.write_failed``, ``recorder.dropped``, ``recorder.recovered``) and announces the
+file the recording resumes in.
 """
 
 from __future__ import annotations
@@ -84,5 +87,9 @@ class RecorderSink:
                 if item is not None:
                     self.write(item)
                 self.recorder.maybe_flush()
+                for event in self.recorder.take_notices():
+                    publish(event)
+                if len(self.recorder.stats.files) != self._files_seen:
+                    self._notify_files()  # a new part after a recovered write failure
         finally:
             self.recorder.close()

@@ -3,7 +3,10 @@
 Writing: :class:`McapFileWriter` wraps ``mcap.writer.Writer`` with lazy channel registration,
 an explicit flush (closes the chunk in progress and flushes the file, so a killed process loses
 at most what arrived since) and an idempotent :meth:`~McapFileWriter.finish`. Files are created
-exclusively: an existing file is never overwritten.
+exclusively: an existing file is never overwritten. They are written through :class:`ExactFile`,
+unbuffered and never silently short (a full disk makes ``os.write`` write less than asked), so
+the size after a successful flush is a known-good chunk boundary: :meth:`McapFileWriter.abandon`
+cuts a file whose write failed back to it, leaving an unfinished but clean file.
 
 Reading: :func:`iter_messages` reads linearly (streaming), which works the same for finished
 files and for files whose writer died: it returns every message up to the last complete chunk
@@ -13,12 +16,15 @@ the file was finished.
 
 from __future__ import annotations
 
+import contextlib
+import errno
 import json
 import logging
+import os
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, BinaryIO
+from typing import Any, Protocol
 
 from mcap.reader import make_reader
 from mcap.records import Channel, Message, Metadata, Schema
@@ -52,6 +58,75 @@ def json_channel(topic: str, schema: dict[str, Any]) -> ChannelSpec:
     )
 
 
+class WritableFile(Protocol):
+    """What the recorder writes through (:class:`ExactFile`, or a test's faulty wrapper)."""
+
+    path: Path
+
+    def write(self, data: bytes | bytearray | memoryview, /) -> int: ...
+
+    def tell(self) -> int: ...
+
+    def flush(self) -> None: ...
+
+    def truncate(self, size: int, /) -> None: ...
+
+    def close(self) -> None: ...
+
+
+class ExactFile:
+    """A new file (created exclusively), written unbuffered: every byte, or an ``OSError``.
+
+    ``os.write`` writes less than asked when the disk fills up; :meth:`write` goes on until
+    all is written or the system refuses, so a short write is never mistaken for success. The
+    position is counted here and stays right after a failure.
+
+    Raises:
+        FileExistsError: if ``path`` exists.
+    """
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self._fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_CLOEXEC, 0o666)
+        self._pos = 0
+        self.closed = False
+
+    def _write_some(self, data: memoryview) -> int:
+        """One ``write(2)``; the fault hook tests override."""
+        return os.write(self._fd, data)
+
+    def write(self, data: bytes | bytearray | memoryview, /) -> int:
+        view = memoryview(data).cast("B")
+        total = len(view)
+        while view:
+            n = self._write_some(view)
+            if n <= 0:
+                raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(self.path))
+            self._pos += n
+            view = view[n:]
+        return total
+
+    def tell(self) -> int:
+        return self._pos
+
+    def flush(self) -> None:
+        """Nothing is buffered here (no fsync either)."""
+
+    def truncate(self, size: int, /) -> None:
+        """Cut the file to ``size`` bytes and continue writing there."""
+        os.ftruncate(self._fd, size)
+        os.lseek(self._fd, size, os.SEEK_SET)
+        self._pos = size
+
+    def fileno(self) -> int:
+        return self._fd
+
+    def close(self) -> None:
+        if not self.closed:
+            self.closed = True
+            os.close(self._fd)
+
+
 class McapFileWriter:
     """One MCAP file being written.
 
@@ -60,9 +135,12 @@ class McapFileWriter:
         chunk_size_bytes: chunk size target; chunks are also closed by :meth:`flush`.
         compression: ``zstd``, ``lz4`` or ``none``.
         library: the writer identification in the MCAP header.
+        file: the file to write through, already created at ``path`` (default: a new
+            :class:`ExactFile`).
 
     Raises:
         FileExistsError: if ``path`` exists (recordings are never overwritten).
+        OSError: if the header cannot be written.
     """
 
     def __init__(
@@ -72,11 +150,13 @@ class McapFileWriter:
         chunk_size_bytes: int = 64 * 1024,
         compression: str = "zstd",
         library: str = "groundstation",
+        file: WritableFile | None = None,
     ) -> None:
         self.path = path
-        self._file: BinaryIO = path.open("xb")
+        self._file: WritableFile = file if file is not None else ExactFile(path)
         self._writer = Writer(
-            self._file, chunk_size=chunk_size_bytes, compression=_COMPRESSION[compression]
+            self._file,  # type: ignore[arg-type]
+            chunk_size=chunk_size_bytes, compression=_COMPRESSION[compression],
         )
         self._writer.start(profile="", library=library)
         self._schemas: dict[str, int] = {}
@@ -137,6 +217,26 @@ class McapFileWriter:
             self._writer.finish()  # type: ignore[no-untyped-call]
         finally:
             self._file.close()
+
+    def abandon(self, good_size: int) -> None:
+        """Give the file up after a failed write: cut it back to ``good_size`` (the size after
+        the last successful :meth:`flush`, a record boundary) and close it without a summary.
+        What remains reads like the file of a killed writer, minus the torn tail."""
+        self._finished = True
+        try:
+            os.truncate(self.path, good_size)
+        except OSError as err:
+            log.warning("%s: cannot cut back to %d bytes: %s", self.path, good_size, err)
+        with contextlib.suppress(OSError):
+            self._file.close()
+
+    def discard(self) -> None:
+        """Close and delete a file this writer created and that holds nothing needed."""
+        self._finished = True
+        with contextlib.suppress(OSError):
+            self._file.close()
+        with contextlib.suppress(OSError):
+            self.path.unlink()
 
 
 # -- reading --------------------------------------------------------------------------------

@@ -1,24 +1,52 @@
-"""Session recording: file naming, rotation, channel routing, JSON encoding, the .ubx sidecar.
+"""Session recording: file naming, rotation, channel routing, JSON encoding, the .ubx sidecar,
+and surviving a disk that fills up.
 
 Sans-asyncio: the live recorder sink (``live/recorder.py``) feeds it; tests and tools can drive
 it directly. Raw chunks go to ``/ubx/raw`` byte for byte (``log_time`` = host receive time) and to
 the sidecar; decoded records go to JSON channels routed by their type (:data:`ROUTES`,
 extensible with :func:`register_record_topic`), with ``publish_time`` = GPS time as UNIX ns
 (UTC) where the record knows it.
+
+Write failures (ENOSPC, EDQUOT, EIO ... any ``OSError``) never escape. The design:
+
+- Every message handed to the MCAP writer since its last successful flush is also kept in a
+  short *pending* list (at most one flush interval), and the sizes of the MCAP and the sidecar
+  after that flush are known-good boundaries (files are written unbuffered and never short,
+  :class:`~groundstation.storage.mcapio.ExactFile`).
+- When a write fails, the current pair is *abandoned*: the MCAP is cut back to its last good
+  chunk boundary and closed without a summary (a torn chunk is never left behind, and nothing in
+  it is duplicated later), the sidecar is cut back to the same point in the byte stream. The
+  pending messages go back to the front of an in-memory *backlog*, which takes everything that
+  arrives from then on, in order. A ``recorder.write_failed`` event says so.
+- The backlog is bounded (``backlog_bytes_max``). Decoded records can be derived again from the
+  raw bytes, so they go first: when the bound is reached, the held records are dropped and
+  further records are not kept; raw chunks are kept until they alone fill the bound, then new
+  chunks are dropped (the hole is at the end of what is held, the earlier bytes stay
+  contiguous). Drops are counted and reported by ``recorder.dropped`` events with the counts
+  and the host-time span of the lost raw bytes (the first at once, then at most every 10 s).
+- Every ``retry_interval_ns`` a new pair is opened (the next part, as for a rotation, its
+  metadata naming the previous file and the failure) and the whole backlog is written into it
+  and flushed. If that fails too, the new files are deleted (they hold nothing that is not still
+  in memory) and the backlog waits for the next attempt. When it succeeds,
+  ``recorder.recovered`` reports what was written and what was lost. The concatenation of the
+  parts' ``/ubx/raw`` (and of the sidecars) is then again every byte received, in order, except
+  for the counted drops; each sidecar still holds exactly its MCAP part's raw bytes.
 """
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import datetime as dt
 import json
 import logging
 import math
 import time
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, BinaryIO
+from typing import Any
 
 from groundstation import __version__, gpstime
 from groundstation.records import (
@@ -34,7 +62,9 @@ from groundstation.records import (
 from groundstation.storage.mcapio import (
     RAW_TOPIC,
     ChannelSpec,
+    ExactFile,
     McapFileWriter,
+    WritableFile,
     json_channel,
 )
 from groundstation.storage.schemas import LOCATION_FIX_SCHEMA, dataclass_schema, union_schema
@@ -102,7 +132,11 @@ def plain_json(value: Any) -> Any:
 
 @dataclass(frozen=True, slots=True)
 class RecorderStats:
-    """Counters of a recording session."""
+    """Counters of a recording session.
+
+    ``raw_chunks``/``raw_bytes``/``records`` count what was received; what a write failure made
+    it drop is in the ``dropped_*`` counters and ``held_bytes`` is what waits in memory.
+    """
 
     session_id: str
     files: tuple[Path, ...]
@@ -112,6 +146,23 @@ class RecorderStats:
     records: int
     events: int
     flushes: int
+    write_failures: int = 0
+    held_bytes: int = 0
+    dropped_raw_chunks: int = 0
+    dropped_raw_bytes: int = 0
+    dropped_records: int = 0
+
+
+_Msg = tuple[ChannelSpec, bytes, int, int]
+"""A message on its way to the MCAP: channel, data, log time, publish time."""
+
+FileOpener = Callable[[Path], WritableFile]
+
+
+def _size(n: float) -> str:
+    return f"{n / 1e6:.1f} MB" if n >= 1e6 else f"{n / 1e3:.0f} kB"
+
+DROP_EVENT_INTERVAL_NS = 10_000_000_000
 
 
 class SessionRecorder:
@@ -129,6 +180,9 @@ class SessionRecorder:
         rotate_duration_ns: start a new file after this long (0 = never).
         sidecar: write the ``.ubx`` sidecar.
         clock: wall clock in UNIX ns (injected for tests).
+        backlog_bytes_max: what may be held in memory while writing fails.
+        retry_interval_ns: how often writing is tried again after a failure.
+        open_file: creates each file exclusively (the storage layer's fault hook for tests).
     """
 
     def __init__(
@@ -145,6 +199,9 @@ class SessionRecorder:
         rotate_duration_ns: int = 0,
         sidecar: bool = True,
         clock: Callable[[], int] = time.time_ns,
+        backlog_bytes_max: int = 64_000_000,
+        retry_interval_ns: int = 2_000_000_000,
+        open_file: FileOpener = ExactFile,
     ) -> None:
         self.out_dir = out_dir
         self.station = station
@@ -157,9 +214,12 @@ class SessionRecorder:
         self.rotate_duration_ns = rotate_duration_ns
         self.sidecar = sidecar
         self._clock = clock
+        self.backlog_bytes_max = backlog_bytes_max
+        self.retry_interval_ns = retry_interval_ns
+        self._open = open_file
         self.session_id = ""
         self._mcap: McapFileWriter | None = None
-        self._ubx: BinaryIO | None = None
+        self._ubx: WritableFile | None = None
         self._files: list[Path] = []
         self._sidecars: list[Path] = []
         self._file_start_ns = 0
@@ -172,59 +232,99 @@ class SessionRecorder:
         self._events = 0
         self._flushes = 0
         self._closed = False
+        # write-failure handling (module docstring)
+        self._pending: list[_Msg] = []
+        self._mcap_good = 0
+        self._side_good = 0
+        self._failure: OSError | None = None
+        self._failures = 0
+        self._backlog: deque[_Msg] = deque()
+        self._backlog_bytes = 0
+        self._records_off = False
+        self._next_retry_ns = 0
+        self._dropped_chunks = 0
+        self._dropped_bytes = 0
+        self._dropped_records = 0
+        self._drop_span: tuple[int, int] | None = None
+        self._last_drop_event_ns: int | None = None
+        self._notices: list[Event] = []
 
     # -- lifecycle ------------------------------------------------------------------------------
 
     def open(self) -> Path:
-        """Start the session: create the first file. Returns its path."""
+        """Start the session: create the first file. Returns its path.
+
+        Raises:
+            OSError: if the first file cannot be created (nothing is recorded yet).
+        """
         now = self._clock()
         self.out_dir.mkdir(parents=True, exist_ok=True)
         self.session_id = session_file_stem(self.station, now)
         return self._open_file(now)
 
-    def _open_file(self, now_ns: int) -> Path:
+    def _open_file(self, now_ns: int, after_failure: str = "") -> Path:
+        """Create the next MCAP + sidecar pair; on an ``OSError`` nothing is left behind."""
         stem = session_file_stem(self.station, now_ns)
-        for n in range(10_000):
-            name = stem if n == 0 else f"{stem}_{n}"
-            path = self.out_dir / f"{name}.mcap"
-            side = self.out_dir / f"{name}.ubx"
-            if side.exists() and self.sidecar:
-                continue
-            try:
-                mcap = McapFileWriter(
-                    path, chunk_size_bytes=self.chunk_size_bytes, compression=self.compression,
-                    library=f"groundstation {__version__}",
-                )
-            except FileExistsError:
-                continue
-            break
-        else:  # pragma: no cover - ten thousand files in one second
-            raise FileExistsError(f"no free file name for {stem} in {self.out_dir}")
-        self._mcap = mcap
-        # Unbuffered: every received byte is in the OS's hands at once, so a killed daemon's
-        # sidecar holds everything it received (the MCAP loses at most one flush interval).
-        self._ubx = side.open("xb", buffering=0) if self.sidecar else None
+        created: list[WritableFile] = []
+        try:
+            for n in range(10_000):
+                name = stem if n == 0 else f"{stem}_{n}"
+                path = self.out_dir / f"{name}.mcap"
+                side = self.out_dir / f"{name}.ubx"
+                if side.exists() and self.sidecar:
+                    continue
+                try:
+                    mcap_file = self._open(path)
+                except FileExistsError:
+                    continue
+                created.append(mcap_file)
+                break
+            else:  # pragma: no cover - ten thousand files in one second
+                raise FileExistsError(f"no free file name for {stem} in {self.out_dir}")
+            # Unbuffered: every received byte is in the OS's hands at once, so a killed
+            # daemon's sidecar holds everything it received (the MCAP loses at most one flush
+            # interval).
+            ubx = self._open(side) if self.sidecar else None
+            if ubx is not None:
+                created.append(ubx)
+            mcap = McapFileWriter(
+                path, chunk_size_bytes=self.chunk_size_bytes, compression=self.compression,
+                library=f"groundstation {__version__}", file=mcap_file,
+            )
+            previous = self._files[-1].name if self._files else ""
+            mcap.add_metadata(
+                "groundstation",
+                {
+                    "station": self.station,
+                    "receiver": self.receiver,
+                    "software_version": __version__,
+                    "session_id": self.session_id,
+                    "part": str(len(self._files) + 1),
+                    "started_utc_ns": str(now_ns),
+                    "previous_file": previous,
+                    "after_write_failure": after_failure,
+                    "sidecar": side.name if self.sidecar else "",
+                },
+            )
+            mcap.add_metadata("configuration", {"json": json.dumps(self.configuration)})
+            mcap.flush()
+        except OSError:
+            for f in created:
+                with contextlib.suppress(OSError):
+                    f.close()
+                with contextlib.suppress(OSError):
+                    f.path.unlink()  # our own file of a moment ago, holding nothing
+            raise
+        self._mcap, self._ubx = mcap, ubx
         self._files.append(path)
         if self.sidecar:
             self._sidecars.append(side)
         self._file_start_ns = now_ns
         self._last_flush_ns = now_ns
-        mcap.add_metadata(
-            "groundstation",
-            {
-                "station": self.station,
-                "receiver": self.receiver,
-                "software_version": __version__,
-                "session_id": self.session_id,
-                "part": str(len(self._files)),
-                "started_utc_ns": str(now_ns),
-                "previous_file": self._files[-2].name if len(self._files) > 1 else "",
-                "sidecar": side.name if self.sidecar else "",
-            },
-        )
-        mcap.add_metadata("configuration", {"json": json.dumps(self.configuration)})
-        mcap.flush()
-        log.info("recording to %s", path)
+        self._mcap_good = mcap.size_bytes
+        self._side_good = 0
+        if not after_failure:  # a recovery says so once it has succeeded
+            log.info("recording to %s", path)
         return path
 
     def _rotate_due(self, now_ns: int) -> bool:
@@ -238,19 +338,36 @@ class SessionRecorder:
         )
 
     def _close_file(self) -> None:
+        """Finish the current pair (MCAP summary). Raises ``OSError`` if that fails."""
         if self._mcap is not None:
             self._mcap.finish()
             self._mcap = None
         if self._ubx is not None:
             self._ubx.close()
             self._ubx = None
+        self._pending.clear()
 
     def close(self) -> None:
-        """Finish the MCAP (summary written) and close the sidecar; safe to call twice."""
+        """Finish the MCAP (summary written) and close the sidecar; safe to call twice.
+
+        After a write failure, one last attempt is made to write what is held; what still
+        cannot be written is logged as lost (never raised).
+        """
         if self._closed:
             return
+        if self._failure is not None:
+            self._recover(self._clock())
+        if self._failure is None:
+            try:
+                self._close_file()
+            except OSError as err:
+                self._fail(err)
         self._closed = True
-        self._close_file()
+        if self._failure is not None:
+            log.error(
+                "session %s ends with its recording failing (%s): %d bytes held in memory "
+                "are lost", self.session_id, self._failure, self._backlog_bytes,
+            )
         log.info(
             "session %s finished: %d raw bytes, %d records, %d file(s)",
             self.session_id, self._raw_bytes, self._records, len(self._files),
@@ -258,22 +375,11 @@ class SessionRecorder:
 
     # -- writing --------------------------------------------------------------------------------
 
-    def _writer(self) -> McapFileWriter:
-        if self._mcap is None:
-            raise RuntimeError("recorder is not open")
-        return self._mcap
-
     def write_raw(self, data: bytes, t_host_ns: int) -> None:
         """Record one received chunk byte for byte (MCAP ``/ubx/raw`` and the sidecar)."""
-        now = self._clock()
-        if self._rotate_due(now):
-            self._close_file()
-            self._open_file(now)
-        self._writer().add(RAW_CHANNEL, data, t_host_ns, t_host_ns)
-        if self._ubx is not None:
-            self._ubx.write(data)
         self._raw_chunks += 1
         self._raw_bytes += len(data)
+        self._write((RAW_CHANNEL, data, t_host_ns, t_host_ns))
 
     def write_record(self, record: Any, log_time_ns: int) -> bool:
         """Record a decoded record or event on its channel; False if its type is not routed."""
@@ -282,15 +388,195 @@ class SessionRecorder:
             return False
         body = {"type": type(record).__name__, **plain_json(record)}
         publish = self._publish_time_ns(record, log_time_ns)
-        mcap = self._writer()
-        mcap.add(spec, _json_bytes(body), log_time_ns, publish)
         self._records += 1
         if isinstance(record, Event):
             self._events += 1
+        self._write((spec, _json_bytes(body), log_time_ns, publish))
         if isinstance(record, NavSolution) and record.lat_deg is not None:
-            mcap.add(LOCATION_CHANNEL, _json_bytes(self._location_fix(record, publish)),
-                     log_time_ns, publish)
+            self._write((LOCATION_CHANNEL, _json_bytes(self._location_fix(record, publish)),
+                         log_time_ns, publish))
         return True
+
+    def _write(self, msg: _Msg) -> None:
+        if self._closed:
+            raise RuntimeError("recorder is closed")
+        if self._mcap is None and self._failure is None:
+            raise RuntimeError("recorder is not open")
+        if self._failure is not None:
+            self._hold(msg)
+            return
+        pending = False
+        try:
+            now = self._clock()
+            if self._rotate_due(now):
+                self._close_file()
+                self._open_file(now)
+            pending = True  # _put makes it pending before anything can fail
+            self._put(msg)
+        except OSError as err:
+            self._fail(err)  # the pending messages go to the backlog, in order
+            if not pending:  # the rotation failed
+                self._hold(msg)
+
+    def _put(self, msg: _Msg) -> None:
+        """Into the current pair (pending until the next successful flush)."""
+        assert self._mcap is not None
+        self._pending.append(msg)
+        spec, data, log_ns, publish_ns = msg
+        self._mcap.add(spec, data, log_ns, publish_ns)
+        if spec is RAW_CHANNEL and self._ubx is not None:
+            self._ubx.write(data)
+
+    # -- write failures -------------------------------------------------------------------------
+
+    def _fail(self, err: OSError) -> None:
+        """A write failed: abandon the current pair and hold everything not safely written."""
+        now = self._clock()
+        first = self._failure is None
+        self._failure = err
+        self._failures += 1
+        path = self._mcap.path if self._mcap is not None else None
+        if self._mcap is not None:
+            self._mcap.abandon(self._mcap_good)
+            self._mcap = None
+        if self._ubx is not None:
+            with contextlib.suppress(OSError):
+                self._ubx.truncate(self._side_good)
+            with contextlib.suppress(OSError):
+                self._ubx.close()
+            self._ubx = None
+        for msg in reversed(self._pending):
+            self._backlog.appendleft(msg)
+            self._backlog_bytes += len(msg[1])
+        self._pending.clear()
+        self._next_retry_ns = now + self.retry_interval_ns
+        if not first:
+            return
+        reason = f"{err.strerror or err}" + (f" (errno {err.errno})" if err.errno else "")
+        log.error("cannot write %s: %s; holding data in memory (up to %s), retrying "
+                  "every %g s", path, reason, _size(self.backlog_bytes_max),
+                  self.retry_interval_ns / 1e9)
+        self._notices.append(Event(
+            "recorder.write_failed", now,
+            f"cannot write the recording ({reason}): holding the data in memory (up to "
+            f"{_size(self.backlog_bytes_max)}), retrying every "
+            f"{self.retry_interval_ns / 1e9:g} s", "error",
+            {"error": reason, "errno": err.errno or 0, "file": str(path or ""),
+             "backlog_mb": self.backlog_bytes_max / 1e6},
+        ))
+
+    def _hold(self, msg: _Msg) -> None:
+        size = len(msg[1])
+        raw = msg[0] is RAW_CHANNEL
+        if not raw and (self._records_off
+                        or self._backlog_bytes + size > self.backlog_bytes_max):
+            self._records_off = True
+            self._dropped_records += 1
+            self._report_drops()
+            return
+        if raw and self._backlog_bytes + size > self.backlog_bytes_max:
+            if not self._records_off:  # records can be derived again from the raw bytes
+                self._records_off = True
+                kept: deque[_Msg] = deque()
+                for m in self._backlog:
+                    if m[0] is RAW_CHANNEL:
+                        kept.append(m)
+                    else:
+                        self._dropped_records += 1
+                        self._backlog_bytes -= len(m[1])
+                self._backlog = kept
+            if self._backlog_bytes + size > self.backlog_bytes_max:
+                self._dropped_chunks += 1
+                self._dropped_bytes += size
+                t = msg[2]
+                span = self._drop_span
+                self._drop_span = (t, t) if span is None else (min(span[0], t), max(span[1], t))
+                self._report_drops()
+                return
+        self._backlog.append(msg)
+        self._backlog_bytes += size
+
+    def _drop_counts(self) -> dict[str, Any]:
+        span = self._drop_span
+        return {
+            "dropped_raw_chunks": self._dropped_chunks,
+            "dropped_raw_bytes": self._dropped_bytes,
+            "dropped_records": self._dropped_records,
+            "dropped_raw_first_ns": span[0] if span else None,
+            "dropped_raw_last_ns": span[1] if span else None,
+        }
+
+    def _report_drops(self, *, force: bool = False) -> None:
+        now = self._clock()
+        last = self._last_drop_event_ns
+        if not force and last is not None and now - last < DROP_EVENT_INTERVAL_NS:
+            return
+        self._last_drop_event_ns = now
+        msg = (f"recording backlog full ({_size(self.backlog_bytes_max)} held): dropped "
+               f"{self._dropped_bytes} raw bytes in {self._dropped_chunks} chunks and "
+               f"{self._dropped_records} decoded records so far")
+        log.error("%s", msg)
+        self._notices.append(Event("recorder.dropped", now, msg, "error", self._drop_counts()))
+
+    def _recover(self, now_ns: int) -> None:
+        """Try a new pair with the whole backlog in it; on failure wait for the next try."""
+        assert self._failure is not None
+        self._next_retry_ns = now_ns + self.retry_interval_ns
+        failure = f"{self._failure.strerror or self._failure}"
+        try:
+            path = self._open_file(now_ns, after_failure=failure)
+        except OSError as err:
+            log.debug("recording still failing: %s", err)
+            return
+        held = self._backlog_bytes
+        try:
+            for msg in self._backlog:
+                self._put(msg)
+            assert self._mcap is not None
+            self._mcap.flush()
+        except OSError as err:
+            log.debug("recording still failing: %s", err)
+            mcap, ubx = self._mcap, self._ubx
+            self._mcap = self._ubx = None
+            self._pending.clear()
+            self._files.pop()
+            if self.sidecar:
+                self._sidecars.pop()
+            if mcap is not None:
+                mcap.discard()
+            if ubx is not None:
+                with contextlib.suppress(OSError):
+                    ubx.close()
+                with contextlib.suppress(OSError):
+                    ubx.path.unlink()
+            return
+        assert self._mcap is not None
+        self._mark_flushed(now_ns)
+        self._backlog.clear()
+        self._backlog_bytes = 0
+        self._records_off = False
+        self._failure = None
+        if self._dropped_chunks or self._dropped_records:
+            self._report_drops(force=True)
+        text = (f"recording resumed in {path.name}: {held} bytes held in memory written"
+                + (f"; {self._dropped_bytes} raw bytes and {self._dropped_records} records "
+                   "were dropped" if self._dropped_bytes or self._dropped_records else ""))
+        log.warning("%s", text)
+        self._notices.append(Event(
+            "recorder.recovered", now_ns, text, "warning",
+            {"file": str(path), "held_bytes": held, **self._drop_counts()},
+        ))
+
+    def take_notices(self) -> list[Event]:
+        """Events about the recording itself (write failed, dropped, recovered) since the
+        last call, for the sink to publish."""
+        out, self._notices = self._notices, []
+        return out
+
+    @property
+    def failing(self) -> bool:
+        """Writing currently fails and data is being held in memory."""
+        return self._failure is not None
 
     def _gps_unix_ns(self, tow_ns: int, week: int | None) -> int | None:
         if week is None:
@@ -341,18 +627,36 @@ class SessionRecorder:
 
     def flush(self) -> None:
         """Close the MCAP chunk in progress and flush MCAP and sidecar to the OS."""
-        if self._mcap is not None:
+        if self._failure is not None or self._mcap is None:
+            return
+        try:
             self._mcap.flush()
-        if self._ubx is not None:
-            self._ubx.flush()
-        self._last_flush_ns = self._clock()
+            if self._ubx is not None:
+                self._ubx.flush()
+        except OSError as err:
+            self._fail(err)
+            return
+        self._mark_flushed(self._clock())
+
+    def _mark_flushed(self, now_ns: int) -> None:
+        assert self._mcap is not None
+        self._mcap_good = self._mcap.size_bytes
+        self._side_good = self._ubx.tell() if self._ubx is not None else 0
+        self._pending.clear()
+        self._last_flush_ns = now_ns
         self._flushes += 1
 
     def maybe_flush(self) -> bool:
-        """Flush if the flush interval has passed; True if it flushed."""
-        if self._clock() - self._last_flush_ns >= self.flush_interval_ns:
+        """Flush if the flush interval has passed (after a failure: retry writing when the
+        retry interval has passed); True if it flushed."""
+        now = self._clock()
+        if self._failure is not None:
+            if now >= self._next_retry_ns and not self._closed:
+                self._recover(now)
+            return False
+        if now - self._last_flush_ns >= self.flush_interval_ns:
             self.flush()
-            return True
+            return self._failure is None
         return False
 
     @property
@@ -363,5 +667,7 @@ class SessionRecorder:
     def stats(self) -> RecorderStats:
         return RecorderStats(
             self.session_id, tuple(self._files), tuple(self._sidecars), self._raw_chunks,
-            self._raw_bytes, self._records, self._events, self._flushes,
+            self._raw_bytes, self._records, self._events, self._flushes, self._failures,
+            self._backlog_bytes, self._dropped_chunks, self._dropped_bytes,
+            self._dropped_records,
         )

@@ -1,16 +1,20 @@
 """Faults the daemon survives, on real processes and a real pty: random bytes (a wrong baud
-rate) and a second daemon on the same port."""
+rate), a second daemon on the same port, and a recording disk that fills up (a 2 MB tmpfs)."""
 
 from __future__ import annotations
 
+import contextlib
 import random
 import signal
+import subprocess
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
+import pytest
 from peers import Daemon, Pty
 from streams import flight_stream
-from test_daemon import one, raw_from_mcap, start, wait_for_size
+from test_daemon import generated_stream, one, raw_from_mcap, start, wait_for_size
 
 
 def test_wrong_baud_raises_no_valid_frames_and_frames_clear_it(
@@ -69,3 +73,77 @@ def test_second_daemon_on_the_same_port_is_refused(
     assert rc == 0, first.stderr
     assert one(out, "t_*.ubx").read_bytes() == stream
     assert raw_from_mcap(one(out, "t_*.mcap"))[0] == stream
+
+
+@pytest.fixture
+def small_disk(tmp_path: Path) -> Iterator[Path]:
+    """A 2 MB tmpfs (mounting needs root, as in CI; skipped where it is refused)."""
+    mnt = tmp_path / "disk"
+    mnt.mkdir()
+    proc = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=2m", "tmpfs", str(mnt)],
+                          capture_output=True, text=True)
+    if proc.returncode != 0:
+        pytest.skip(f"cannot mount a tmpfs here: {proc.stderr.strip() or proc.returncode}")
+    try:
+        yield mnt
+    finally:
+        subprocess.run(["umount", "-l", str(mnt)], capture_output=True)
+
+
+def fill(path: Path) -> None:
+    """Write zeros until the file system refuses."""
+    with path.open("wb", buffering=0) as f, contextlib.suppress(OSError):
+        while True:
+            f.write(bytes(65536))
+
+
+def wait_for_total(out: Path, size: int, timeout_s: float = 10.0) -> None:
+    deadline = time.monotonic() + timeout_s
+    total = 0
+    while time.monotonic() < deadline:
+        total = sum(p.stat().st_size for p in out.glob("t_*.ubx"))
+        if total >= size:
+            return
+        time.sleep(0.05)
+    raise AssertionError(f"sidecars hold {total} bytes, expected {size}")
+
+
+def test_disk_full_keeps_every_byte_and_resumes(
+    tmp_path: Path, small_disk: Path, pty: Pty, daemons: list[Daemon]
+) -> None:
+    cfg = tmp_path / "gs.toml"
+    cfg.write_text("[recorder]\nretry_s = 0.3\nflush_interval_s = 0.2\n")
+    out = small_disk / "out"
+    d = start(daemons, pty, out, "--config", str(cfg))
+    stream = generated_stream() * 3
+    a, b, c = stream[:15_000], stream[15_000:75_000], stream[75_000:]
+    pty.write(a)
+    wait_for_size(one(out, "t_*.ubx"), len(a))
+    filler = small_disk / "filler"
+    fill(filler)
+    t_full = time.monotonic()
+    for i in range(0, len(b), 2000):
+        pty.write(b[i : i + 2000])
+        time.sleep(0.02)
+    d.wait_for("cannot write", timeout_s=5.0, after=t_full)
+    d.wait_for("alert: cannot write the recording (No space left on device", after=t_full)
+    time.sleep(1.0)  # retries against the full disk
+    t_free = time.monotonic()
+    filler.unlink()
+    d.wait_for("recording resumed in", timeout_s=5.0, after=t_free)
+    pty.write(c)
+    wait_for_total(out, len(stream))
+    rc, _ = d.stop(signal.SIGTERM)
+    assert rc == 0, d.stderr
+    mcaps, sides = sorted(out.glob("t_*.mcap")), sorted(out.glob("t_*.ubx"))
+    assert len(mcaps) == len(sides) >= 2
+    assert b"".join(p.read_bytes() for p in sides) == stream
+    parts = [raw_from_mcap(p) for p in mcaps]
+    assert b"".join(raw for raw, _, _ in parts) == stream
+    events = [e for _, _, evs in parts for e in evs]
+    kinds = [(e["kind"], dict(e["data"]).get("alert")) for e in events  # type: ignore[call-overload]
+             if str(e["kind"]).startswith(("recorder.", "alert."))]
+    assert ("recorder.write_failed", None) in kinds
+    assert ("alert.raised", "disk_full") in kinds and ("alert.cleared", "disk_full") in kinds
+    assert ("recorder.recovered", None) in kinds
+    assert not any(k == "recorder.dropped" for k, _ in kinds)

@@ -1,0 +1,252 @@
+"""A disk that fills up under the recorder: nothing received is lost within the bound, what is
+beyond it is counted, the files stay readable, and recording resumes when space returns."""
+
+from __future__ import annotations
+
+import asyncio
+import errno
+import json
+import os
+import time
+from collections.abc import AsyncIterator
+from pathlib import Path
+
+from test_recorder import FakeClock, generated_stream
+
+from groundstation.config import load_settings
+from groundstation.live.daemon import Pipeline
+from groundstation.live.fanout import Inbox, InboxClosed, Item
+from groundstation.records import Event
+from groundstation.storage import iter_messages, iter_raw_chunks, read_metadata, read_summary
+from groundstation.storage.mcapio import ExactFile, ReadReport
+from groundstation.storage.recorder import SessionRecorder
+from groundstation.ubx.decode import Decoder
+from groundstation.ubx.framer import UbxFramer
+
+
+class Disk:
+    """The fault hook: files whose writes fail with ENOSPC while ``full`` (after ``room`` more
+    bytes, so the failing write is a short one, as on a real disk)."""
+
+    def __init__(self) -> None:
+        self.full = False
+        self.room = 0
+        self.failed_writes = 0
+
+    def fill(self, room: int = 0) -> None:
+        self.full, self.room = True, room
+
+    def open(self, path: Path) -> ExactFile:
+        return FlakyFile(path, self)
+
+
+class FlakyFile(ExactFile):
+    def __init__(self, path: Path, disk: Disk) -> None:
+        self.disk = disk
+        super().__init__(path)
+
+    def _write_some(self, data: memoryview) -> int:
+        if self.disk.full:
+            if self.disk.room <= 0:
+                self.disk.failed_writes += 1
+                raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(self.path))
+            n = min(len(data), self.disk.room)
+            self.disk.room -= n
+            return os.write(self.fileno(), data[:n])
+        return super()._write_some(data)
+
+
+def raw_of(paths: list[Path]) -> bytes:
+    return b"".join(d for p in paths for d, _ in iter_raw_chunks(p))
+
+
+def topics_of(paths: list[Path], topic: str) -> list[dict[str, object]]:
+    return [json.loads(m.data) for p in paths for m in iter_messages(p, topics=(topic,))]
+
+
+class Feeder:
+    """Drives a SessionRecorder as the recorder sink would, with a fake clock."""
+
+    def __init__(self, tmp_path: Path, disk: Disk, backlog_bytes_max: int = 64_000_000) -> None:
+        self.clock = FakeClock()
+        self.rec = SessionRecorder(tmp_path, "st1", chunk_size_bytes=512, clock=self.clock,
+                                   flush_interval_ns=50_000_000, retry_interval_ns=500_000_000,
+                                   open_file=disk.open, backlog_bytes_max=backlog_bytes_max)
+        self.rec.open()
+        self.framer = UbxFramer()
+        self.decoder = Decoder()
+        self.sent = bytearray()
+        self.notices: list[Event] = []
+
+    def feed(self, data: bytes, chunk: int = 97) -> None:
+        for i in range(0, len(data), chunk):
+            piece = data[i : i + chunk]
+            t = self.clock()
+            self.rec.write_raw(piece, t)
+            self.sent += piece
+            for frame in self.framer.feed(piece, t):
+                self.rec.write_record(self.decoder.decode(frame), t)
+            self.rec.maybe_flush()
+            self.notices += self.rec.take_notices()
+
+    def idle(self, seconds: float) -> None:
+        self.clock.now += int(seconds * 1e9)
+        self.rec.maybe_flush()
+        self.notices += self.rec.take_notices()
+
+    def kinds(self) -> list[str]:
+        return [e.kind for e in self.notices]
+
+
+def test_disk_full_then_space_again_loses_nothing(tmp_path: Path) -> None:
+    disk = Disk()
+    f = Feeder(tmp_path, disk)
+    stream = generated_stream(n=2400)
+    third = len(stream) // 3
+    f.feed(stream[:third])
+    disk.fill(room=333)  # the failing write is cut short
+    f.feed(stream[third : 2 * third])
+    assert f.kinds() == ["recorder.write_failed"]
+    assert "No space left on device" in f.notices[0].message
+    assert f.rec.failing and f.rec.stats.held_bytes > 0
+    f.idle(1.0)  # a retry while the disk is still full leaves no new file behind
+    assert disk.failed_writes >= 2
+    assert len(list(tmp_path.glob("*.mcap"))) == len(list(tmp_path.glob("*.ubx"))) == 1
+    disk.full = False
+    f.idle(1.0)
+    assert f.kinds() == ["recorder.write_failed", "recorder.recovered"]
+    assert not f.rec.failing
+    f.feed(stream[2 * third :])
+    f.rec.close()
+    stats = f.rec.stats
+    assert (stats.dropped_raw_bytes, stats.dropped_records, stats.write_failures) == (0, 0, 1)
+    mcaps, sides = list(stats.files), list(stats.sidecars)
+    assert len(mcaps) == len(sides) == 2
+    # every byte, in order, in the parts together; each sidecar is its part's /ubx/raw
+    assert raw_of(mcaps) == bytes(f.sent) == stream
+    assert b"".join(p.read_bytes() for p in sides) == stream
+    for m, s in zip(mcaps, sides, strict=True):
+        assert raw_of([m]) == s.read_bytes()
+    # the abandoned part was cut back to a chunk boundary: readable, no torn chunk, no summary
+    report = ReadReport()
+    assert list(iter_messages(mcaps[0], report=report))
+    assert read_summary(mcaps[0]) is None and read_summary(mcaps[1]) is not None
+    meta = read_metadata(mcaps[1])["groundstation"]
+    assert meta["previous_file"] == mcaps[0].name and meta["part"] == "2"
+    assert "No space left on device" in meta["after_write_failure"]
+    # decoded records: each time mark exactly once, in order, across the parts
+    counts = [m["count"] for m in topics_of(mcaps, "/gnss/timemark")]
+    assert counts == list(range(len(counts))) and len(counts) == 600
+
+
+def test_beyond_the_bound_records_go_first_then_new_raw_bytes_counted(tmp_path: Path) -> None:
+    disk = Disk()
+    f = Feeder(tmp_path, disk, backlog_bytes_max=20_000)
+    stream = generated_stream(n=2400)
+    f.feed(stream[:5000])
+    disk.fill()
+    held_part = stream[5000:40_000]  # 35 kB: more than the bound
+    f.feed(held_part)
+    stats = f.rec.stats
+    assert stats.dropped_records > 0 and stats.dropped_raw_bytes > 0
+    assert stats.held_bytes <= 20_000
+    drops = [e for e in f.notices if e.kind == "recorder.dropped"]
+    assert len(drops) == 1  # the first at once, the next not before 10 s
+    assert drops[0].message.startswith("recording backlog full (20 kB held): dropped ")
+    assert drops[0].data["dropped_records"] == 1  # records go first
+    disk.full = False
+    f.idle(1.0)
+    rec_ev = next(e for e in f.notices if e.kind == "recorder.recovered")
+    assert "were dropped" in rec_ev.message
+    f.feed(stream[40_000:])
+    f.rec.close()
+    stats = f.rec.stats
+    got = raw_of(list(stats.files))
+    assert b"".join(p.read_bytes() for p in stats.sidecars) == got
+    # what is missing is exactly the counted bytes, and one contiguous hole (new chunks dropped)
+    assert len(got) == len(stream) - stats.dropped_raw_bytes
+    kept = len(stream) - stats.dropped_raw_bytes - (len(stream) - 40_000)
+    assert got == stream[:kept] + stream[kept + stats.dropped_raw_bytes :]
+    assert stats.dropped_raw_bytes == len(stream) - len(got)
+    assert rec_ev.data["dropped_raw_bytes"] == stats.dropped_raw_bytes
+
+
+def test_stopping_while_the_disk_is_full_never_raises(tmp_path: Path) -> None:
+    disk = Disk()
+    f = Feeder(tmp_path, disk)
+    stream = generated_stream(n=400)
+    f.feed(stream[:3000])
+    f.rec.flush()
+    disk.fill(room=10)
+    f.feed(stream[3000:])
+    f.rec.close()  # logged as lost, not raised
+    (mcap,) = f.rec.stats.files
+    assert stream.startswith(raw_of([mcap]))
+    assert len(raw_of([mcap])) >= 3000
+    assert f.rec.stats.sidecars[0].read_bytes() == raw_of([mcap])
+
+
+class ChunkSource:
+    """An in-process radio: chunks at a steady pace, the disk filled and emptied meanwhile."""
+
+    name = "test"
+    can_wait = False
+
+    def __init__(self, data: bytes, disk: Disk) -> None:
+        self.data = data
+        self.disk = disk
+
+    async def chunks(self) -> AsyncIterator[tuple[bytes, int]]:
+        starts = range(0, len(self.data), 500)
+        for k, i in enumerate(starts):
+            if k == len(starts) // 4:
+                self.disk.fill(room=100)
+            if k == 3 * len(starts) // 4:
+                self.disk.full = False
+            await asyncio.sleep(0.01)
+            yield self.data[i : i + 500], time.time_ns()
+        await asyncio.sleep(0.5)
+
+
+class Events:
+    name = "events"
+
+    def __init__(self) -> None:
+        self.items: list[Event] = []
+
+    async def consume(self, inbox: Inbox, publish: object) -> None:
+        while True:
+            try:
+                item: Item = await inbox.get()
+            except InboxClosed:
+                return
+            if isinstance(item, Event):
+                self.items.append(item)
+
+
+def test_daemon_pipeline_alerts_disk_full_and_clears_it(tmp_path: Path) -> None:
+    from groundstation.live.fanout import Overflow
+
+    disk = Disk()
+    settings = load_settings(environ={}, overrides={
+        "source": {"path": str(tmp_path / "unused.ubx")},
+        "recorder": {"out_dir": str(tmp_path / "out"), "retry_s": 0.2, "flush_interval_s": 0.1},
+        "zenoh": {"enabled": False},
+    })
+    stream = generated_stream(n=2400)
+    events = Events()
+    pipeline = Pipeline(settings, source=ChunkSource(stream, disk), open_file=disk.open)
+    pipeline.add_sink(events, 10_000, Overflow.NEVER_DROP)
+    summary = asyncio.run(pipeline.run())
+    assert raw_of(list(summary.files)) == stream
+    assert b"".join(p.read_bytes() for p in summary.sidecars) == stream
+    kinds = [(e.kind, e.data.get("alert")) for e in events.items
+             if e.kind.startswith(("recorder.", "alert."))]
+    assert ("recorder.write_failed", None) in kinds
+    assert kinds.index(("alert.raised", "disk_full")) < kinds.index(("recorder.recovered", None))
+    assert ("alert.cleared", "disk_full") in kinds
+    opened = [e for e in events.items if e.kind == "recorder.file_opened"]
+    assert [e.data["path"] for e in opened] == [str(p) for p in summary.files]
+    # the events about the failure are themselves in the recording (held, then written)
+    recorded = {str(e["kind"]) for e in topics_of(list(summary.files), "/groundstation/event")}
+    assert {"recorder.write_failed", "alert.raised", "recorder.recovered"} <= recorded
