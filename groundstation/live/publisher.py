@@ -3,7 +3,10 @@
 Each time mark is put on the bus the moment the sink receives it; the queryables answer with all
 marks of the session and the latest status, so a subscriber that joins late catches up. A Zenoh
 failure never stops recording: the sink keeps draining its inbox, counts what it could not
-publish and retries the session every few seconds.
+publish and retries the session every few seconds. A peer or router that goes away and comes
+back is rejoined by the Zenoh session itself (it keeps retrying its ``connect`` endpoints, in
+peer and client mode): puts meanwhile reach nobody and fail nothing, and the marks they carried
+are still answered by ``q/timemarks`` (``tests/integration/test_zenoh_faults.py``).
 """
 
 from __future__ import annotations

@@ -1,0 +1,82 @@
+"""The Zenoh peer the daemon connects to goes away and comes back: recording is unaffected and
+publishing resumes (the daemon is a real process; the peer is a session of this test)."""
+
+from __future__ import annotations
+
+import signal
+import threading
+import time
+from pathlib import Path
+
+import pytest
+from peers import Daemon, Pty, free_port
+from streams import rxm_raw, tim_tm2
+from test_daemon import one, raw_from_mcap, wait_for_size
+from test_zenoh import SATS, STATION, TOW0_MS, WEEK, Collector, wait_until
+
+from groundstation.bus import BusSettings, decode, key, open_bus
+
+
+@pytest.mark.parametrize("mode", ["peer", "client"])
+def test_peer_gone_and_back_publishing_resumes_recording_exact(
+    tmp_path: Path, pty: Pty, daemons: list[Daemon], mode: str
+) -> None:
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    peer = open_bus(BusSettings(listen=(endpoint,)))  # the router/solver the daemon joins
+    col = Collector(peer)
+    out = tmp_path / "out"
+    cfg = tmp_path / "gs.toml"
+    listen = f'"tcp/127.0.0.1:{free_port()}"' if mode == "peer" else ""
+    cfg.write_text(f'[zenoh]\nmode = "{mode}"\nlisten = [{listen}]\nconnect = ["{endpoint}"]\n')
+    d = Daemon("--port", str(pty.link), "--station", STATION, "--out-dir", str(out),
+               "--config", str(cfg))
+    daemons.append(d)
+    d.wait_for("connected")
+    d.wait_for("publishing on Zenoh")
+    sent = bytearray()
+    lock = threading.Lock()
+    stop = threading.Event()
+
+    def fly() -> None:  # 5 Hz epochs, a mark every other epoch, until told to stop
+        k = count = 0
+        while not stop.is_set():
+            tow = TOW0_MS + 200 * k
+            data = rxm_raw(WEEK, tow, SATS)
+            if k % 2 == 0:
+                data += tim_tm2(count, WEEK, tow + 40, 1000 * k, tow + 54, 1000 * k + 160_000,
+                                new_falling=True, new_rising=True)
+                count += 1
+            with lock:
+                pty.write(data)
+                sent.extend(data)
+            k += 1
+            time.sleep(0.2)
+
+    flight = threading.Thread(target=fly, daemon=True)
+    flight.start()
+    try:
+        wait_until(lambda: len(col.of("timemark")) >= 5)
+        peer.close()  # the peer goes away mid-stream
+        gone_at = time.monotonic()
+        time.sleep(2.0)
+        peer = open_bus(BusSettings(listen=(endpoint,)))  # back, on the same port
+        col = Collector(peer)
+        wait_until(lambda: len(col.of("timemark")) >= 5, timeout_s=15)
+        back = col.of("timemark")
+        assert [int(m["count"]) for m in back] == list(  # type: ignore[call-overload]
+            range(int(back[0]["count"]), int(back[0]["count"]) + len(back)))  # type: ignore[call-overload]
+        wait_until(lambda: len(col.of("status")) >= 2)
+        assert time.monotonic() - gone_at < 20
+        # the marks published while the peer was away are not lost: the queryable has them all
+        replies = peer.get(key(STATION, "q/timemarks"), timeout_s=3.0)
+        counts = [decode(p)["count"] for _, p in replies]
+        assert counts == list(range(len(counts))) and counts[-1] >= back[-1]["count"]
+    finally:
+        stop.set()
+        flight.join()
+        peer.close()
+    wait_for_size(one(out, "zt_*.ubx"), len(sent))
+    rc, _ = d.stop(signal.SIGTERM)
+    assert rc == 0, d.stderr
+    assert one(out, "zt_*.ubx").read_bytes() == bytes(sent)
+    assert raw_from_mcap(one(out, "zt_*.mcap"))[0] == bytes(sent)
