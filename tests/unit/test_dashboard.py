@@ -66,9 +66,10 @@ def event(kind: str, data: dict[str, Any], t_host_ns: int = 0) -> bytes:
                             "severity": "warning", "data": data, "station": "st"})
 
 
-def mark(index: int, t_s: float) -> bytes:
+def mark(index: int, t_s: float, rising: bool = False) -> bytes:
     return encode("timemark", {"index": index, "count": index, "station": "st",
-                               "falling_t_gps_ns": T0 + round(t_s * NS)})
+                               "falling_t_gps_ns": T0 + round(t_s * NS), "new_rising": rising,
+                               "new_falling": not rising})
 
 
 def test_slots_counts_epoch_grid_points_in_half_open_ranges() -> None:
@@ -129,8 +130,10 @@ def test_dropout_started_event_shows_before_the_next_status() -> None:
     v.on_payload("k", event("link.dropout", {"start_t_gps_ns": T0 + 100_200_000_000,
                                              "end_t_gps_ns": T0 + 101_000_000_000,
                                              "missing_epochs": 5}), now_s=1.2)
-    [[_, _, ongoing, missing]] = v.snapshot(1.3)["timeline"]["dropouts"]
+    snap = v.snapshot(1.3)
+    [[_, _, ongoing, missing]] = snap["timeline"]["dropouts"]
     assert not ongoing and missing == 5
+    assert snap["link"]["dropouts"] == 1 and snap["link"]["missing_epochs"] == 5
     v.on_payload("k", status(102.0, dropouts=[(100.2, 101.0)]), now_s=2.0)
     assert len(v.snapshot(2.0)["timeline"]["dropouts"]) == 1  # the same dropout, once
 
@@ -151,15 +154,23 @@ def test_marks_deduplicated_flagged_in_dropout_and_reset_with_the_session() -> N
     for i in range(3):
         v.on_payload("k", mark(i, 90.0 + i), now_s=0.1)
     v.on_payload("k", mark(1, 91.0), now_s=0.2)  # again, from the queryable
+    v.on_payload("k", mark(3, 92.0, rising=True), now_s=0.2)  # the rising edge of mark 2
     v.on_payload("k", event("mark.in_dropout", {"t_gps_ns": T0 + 92 * NS}), now_s=0.3)
     snap = v.snapshot(0.5)
     assert snap["marks"]["received"] == 3
     assert [m[1] for m in snap["timeline"]["marks"]] == [False, False, True]
     assert snap["marks"]["last_age_s"] == pytest.approx(8.5, abs=0.01)
     assert snap["marks"]["last_utc"] is not None
+    assert not v.session_changed
+    v.on_payload("k", encode("session", {"state": "finished", "session_id": SID}), now_s=0.9)
+    assert v.snapshot(0.9)["session"]["state"] == "finished"
     v.on_payload("k", status(5.0, sid="st_20250602T090000Z"), now_s=1.0)
     snap = v.snapshot(1.0)
     assert snap["marks"]["received"] == 0 and snap["timeline"]["marks"] == []
+    assert v.session_changed  # the hub fetches the new session's marks again
+    assert v.snapshot(1.0)["session"]["state"] == "recording"
+    v.on_payload("k", mark(1, 4.0), now_s=1.1)  # index 1 again, but of the new session
+    assert v.snapshot(1.2)["marks"]["received"] == 1
 
 
 def test_source_outage_mapped_from_host_time() -> None:
@@ -252,6 +263,10 @@ def test_hub_discovers_stations_and_catches_up_when_a_daemon_appears() -> None:
         assert hub.document("zz")["view"] is None
         bus.alive["groundstation/*/alive"]("groundstation/b/alive", False)
         assert hub.document("b")["view"]["alive"] is False
+        asked = bus.queries.count("groundstation/b/q/timemarks")
+        bus.subs["groundstation/*/status"]("groundstation/b/status",
+                                           status(1.0, sid="st_20250602T100000Z"))
+        wait_until(lambda: bus.queries.count("groundstation/b/q/timemarks") > asked)
     finally:
         hub.close()
 

@@ -177,8 +177,13 @@ class Hub:
         if station is None:
             return
         with self.cond:
-            if self._view(station).on_payload(key_expr, payload, self._clock()):
+            view = self._view(station)
+            if view.on_payload(key_expr, payload, self._clock()):
                 self._changed()
+            again = view.session_changed
+            view.session_changed = False
+        if again:  # a new daemon session: its marks so far arrived before we knew
+            self._catch_up.put(station)
 
     def on_alive(self, key_expr: str, alive: bool) -> None:
         """A daemon's liveliness token appeared (daemon started) or went away."""

@@ -76,9 +76,15 @@ class StationView:
     version: int = 0
     events: deque[dict[str, Any]] = field(default_factory=lambda: deque(maxlen=EVENTS_KEPT))
     marks: deque[tuple[int, int]] = field(default_factory=lambda: deque(maxlen=MARKS_KEPT))
-    """(falling_t_gps_ns, index) of received marks."""
+    """(falling_t_gps_ns, index) of received exposures (falling edges)."""
     marks_received: int = 0
     last_mark: dict[str, Any] | None = None
+    _mark_indices: set[int] = field(default_factory=set)
+    _mark_times: set[int] = field(default_factory=set)
+    session_changed: bool = False
+    """Set when a status names a new session (the hub then fetches its marks again)."""
+    _dropouts_since_status: list[int] = field(default_factory=lambda: [0, 0])
+    """Dropouts and missing epochs reported by events after the latest status."""
     marks_in_dropout: set[int] = field(default_factory=set)
     dropouts: dict[int, _Span] = field(default_factory=dict)
     """Closed dropouts by first missing epoch (from status and ``link.dropout`` events)."""
@@ -120,7 +126,11 @@ class StationView:
     def _reset_session(self, session_id: str) -> None:
         """A new daemon session: what belonged to the previous one goes."""
         self._session_id = session_id
+        self.session_changed = True
+        self.session = None  # the previous daemon's "finished"
         self.marks.clear()
+        self._mark_indices.clear()
+        self._mark_times.clear()
         self.marks_received = 0
         self.last_mark = None
         self.marks_in_dropout.clear()
@@ -136,6 +146,7 @@ class StationView:
             self._session_id = sid
         self.status = msg
         self.status_rx_s = now_s
+        self._dropouts_since_status = [0, 0]
         link = msg.get("link") or {}
         last = link.get("last_epoch_t_gps_ns")
         t_host = msg.get("t_host_ns")
@@ -177,6 +188,9 @@ class StationView:
             if isinstance(start, int):
                 self.pending_dropout_gps_ns = start
         elif kind == "link.dropout":
+            if data.get("start_t_gps_ns") not in self.dropouts:
+                self._dropouts_since_status[0] += 1
+                self._dropouts_since_status[1] += int(data.get("missing_epochs") or 0)
             self._add_dropout(data)
             self.pending_dropout_gps_ns = None
         elif kind == "mark.in_dropout":
@@ -205,13 +219,17 @@ class StationView:
     def _on_mark(self, msg: dict[str, Any]) -> None:
         idx = msg.get("index")
         idx = idx if isinstance(idx, int) else -1
-        if idx >= 0 and any(i == idx for _, i in list(self.marks)[-64:]):
-            return  # the queryable and the subscription overlap
-        t = msg.get("falling_t_gps_ns") or msg.get("rising_t_gps_ns")
-        if isinstance(t, int):
-            self.marks.append((t, idx))
-        self.marks_received += 1
+        if idx >= 0:
+            if idx in self._mark_indices:
+                return  # the queryable and the subscription overlap
+            self._mark_indices.add(idx)
         self.last_mark = msg
+        # One exposure may come as two TIM-TM2 (falling edge, then rising edge): count edges.
+        t = msg.get("falling_t_gps_ns")
+        if isinstance(t, int) and t not in self._mark_times:
+            self._mark_times.add(t)
+            self.marks.append((t, idx))
+            self.marks_received += 1
 
     # -- reading -------------------------------------------------------------------------------
 
@@ -250,6 +268,12 @@ class StationView:
         """The JSON document the page draws for this station."""
         st = self.status or {}
         link = dict(st.get("link") or {})
+        # dropouts closed since the status (its current_dropout is then history)
+        more, missing = self._dropouts_since_status
+        if more:
+            link["dropouts"] = int(link.get("dropouts") or 0) + more
+            link["missing_epochs"] = int(link.get("missing_epochs") or 0) + missing
+            link["current_dropout"] = None
         gps_now = self.gps_now_ns(now_s)
         interval = link.get("epoch_interval_s")
         out: dict[str, Any] = {
@@ -297,6 +321,8 @@ class StationView:
     ) -> dict[str, Any]:
         rec = st.get("recording") or {}
         sess = self.session or {}
+        if st.get("session_id") and sess.get("session_id") not in (None, st.get("session_id")):
+            sess = {}  # about another session than the status
         files = [str(f) for f in sess.get("files") or []]
         path = rec.get("file") or (files[-1] if files else None)
         sid = st.get("session_id") or sess.get("session_id")

@@ -259,10 +259,9 @@ function renderLink(view) {
   setText("link-session", pct(link.completeness_session));
   setText("link-dropouts", num(link.dropouts) + " (" + num(link.missing_epochs) + " ep)",
     link.dropouts ? "warn" : "");
-  const cur = link.current_dropout;
   const ongoing = (view.timeline.dropouts || []).find((d) => d[2]);
-  if (cur || ongoing) {
-    const secs = cur ? cur.duration_s : ongoing[1] - ongoing[0];
+  if (ongoing) {
+    const secs = ongoing[1] - ongoing[0];
     setText("link-now", "DROPOUT " + num(secs, 1) + " s", "alarm");
   } else {
     setText("link-now", link.epochs ? "receiving" : "-", link.epochs ? "good" : "");
