@@ -1,0 +1,312 @@
+"""The dashboard end to end in headless Chromium: simulator -> pty -> daemon -> Zenoh ->
+``groundstation dashboard`` -> the page.
+
+The page loads without console errors, values update, a dropout injected into the stream is on
+the timeline within 2 s, a stopped daemon shows as stale, and a restarted one is live again
+without touching the page. Chromium is driven over the DevTools protocol on a pipe
+(``--remote-debugging-pipe``: NUL-separated JSON on fds 3 and 4, no websocket needed).
+Screenshots at 1366x768 go to the test's tmp dir.
+"""
+
+from __future__ import annotations
+
+import base64
+import contextlib
+import fcntl
+import json
+import os
+import queue
+import shutil
+import signal
+import subprocess
+import tempfile
+import threading
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+from peers import Daemon, Pty, free_port
+
+from groundstation.sim.stream import SimConfig, paced, simulate
+
+CHROMIUM = Path("/usr/bin/chromium")
+STATION = "dash"
+WIDTH, HEIGHT = 1366, 768
+SKIP_S = 100.0
+"""Start the stream this far into the simulated flight: the camera starts soon after."""
+
+pytestmark = [
+    pytest.mark.slow,
+    pytest.mark.skipif(not CHROMIUM.exists(),
+                       reason="headless Chromium not installed (/usr/bin/chromium absent; "
+                       "apt-get install chromium)"),
+]
+
+
+def _high_fd(fd: int) -> int:
+    """Move a pipe end above 10 so that the child's dup2 onto 3 and 4 cannot clobber it."""
+    new = fcntl.fcntl(fd, fcntl.F_DUPFD_CLOEXEC, 10)
+    os.close(fd)
+    return new
+
+
+class Chromium:
+    """Headless Chromium with the DevTools protocol on a pipe; one page attached (flat mode)."""
+
+    def __init__(self, width: int = WIDTH, height: int = HEIGHT) -> None:
+        self.profile = tempfile.mkdtemp(prefix="gs-chromium-")
+        to_r, self._to_w = map(_high_fd, os.pipe())
+        self._from_r, from_w = map(_high_fd, os.pipe())
+
+        def child_fds() -> None:
+            os.dup2(to_r, 3)
+            os.dup2(from_w, 4)
+
+        self.proc = subprocess.Popen(
+            [str(CHROMIUM), "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic",
+             "--no-first-run", "--disable-background-networking", "--disable-component-update",
+             "--disable-sync", "--hide-scrollbars", f"--user-data-dir={self.profile}",
+             "--remote-debugging-pipe", f"--window-size={width},{height}", "about:blank"],
+            stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+            close_fds=False, preexec_fn=child_fds,
+        )
+        os.close(to_r)
+        os.close(from_w)
+        self._next_id = 0
+        self._lock = threading.Lock()
+        self._pending: dict[int, queue.Queue[dict[str, Any]]] = {}
+        self.events: list[dict[str, Any]] = []
+        self._reader = threading.Thread(target=self._pump, daemon=True)
+        self._reader.start()
+        self.session = ""
+        target = self.send("Target.createTarget", {"url": "about:blank"})
+        self.session = self.send("Target.attachToTarget",
+                                 {"targetId": target["targetId"], "flatten": True})["sessionId"]
+        for domain in ("Runtime.enable", "Log.enable", "Page.enable"):
+            self.send(domain)
+        self.send("Emulation.setDeviceMetricsOverride",
+                  {"width": width, "height": height, "deviceScaleFactor": 1, "mobile": False})
+
+    def _pump(self) -> None:
+        buf = b""
+        while True:
+            try:
+                data = os.read(self._from_r, 1 << 16)
+            except OSError:
+                return
+            if not data:
+                return
+            buf += data
+            while b"\0" in buf:
+                raw, buf = buf.split(b"\0", 1)
+                msg = json.loads(raw)
+                if "id" in msg:
+                    waiter = self._pending.pop(msg["id"], None)
+                    if waiter is not None:
+                        waiter.put(msg)
+                else:
+                    self.events.append(msg)
+
+    def send(self, method: str, params: dict[str, Any] | None = None,
+             timeout_s: float = 10.0) -> dict[str, Any]:
+        with self._lock:
+            self._next_id += 1
+            ident = self._next_id
+        waiter: queue.Queue[dict[str, Any]] = queue.Queue()
+        self._pending[ident] = waiter
+        msg: dict[str, Any] = {"id": ident, "method": method, "params": params or {}}
+        if self.session:
+            msg["sessionId"] = self.session
+        os.write(self._to_w, json.dumps(msg).encode() + b"\0")
+        reply = waiter.get(timeout=timeout_s)
+        if "error" in reply:
+            raise RuntimeError(f"{method}: {reply['error']}")
+        result: dict[str, Any] = reply["result"]
+        return result
+
+    def eval(self, expression: str) -> Any:
+        res = self.send("Runtime.evaluate", {"expression": expression, "returnByValue": True})
+        if "exceptionDetails" in res:
+            raise RuntimeError(f"{expression}: {res['exceptionDetails']}")
+        return res["result"].get("value")
+
+    def screenshot(self, path: Path) -> None:
+        data = self.send("Page.captureScreenshot", {"format": "png"})["data"]
+        path.write_bytes(base64.b64decode(data))
+
+    def console_errors(self) -> list[str]:
+        """Exceptions, console.error calls and error log entries (failed loads included)."""
+        out = []
+        for ev in list(self.events):
+            method, p = ev.get("method"), ev.get("params", {})
+            if method == "Runtime.exceptionThrown":
+                out.append(json.dumps(p.get("exceptionDetails"))[:500])
+            elif method == "Runtime.consoleAPICalled" and p.get("type") in ("error", "assert"):
+                out.append(json.dumps(p.get("args"))[:500])
+            elif method == "Log.entryAdded" and p.get("entry", {}).get("level") == "error":
+                out.append(str(p["entry"].get("text")) + " " + str(p["entry"].get("url")))
+        return out
+
+    def close(self) -> None:
+        with contextlib.suppress(Exception):
+            self.send("Browser.close", timeout_s=3)
+        try:
+            self.proc.wait(timeout=5)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            self.proc.wait(timeout=5)
+        for fd in (self._to_w, self._from_r):
+            with contextlib.suppress(OSError):
+                os.close(fd)
+        shutil.rmtree(self.profile, ignore_errors=True)
+
+
+class Feeder:
+    """The simulated rover stream into the pty in real time; can hold its breath (a dropout)
+    or pause while the daemon is down."""
+
+    def __init__(self, pty: Pty) -> None:
+        sim = simulate(SimConfig(duration_s=300, with_base=False))
+        t0 = sim.rover_chunks[0][0]
+        self.chunks = [c for c in sim.rover_chunks if c[0] >= t0 + SKIP_S * 1e9]
+        self.pty = pty
+        self.silent_until = 0.0
+        self.silence_started: float | None = None
+        self.paused = threading.Event()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="feeder", daemon=True)
+
+    def start(self) -> None:
+        self._thread.start()
+
+    def _run(self) -> None:
+        for _, chunk in paced(self.chunks, 1.0):
+            if self._stop.is_set():
+                return
+            now = time.monotonic()
+            if now < self.silent_until or self.paused.is_set():
+                if self.silence_started is None:
+                    self.silence_started = now
+                continue
+            with contextlib.suppress(OSError):
+                self.pty.write(chunk)
+
+    def drop(self, seconds: float) -> None:
+        self.silence_started = None
+        self.silent_until = time.monotonic() + seconds
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=5)
+
+
+def wait_for(what: str, cond: Callable[[], Any], timeout_s: float, poll_s: float = 0.05) -> Any:
+    deadline = time.monotonic() + timeout_s
+    while True:
+        value = cond()
+        if value:
+            return value
+        if time.monotonic() > deadline:
+            raise AssertionError(f"{what}: not within {timeout_s} s")
+        time.sleep(poll_s)
+
+
+@pytest.fixture
+def chromium() -> Iterator[Chromium]:
+    browser = Chromium()
+    yield browser
+    browser.close()
+
+
+def test_dashboard_in_headless_chromium(
+    tmp_path: Path, pty: Pty, daemons: list[Daemon], chromium: Chromium,
+) -> None:
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    daemon_args = ("--port", str(pty.link), "--station", STATION,
+                   "--out-dir", str(tmp_path / "out"), "--zenoh-listen", endpoint)
+    daemon = Daemon(*daemon_args)
+    daemons.append(daemon)
+    http_port = free_port()
+    dashboard = Daemon("--port", str(http_port), "--connect", endpoint, "--station", STATION,
+                       "--station", "spare", command="dashboard")
+    daemons.append(dashboard)
+    daemon.wait_for("connected")
+    daemon.wait_for("publishing on Zenoh")
+    feeder = Feeder(pty)
+    feeder.start()
+    dashboard.wait_for("dashboard on http://")
+    try:
+        chromium.send("Page.navigate", {"url": f"http://127.0.0.1:{http_port}/"})
+
+        # live, values update, the panels are drawn
+        wait_for("page live", lambda: chromium.eval("document.body?.dataset.state") == "live", 15)
+        t1 = chromium.eval("gsDashboard.doc.view.t_host_ns")
+        wait_for("status moves on",
+                 lambda: chromium.eval("gsDashboard.doc.view.t_host_ns") != t1, 3)
+        assert chromium.eval("document.getElementById('link-rate').textContent") == "5 Hz"
+        n_sats = chromium.eval("gsDashboard.doc.view.sats.length")
+        assert n_sats >= 5
+        assert chromium.eval("document.querySelectorAll('#sky .sat-group').length") == n_sats
+        assert chromium.eval("document.querySelectorAll('#cno rect.bar').length") == n_sats
+        assert chromium.eval("document.querySelectorAll('#timeline rect.tl-ok').length") > 0
+        options = chromium.eval("Array.from(document.querySelectorAll('#station option'))"
+                                ".map(o => o.value)")
+        assert options == [STATION, "spare"]
+        wait_for("camera marks counted",
+                 lambda: int(chromium.eval(
+                     "document.getElementById('marks-count').textContent") or 0) >= 3, 20)
+        assert chromium.eval("document.querySelectorAll('#timeline line.mark').length") >= 3
+        assert chromium.eval("document.querySelectorAll('#timeline rect.dropout').length") == 0
+        chromium.screenshot(tmp_path / "1-live.png")
+
+        # a dropout in the stream: on the timeline within 2 s
+        feeder.drop(4.0)
+        wait_for("feeder silent", lambda: feeder.silence_started is not None, 2, 0.01)
+        silent_at = feeder.silence_started
+        assert silent_at is not None
+        wait_for("dropout on the timeline", lambda: chromium.eval(
+            "document.querySelectorAll('#timeline rect.dropout.ongoing').length"), 4, 0.02)
+        latency_s = time.monotonic() - silent_at
+        assert latency_s < 2.0, f"dropout shown {latency_s:.2f} s after the stream stopped"
+        assert "DROPOUT" in chromium.eval("document.getElementById('link-now').textContent")
+        chromium.screenshot(tmp_path / "2-dropout.png")
+        # the stream returns: the dropout stays on the timeline, closed, with its epochs
+        wait_for("dropout closed", lambda: chromium.eval(
+            "document.querySelectorAll('#timeline rect.dropout:not(.ongoing)').length"), 8)
+        missing = chromium.eval(
+            "Number(document.querySelector('#timeline rect.dropout').dataset.missing)")
+        assert 15 <= missing <= 25, missing  # 4 s at 5 Hz
+
+        # the daemon stops: stale (no status for more than 3 s), and the daemon is gone
+        feeder.paused.set()
+        rc, _ = daemon.stop(signal.SIGTERM)
+        assert rc == 0, daemon.stderr
+        stopped_at = time.monotonic()
+        wait_for("stale", lambda: chromium.eval("document.body?.dataset.state") == "stale", 6)
+        assert time.monotonic() - stopped_at > 2.0  # not before the status is really late
+        wait_for("daemon gone", lambda: "daemon gone" in chromium.eval(
+            "document.getElementById('badge-detail').textContent"), 3)
+        assert chromium.eval("document.getElementById('badge').textContent") == "STALE"
+        chromium.screenshot(tmp_path / "3-stale.png")
+
+        # the daemon comes back: live again, without reloading the page
+        daemon = Daemon(*daemon_args)
+        daemons.append(daemon)
+        daemon.wait_for("connected")
+        feeder.paused.clear()
+        wait_for("live again", lambda: chromium.eval("document.body?.dataset.state") == "live",
+                 20, 0.2)
+        wait_for("marks of the new session", lambda: chromium.eval(
+            "(m => m.received > 0 && Math.abs(m.received - m.marks) <= 1)"
+            "(gsDashboard.doc.view.marks)"), 10)  # a mark may arrive before the status
+        chromium.screenshot(tmp_path / "4-back.png")
+
+        assert chromium.eval("gsDashboard.errors") == []
+        assert chromium.console_errors() == []
+    finally:
+        feeder.stop()
+        print(f"screenshots in {tmp_path}")
+    dashboard.stop(signal.SIGTERM)
+    assert dashboard.proc.returncode == 0, dashboard.stderr
