@@ -18,6 +18,7 @@ COMMANDS: dict[str, str] = {
     "demo": "groundstation.commands.demo",
     "replay": "groundstation.commands.replay",
     "solve": "groundstation.commands.solve",
+    "solver": "groundstation.commands.solver",
 }
 """Subcommand name -> module implementing it."""
 
@@ -32,4 +33,5 @@ HELP: dict[str, str] = {
     "demo": "simulator + daemon + live view, the embedded default",
     "replay": "MCAP/.ubx through the live pipeline (to Zenoh), at xN or max speed",
     "solve": "post-flight: positions -> marks -> photos -> lever arm -> outputs",
+    "solver": "the solver service (listens on Zenoh, solves when a session ends)",
 }

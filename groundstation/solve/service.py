@@ -1,0 +1,559 @@
+"""The solver service: solves a station's session when the daemon reports it finished.
+
+It subscribes to ``groundstation/<station>/session`` (``*`` for every station), and for each
+recording of a ``finished`` session either queues a solve (when a base is configured for that
+station) or says why it will not. One worker thread runs the solves one after the other, so the
+Zenoh callbacks only parse, decide and enqueue; every outcome is published on
+``groundstation/<station>/solution`` (``docs/zenoh.md``). Nothing a session brings (a missing
+file, a failing engine) stops the service.
+
+Configuration (``config/solver.toml``): top-level keys are the defaults for every station,
+``[stations.<name>]`` overrides them per station and ``[zenoh]`` says how to join the bus. Paths
+may use ``{dir}`` (the recording's directory), ``{stem}`` (its name without suffix) and
+``{station}``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import math
+import queue
+import threading
+import time
+import tomllib
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from groundstation.bus import BusSettings
+from groundstation.errors import ConfigError, GroundstationError
+from groundstation.solve import interpolate as mi
+from groundstation.solve.pipeline import SolveResult, SolveSettings, solve
+from groundstation.solve.positions import Q_FIX
+
+log = logging.getLogger("groundstation.solver")
+
+DEFAULT_CONNECT = ("tcp/127.0.0.1:7447",)
+QUEUE_SIZE = 16
+"""Sessions waiting for the worker; beyond this a session is refused with a failed solution."""
+
+STATUS_SOLVING, STATUS_OK, STATUS_FAILED, STATUS_SKIPPED = "solving", "ok", "failed", "skipped"
+
+Publish = Callable[[str, dict[str, Any]], None]
+"""``publish(station, body)``: send one ``solution`` message for a station."""
+Solver = Callable[[SolveSettings], SolveResult]
+
+
+@dataclass(frozen=True, slots=True)
+class StationSolve:
+    """How to solve one station's sessions (``base`` and ``photos`` are path templates)."""
+
+    base: str | None = None
+    base_ecef_m: tuple[float, float, float] | None = None
+    photos: str | None = None
+    out_root: Path = Path("solutions")
+    lever_arm_m: tuple[float, float, float] | None = None
+    interp: str = "smoother"
+    edge: str = "falling"
+    epsg: int | None = None
+    shutter_delay_ms: float = 0.0
+    max_gap_s: float = mi.DEFAULT_MAX_GAP_S
+
+
+@dataclass(frozen=True, slots=True)
+class ServiceSettings:
+    """The resolved service configuration.
+
+    Attributes:
+        bus: how to join Zenoh (by default a peer that connects to the local daemon).
+        station: whose sessions to solve, ``*`` for all.
+        default: settings for stations without a ``[stations.<name>]`` table.
+        stations: per-station settings (defaults already merged in).
+        queue_size: sessions that may wait for the worker.
+    """
+
+    bus: BusSettings = field(
+        default_factory=lambda: BusSettings(listen=(), connect=DEFAULT_CONNECT)
+    )
+    station: str = "*"
+    default: StationSolve = field(default_factory=StationSolve)
+    stations: Mapping[str, StationSolve] = field(default_factory=dict)
+    queue_size: int = QUEUE_SIZE
+
+    def for_station(self, station: str) -> StationSolve:
+        """The settings that apply to ``station``."""
+        return self.stations.get(station, self.default)
+
+
+# -- configuration --------------------------------------------------------------------------
+
+_STATION_KEYS = {
+    "base", "base_xyz", "photos", "out_root", "lever_arm", "interp", "edge", "epsg",
+    "shutter_delay_ms", "max_gap_s",
+}
+_TOP_KEYS = {"station", "queue_size", "zenoh", "stations"} | _STATION_KEYS
+_ZENOH_KEYS = {"mode", "listen", "connect", "scouting"}
+
+
+def _triple(name: str, value: Any) -> tuple[float, float, float]:
+    if isinstance(value, str):
+        value = [v for v in value.replace(" ", "").split(",") if v]
+    if (not isinstance(value, (list, tuple)) or len(value) != 3
+            or any(isinstance(v, bool) for v in value)):
+        raise ConfigError(name, f"expected three numbers X,Y,Z, got {value!r}")
+    try:
+        out = tuple(float(v) for v in value)
+    except (TypeError, ValueError) as err:
+        raise ConfigError(name, f"expected three numbers X,Y,Z, got {value!r}") from err
+    if not all(math.isfinite(v) for v in out):
+        raise ConfigError(name, f"expected finite numbers, got {value!r}")
+    return out[0], out[1], out[2]
+
+
+def _number(name: str, value: Any) -> float:
+    if isinstance(value, bool):
+        raise ConfigError(name, f"expected a number, got {value!r}")
+    try:
+        v = float(value)
+    except (TypeError, ValueError) as err:
+        raise ConfigError(name, f"expected a number, got {value!r}") from err
+    if not math.isfinite(v):
+        raise ConfigError(name, f"expected a finite number, got {value!r}")
+    return v
+
+
+def _text(name: str, value: Any) -> str:
+    if not isinstance(value, (str, Path)) or not str(value):
+        raise ConfigError(name, f"expected a non-empty path or text, got {value!r}")
+    return str(value)
+
+
+def _station_solve(base: StationSolve, table: Mapping[str, Any], prefix: str) -> StationSolve:
+    """``base`` with the keys of one table applied; every key is checked and named on error."""
+    out = base
+    for k, v in table.items():
+        name = f"{prefix}{k}"
+        if k not in _STATION_KEYS:
+            raise ConfigError(name, "unknown key")
+        if k == "base":
+            out = replace(out, base=_text(name, v))
+        elif k == "base_xyz":
+            out = replace(out, base_ecef_m=_triple(name, v))
+        elif k == "photos":
+            out = replace(out, photos=_text(name, v))
+        elif k == "out_root":
+            out = replace(out, out_root=Path(_text(name, v)).expanduser())
+        elif k == "lever_arm":
+            out = replace(out, lever_arm_m=_triple(name, v))
+        elif k == "interp":
+            if v not in mi.INTERPOLATORS:
+                raise ConfigError(name, f"{v!r}: choose {', '.join(mi.INTERPOLATORS)}")
+            out = replace(out, interp=str(v))
+        elif k == "edge":
+            if v not in mi.EDGES:
+                raise ConfigError(name, f"{v!r}: choose {', '.join(mi.EDGES)}")
+            out = replace(out, edge=str(v))
+        elif k == "epsg":
+            text = str(v).upper().removeprefix("EPSG:")
+            if isinstance(v, bool) or not text.isdigit():
+                raise ConfigError(name, f"expected an EPSG code number, got {v!r}")
+            out = replace(out, epsg=int(text))
+        elif k == "shutter_delay_ms":
+            out = replace(out, shutter_delay_ms=_number(name, v))
+        elif k == "max_gap_s":
+            gap = _number(name, v)
+            if gap <= 0:
+                raise ConfigError(name, "must be positive")
+            out = replace(out, max_gap_s=gap)
+    if (out.base is None) != (out.base_ecef_m is None):
+        missing = "base_xyz" if out.base_ecef_m is None else "base"
+        raise ConfigError(f"{prefix}{missing}", "base and base_xyz go together")
+    return out
+
+
+def _bus(table: Mapping[str, Any], base: BusSettings) -> BusSettings:
+    out = base
+    for k, v in table.items():
+        name = f"zenoh.{k}"
+        if k not in _ZENOH_KEYS:
+            raise ConfigError(name, "unknown key")
+        if k == "mode":
+            if v not in ("peer", "client"):
+                raise ConfigError(name, f"{v!r}: choose peer or client")
+            out = replace(out, mode=str(v))
+        elif k in ("listen", "connect"):
+            if isinstance(v, str):
+                v = [v]
+            if not isinstance(v, list) or not all(isinstance(e, str) for e in v):
+                raise ConfigError(name, f"expected a list of endpoints, got {v!r}")
+            out = (replace(out, listen=tuple(v)) if k == "listen"
+                   else replace(out, connect=tuple(v)))
+        elif k == "scouting":
+            if not isinstance(v, bool):
+                raise ConfigError(name, f"expected true or false, got {v!r}")
+            out = replace(out, scouting=v)
+    return out
+
+
+def build_service_settings(
+    file_layer: Mapping[str, Any] | None = None, overrides: Mapping[str, Any] | None = None
+) -> ServiceSettings:
+    """Resolve defaults < TOML file < command line into :class:`ServiceSettings`.
+
+    Args:
+        file_layer: the parsed TOML file (top-level station defaults, ``[zenoh]``,
+            ``[stations.<name>]``).
+        overrides: command-line values with the file's key names (``base``, ``base_xyz``,
+            ``station``, ``zenoh`` ...); they apply to every station.
+
+    Raises:
+        ConfigError: naming the offending key.
+    """
+    layers = [file_layer or {}, overrides or {}]
+    default = StationSolve()
+    bus = BusSettings(listen=(), connect=DEFAULT_CONNECT)
+    station = "*"
+    queue_size = QUEUE_SIZE
+    for layer in layers:
+        for k in layer:
+            if k not in _TOP_KEYS:
+                raise ConfigError(k, "unknown key")
+        default = _station_solve(
+            default, {k: v for k, v in layer.items() if k in _STATION_KEYS}, ""
+        )
+        if "zenoh" in layer:
+            if not isinstance(layer["zenoh"], Mapping):
+                raise ConfigError("zenoh", "must be a table")
+            bus = _bus(layer["zenoh"], bus)
+        if "station" in layer:
+            station = _text("station", layer["station"])
+            if any(c in station for c in "/?#$") or station in ("**",):
+                raise ConfigError("station", f"{station!r} is not a station name or '*'")
+        if "queue_size" in layer:
+            q = layer["queue_size"]
+            if isinstance(q, bool) or not isinstance(q, int) or q < 1:
+                raise ConfigError("queue_size", f"expected a positive integer, got {q!r}")
+            queue_size = q
+    cli = {k: v for k, v in (overrides or {}).items() if k in _STATION_KEYS}
+    stations: dict[str, StationSolve] = {}
+    tables = (file_layer or {}).get("stations", {})
+    if not isinstance(tables, Mapping):
+        raise ConfigError("stations", "must be a table of [stations.<name>] tables")
+    for name, table in tables.items():
+        if not isinstance(table, Mapping):
+            raise ConfigError(f"stations.{name}", "must be a table")
+        # Station table over the defaults; the command line still wins.
+        merged = _station_solve(default, table, f"stations.{name}.")
+        stations[str(name)] = _station_solve(merged, cli, "")
+    return ServiceSettings(bus, station, default, stations, queue_size)
+
+
+def load_service_settings(
+    config_file: Path | None, overrides: Mapping[str, Any] | None = None
+) -> ServiceSettings:
+    """Read the TOML file (if any) and resolve it with the command line.
+
+    Raises:
+        ConfigError: unreadable or invalid file, or a bad value (naming the key).
+    """
+    layer: dict[str, Any] = {}
+    if config_file is not None:
+        try:
+            with config_file.open("rb") as f:
+                layer = tomllib.load(f)
+        except FileNotFoundError as err:
+            raise ConfigError("config", f"file not found: {config_file}") from err
+        except tomllib.TOMLDecodeError as err:
+            raise ConfigError("config", f"{config_file}: invalid TOML: {err}") from err
+    return build_service_settings(layer, overrides)
+
+
+# -- deciding what to do with a session -----------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class Job:
+    """One recording to solve."""
+
+    station: str
+    session_id: str
+    flight: Path
+    settings: SolveSettings
+    notes: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True, slots=True)
+class Skip:
+    """A recording that will not be solved, and why."""
+
+    station: str
+    session_id: str
+    flight: Path
+    reason: str
+
+
+def _expand(template: str, flight: Path, station: str) -> Path:
+    try:
+        return Path(template.format(dir=flight.parent, stem=flight.stem, station=station))
+    except (KeyError, IndexError, ValueError) as err:
+        raise ConfigError("base/photos", f"bad path template {template!r}: {err}") from err
+
+
+def _free_dir(root: Path) -> Path:
+    """``root``, or ``root-2``, ``root-3`` ... whichever does not exist (never overwrite)."""
+    if not root.exists():
+        return root
+    n = 2
+    while root.with_name(f"{root.name}-{n}").exists():
+        n += 1
+    return root.with_name(f"{root.name}-{n}")
+
+
+def plan(station: str, session: Mapping[str, Any], conf: StationSolve) -> list[Job | Skip]:
+    """What to do with one ``session`` message: nothing unless it is ``finished``; then a job
+    per recording when a base is configured, else a :class:`Skip` that says why."""
+    if session.get("state") != "finished":
+        return []
+    sid = str(session.get("session_id") or "")
+    files = [Path(str(f)) for f in session.get("files") or [] if f]
+    out: list[Job | Skip] = []
+    for flight in files:
+        if conf.base is None or conf.base_ecef_m is None:
+            out.append(Skip(station, sid, flight,
+                            f"no base configured for station {station!r} (--base FILE "
+                            f"--base-xyz X,Y,Z, or base and base_xyz in [stations.{station}])"))
+            continue
+        notes: list[str] = []
+        photos: Path | None = None
+        if conf.photos is not None:
+            photos = _expand(conf.photos, flight, station)
+            if not photos.is_dir():
+                notes.append(f"photos directory {photos} not found: solved without photos")
+                photos = None
+        settings = SolveSettings(
+            flight=flight,
+            out_dir=conf.out_root / station / flight.stem,
+            base=_expand(conf.base, flight, station),
+            base_ecef_m=conf.base_ecef_m,
+            photos=photos,
+            lever_arm_m=conf.lever_arm_m,
+            epsg=conf.epsg,
+            interp=conf.interp,
+            edge=conf.edge,  # type: ignore[arg-type]  # checked against mi.EDGES on load
+            shutter_delay_ms=conf.shutter_delay_ms,
+            max_gap_s=conf.max_gap_s,
+        )
+        out.append(Job(station, sid, flight, settings, tuple(notes)))
+    if not files:
+        out.append(Skip(station, sid, Path(), "the finished session lists no recording file"))
+    return out
+
+
+def quality_summary(result: SolveResult) -> dict[str, Any]:
+    """Counts and accuracy figures of a solve, as plain JSON values."""
+    mp = result.mark_positions
+    ok = np.isfinite(mp.ecef_m[:, 0])
+    sd_h = np.hypot(mp.sd_enu_m[ok, 0], mp.sd_enu_m[ok, 1])
+    sd_u = mp.sd_enu_m[ok, 2]
+
+    def med(v: np.ndarray[Any, Any]) -> float | None:
+        v = v[np.isfinite(v)]
+        return round(float(np.median(v)), 4) if v.size else None
+
+    def worst(v: np.ndarray[Any, Any]) -> float | None:
+        v = v[np.isfinite(v)]
+        return round(float(np.max(v)), 4) if v.size else None
+
+    fixed = int(np.sum(mp.quality == Q_FIX))
+    return {
+        "fixed_fraction": round(float(result.trajectory.fixed_fraction), 4),
+        "marks_fixed_fraction": round(fixed / len(mp), 4) if len(mp) else None,
+        "sd_horizontal_median_m": med(sd_h),
+        "sd_vertical_median_m": med(sd_u),
+        "sd_horizontal_max_m": worst(sd_h),
+        "sd_vertical_max_m": worst(sd_u),
+        "interp": mp.method,
+        "source": result.trajectory.source,
+    }
+
+
+# -- the worker ------------------------------------------------------------------------------
+
+
+class SolverService:
+    """Turns session messages into solves and solution messages (no Zenoh in here).
+
+    :meth:`on_session` is meant for a Zenoh callback: it parses, decides and enqueues without
+    blocking. :meth:`run` is the worker loop; it solves one job at a time until ``stop``.
+    """
+
+    def __init__(
+        self,
+        settings: ServiceSettings,
+        publish: Publish,
+        *,
+        solver: Solver = solve,
+        clock_ns: Callable[[], int] = time.time_ns,
+    ) -> None:
+        self.settings = settings
+        self._publish = publish
+        self._solver = solver
+        self._clock_ns = clock_ns
+        self._queue: queue.Queue[Job | None] = queue.Queue(maxsize=settings.queue_size)
+        self._seen: set[tuple[str, str, str]] = set()
+        self._lock = threading.Lock()
+        self.solved = 0
+        self.failed = 0
+        self.skipped = 0
+
+    def _send(self, station: str, status: str, flight: Path | None, session_id: str,
+              **body: Any) -> None:
+        msg = {"status": status, "station": station, "session_id": session_id,
+               "flight": str(flight) if flight is not None else None,
+               "t_host_ns": self._clock_ns(), **body}
+        try:
+            self._publish(station, msg)
+        except Exception:  # a broken bus must not stop the worker
+            log.exception("could not publish the %s solution of %s", status, station)
+
+    def on_session(self, station: str, session: Mapping[str, Any]) -> None:
+        """Handle one ``session`` message of ``station``."""
+        try:
+            actions = plan(station, session, self.settings.for_station(station))
+        except GroundstationError as err:
+            self.failed += 1
+            self._send(station, STATUS_FAILED, None, str(session.get("session_id") or ""),
+                       reason=str(err))
+            return
+        for act in actions:
+            ident = (act.station, act.session_id, str(act.flight))
+            with self._lock:
+                if ident in self._seen:  # the daemon may repeat a finished session
+                    log.debug("already handled %s", ident)
+                    continue
+                self._seen.add(ident)
+            if isinstance(act, Skip):
+                self.skipped += 1
+                log.info("%s %s: not solved: %s", act.station, act.flight, act.reason)
+                self._send(act.station, STATUS_SKIPPED, act.flight, act.session_id,
+                           reason=act.reason)
+                continue
+            try:
+                self._queue.put_nowait(act)
+            except queue.Full:
+                self.failed += 1
+                self._send(act.station, STATUS_FAILED, act.flight, act.session_id,
+                           reason=f"solver busy: {self._queue.qsize()} sessions already queued")
+                with self._lock:
+                    self._seen.discard(ident)
+                continue
+            log.info("%s %s: queued (%d waiting)", act.station, act.flight, self._queue.qsize())
+
+    def run(self, stop: threading.Event) -> None:
+        """Solve queued jobs one by one until ``stop`` is set (or :meth:`close` is called)."""
+        while not stop.is_set():
+            try:
+                job = self._queue.get(timeout=0.2)
+            except queue.Empty:
+                continue
+            if job is None:
+                return
+            self.solve_job(job)
+
+    def close(self) -> None:
+        """Wake the worker so that it returns."""
+        with contextlib.suppress(queue.Full):
+            self._queue.put_nowait(None)
+
+    def solve_job(self, job: Job) -> None:
+        """Solve one recording and publish the outcome (ok or failed); never raises."""
+        s = replace(job.settings, out_dir=_free_dir(job.settings.out_dir))
+        self._send(job.station, STATUS_SOLVING, job.flight, job.session_id,
+                   out_dir=str(s.out_dir))
+        t0 = time.monotonic()
+        try:
+            if not job.flight.is_file():
+                raise GroundstationError(f"{job.flight}: recording not found")
+            if s.base is not None and not s.base.is_file():
+                raise GroundstationError(f"{s.base}: base recording not found")
+            result = self._solver(s)
+        except Exception as err:  # any failure is reported; the service goes on
+            self.failed += 1
+            if not isinstance(err, GroundstationError):
+                log.exception("%s %s: solve crashed", job.station, job.flight)
+            else:
+                log.warning("%s %s: solve failed: %s", job.station, job.flight, err)
+            self._send(job.station, STATUS_FAILED, job.flight, job.session_id,
+                       reason=f"{type(err).__name__}: {err}", out_dir=str(s.out_dir),
+                       elapsed_s=round(time.monotonic() - t0, 3), notes=list(job.notes))
+            return
+        self.solved += 1
+        summary = result.summary()
+        files = summary.pop("files")
+        notes = [*job.notes, *summary.pop("notes")]  # type: ignore[misc]
+        elapsed = time.monotonic() - t0
+        log.info("%s %s: solved in %.1f s: %s marks, %s positioned, %.0f%% epochs fixed",
+                 job.station, job.flight, elapsed, summary["marks"], summary["marks_positioned"],
+                 100 * float(summary["fixed_fraction"]))  # type: ignore[arg-type]
+        self._send(job.station, STATUS_OK, job.flight, job.session_id, out_dir=str(s.out_dir),
+                   files=files, counts=summary, quality=quality_summary(result), notes=notes,
+                   elapsed_s=round(elapsed, 3))
+
+
+# -- running it on the bus ------------------------------------------------------------------
+
+
+def run_service(
+    settings: ServiceSettings,
+    stop: threading.Event,
+    *,
+    solver: Solver = solve,
+    ready: Callable[[str], None] | None = None,
+) -> SolverService:
+    """Join Zenoh, subscribe to sessions, solve until ``stop`` is set; returns the service.
+
+    Raises:
+        GroundstationError: the Zenoh session cannot be opened.
+    """
+    from groundstation.bus import decode, encode, key, open_bus
+
+    bus = open_bus(settings.bus)
+    try:
+        def publish(station: str, body: dict[str, Any]) -> None:
+            bus.put(key(station, "solution"), encode("solution", body))
+
+        service = SolverService(settings, publish, solver=solver)
+
+        def on_sample(key_expr: str, payload: bytes) -> None:
+            parts = key_expr.split("/")
+            if len(parts) != 3:
+                return
+            try:
+                msg = decode(payload)
+            except ValueError as err:
+                log.warning("%s: not a JSON session message: %s", key_expr, err)
+                return
+            service.on_session(parts[1], msg)
+
+        selector = key(settings.station, "session")
+        bus.subscribe(selector, on_sample)
+        worker = threading.Thread(target=service.run, args=(stop,), name="solver-worker",
+                                  daemon=True)
+        worker.start()
+        log.info("listening on %s (connect %s, listen %s)", selector,
+                 list(settings.bus.connect), list(settings.bus.listen))
+        if ready is not None:
+            ready(selector)
+        while not stop.wait(0.5):
+            pass
+        service.close()
+        worker.join(timeout=5.0)
+        if worker.is_alive():
+            log.warning("a solve is still running; leaving it to the process exit")
+        return service
+    finally:
+        bus.close()

@@ -1,0 +1,187 @@
+"""`groundstation solver` as a real process on loopback: sessions in, solutions out.
+
+The test process plays the daemon's ``session`` messages (as ``live/publisher.py`` encodes them)
+for a recording the demo wrote, and subscribes to ``groundstation/*/solution``.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import shutil
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+from peers import REPO, Daemon, free_port
+
+from groundstation.bus import Bus, BusSettings, decode, encode, key, open_bus
+
+pytestmark = pytest.mark.skipif(
+    shutil.which("rnx2rtkp") is None,
+    reason="RTKLIB rnx2rtkp not installed: apt-get install rtklib",
+)
+
+
+@pytest.fixture(scope="module")
+def flight(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
+    """A recorded demo flight: MCAP, ``<stem>_base.ubx`` beside it, the truth."""
+    d = tmp_path_factory.mktemp("solver_flight")
+    proc = subprocess.run(
+        [sys.executable, "-m", "groundstation.cli", "demo", "--flight", "120", "--speed", "max",
+         "--out-dir", str(d / "flights"), "--no-zenoh", "--seed", "6"],
+        cwd=d, capture_output=True, text=True, timeout=120, check=False,
+    )
+    assert proc.returncode == 0, proc.stderr
+    paths = dict(re.findall(r"^\s+(MCAP|truth):\s+(\S+)$", proc.stdout, re.M))
+    truth = json.loads(Path(paths["truth"]).read_text())
+    return {"mcap": Path(paths["MCAP"]), "truth": truth}
+
+
+class Solutions:
+    def __init__(self, bus: Bus) -> None:
+        self.lock = threading.Lock()
+        self.items: list[tuple[float, str, dict[str, Any]]] = []
+        bus.subscribe(key("*", "solution"), self.on)
+
+    def on(self, k: str, payload: bytes) -> None:
+        with self.lock:
+            self.items.append((time.monotonic(), k, decode(payload)))
+
+    def wait(self, session_id: str, status: str, timeout_s: float = 60.0) -> dict[str, Any]:
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            with self.lock:
+                for _, _, m in self.items:
+                    if m.get("session_id") == session_id and m.get("status") == status:
+                        return m
+            time.sleep(0.05)
+        with self.lock:
+            seen = [(k, m.get("session_id"), m.get("status")) for _, k, m in self.items]
+        raise AssertionError(f"no {status} solution for {session_id}; got {seen}")
+
+    def of(self, session_id: str) -> list[tuple[float, str, dict[str, Any]]]:
+        with self.lock:
+            return [it for it in self.items if it[2].get("session_id") == session_id]
+
+
+def session(bus: Bus, station: str, session_id: str, files: list[str],
+            state: str = "finished") -> None:
+    """The daemon's session message (live/publisher.py)."""
+    body = {"state": state, "files": files, "session_id": session_id, "marks": 25}
+    bus.put(key(station, "session"), encode("session", body, station=station))
+
+
+@pytest.fixture
+def solver(tmp_path: Path, flight: dict[str, Any],
+           daemons: list[Daemon]) -> Iterator[tuple[Bus, Solutions, Daemon, Path]]:
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    bus = open_bus(BusSettings(listen=(endpoint,)))
+    photos = tmp_path / "photos" / "alpha"
+    photos.mkdir(parents=True)
+    xyz = ", ".join(f"{v:.4f}" for v in flight["truth"]["base"]["ecef_m"])
+    conf = tmp_path / "solver.toml"
+    conf.write_text(
+        f'out_root = "{tmp_path / "solutions"}"\ninterp = "smoother"\n\n'
+        f'[zenoh]\nconnect = ["{endpoint}"]\nlisten = []\n\n'
+        f'[stations.alpha]\nbase = "{{dir}}/{{stem}}_base.ubx"\nbase_xyz = [{xyz}]\n'
+        f'photos = "{tmp_path / "photos"}/{{station}}"\nlever_arm = [0.16, -0.03, 0.57]\n'
+    )
+    d = Daemon("--config", str(conf), command="solver")
+    daemons.append(d)
+    d.wait_for("listening on groundstation/*/session", timeout_s=20)
+    sols = Solutions(bus)
+    # The subscription travels to this peer asynchronously: knock until the solver answers.
+    deadline = time.monotonic() + 15
+    n = 0
+    while True:
+        n += 1
+        session(bus, "bravo", f"hello-{n}", ["/nowhere/hello.mcap"])
+        try:
+            sols.wait(f"hello-{n}", "skipped", timeout_s=0.5)
+            break
+        except AssertionError:
+            if time.monotonic() > deadline:
+                raise
+    yield bus, sols, d, tmp_path
+    bus.close()
+
+
+def test_finished_session_is_solved_and_published(
+    solver: tuple[Bus, Solutions, Daemon, Path], flight: dict[str, Any]
+) -> None:
+    bus, sols, d, tmp = solver
+    mcap = str(flight["mcap"])
+    session(bus, "alpha", "s1", [mcap], state="started")
+    session(bus, "alpha", "s1", [mcap])
+    session(bus, "alpha", "s1", [mcap])  # repeated (the daemon re-announces after reconnect)
+    solving = sols.wait("s1", "solving", timeout_s=10)
+    session(bus, "bravo", "s2", [mcap])  # no base for bravo, while alpha is being solved
+    skipped = sols.wait("s2", "skipped", timeout_s=10)
+    ok = sols.wait("s1", "ok", timeout_s=90)
+    # The service stayed responsive: bravo's answer came while alpha was being solved.
+    t = {m["status"]: ts for ts, _, m in sols.of("s1")}
+    (t_skip,) = [ts for ts, _, _ in sols.of("s2")]
+    assert t["solving"] < t_skip < t["ok"]
+    assert "no base configured for station 'bravo'" in skipped["reason"]
+    assert skipped["schema"] == 1 and skipped["type"] == "solution"
+    # The solution message: status, counts, output paths, quality.
+    n_marks = len(flight["truth"]["exposures"])
+    assert ok["schema"] == 1 and ok["type"] == "solution" and ok["station"] == "alpha"
+    assert ok["flight"] == mcap and ok["out_dir"] == solving["out_dir"]
+    assert Path(ok["out_dir"]) == tmp / "solutions" / "alpha" / flight["mcap"].stem
+    counts, quality = ok["counts"], ok["quality"]
+    assert counts["marks"] == n_marks and counts["marks_positioned"] == n_marks
+    assert counts["photos_paired"] == 0  # the photo directory is empty
+    assert quality["source"] == "rnx2rtkp" and quality["fixed_fraction"] > 0.9
+    assert quality["interp"] == "smoother" and 0 < quality["sd_horizontal_median_m"] < 0.05
+    names = {Path(f).name for f in ok["files"]}
+    assert {"cameras.csv", "geo.txt", "reference.csv", "pix4d.csv", "cameras.geojson",
+            "report.html"} <= names
+    assert all(Path(f).is_file() for f in ok["files"])
+    assert any("lever arm" in n for n in ok["notes"])
+    # Solved once, whatever the repeats; nothing for the started state.
+    time.sleep(0.5)
+    assert [m["status"] for _, _, m in sols.of("s1")] == ["solving", "ok"]
+    rc, out = d.stop()
+    assert rc == 0
+    assert "solver: stopped: 1 solved, 0 failed, " in out
+
+
+def test_missing_recording_fails_and_the_service_goes_on(
+    solver: tuple[Bus, Solutions, Daemon, Path], flight: dict[str, Any]
+) -> None:
+    bus, sols, d, tmp = solver
+    gone = str(tmp / "flights" / "alpha_20990101T000000Z.mcap")
+    session(bus, "alpha", "s3", [gone])
+    failed = sols.wait("s3", "failed", timeout_s=20)
+    assert "recording not found" in failed["reason"] and gone in failed["reason"]
+    assert d.proc.poll() is None
+    # Still there: the next session is handled.
+    session(bus, "bravo", "s4", [gone])
+    sols.wait("s4", "skipped", timeout_s=10)
+    assert d.proc.poll() is None
+
+
+@pytest.mark.parametrize(("text", "key_name"), [
+    ("[stations.alpha]\nbase = \"b.ubx\"\nbase_xyz = [1, 2]\n", "stations.alpha.base_xyz"),
+    ("[stations.alpha]\nbase = \"b.ubx\"\n", "stations.alpha.base_xyz"),
+    ("[stations.alpha]\nphotoz = \"p\"\n", "stations.alpha.photoz"),
+    ("interp = \"cubic\"\n", "interp"),
+    ("[zenoh]\nmode = \"router\"\n", "zenoh.mode"),
+    ("queue_size = 0\n", "queue_size"),
+])
+def test_bad_config_exits_2_naming_the_key(tmp_path: Path, text: str, key_name: str) -> None:
+    conf = tmp_path / "solver.toml"
+    conf.write_text(text)
+    proc = subprocess.run(
+        [sys.executable, "-m", "groundstation.cli", "solver", "--config", str(conf)],
+        cwd=REPO, capture_output=True, text=True, timeout=60, check=False,
+    )
+    assert proc.returncode == 2, proc.stderr
+    assert f"configuration error: {key_name}:" in proc.stderr
