@@ -419,16 +419,11 @@ def write_obs(
     sys_rank = np.array([SYSTEMS.index(s) for s in obs.sys[idx].tolist()], dtype=np.int64)
     order = np.lexsort((obs.prn[idx], sys_rank, mpos[idx]))
     idx = idx[order]
-    chunks = _format_chunks(obs, idx, v3)
-    # Column (in units of one signal's four fields) of each measurement in its system's table.
-    band_of = {s: [t[1:] for t in types[::4]] for s, types in types_by_sys.items()}
+    matrix = _format_matrix(obs, idx)
+    rec_row_arr = mpos[idx]
     rec_sys = obs.sys[idx].tolist()
     rec_prn = obs.prn[idx].tolist()
-    rec_code = obs.code[idx].tolist()
-    rec_row = mpos[idx].tolist()
-    rec_col = [
-        band_of[s].index(c if v3 else c[0]) for s, c in zip(rec_sys, rec_code, strict=True)
-    ]
+    rec_row = rec_row_arr.tolist()
     blank = " " * 64
     ev = sorted(events_t_gps_ns)
     ev_i = 0
@@ -438,14 +433,15 @@ def write_obs(
     total = len(rec_row)
     with path.open("w", encoding="ascii", newline="\n") as f:
         f.write(_obs_header(obs, info, types_by_sys, v3, t_rows, interval_ns))
-        fast = v3 and all(len(t) == 4 for t in types_by_sys.values())
+        label_prn = obs.prn[idx] - np.where(obs.sys[idx] == "S", 100, 0)
+        fast = (v3 and all(len(t) == 4 for t in types_by_sys.values())
+                and bool(((label_prn >= 0) & (label_prn <= 99)).all()))
         if fast:
-            # One signal per system (the common single-frequency case): a line per measurement.
-            labels = [f"{s_}{(p_ - 100 if s_ == 'S' else p_):02d}"
-                      for s_, p_ in zip(rec_sys, rec_prn, strict=True)]
-            sat_lines = [lab + ch + "\n" for lab, ch in zip(labels, chunks, strict=True)]
-            bounds = np.searchsorted(np.asarray(rec_row, dtype=np.int64),
-                                     np.arange(t_rows.size + 1)).tolist()
+            # One signal per system (the common single-frequency case): a line per measurement,
+            # all built as one byte matrix (label, 64 field characters, newline).
+            sat_text = _sat_lines(obs, idx, matrix)
+            width = 3 + 64 + 1
+            bounds = np.searchsorted(rec_row_arr, np.arange(t_rows.size + 1)).tolist()
             ev_arr = np.asarray(ev, dtype=np.int64)
             ev_bounds = np.searchsorted(ev_arr, t_rows, side="right").tolist()
             prev_ev = 0
@@ -456,9 +452,16 @@ def write_obs(
                 prev_ev = ev_bounds[r]
                 k0, k1 = bounds[r], bounds[r + 1]
                 if k1 > k0:
-                    lines.append(_epoch_line(t, 0, k1 - k0, True, labels[k0:k1]))
-                    lines.extend(sat_lines[k0:k1])
+                    lines.append(_epoch_line(t, 0, k1 - k0, True, []))
+                    lines.append(sat_text[k0 * width : k1 * width])
             ev_i = prev_ev
+        else:
+            chunks = _matrix_rows(matrix)
+            # Column (in units of one signal's four fields) of each measurement in its table.
+            band_of = {s: [t[1:] for t in types[::4]] for s, types in types_by_sys.items()}
+            rec_code = obs.code[idx].tolist()
+            rec_col = [band_of[s].index(c if v3 else c[0])
+                       for s, c in zip(rec_sys, rec_code, strict=True)]
         for r, t in enumerate([] if fast else t_rows.tolist()):
             while ev_i < len(ev) and ev[ev_i] <= t:
                 lines.append(_epoch_line(ev[ev_i], 5, 0, v3, []))
@@ -507,31 +510,113 @@ def write_obs(
     )
 
 
-def _format_chunks(obs: ObsSet, idx: npt.NDArray[np.int64], v3: bool) -> list[str]:
+_SPACE, _DOT, _MINUS, _ZERO = 32, 46, 45, 48
+_POW10 = [10**k for k in range(13)]
+
+
+def _f14_3(values: npt.NDArray[np.float64]) -> tuple[npt.NDArray[np.uint8], npt.NDArray[np.bool_]]:
+    """``%14.3f`` of every value as an (N, 14) byte matrix, vectorised.
+
+    Exactness: the decimal rounding is decided on ``|v| * 1000``, which can be off by about one
+    unit in the last place; rows whose fraction lies within 1e-3 of a rounding tie are returned
+    in the second array so the caller formats them with Python's exact formatter. Only values
+    with ``|v| < 1e9`` are meant to be printed (14 columns).
+    """
+    a = np.abs(values)
+    scaled = a * 1000.0
+    fl = np.floor(scaled)
+    frac = scaled - fl
+    unsure = np.abs(frac - 0.5) < 1e-3
+    ints = (fl + (frac > 0.5)).astype(np.int64)
+    out = np.full((values.size, 14), _SPACE, dtype=np.uint8)
+    out[:, 10] = _DOT
+    f = ints % 1000
+    out[:, 11] = _ZERO + f // 100
+    out[:, 12] = _ZERO + (f // 10) % 10
+    out[:, 13] = _ZERO + f % 10
+    whole = ints // 1000
+    n_int = np.ones(values.size, dtype=np.int64)
+    for k in range(1, 10):
+        n_int += whole >= _POW10[k]
+    for k in range(10):
+        show = k < n_int
+        out[show, 9 - k] = (_ZERO + (whole[show] // _POW10[k]) % 10).astype(np.uint8)
+    neg = np.flatnonzero(values < 0)
+    out[neg, 9 - n_int[neg]] = _MINUS
+    return out, unsure
+
+
+def _format_matrix(obs: ObsSet, idx: npt.NDArray[np.int64]) -> npt.NDArray[np.uint8]:
     """The C, L, D, S fields (16 characters each: F14.3, LLI, signal strength) of each
-    selected measurement, as one 64-character string. Zero or out-of-range values are blank
-    (as RTKLIB writes them); the LLI is written even on a blank phase."""
-    pr = obs.pr_m[idx].tolist()
-    cp = obs.cp_cyc[idx].tolist()
-    do = obs.do_hz[idx].tolist()
-    sn = obs.cno_dbhz[idx].tolist()
-    lli = obs.lli[idx].tolist()
-    ssi = np.clip(obs.cno_dbhz[idx] // 6, 1, 9).astype(np.int64).tolist()
-    full = "%14.3f %d%14.3f%s%d%14.3f  %14.3f  "
+    selected measurement, as an (N, 64) byte matrix. Zero or out-of-range values are blank
+    (as RTKLIB writes them); the LLI is written even on a blank phase.
+
+    Vectorised; the few values near a decimal rounding tie, and LLIs above 9, go through
+    :func:`_format_chunk_exact`, the reference implementation.
+    """
+    n = int(idx.size)
+    if n == 0:
+        return np.zeros((0, 64), dtype=np.uint8)
+    cols = (obs.pr_m[idx], obs.cp_cyc[idx], obs.do_hz[idx], obs.cno_dbhz[idx].astype(np.float64))
+    lli = obs.lli[idx].astype(np.int64)
+    ssi = np.clip(obs.cno_dbhz[idx] // 6, 1, 9).astype(np.int64)
+    out = np.full((n, 64), _SPACE, dtype=np.uint8)
+    exact = lli > 9
+    for j, v in enumerate(cols):
+        v = np.asarray(v, dtype=np.float64)
+        valid = (v != 0) & (v > -1e9) & (v < 1e9)
+        digits, unsure = _f14_3(np.where(valid, v, 0.0))
+        exact |= unsure & valid
+        block = out[:, 16 * j : 16 * j + 16]
+        block[valid, :14] = digits[valid]
+        if j == 0:
+            block[valid, 15] = (_ZERO + ssi[valid]).astype(np.uint8)
+        elif j == 1:
+            block[valid, 15] = (_ZERO + ssi[valid]).astype(np.uint8)
+            has = lli > 0
+            block[has, 14] = (_ZERO + np.minimum(lli[has], 9)).astype(np.uint8)
+    if exact.any():
+        pr, cp, do = (np.asarray(c, dtype=np.float64) for c in cols[:3])
+        sn = obs.cno_dbhz[idx]
+        for i in np.flatnonzero(exact).tolist():
+            text = _format_chunk_exact(
+                float(pr[i]), float(cp[i]), float(do[i]), float(sn[i]), int(lli[i]), int(ssi[i])
+            )
+            out[i] = np.frombuffer(text.encode("ascii"), dtype=np.uint8)
+    return out
+
+
+def _matrix_rows(matrix: npt.NDArray[np.uint8]) -> list[str]:
+    """Each row of a byte matrix as a string."""
+    w = matrix.shape[1]
+    text = matrix.tobytes().decode("ascii")
+    return [text[i : i + w] for i in range(0, len(text), w)]
+
+
+def _sat_lines(obs: ObsSet, idx: npt.NDArray[np.int64], matrix: npt.NDArray[np.uint8]) -> str:
+    """RINEX 3 satellite lines (``G05`` + fields + newline) of every measurement, one string."""
+    n = int(idx.size)
+    lines = np.empty((n, 68), dtype=np.uint8)
+    sys_b = obs.sys[idx].astype("S1").view(np.uint8)
+    prn = obs.prn[idx] - np.where(sys_b == ord("S"), 100, 0)
+    lines[:, 0] = sys_b
+    lines[:, 1] = _ZERO + prn // 10
+    lines[:, 2] = _ZERO + prn % 10
+    lines[:, 3:67] = matrix
+    lines[:, 67] = ord("\n")
+    return lines.tobytes().decode("ascii")
+
+
+def _format_chunk_exact(a: float, b: float, c: float, d: float, ll: int, q: int) -> str:
+    """One measurement's 64 characters with Python's exact formatting (reference rules)."""
     fmt = "{:14.3f}".format
     b14 = " " * 14
-    out = []
-    for a, b, c, d, ll, q in zip(pr, cp, do, sn, lli, ssi, strict=True):
-        lc = str(ll) if ll else " "
-        if a and b and c and d and -1e9 < b < 1e9 and -1e9 < a < 1e9 and -1e9 < c < 1e9:
-            out.append(full % (a, q, b, lc, q, c, d))
-            continue
-        fa = fmt(a) + " " + str(q) if a and -1e9 < a < 1e9 else b14 + "  "
-        fb = fmt(b) + lc + str(q) if b and -1e9 < b < 1e9 else b14 + lc + " "
-        fc = fmt(c) + "  " if c and -1e9 < c < 1e9 else b14 + "  "
-        fd = fmt(d) + "  " if d and -1e9 < d < 1e9 else b14 + "  "
-        out.append(fa + fb + fc + fd)
-    return out
+    lc = str(ll) if ll else " "
+    fa = fmt(a) + " " + str(q) if a and -1e9 < a < 1e9 else b14 + "  "
+    fb = fmt(b) + lc + str(q) if b and -1e9 < b < 1e9 else b14 + lc + " "
+    fc = fmt(c) + "  " if c and -1e9 < c < 1e9 else b14 + "  "
+    fd = fmt(d) + "  " if d and -1e9 < d < 1e9 else b14 + "  "
+    return fa + fb + fc + fd
 
 
 def _epoch_line(t_gps_ns: int, flag: int, n: int, v3: bool, sats: list[str]) -> str:

@@ -246,3 +246,28 @@ def test_convert_accepts_every_edge_choice(tmp_path: Path, edge: mk.MarkEdge) ->
     assert res.events == (2 if edge == "both" else 1)
     assert res.obs_path.name == "flight.obs" and res.nav_path.exists() and res.marks_path.exists()
     assert np.isclose(res.ephemerides, 0)
+
+
+def test_vectorised_field_formatting_equals_python_formatting() -> None:
+    import numpy as np
+
+    from groundstation.offline.rinex import _f14_3, _format_chunk_exact
+
+    rng = np.random.default_rng(3)
+    edge = [0.0005, 0.0015, -0.0004, -0.0005, 2.0005, 999999999.9994, -99999999.9996, 1e-9,
+            123456.7895, 0.5, -1.0, 20_000_000.0625, 21_345_678.12349999, 7.0]
+    values = np.concatenate([
+        np.array(edge),
+        rng.uniform(-3e8, 3e8, 20_000),
+        rng.uniform(-5e3, 5e3, 20_000),
+        np.round(rng.uniform(-1e7, 1e7, 5_000), 4),  # many exact ties at the 4th decimal
+    ])
+    digits, unsure = _f14_3(values)
+    got = [row.tobytes().decode() for row in digits]
+    for v, g, u in zip(values.tolist(), got, unsure.tolist(), strict=True):
+        if not u:
+            assert g == f"{v:14.3f}", (v, g)
+    assert unsure.mean() < 0.2
+    assert _format_chunk_exact(21e6, 0.0, 1.5, 40.0, 2, 6) == (
+        f"{21e6:14.3f} 6" + " " * 14 + "2 " + f"{1.5:14.3f}  " + f"{40.0:14.3f}  "
+    )
