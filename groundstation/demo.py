@@ -149,7 +149,25 @@ async def run_demo(
     }
     settings = load_settings(None, environ={}, overrides=overrides)
     view = ViewSink(on_payload, opts.station) if on_payload is not None else None
-    pipeline = Pipeline(settings, on_file=on_file)
+    written: list[Path] = []
+
+    def write_companions(stem: str) -> None:
+        """The base stream and the truth beside the first recording, before any data flows
+        (a solver reacting to the session's end must find them)."""
+        if written:
+            return
+        base_path = opts.out_dir / f"{stem}_base.ubx"
+        base_path.write_bytes(sim.base_bytes)
+        truth_path = opts.out_dir / f"{stem}.truth.json"
+        sim.write_truth(truth_path)
+        written.extend((base_path, truth_path))
+
+    def first_file(path: Path) -> None:
+        write_companions(path.stem)
+        if on_file is not None:
+            on_file(path)
+
+    pipeline = Pipeline(settings, on_file=first_file)
     if view is not None:
         pipeline.add_sink(view, 1000, Overflow.DROP_OLDEST)
     stop = asyncio.Event()
@@ -186,11 +204,8 @@ async def run_demo(
         feeder.close()
         for w in watchers:
             w.cancel()
-    stem = summary.files[0].stem if summary.files else f"{opts.station}_demo"
-    base_path = opts.out_dir / f"{stem}_base.ubx"
-    base_path.write_bytes(sim.base_bytes)
-    truth_path = opts.out_dir / f"{stem}.truth.json"
-    sim.write_truth(truth_path)
+    write_companions(summary.files[0].stem if summary.files else f"{opts.station}_demo")
+    base_path, truth_path = written
     return DemoResult(
         summary=summary, sim=sim, base_path=base_path, truth_path=truth_path,
         pty_path=feeder.path, last_status=view.last_status if view else None,
