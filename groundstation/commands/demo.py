@@ -58,20 +58,16 @@ def run(args: argparse.Namespace) -> int:
                   file=sys.stderr, flush=True)
         print("demo: Ctrl-C ends it cleanly", file=sys.stderr, flush=True)
 
-    def on_file(path: Path) -> None:
-        pass  # the recorder logs the path; the summary lists every file
-
     interactive = sys.stdout.isatty() and not args.no_view
     if interactive:
-        result = _run_with_view(opts, ready, on_file)
+        result = _run_with_view(opts, ready)
     else:
-        result = asyncio.run(run_demo(opts, on_payload=lambda k, p: None, ready=ready,
-                                      on_file=on_file))
+        result = asyncio.run(run_demo(opts, on_payload=lambda k, p: None, ready=ready))
     _print_summary(result)
     return 0
 
 
-def _run_with_view(opts: Any, ready: Any, on_file: Any) -> Any:
+def _run_with_view(opts: Any, ready: Any) -> Any:
     from rich.console import Console
     from rich.live import Live
 
@@ -92,8 +88,7 @@ def _run_with_view(opts: Any, ready: Any, on_file: Any) -> Any:
 
             task = asyncio.create_task(refresh(), name="view")
             try:
-                return await run_demo(opts, on_payload=lambda k, p: state.on_payload(k, p),
-                                      ready=ready, on_file=on_file)
+                return await run_demo(opts, on_payload=state.on_payload, ready=ready)
             finally:
                 task.cancel()
                 live.update(render(state), refresh=True)
