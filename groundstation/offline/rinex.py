@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import bisect
 import datetime as dt
+import functools
 import logging
 import math
 from collections.abc import Callable, Sequence
@@ -416,7 +417,9 @@ def write_obs(
                 best[bk] = (ci, i)
         idx = np.asarray(sorted(i for _, i in best.values()), dtype=np.int64)
     # Order: epoch, system, prn, code.
-    sys_rank = np.array([SYSTEMS.index(s) for s in obs.sys[idx].tolist()], dtype=np.int64)
+    rank_table = np.zeros(256, dtype=np.int64)
+    rank_table[np.frombuffer(SYSTEMS.encode(), dtype=np.uint8)] = np.arange(len(SYSTEMS))
+    sys_rank = rank_table[obs.sys[idx].astype("S1").view(np.uint8)]
     order = np.lexsort((obs.prn[idx], sys_rank, mpos[idx]))
     idx = idx[order]
     matrix = _format_matrix(obs, idx)
@@ -528,19 +531,29 @@ def _f14_3(values: npt.NDArray[np.float64]) -> tuple[npt.NDArray[np.uint8], npt.
     frac = scaled - fl
     unsure = np.abs(frac - 0.5) < 1e-3
     ints = (fl + (frac > 0.5)).astype(np.int64)
-    out = np.full((values.size, 14), _SPACE, dtype=np.uint8)
+    n = values.size
+    out = np.empty((n, 14), dtype=np.uint8)
+    # Columns 0-9: the integer part right-aligned (9 digits at most), leading zeros blank.
+    # (Division by a scalar, column by column: numpy divides by a constant much faster than
+    # by an array of powers of ten.)
+    whole = (ints // 1000).astype(np.int32)
+    digits = np.empty((n, 10), dtype=np.uint8)
+    x = whole
+    for c in range(9, -1, -1):
+        q = x // 10
+        digits[:, c] = _ZERO + (x - q * 10)
+        x = q
+    n_int = np.ones(n, dtype=np.int64)
+    for k in range(1, 10):
+        n_int += whole >= _POW10[k]
+    col = np.arange(10, dtype=np.int64)
+    shown = col[None, :] >= (10 - n_int)[:, None]
+    out[:, :10] = np.where(shown, digits, np.uint8(_SPACE))
     out[:, 10] = _DOT
     f = ints % 1000
     out[:, 11] = _ZERO + f // 100
     out[:, 12] = _ZERO + (f // 10) % 10
     out[:, 13] = _ZERO + f % 10
-    whole = ints // 1000
-    n_int = np.ones(values.size, dtype=np.int64)
-    for k in range(1, 10):
-        n_int += whole >= _POW10[k]
-    for k in range(10):
-        show = k < n_int
-        out[show, 9 - k] = (_ZERO + (whole[show] // _POW10[k]) % 10).astype(np.uint8)
     neg = np.flatnonzero(values < 0)
     out[neg, 9 - n_int[neg]] = _MINUS
     return out, unsure
@@ -619,11 +632,18 @@ def _format_chunk_exact(a: float, b: float, c: float, d: float, ll: int, q: int)
     return fa + fb + fc + fd
 
 
+@functools.lru_cache(maxsize=1024)
+def _minute_prefix_v3(minute: int) -> str:
+    """``> YYYY MM DD hh mm `` of a minute counted from the GPS epoch (GPS time scale)."""
+    d = gpstime.GPS_EPOCH + dt.timedelta(minutes=minute)
+    return f"> {d.year:04d} {d.month:02d} {d.day:02d} {d.hour:02d} {d.minute:02d} "
+
+
 def _epoch_line(t_gps_ns: int, flag: int, n: int, v3: bool, sats: list[str]) -> str:
-    y, mo, d, h, mi, _s, s100 = _epoch_fields(t_gps_ns)
-    sec = _fmt_sec(s100)
     if v3:
-        return f"> {y:04d} {mo:02d} {d:02d} {h:02d} {mi:02d} {sec}  {flag:d}{n:3d}\n"
+        minute, s100 = divmod((t_gps_ns + 50) // 100, 60 * 10_000_000)
+        return f"{_minute_prefix_v3(minute)}{_fmt_sec(s100)}  {flag:d}{n:3d}\n"
+    y, mo, d, h, mi, _s, s100 = _epoch_fields(t_gps_ns)
     head = f" {y % 100:02d} {mo:2d} {d:2d} {h:2d} {mi:2d}{s100 / 1e7:11.7f}  {flag:d}{n:3d}"
     if not sats:
         return head + "\n"
