@@ -304,7 +304,12 @@ class Pipeline:
         if callable(claim):
             claim()  # e.g. the serial port, exclusively: refused before any file exists
         if self.recorder is not None:
-            self.recorder.open()  # the file exists (and is announced) before data flows
+            try:
+                self.recorder.open()  # the file exists (and is announced) before data flows
+            except OSError as err:  # at start-up a full or read-only disk is refused at once
+                raise GroundstationError(
+                    f"cannot create the recording in {self.settings.recorder.out_dir}: {err}"
+                ) from err
         duration = self.settings.duration_s
         async with asyncio.TaskGroup() as tg:
             sink_tasks = {

@@ -59,6 +59,8 @@ class RecorderSink:
         return path
 
     def _notify_files(self) -> None:
+        if self.recorder.failing:
+            return  # a part opened while recovering is announced once it holds the backlog
         files = self.recorder.stats.files
         if self._on_file is not None:
             for path in files[self._files_seen:]:

@@ -163,6 +163,7 @@ class McapFileWriter:
         self._channels: dict[ChannelSpec, int] = {}
         self._finished = False
         self.messages = 0
+        self.data_bytes = 0
 
     def __enter__(self) -> McapFileWriter:
         return self
@@ -194,6 +195,7 @@ class McapFileWriter:
             sequence=self.messages & 0xFFFFFFFF,
         )
         self.messages += 1
+        self.data_bytes += len(data)
 
     def add_metadata(self, name: str, data: dict[str, str]) -> None:
         self._writer.add_metadata(name, data)

@@ -25,12 +25,18 @@ Write failures (ENOSPC, EDQUOT, EIO ... any ``OSError``) never escape. The desig
   contiguous). Drops are counted and reported by ``recorder.dropped`` events with the counts
   and the host-time span of the lost raw bytes (the first at once, then at most every 10 s).
 - Every ``retry_interval_ns`` a new pair is opened (the next part, as for a rotation, its
-  metadata naming the previous file and the failure) and the whole backlog is written into it
-  and flushed. If that fails too, the new files are deleted (they hold nothing that is not still
-  in memory) and the backlog waits for the next attempt. When it succeeds,
-  ``recorder.recovered`` reports what was written and what was lost. The concatenation of the
-  parts' ``/ubx/raw`` (and of the sidecars) is then again every byte received, in order, except
-  for the counted drops; each sidecar still holds exactly its MCAP part's raw bytes.
+  metadata naming the previous file and the failure) and the backlog is written into it in
+  slices of about 1 MB, one slice per call of :meth:`SessionRecorder.maybe_flush` (the live
+  sink calls it after every item), each slice flushed, so a large backlog never stalls the
+  event loop and the serial reader; what arrives meanwhile queues behind the backlog. If a
+  slice fails, the part is abandoned like any other at its last good chunk boundary (or
+  deleted if it holds no message yet) and the rest waits for the next retry. When the backlog
+  is empty, ``recorder.recovered`` reports what was written and what was lost. The
+  concatenation of the parts' ``/ubx/raw`` (and of the sidecars) is then again every byte
+  received, in order, except for the counted drops; each sidecar still holds exactly its MCAP
+  part's raw bytes.
+- A recording that cannot even be started (the first file) raises ``OSError`` from
+  :meth:`SessionRecorder.open`: the daemon refuses to start with that message.
 """
 
 from __future__ import annotations
@@ -135,7 +141,8 @@ class RecorderStats:
     """Counters of a recording session.
 
     ``raw_chunks``/``raw_bytes``/``records`` count what was received; what a write failure made
-    it drop is in the ``dropped_*`` counters and ``held_bytes`` is what waits in memory.
+    it drop is in the ``dropped_*`` counters and ``held_bytes`` is the memory taken by what waits
+    (data plus a per-message overhead).
     """
 
     session_id: str
@@ -163,6 +170,14 @@ def _size(n: float) -> str:
     return f"{n / 1e6:.1f} MB" if n >= 1e6 else f"{n / 1e3:.0f} kB"
 
 DROP_EVENT_INTERVAL_NS = 10_000_000_000
+DRAIN_SLICE_BYTES = 1_000_000
+HELD_OVERHEAD_BYTES = 150
+"""Memory a held message costs besides its data (tuple, bytes header, times, deque slot), so
+that ``backlog_bytes_max`` bounds the memory actually used."""
+
+
+def _cost(msg: _Msg) -> int:
+    return len(msg[1]) + HELD_OVERHEAD_BYTES
 
 
 class SessionRecorder:
@@ -183,6 +198,11 @@ class SessionRecorder:
         backlog_bytes_max: what may be held in memory while writing fails.
         retry_interval_ns: how often writing is tried again after a failure.
         open_file: creates each file exclusively (the storage layer's fault hook for tests).
+        max_chunks_per_file: start a new file after about this many MCAP chunks. The MCAP
+            writer keeps an index entry per chunk in memory until the file is finished (about
+            650 bytes with its message-index offsets), and a chunk is closed at every flush, so
+            without this a daemon running for days would grow without bound (4.7 MB an hour
+            at a 0.5 s flush interval); 7200 chunks is an hour at that interval.
     """
 
     def __init__(
@@ -202,6 +222,7 @@ class SessionRecorder:
         backlog_bytes_max: int = 64_000_000,
         retry_interval_ns: int = 2_000_000_000,
         open_file: FileOpener = ExactFile,
+        max_chunks_per_file: int = 7200,
     ) -> None:
         self.out_dir = out_dir
         self.station = station
@@ -217,6 +238,9 @@ class SessionRecorder:
         self.backlog_bytes_max = backlog_bytes_max
         self.retry_interval_ns = retry_interval_ns
         self._open = open_file
+        self.max_chunks_per_file = max_chunks_per_file
+        self._file_chunks = 0  # chunks closed by our flushes in the current file
+        self._msgs_at_flush = 0
         self.session_id = ""
         self._mcap: McapFileWriter | None = None
         self._ubx: WritableFile | None = None
@@ -248,6 +272,8 @@ class SessionRecorder:
         self._drop_span: tuple[int, int] | None = None
         self._last_drop_event_ns: int | None = None
         self._notices: list[Event] = []
+        self._pair_empty_size = 0  # MCAP size of the current pair before any message
+        self._drained_bytes = 0
 
     # -- lifecycle ------------------------------------------------------------------------------
 
@@ -321,8 +347,9 @@ class SessionRecorder:
             self._sidecars.append(side)
         self._file_start_ns = now_ns
         self._last_flush_ns = now_ns
-        self._mcap_good = mcap.size_bytes
+        self._mcap_good = self._pair_empty_size = mcap.size_bytes
         self._side_good = 0
+        self._file_chunks = self._msgs_at_flush = 0
         if not after_failure:  # a recovery says so once it has succeeded
             log.info("recording to %s", path)
         return path
@@ -332,6 +359,9 @@ class SessionRecorder:
         if mcap is None:
             return False
         if self.rotate_size_bytes and mcap.size_bytes >= self.rotate_size_bytes:
+            return True
+        chunks = self._file_chunks + mcap.data_bytes // self.chunk_size_bytes
+        if self.max_chunks_per_file and chunks >= self.max_chunks_per_file:
             return True
         return bool(
             self.rotate_duration_ns and now_ns - self._file_start_ns >= self.rotate_duration_ns
@@ -356,7 +386,7 @@ class SessionRecorder:
         if self._closed:
             return
         if self._failure is not None:
-            self._recover(self._clock())
+            self._recover(self._clock(), budget_bytes=None)
         if self._failure is None:
             try:
                 self._close_file()
@@ -434,8 +464,20 @@ class SessionRecorder:
         now = self._clock()
         first = self._failure is None
         self._failure = err
-        self._failures += 1
+        self._failures += first
         path = self._mcap.path if self._mcap is not None else None
+        empty = self._mcap_good <= self._pair_empty_size and self._side_good == 0
+        if self._mcap is not None and empty and len(self._files) > 1:
+            # a new part that holds nothing yet: leave no empty files behind
+            self._mcap.discard()
+            self._files.pop()
+            if self._ubx is not None:
+                self._sidecars.pop()
+                with contextlib.suppress(OSError):
+                    self._ubx.close()
+                with contextlib.suppress(OSError):
+                    self._ubx.path.unlink()
+            self._mcap = self._ubx = None
         if self._mcap is not None:
             self._mcap.abandon(self._mcap_good)
             self._mcap = None
@@ -447,7 +489,7 @@ class SessionRecorder:
             self._ubx = None
         for msg in reversed(self._pending):
             self._backlog.appendleft(msg)
-            self._backlog_bytes += len(msg[1])
+            self._backlog_bytes += _cost(msg)
         self._pending.clear()
         self._next_retry_ns = now + self.retry_interval_ns
         if not first:
@@ -466,7 +508,7 @@ class SessionRecorder:
         ))
 
     def _hold(self, msg: _Msg) -> None:
-        size = len(msg[1])
+        size = _cost(msg)
         raw = msg[0] is RAW_CHANNEL
         if not raw and (self._records_off
                         or self._backlog_bytes + size > self.backlog_bytes_max):
@@ -483,11 +525,11 @@ class SessionRecorder:
                         kept.append(m)
                     else:
                         self._dropped_records += 1
-                        self._backlog_bytes -= len(m[1])
+                        self._backlog_bytes -= _cost(m)
                 self._backlog = kept
             if self._backlog_bytes + size > self.backlog_bytes_max:
                 self._dropped_chunks += 1
-                self._dropped_bytes += size
+                self._dropped_bytes += len(msg[1])
                 t = msg[2]
                 span = self._drop_span
                 self._drop_span = (t, t) if span is None else (min(span[0], t), max(span[1], t))
@@ -518,53 +560,53 @@ class SessionRecorder:
         log.error("%s", msg)
         self._notices.append(Event("recorder.dropped", now, msg, "error", self._drop_counts()))
 
-    def _recover(self, now_ns: int) -> None:
-        """Try a new pair with the whole backlog in it; on failure wait for the next try."""
+    def _recover(self, now_ns: int, budget_bytes: int | None = DRAIN_SLICE_BYTES) -> None:
+        """Write held data again: open a new pair if there is none, then move up to
+        ``budget_bytes`` of the backlog into it and flush (slices keep the event loop, and
+        so the serial reader, going while a large backlog drains). A failure abandons the
+        pair at its last good chunk boundary and waits for the next retry."""
         assert self._failure is not None
         self._next_retry_ns = now_ns + self.retry_interval_ns
-        failure = f"{self._failure.strerror or self._failure}"
+        if self._mcap is None:
+            try:
+                self._open_file(now_ns, after_failure=f"{self._failure.strerror or self._failure}")
+            except OSError as err:
+                log.debug("recording still failing: %s", err)
+                return
+            self._pair_empty_size = self._mcap_good
+        mcap = self._mcap
+        assert mcap is not None
+        budget = budget_bytes
         try:
-            path = self._open_file(now_ns, after_failure=failure)
-        except OSError as err:
-            log.debug("recording still failing: %s", err)
-            return
-        held = self._backlog_bytes
-        try:
-            for msg in self._backlog:
+            while self._backlog and (budget is None or budget > 0):
+                msg = self._backlog.popleft()
+                self._backlog_bytes -= _cost(msg)
+                self._drained_bytes += len(msg[1])
+                if budget is not None:
+                    budget -= _cost(msg)
                 self._put(msg)
-            assert self._mcap is not None
-            self._mcap.flush()
+            mcap.flush()
         except OSError as err:
             log.debug("recording still failing: %s", err)
-            mcap, ubx = self._mcap, self._ubx
-            self._mcap = self._ubx = None
-            self._pending.clear()
-            self._files.pop()
-            if self.sidecar:
-                self._sidecars.pop()
-            if mcap is not None:
-                mcap.discard()
-            if ubx is not None:
-                with contextlib.suppress(OSError):
-                    ubx.close()
-                with contextlib.suppress(OSError):
-                    ubx.path.unlink()
+            self._drained_bytes -= sum(len(m[1]) for m in self._pending)
+            self._fail(err)
             return
-        assert self._mcap is not None
         self._mark_flushed(now_ns)
-        self._backlog.clear()
-        self._backlog_bytes = 0
+        if self._backlog:
+            self._next_retry_ns = now_ns  # the next slice at the next call
+            return
+        held, self._drained_bytes = self._drained_bytes, 0
         self._records_off = False
         self._failure = None
         if self._dropped_chunks or self._dropped_records:
             self._report_drops(force=True)
-        text = (f"recording resumed in {path.name}: {held} bytes held in memory written"
+        text = (f"recording resumed in {mcap.path.name}: {held} bytes held in memory written"
                 + (f"; {self._dropped_bytes} raw bytes and {self._dropped_records} records "
                    "were dropped" if self._dropped_bytes or self._dropped_records else ""))
         log.warning("%s", text)
         self._notices.append(Event(
             "recorder.recovered", now_ns, text, "warning",
-            {"file": str(path), "held_bytes": held, **self._drop_counts()},
+            {"file": str(mcap.path), "held_bytes": held, **self._drop_counts()},
         ))
 
     def take_notices(self) -> list[Event]:
@@ -640,6 +682,9 @@ class SessionRecorder:
 
     def _mark_flushed(self, now_ns: int) -> None:
         assert self._mcap is not None
+        if self._mcap.messages != self._msgs_at_flush:  # this flush closed a chunk
+            self._file_chunks += 1
+            self._msgs_at_flush = self._mcap.messages
         self._mcap_good = self._mcap.size_bytes
         self._side_good = self._ubx.tell() if self._ubx is not None else 0
         self._pending.clear()

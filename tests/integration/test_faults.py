@@ -147,3 +147,20 @@ def test_disk_full_keeps_every_byte_and_resumes(
     assert ("alert.raised", "disk_full") in kinds and ("alert.cleared", "disk_full") in kinds
     assert ("recorder.recovered", None) in kinds
     assert not any(k == "recorder.dropped" for k, _ in kinds)
+
+
+def test_a_full_disk_at_start_is_refused_with_a_message(
+    tmp_path: Path, small_disk: Path, pty: Pty
+) -> None:
+    fill(small_disk / "filler")
+    d = Daemon("--port", str(pty.link), "--station", "t", "--out-dir", str(small_disk / "out"),
+               "--no-zenoh")
+    try:
+        rc = d.proc.wait(timeout=20)
+    finally:
+        d.kill()
+    d._thread.join(timeout=2)
+    assert rc == 1, d.stderr
+    assert "cannot create the recording in" in d.stderr
+    assert "No space left on device" in d.stderr
+    assert "Traceback" not in d.stderr

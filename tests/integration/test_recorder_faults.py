@@ -171,6 +171,41 @@ def test_beyond_the_bound_records_go_first_then_new_raw_bytes_counted(tmp_path: 
     assert rec_ev.data["dropped_raw_bytes"] == stats.dropped_raw_bytes
 
 
+def test_a_large_backlog_drains_in_slices_and_survives_a_new_failure(tmp_path: Path) -> None:
+    disk = Disk()
+    f = Feeder(tmp_path, disk)
+    stream = generated_stream(n=2400)
+    f.feed(stream)
+    disk.fill()
+    f.feed(stream * 40, chunk=1000)  # 2.9 MB of raw bytes and 7 MB of records, held
+    held = f.rec.stats.held_bytes
+    assert held > 5_000_000
+    disk.full = False
+    f.idle(1.0)  # a new part with the first slice of the backlog; the rest still held
+    assert f.rec.failing and 0 < held - f.rec.stats.held_bytes <= 1_100_000
+    f.feed(stream[:5000], chunk=5000)  # data arriving while draining goes behind the backlog
+    f.idle(0.01)
+    disk.fill(room=50)  # full again in the middle of the drain
+    f.idle(0.01)
+    assert f.rec.failing
+    disk.full = False
+    for _ in range(20):
+        f.idle(0.6)
+        if not f.rec.failing:
+            break
+    assert not f.rec.failing
+    f.feed(stream[5000:10_000])
+    f.rec.close()
+    stats = f.rec.stats
+    assert stats.write_failures == 1 and stats.dropped_raw_bytes == 0
+    # the first, the part abandoned mid-drain, the last (rotated once more: 512-byte chunks)
+    assert len(stats.files) >= 3
+    assert raw_of(list(stats.files)) == bytes(f.sent) == stream * 41 + stream[:10_000]
+    for m, side in zip(stats.files, stats.sidecars, strict=True):
+        assert raw_of([m]) == side.read_bytes()
+    assert [e.kind for e in f.notices] == ["recorder.write_failed", "recorder.recovered"]
+
+
 def test_stopping_while_the_disk_is_full_never_raises(tmp_path: Path) -> None:
     disk = Disk()
     f = Feeder(tmp_path, disk)
@@ -250,3 +285,20 @@ def test_daemon_pipeline_alerts_disk_full_and_clears_it(tmp_path: Path) -> None:
     # the events about the failure are themselves in the recording (held, then written)
     recorded = {str(e["kind"]) for e in topics_of(list(summary.files), "/groundstation/event")}
     assert {"recorder.write_failed", "alert.raised", "recorder.recovered"} <= recorded
+
+
+def test_a_long_session_rotates_by_chunk_count_keeping_every_byte(tmp_path: Path) -> None:
+    clock = FakeClock()
+    rec = SessionRecorder(tmp_path, "st1", chunk_size_bytes=65536, clock=clock,
+                          flush_interval_ns=1, max_chunks_per_file=5)
+    rec.open()
+    stream = generated_stream(n=400)
+    for i in range(0, len(stream), 200):
+        rec.write_raw(stream[i : i + 200], clock())
+        rec.maybe_flush()  # one chunk per chunk of bytes, as in a slow live session
+    rec.close()
+    files = list(rec.stats.files)
+    assert len(files) == -(-len(range(0, len(stream), 200)) // 5)
+    assert raw_of(files) == stream
+    assert b"".join(p.read_bytes() for p in rec.stats.sidecars) == stream
+    assert all(read_summary(p) is not None for p in files)
