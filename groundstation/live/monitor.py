@@ -118,7 +118,9 @@ class Monitor:
         self.last_epoch_ns: int | None = None
         self.last_epoch_host_ns: int | None = None
         self._early: list[int] = []  # epochs seen before the interval was known
-        self.dropouts: list[Dropout] = []
+        # the recent dropouts (a long session on a shared channel has thousands) and a count
+        self.dropouts: deque[Dropout] = deque(maxlen=RECENT_DROPOUTS)
+        self.dropout_count = 0
         self.missing_epochs = 0
         self._ongoing_since_ns: int | None = None  # host time the ongoing dropout was declared
         self.last_byte_ns: int | None = None
@@ -288,6 +290,7 @@ class Monitor:
             duration_s=(d - self.interval_ns) / 1e9,
         )
         self.dropouts.append(drop)
+        self.dropout_count += 1
         self.missing_epochs += missing
         events.append(Event(
             "link.dropout", now_ns,
@@ -395,6 +398,11 @@ class Monitor:
         self.marks += 1
         self.last_mark = m
         bisect.insort(self._mark_times, ft)
+        if self.last_epoch_ns is not None and self._mark_times[0] < (
+            self.last_epoch_ns - LINK_HISTORY_NS
+        ):  # only marks a gap still to be measured can fall into are needed
+            del self._mark_times[: bisect.bisect_left(self._mark_times,
+                                                     self.last_epoch_ns - LINK_HISTORY_NS)]
         if self.interval_ns:
             slot = ft // self.interval_ns
             n = self._mark_epoch_slots.get(slot, 0) + 1
@@ -409,7 +417,7 @@ class Monitor:
             ft > self.last_epoch_ns
         ):
             return  # decided when the dropout ends (_check_gap)
-        for d in reversed(self.dropouts[-RECENT_DROPOUTS:]):
+        for d in reversed(self.dropouts):
             if d.start_t_gps_ns - (self.interval_ns or 0) < ft < d.end_t_gps_ns + (
                 self.interval_ns or 0
             ):
@@ -617,10 +625,10 @@ class Monitor:
             completeness_10s=self._completeness(10.0),
             completeness_60s=self._completeness(60.0),
             completeness_session=self._completeness(None),
-            dropouts=len(self.dropouts),
+            dropouts=self.dropout_count,
             missing_epochs=self.missing_epochs,
             current_dropout=ongoing,
-            recent_dropouts=tuple(self.dropouts[-RECENT_DROPOUTS:]),
+            recent_dropouts=tuple(self.dropouts),
             source_connected=self.source_connected,
             source_outages=self.source_outages,
         )
