@@ -81,6 +81,13 @@ def _print_summary(summary: RunSummary) -> None:
           f"{summary.records} records, {summary.events} events, {summary.outages} outage(s)")
     for name, n in summary.frames_by_type.items():
         print(f"    {name:<14} {n}")
+    if summary.write_failures:
+        lost = (f"{summary.dropped_raw_bytes} raw bytes and {summary.dropped_records} records "
+                "dropped beyond the memory bound" if summary.dropped_raw_bytes
+                or summary.dropped_records else "nothing dropped")
+        held = (f"; {summary.lost_held_bytes} bytes still held in memory at the end were lost"
+                if summary.lost_held_bytes else "")
+        print(f"  recording failed {summary.write_failures} time(s) (disk full?): {lost}{held}")
     for q in summary.queues:
         print(f"  sink {q.name}: delivered {q.delivered}, dropped {q.dropped}, "
               f"over limit {q.over_limit}, high water {q.high_water}")

@@ -79,6 +79,10 @@ class RunSummary:
     outages: int
     queues: tuple[InboxStats, ...]
     frames_by_type: dict[str, int] = field(default_factory=dict)
+    write_failures: int = 0
+    dropped_raw_bytes: int = 0
+    dropped_records: int = 0
+    lost_held_bytes: int = 0
 
 
 def make_monitor(settings: Settings) -> Monitor:
@@ -365,6 +369,10 @@ class Pipeline:
             outages=int(getattr(state, "outages", 0)),
             queues=self.fanout.stats,
             frames_by_type={message_name(*k): n for k, n in sorted(fs.frames_by_type.items())},
+            write_failures=rec.write_failures if rec else 0,
+            dropped_raw_bytes=rec.dropped_raw_bytes if rec else 0,
+            dropped_records=rec.dropped_records if rec else 0,
+            lost_held_bytes=rec.held_bytes if rec else 0,
         )
 
 

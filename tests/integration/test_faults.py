@@ -133,8 +133,9 @@ def test_disk_full_keeps_every_byte_and_resumes(
     d.wait_for("recording resumed in", timeout_s=5.0, after=t_free)
     pty.write(c)
     wait_for_total(out, len(stream))
-    rc, _ = d.stop(signal.SIGTERM)
+    rc, stdout = d.stop(signal.SIGTERM)
     assert rc == 0, d.stderr
+    assert "recording failed 1 time(s) (disk full?): nothing dropped" in stdout
     mcaps, sides = sorted(out.glob("t_*.mcap")), sorted(out.glob("t_*.ubx"))
     assert len(mcaps) == len(sides) >= 2
     assert b"".join(p.read_bytes() for p in sides) == stream
