@@ -145,6 +145,11 @@ class Bus:
                 out.append((str(ok.key_expr), ok.payload.to_bytes()))
         return out
 
+    def connections(self) -> int:
+        """How many Zenoh peers and routers this session is connected to right now."""
+        info = self._session.info
+        return len(list(info.peers_zid())) + len(list(info.routers_zid()))
+
     def close(self) -> None:
         for d in reversed(self._declared):
             try:

@@ -445,6 +445,10 @@ class Monitor:
         elif ev.kind == "source.outage":
             self.source_outages += 1
             self.source_connected = True
+        elif ev.kind == "zenoh.disconnected":
+            self._raise("zenoh_disconnected", ev.message, now_ns, events)
+        elif ev.kind == "zenoh.connected":
+            self._clear("zenoh_disconnected", now_ns, events)
         elif ev.kind == "recorder.write_failed":
             name = "disk_full" if ev.data.get("errno") in DISK_FULL_ERRNOS else "recording_failed"
             self._raise(name, ev.message, now_ns, events,

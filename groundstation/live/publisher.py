@@ -6,7 +6,10 @@ failure never stops recording: the sink keeps draining its inbox, counts what it
 publish and retries the session every few seconds. A peer or router that goes away and comes
 back is rejoined by the Zenoh session itself (it keeps retrying its ``connect`` endpoints, in
 peer and client mode): puts meanwhile reach nobody and fail nothing, and the marks they carried
-are still answered by ``q/timemarks`` (``tests/integration/test_zenoh_faults.py``).
+are still answered by ``q/timemarks`` (``tests/integration/test_zenoh_faults.py``). When
+``connect`` endpoints are configured, the sink checks every second that some peer or router is
+connected; none for ``LINK_GRACE_S`` raises ``zenoh.disconnected`` (the monitor's
+``zenoh_disconnected`` alert), and the first connection after that ``zenoh.connected``.
 """
 
 from __future__ import annotations
@@ -26,6 +29,8 @@ log = logging.getLogger("groundstation.publisher")
 
 RETRY_S = 5.0
 FLUSH_BEFORE_CLOSE_S = 0.3
+LINK_CHECK_S = 1.0
+LINK_GRACE_S = 2.0  # connecting takes a moment; a peer restarting in under this goes unsaid
 
 
 class ZenohPublisherSink:
@@ -63,6 +68,9 @@ class ZenohPublisherSink:
         self.published = 0
         self.failed = 0
         self._unavailable_reported = False
+        self._next_link_check = 0.0
+        self._links_zero_since: float | None = None
+        self.disconnected = False
 
     # -- the bus, opened lazily and re-opened after failures ---------------------------------
 
@@ -94,6 +102,39 @@ class ZenohPublisherSink:
         self._put("session", encode("session", self.session, station=st))
         log.info("publishing on Zenoh as %s (%s, listen %s, connect %s)", key(st, "**"),
                  self.settings.mode, list(self.settings.listen), list(self.settings.connect))
+
+    def _check_links(self, publish: Callable[[Item], None]) -> None:
+        """Say when nobody we are meant to connect to is connected, and when one is again."""
+        now = time.monotonic()
+        if self.bus is None or not self.settings.connect or now < self._next_link_check:
+            return
+        self._next_link_check = now + LINK_CHECK_S
+        try:
+            linked = self.bus.connections() > 0
+        except Exception as err:  # a session in trouble: _put notices and reopens it
+            log.debug("Zenoh session info failed: %s", err)
+            return
+        endpoints = ", ".join(self.settings.connect)
+        if linked:
+            self._links_zero_since = None
+            if self.disconnected:
+                self.disconnected = False
+                log.info("Zenoh connected again (%s)", endpoints)
+                publish(Event("zenoh.connected", self._clock(),
+                              f"Zenoh connected again ({endpoints})", "info",
+                              {"connect": list(self.settings.connect)}))
+            return
+        if self._links_zero_since is None:
+            self._links_zero_since = now
+        elif not self.disconnected and now - self._links_zero_since >= LINK_GRACE_S:
+            self.disconnected = True
+            log.warning("Zenoh: no peer or router connected (%s)", endpoints)
+            publish(Event(
+                "zenoh.disconnected", self._clock(),
+                f"Zenoh: no peer or router connected ({endpoints}): status, marks and events "
+                "reach nobody; recording goes on and Zenoh keeps trying", "warning",
+                {"connect": list(self.settings.connect)},
+            ))
 
     def _put(self, leaf: str, payload: bytes) -> None:
         if self.bus is None:
@@ -150,6 +191,7 @@ class ZenohPublisherSink:
                     await self._connect(publish)
                 if item is not None:
                     self.handle(item)
+                self._check_links(publish)
         finally:
             self.session["state"] = "finished"
             self.session["marks"] = len(self.marks)
