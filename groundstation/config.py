@@ -81,8 +81,8 @@ class RecorderSettings:
         out_dir: directory for the MCAP files and their ``.ubx`` sidecars.
         rotate_size_mb: start a new file when the MCAP exceeds this size (0 = never).
         rotate_duration_s: start a new file after this long (0 = never). A file is also
-            rotated after 7200 MCAP chunks (an hour at a 0.5 s flush interval), because the
-            MCAP writer holds an index entry per chunk in memory until the file is finished.
+            rotated after 43 200 MCAP chunks (6 hours at a 0.5 s flush interval), because
+            the MCAP writer holds an index entry per chunk in memory until the file is finished.
         flush_interval_s: close the chunk and flush MCAP and sidecar at least this often.
         chunk_size_bytes: MCAP chunk size target (small, so a crash loses little).
         compression: MCAP chunk compression: ``zstd``, ``lz4`` or ``none``.

@@ -199,10 +199,12 @@ class SessionRecorder:
         retry_interval_ns: how often writing is tried again after a failure.
         open_file: creates each file exclusively (the storage layer's fault hook for tests).
         max_chunks_per_file: start a new file after about this many MCAP chunks. The MCAP
-            writer keeps an index entry per chunk in memory until the file is finished (about
-            650 bytes with its message-index offsets), and a chunk is closed at every flush, so
-            without this a daemon running for days would grow without bound (4.7 MB an hour
-            at a 0.5 s flush interval); 7200 chunks is an hour at that interval.
+            writer keeps an index entry per chunk in memory until the file is finished, and a
+            chunk is closed at every flush: 7200 an hour at a 0.5 s flush interval, 4.7 MB an
+            hour as the library's objects, about 1.1 MB packed
+            (:class:`~groundstation.storage.mcapio.PackedChunkIndexes`). Without a bound a
+            daemon running for days would grow for ever; 43 200 chunks is 6 hours at 0.5 s
+            (about 6.5 MB of index at most), longer than a survey session.
     """
 
     def __init__(
@@ -222,7 +224,7 @@ class SessionRecorder:
         backlog_bytes_max: int = 64_000_000,
         retry_interval_ns: int = 2_000_000_000,
         open_file: FileOpener = ExactFile,
-        max_chunks_per_file: int = 7200,
+        max_chunks_per_file: int = 43_200,
     ) -> None:
         self.out_dir = out_dir
         self.station = station

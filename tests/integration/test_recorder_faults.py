@@ -302,3 +302,27 @@ def test_a_long_session_rotates_by_chunk_count_keeping_every_byte(tmp_path: Path
     assert raw_of(files) == stream
     assert b"".join(p.read_bytes() for p in rec.stats.sidecars) == stream
     assert all(read_summary(p) is not None for p in files)
+
+
+def test_packed_chunk_indexes_write_the_same_file(tmp_path: Path) -> None:
+    from groundstation.storage.mcapio import RAW_TOPIC, ChannelSpec, McapFileWriter
+
+    spec = ChannelSpec(RAW_TOPIC, "ubx")
+    stream = generated_stream(n=400)
+    files = []
+    for packed in (True, False):
+        path = tmp_path / f"packed_{packed}.mcap"
+        w = McapFileWriter(path, chunk_size_bytes=4096, packed_index=packed)
+        assert (w.chunk_indexes is not None) == packed
+        for i in range(0, len(stream), 300):
+            w.add(spec, stream[i : i + 300], 1_000 + i, 1_000 + i)
+            if i % 1200 == 0:
+                w.flush()
+        if packed:
+            assert w.chunk_indexes is not None and len(w.chunk_indexes) > 5
+            assert w.chunk_indexes.nbytes / len(w.chunk_indexes) < 200
+        w.finish()
+        files.append(path.read_bytes())
+    assert files[0] == files[1]
+    summary = read_summary(tmp_path / "packed_True.mcap")
+    assert summary is not None and summary.chunk_count > 5
