@@ -133,7 +133,8 @@ class ZenohSettings:
 
 @dataclass(frozen=True, slots=True)
 class MonitorSettings:
-    """The real-time monitor and its alert thresholds."""
+    """The real-time monitor: whether it runs, and its alert thresholds (the monitor takes
+    this record as its thresholds)."""
 
     enabled: bool = True
     dropout_alert_s: float = 2.0

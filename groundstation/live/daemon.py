@@ -23,7 +23,7 @@ from groundstation.bus import BusSettings
 from groundstation.config import Settings
 from groundstation.errors import GroundstationError
 from groundstation.live.fanout import Fanout, InboxStats, Item, Overflow, RawChunk, Sink, SinkSpec
-from groundstation.live.monitor import Monitor, MonitorThresholds
+from groundstation.live.monitor import Monitor
 from groundstation.live.monitor_sink import MonitorSink
 from groundstation.live.publisher import ZenohPublisherSink
 from groundstation.live.recorder import RecorderSink
@@ -87,14 +87,8 @@ class RunSummary:
 
 def make_monitor(settings: Settings) -> Monitor:
     """A monitor with the configured thresholds."""
-    m = settings.monitor
-    return Monitor(settings.station, MonitorThresholds(
-        dropout_alert_s=m.dropout_alert_s, ppk_ready_min=m.ppk_ready_min,
-        clean_phase_s=m.clean_phase_s, half_cycle_fraction_max=m.half_cycle_fraction_max,
-        no_data_s=m.no_data_s, disk_free_min_mb=m.disk_free_min_mb,
-        elevation_mask_deg=m.elevation_mask_deg, marks_missed_hold_s=m.marks_missed_hold_s,
-        no_frames_s=m.no_frames_s, status_interval_s=settings.status_interval_s,
-    ))
+    return Monitor(settings.station, settings.monitor,
+                   status_interval_s=settings.status_interval_s)
 
 
 class Pipeline:

@@ -26,6 +26,7 @@ from collections import deque
 from dataclasses import dataclass, field
 from typing import Any
 
+from groundstation.config import MonitorSettings
 from groundstation.gpstime import NS_PER_S
 from groundstation.records import (
     STATUS_SCHEMA_VERSION,
@@ -48,20 +49,8 @@ DISK_FULL_ERRNOS = (errno.ENOSPC, errno.EDQUOT)
 NO_FRAMES_MIN_BYTES = 64  # a few stray bytes after the last frame are no evidence of anything
 
 
-@dataclass(frozen=True, slots=True)
-class MonitorThresholds:
-    """Alert thresholds (``[monitor]`` in the daemon configuration)."""
-
-    dropout_alert_s: float = 2.0
-    ppk_ready_min: int = 5
-    clean_phase_s: float = 30.0
-    half_cycle_fraction_max: float = 0.3
-    no_data_s: float = 3.0
-    disk_free_min_mb: float = 500.0
-    elevation_mask_deg: float = 15.0
-    marks_missed_hold_s: float = 30.0
-    no_frames_s: float = 5.0
-    status_interval_s: float = 1.0
+MonitorThresholds = MonitorSettings
+"""The alert thresholds are the ``[monitor]`` settings themselves (one definition, in config)."""
 
 
 @dataclass(slots=True)
@@ -101,12 +90,14 @@ class Monitor:
     def __init__(
         self,
         station: str = "",
-        thresholds: MonitorThresholds | None = None,
+        thresholds: MonitorSettings | None = None,
         *,
         session_id: str = "",
+        status_interval_s: float = 1.0,
     ) -> None:
         self.station = station
-        self.th = thresholds or MonitorThresholds()
+        self.th = thresholds or MonitorSettings()
+        self.status_interval_s = status_interval_s
         self.session_id = session_id
         # link
         self.interval_ns: int | None = None
@@ -560,7 +551,7 @@ class Monitor:
         """Advance the clock: alerts from elapsed time, and the status when it is due."""
         events: list[Event] = []
         self._evaluate_alerts(now_ns, events)
-        interval = int(self.th.status_interval_s * NS_PER_S)
+        interval = int(self.status_interval_s * NS_PER_S)
         if self._next_status_ns is None:
             self._next_status_ns = now_ns + interval
             return None, events
