@@ -44,6 +44,8 @@ from groundstation.records import (
 RATE_WINDOW_NS = 5 * NS_PER_S
 INTERVAL_HISTORY = 25
 RECENT_DROPOUTS = 50
+SAT_LOST_AFTER_EPOCHS = 5  # RTKLIB's default maxout
+RECENT_MARKS = 32
 LINK_HISTORY_NS = 600 * NS_PER_S  # epochs kept for the completeness windows and the timeline
 DISK_FULL_ERRNOS = (errno.ENOSPC, errno.EDQUOT)
 NO_FRAMES_MIN_BYTES = 64  # a few stray bytes after the last frame are no evidence of anything
@@ -69,6 +71,7 @@ class _Sat:
     azim: int | None = None
     used: bool | None = None
     has_phase: bool = True
+    absent: int = 0  # consecutive received epochs without this satellite
 
 
 @dataclass(slots=True)
@@ -133,6 +136,8 @@ class Monitor:
         # marks
         self.marks = 0
         self.last_mark: TimeMark | None = None
+        self._recent_falling: deque[int] = deque(maxlen=RECENT_MARKS)
+        self.marks_recovered = 0
         self._last_count: dict[int, int] = {}
         self.missed = 0
         self.duplicates = 0
@@ -316,9 +321,11 @@ class Monitor:
     # -- satellites -----------------------------------------------------------------------
 
     def _on_epoch_sats(self, ep: RawEpoch, now_ns: int, events: list[Event]) -> None:
+        # A satellite counts as lost only when it is missing from epochs that did arrive: a link
+        # dropout says nothing about the receiver's tracking (RTKLIB keeps ambiguities across
+        # an outage of up to 5 epochs, and the receiver flags a slip when lock really broke).
         t = ep.t_gps_ns
         seen = set()
-        gap_ns = 3 * (self.interval_ns or NS_PER_S)
         for s in ep.sats:
             label = s.label if s.sig_id == 0 else f"{s.label}/{s.sig_id}"
             seen.add(label)
@@ -326,9 +333,10 @@ class Monitor:
             has_phase = s.cp_valid and s.carrier_phase_cyc != 0.0 and (
                 s.mes_qi is None or s.mes_qi >= 5
             )
-            if sat is None or t - sat.last_seen_ns > gap_ns:
+            if sat is None or sat.absent > SAT_LOST_AFTER_EPOCHS:
                 sat = _Sat(label, t, t, t, t if has_phase else None)
                 self.sats[label] = sat
+            sat.absent = 0
             if s.slip and t != sat.first_seen_ns:
                 sat.slips += 1
                 sat.last_slip_ns = t
@@ -353,41 +361,52 @@ class Monitor:
             sat.cno = s.cno_dbhz
             sat.mes_qi = s.mes_qi
         for label, sat in list(self.sats.items()):
-            if label not in seen and t - sat.last_seen_ns > gap_ns:
-                del self.sats[label]
+            if label not in seen:
+                sat.absent += 1
+                if sat.absent > SAT_LOST_AFTER_EPOCHS:
+                    del self.sats[label]
 
     # -- marks ----------------------------------------------------------------------------
 
     def _on_mark(self, m: TimeMark, now_ns: int, events: list[Event]) -> None:
-        last = self._last_count.get(m.channel)
-        if last is not None:
-            step = (m.count - last) & 0xFFFF
-            if step > 1:
-                self.missed += step - 1
-                self._last_missed_ns = now_ns
-                events.append(Event(
-                    "mark.missed", now_ns, f"{step - 1} time mark(s) missed "
-                    f"(count {last} -> {m.count})", "warning",
-                    {"from_count": last, "to_count": m.count, "missed": step - 1},
-                ))
-                self._raise("marks_missed", f"{self.missed} time marks missed", now_ns, events,
-                            {"missed": self.missed})
-        self._last_count[m.channel] = m.count
         if m.new_rising and m.rising_t_gps_ns is not None and m.falling_t_gps_ns is not None:
             width = (m.rising_t_gps_ns - m.falling_t_gps_ns) / 1e6
             if 0 <= width < 10_000:
                 self.last_pulse_ms = width
-        if not m.new_falling or m.falling_t_gps_ns is None:
-            return
         ft = m.falling_t_gps_ns
-        prev_mark = self.last_mark
-        if prev_mark is not None and prev_mark.falling_t_gps_ns == ft:
-            self.duplicates += 1
-            events.append(Event("mark.duplicate", now_ns, f"duplicate time mark {m.count}",
-                                "warning", {"count": m.count, "t_gps_ns": ft}))
+        if ft is None:
             return
+        if ft in self._recent_falling:
+            if m.new_falling:  # the same exposure reported as new again
+                self.duplicates += 1
+                events.append(Event("mark.duplicate", now_ns, f"duplicate time mark {m.count}",
+                                    "warning", {"count": m.count, "t_gps_ns": ft}))
+            return
+        # A falling edge not seen before: from its own record, or from the rising-edge record
+        # that repeats it when the falling-edge record was lost on the link.
+        self._recent_falling.append(ft)
         self.marks += 1
+        if not m.new_falling:
+            self.marks_recovered += 1
         self.last_mark = m
+        # ``count`` counts rising edges: a record that carries this mark's rising edge has the
+        # mark's own number, a falling-edge-only record the number before it. A jump between
+        # consecutive marks' numbers is marks whose every record was lost.
+        number = m.count if m.new_rising else (m.count + 1) & 0xFFFF
+        last = self._last_count.get(m.channel)
+        self._last_count[m.channel] = number
+        if last is not None:
+            step = (number - last) & 0xFFFF
+            if 1 < step < 0x8000:
+                self.missed += step - 1
+                self._last_missed_ns = now_ns
+                events.append(Event(
+                    "mark.missed", now_ns, f"{step - 1} time mark(s) missed "
+                    f"(count {last} -> {number})", "warning",
+                    {"from_count": last, "to_count": number, "missed": step - 1},
+                ))
+                self._raise("marks_missed", f"{self.missed} time marks missed", now_ns, events,
+                            {"missed": self.missed})
         bisect.insort(self._mark_times, ft)
         if self.last_epoch_ns is not None and self._mark_times[0] < (
             self.last_epoch_ns - LINK_HISTORY_NS

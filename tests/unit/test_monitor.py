@@ -163,3 +163,45 @@ def test_slip_and_half_cycle_episodes_and_ppk_ready() -> None:
     assert states["G02"] == "clean" and states["G07"] == "slipped"
     ppk_alerts = [e.data["alert"] for e in run.kinds("alert.raised")]
     assert "ppk_ready_low" in ppk_alerts  # G02 + G05 not clean 10 s after the first episodes
+
+
+def test_two_record_marks_and_a_lost_falling_record() -> None:
+    """A pulse across an epoch boundary comes as two records (falling edge with the count so
+    far, then rising edge with the new count). Losing the first loses nothing: the second
+    repeats the falling edge. Losing both shows as a count jump."""
+    t0 = 2200 * NS_PER_WEEK
+    m = Monitor("t")
+    events: list[Event] = []
+    now = HOST0
+
+    def rec(count: int, ft: int, new_falling: bool, new_rising: bool) -> TimeMark:
+        return TimeMark(0, count, ft + 14_000_000 if new_rising else None, ft,
+                        new_rising, new_falling, 1, True, 20, 0)
+
+    for k in range(1, 11):
+        ft = t0 + k * NS_PER_S
+        records = [rec(k - 1, ft, True, False), rec(k, ft, False, True)]
+        if k == 4:
+            records = records[1:]  # the falling-edge record lost on the link
+        if k == 7:
+            records = []  # both lost
+        for r in records:
+            events += m.observe(r, now)
+    assert m.marks == 9
+    assert m.marks_recovered == 1
+    assert m.missed == 1
+    assert [e.data["missed"] for e in events if e.kind == "mark.missed"] == [1]
+    assert m.duplicates == 0
+
+
+def test_satellites_keep_their_clean_phase_across_a_link_dropout() -> None:
+    iv = 200_000_000
+    t0 = 2200 * NS_PER_WEEK
+    run = Run(iv, t0, clean_phase_s=10)
+    for k in range(150):
+        if 60 <= k < 80:  # 4 s without data: the radio, not the receiver
+            continue
+        run.feed(epoch(t0 + k * iv), t0 + k * iv)
+    final = run.m.status(run.host(t0 + 149 * iv))
+    assert final.ppk_ready == 7
+    assert {s.clean_phase_s for s in final.sats} == {149 * iv / 1e9}
