@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from groundstation import gpstime
-from groundstation.offline.marks import nominal_interval_ns
+from groundstation.offline.marks import build_marks, nominal_interval_ns
 from groundstation.offline.readers import detect_format, iter_chunks
 from groundstation.records import Frame, RawEpoch, TimeMark, UndecodedFrame
 from groundstation.ubx.decode import Decoder, message_name
@@ -167,32 +167,30 @@ class Inspector:
         )
 
 
-def summarise_marks(marks: list[TimeMark]) -> TimeMarkSummary:
-    """Counts of records, new edges, and count continuity (jumps mean lost marks)."""
-    if not marks:
+def summarise_marks(records: list[TimeMark]) -> TimeMarkSummary:
+    """Pulses, their edges and count continuity, from TIM-TM2 records (pairing and numbering
+    as :func:`~groundstation.offline.marks.build_marks` does for RINEX and the solver)."""
+    if not records:
         return TimeMarkSummary()
-    jumps = missed = repeated = 0
-    prev: dict[int, TimeMark] = {}
-    for m in marks:
-        last = prev.get(m.channel)
-        if last is not None:
-            step = (m.count - last.count) & 0xFFFF
-            if step > 1:
-                jumps += 1
-                missed += step - 1
-            elif m.new_falling and m.falling_t_gps_ns == last.falling_t_gps_ns:
-                repeated += 1  # the same exposure reported twice
-        prev[m.channel] = m
+    marks = build_marks(records)
+    seen: set[int] = set()
+    repeated = 0
+    for r in records:
+        ft = r.falling_t_gps_ns
+        if r.new_falling and ft is not None:
+            if ft in seen:
+                repeated += 1  # the same exposure reported as new again
+            seen.add(ft)
     return TimeMarkSummary(
-        records=len(marks),
-        falling=sum(m.new_falling for m in marks),
-        rising=sum(m.new_rising for m in marks),
-        count_jumps=jumps,
-        missed_marks=missed,
+        records=len(records),
+        falling=sum(m.falling_t_gps_ns is not None for m in marks),
+        rising=sum(m.rising_t_gps_ns is not None for m in marks),
+        count_jumps=sum(m.lost_before > 0 for m in marks),
+        missed_marks=sum(m.lost_before for m in marks),
         repeated_counts=repeated,
-        first_count=marks[0].count,
-        last_count=marks[-1].count,
-        time_bases=tuple(sorted({m.time_base_name for m in marks})),
+        first_count=records[0].count,
+        last_count=records[-1].count,
+        time_bases=tuple(sorted({r.time_base_name for r in records})),
     )
 
 

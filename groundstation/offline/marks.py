@@ -61,35 +61,46 @@ class Mark:
         return self.rising_t_gps_ns - self.falling_t_gps_ns
 
 
+def mark_number(record: TimeMark) -> int:
+    """The rising-edge count a pulse has once its rising edge is counted: ``count`` itself on a
+    record that carries the pulse's rising edge, ``count + 1`` on a falling-edge-only record
+    (the receiver's counter counts rising edges)."""
+    return record.count if record.new_rising else (record.count + 1) & 0xFFFF
+
+
 def build_marks(records: Iterable[TimeMark]) -> list[Mark]:
     """Marks (one per pulse) from TIM-TM2 records in stream order.
 
-    Repeated records (the same edge reported again) add nothing; a count that jumps by more
-    than the edges seen is recorded as ``lost_before`` on the next mark.
+    Repeated records (the same edge reported again) add nothing. A pulse whose falling-edge
+    record was lost keeps its falling edge, which the rising-edge record repeats. A jump in the
+    pulses' numbers (:func:`mark_number`) is recorded as ``lost_before`` on the next mark: those
+    pulses were counted by the receiver but none of their records arrived.
     """
     marks: list[Mark] = []
     seen_falling: set[int] = set()
     seen_rising: set[int] = set()
     open_idx: int | None = None  # a mark whose rising edge has not come yet
-    last_count: int | None = None
+    last_number: int | None = None
 
     def make(r: TimeMark, f: int | None, ri: int | None, lost: int) -> Mark:
         return Mark(
             f, ri, r.count, r.channel, r.flags, r.time_base, r.valid, r.utc_valid, r.acc_ns, lost
         )
 
+    def lost_before(r: TimeMark) -> int:
+        nonlocal last_number
+        number = mark_number(r)
+        step = 1 if last_number is None else (number - last_number) & 0xFFFF
+        last_number = number
+        return step - 1 if 1 < step < 0x8000 else 0
+
     for r in records:
-        lost = 0
-        if last_count is not None and r.count > last_count + 1:
-            lost = r.count - last_count - 1
-        last_count = r.count if last_count is None else max(last_count, r.count)
         falling = r.falling_t_gps_ns
         rising = r.rising_t_gps_ns
         if r.new_falling and falling is not None and falling not in seen_falling:
             seen_falling.add(falling)
-            marks.append(make(r, falling, None, lost))
+            marks.append(make(r, falling, None, lost_before(r)))
             open_idx = len(marks) - 1
-            lost = 0
         if r.new_rising and rising is not None and rising not in seen_rising:
             seen_rising.add(rising)
             m = marks[open_idx] if open_idx is not None else None
@@ -101,7 +112,12 @@ def build_marks(records: Iterable[TimeMark]) -> list[Mark]:
             ):
                 marks[open_idx] = make(r, m.falling_t_gps_ns, rising, m.lost_before)
             else:
-                marks.append(make(r, None, rising, lost))
+                # Its falling-edge record never arrived: the rising-edge record repeats it.
+                f = falling if falling is not None and falling not in seen_falling and (
+                    falling <= rising) else None
+                if f is not None:
+                    seen_falling.add(f)
+                marks.append(make(r, f, rising, lost_before(r)))
             open_idx = None
     return marks
 

@@ -35,7 +35,9 @@ def test_gaps_and_marks(tmp_path: Path) -> None:
     assert s.messages == {"RXM-RAW": 97, "TIM-TM2": 39}  # epoch 12 took its mark along
     tm = s.timemarks
     assert (tm.records, tm.falling, tm.rising) == (39, 20, 19)
-    assert (tm.count_jumps, tm.missed_marks) == (1, 10)
+    # the last rising-edge record said 19 pulses; this falling-edge record says 30 before its
+    # own: pulses 20 to 30 never arrived
+    assert (tm.count_jumps, tm.missed_marks) == (1, 11)
     assert s.satellites == ("G03", "G07", "G11", "G19", "G23")
     assert s.damaged_frames == 0 and s.garbage_bytes == 0
 

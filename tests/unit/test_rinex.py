@@ -200,14 +200,16 @@ def _tm(count: int, fall_s: float | None, rise_s: float | None, nf: bool, nr: bo
 
 
 def test_marks_pairing_events_and_dropouts() -> None:
+    # ``count`` counts rising edges, as in the real logs: a falling-edge record carries the
+    # count so far, the rising-edge record the count including its own edge.
     recs = [
-        _tm(0, None, 59999.9, False, True),  # rising edge of a pulse begun before logging
-        _tm(1, 60000.10, 59999.9, True, False),
-        _tm(2, 60000.10, 60000.114, False, True),
-        _tm(2, 60000.10, 60000.114, False, False),  # repeated record: nothing new
-        _tm(3, 60000.15, 60000.114, True, False),  # two marks inside one 0.2 s epoch
-        _tm(4, 60000.15, 60000.164, False, True),
-        _tm(7, 60003.30, 60000.164, True, False),  # count jump: marks lost; no rising yet
+        _tm(5, None, 59999.9, False, True),  # rising edge of a pulse begun before logging
+        _tm(5, 60000.10, 59999.9, True, False),
+        _tm(6, 60000.10, 60000.114, False, True),
+        _tm(6, 60000.10, 60000.114, False, False),  # repeated record: nothing new
+        _tm(6, 60000.15, 60000.114, True, False),  # two marks inside one 0.2 s epoch
+        _tm(7, 60000.15, 60000.164, False, True),
+        _tm(9, 60003.30, 60000.164, True, False),  # pulses 8 and 9 lost; no rising edge yet
     ]
     marks = mk.build_marks(recs)
     assert len(marks) == 4
@@ -271,3 +273,17 @@ def test_vectorised_field_formatting_equals_python_formatting() -> None:
     assert _format_chunk_exact(21e6, 0.0, 1.5, 40.0, 2, 6) == (
         f"{21e6:14.3f} 6" + " " * 14 + "2 " + f"{1.5:14.3f}  " + f"{40.0:14.3f}  "
     )
+
+
+def test_lost_falling_record_is_recovered_from_the_rising_record() -> None:
+    recs = [
+        _tm(0, 60000.10, None, True, False),
+        _tm(1, 60000.10, 60000.114, False, True),
+        # pulse 2's falling-edge record lost on the link; its rising record repeats the edge
+        _tm(2, 60001.10, 60001.114, False, True),
+        _tm(2, 60002.10, 60001.114, True, False),
+        _tm(3, 60002.10, 60002.114, False, True),
+    ]
+    marks = mk.build_marks(recs)
+    assert [m.pulse_ns for m in marks] == [14_000_000] * 3
+    assert [m.lost_before for m in marks] == [0, 0, 0]
