@@ -73,8 +73,8 @@ def format_summary(s: Summary) -> str:
         lines.append(f"  ... {len(s.gaps) - MAX_GAPS_SHOWN} more (use --json for all)")
     tm = s.timemarks
     lines.append(
-        f"marks     {tm.records} TIM-TM2 records, {tm.falling} new falling edges, "
-        f"{tm.rising} new rising edges, {tm.count_jumps} count jumps "
+        f"marks     {tm.records} TIM-TM2 records: {tm.falling} falling edges, "
+        f"{tm.rising} rising edges, {tm.count_jumps} count jumps "
         f"({tm.missed_marks} marks missed), {tm.repeated_counts} repeated"
     )
     if tm.records:
