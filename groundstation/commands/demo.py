@@ -10,6 +10,7 @@ from typing import Any
 
 from groundstation.commands.simulate import parse_speed
 from groundstation.errors import ConfigError
+from groundstation.view.summary import status_lines
 
 NAME = "demo"
 HELP = "simulator + daemon + live view, the embedded default"
@@ -120,16 +121,9 @@ def _print_summary(result: Any) -> None:
           f"{'' if lost == 0 else f' ({lost:,} not read before the end)'}: {s.frames:,} frames, "
           f"{s.garbage_bytes:,} garbage bytes, {s.records:,} records")
     if st is not None:
-        link, marks = st.link, st.marks
-        print(f"  link: {link.epochs} epochs at {link.epoch_interval_s or 0:g} s, "
-              f"{link.dropouts} dropouts ({link.missing_epochs} epochs missing; simulator "
-              f"injected {len(injected['epochs_lost_tow_ms'])}), {link.damaged_frames} damaged "
-              f"frames")
-        print(f"  marks: {marks.marks} received, {marks.missed} missed, {marks.duplicates} "
-              f"duplicates, {marks.in_dropout} inside dropouts "
-              f"(simulator: {len(truth['exposures'])} exposures)")
-        print(f"  satellites: {st.tracked} tracked, {st.ppk_ready} PPK-ready; alerts: "
-              f"{'; '.join(st.alerts) or 'none'}")
+        for line in status_lines(st, injected_lost_epochs=len(injected["epochs_lost_tow_ms"]),
+                                 exposures=len(truth["exposures"])):
+            print(line)
     for path in s.files:
         print(f"  MCAP:        {path}")
     for path in s.sidecars:

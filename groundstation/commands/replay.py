@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import Any
 
 from groundstation.commands.simulate import parse_speed
+from groundstation.view.summary import status_lines
 
 NAME = "replay"
 HELP = "MCAP/.ubx through the live pipeline (to Zenoh), at xN or max speed"
@@ -42,11 +43,6 @@ def run(args: argparse.Namespace) -> int:
     print(f"replayed {args.input}: {summary.bytes_in:,} bytes, {summary.frames:,} frames, "
           f"{summary.records:,} records, {summary.events} events ({summary.stopped_by})")
     if st is not None:
-        link, marks = st.link, st.marks
-        print(f"  link: {link.epochs} epochs at {link.epoch_interval_s or 0:g} s, "
-              f"{link.dropouts} dropouts ({link.missing_epochs} epochs missing), "
-              f"{link.damaged_frames} damaged frames")
-        print(f"  marks: {marks.marks}, missed {marks.missed}, duplicates {marks.duplicates}, "
-              f"inside dropouts {marks.in_dropout}")
-        print(f"  satellites: {st.tracked} tracked, {st.ppk_ready} PPK-ready")
+        for line in status_lines(st):
+            print(line)
     return 0
