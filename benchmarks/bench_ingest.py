@@ -2,7 +2,7 @@
 
 Usage::
 
-    /work/venv/bin/python benchmarks/bench_ingest.py [--seconds 20] [--file-mb 20]
+    .venv/bin/python benchmarks/bench_ingest.py [--seconds 20] [--file-mb 20]
 
 1. ``groundstation run`` as a real process on a pty, fed at 11520 B/s (115200 baud, 8N1) with
    a real LEA-6T capture (or a generated stream when ../shared/data is absent); CPU use =

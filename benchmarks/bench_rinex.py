@@ -5,7 +5,7 @@ would run them; the best of N runs counts (the machine is shared, the minimum is
 estimate). convbin gets the options the reference RINEX was made with (``-od -os``: Doppler and
 SNR); its progress output goes to /dev/null as ours does.
 
-    /work/venv/bin/python benchmarks/bench_rinex.py [INPUT] [--runs 7]
+    .venv/bin/python benchmarks/bench_rinex.py [INPUT] [--runs 7]
 """
 
 from __future__ import annotations
