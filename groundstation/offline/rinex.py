@@ -38,7 +38,6 @@ from groundstation.offline import marks as marks_mod
 from groundstation.offline.ephemeris import NavResult, collect_ephemerides
 from groundstation.offline.readers import file_size, iter_chunks
 from groundstation.records import TimeMark
-from groundstation.ubx.decode import timemark_from_fields
 from groundstation.ubx.fastraw import (
     FrameIndex,
     RawBlock,
@@ -47,6 +46,7 @@ from groundstation.ubx.fastraw import (
     decode_timtm2,
     index_frames,
 )
+from groundstation.ubx.timemark import timemark_from_fields
 
 log = logging.getLogger("groundstation.rinex")
 
