@@ -227,7 +227,7 @@ class SerialSource:
                 try:
                     fut.set_result(os.read(fd, s.read_size_bytes))
                 except BlockingIOError:
-                    pass
+                    return  # woken with nothing to read: wait for the next readiness
                 except OSError as err:
                     fut.set_exception(err)
 

@@ -548,8 +548,8 @@ def run_service(
                  list(settings.bus.connect), list(settings.bus.listen))
         if ready is not None:
             ready(selector)
-        while not stop.wait(0.5):
-            pass
+        while not stop.wait(0.5):  # a timed wait, so signals are handled promptly
+            continue
         service.close()
         worker.join(timeout=5.0)
         if worker.is_alive():

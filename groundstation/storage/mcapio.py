@@ -16,6 +16,7 @@ the file was finished.
 
 from __future__ import annotations
 
+import collections
 import contextlib
 import errno
 import json
@@ -391,8 +392,7 @@ def iter_raw_chunks(path: Path | str) -> Iterator[tuple[bytes, int]]:
 def read_metadata(path: Path | str) -> dict[str, dict[str, str]]:
     """The metadata records of a recording (name -> key/value), finished or not."""
     rep = ReadReport()
-    for _ in iter_messages(path, topics=(), report=rep):
-        pass
+    collections.deque(iter_messages(path, topics=(), report=rep), maxlen=0)  # read to the end
     return rep.metadata
 
 
