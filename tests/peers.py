@@ -14,6 +14,9 @@ import time
 import tty
 from pathlib import Path
 
+from groundstation.live.fanout import Inbox, InboxClosed, Item
+from groundstation.records import Event
+
 REPO = Path(__file__).resolve().parents[1]
 
 
@@ -103,3 +106,22 @@ class Daemon:
         if self.proc.poll() is None:
             self.proc.kill()
             self.proc.wait(timeout=10)
+
+
+class EventCollector:
+    """A pipeline sink that keeps every Event published (never drops: register it with
+    ``Overflow.NEVER_DROP``)."""
+
+    name = "events"
+
+    def __init__(self) -> None:
+        self.items: list[Event] = []
+
+    async def consume(self, inbox: Inbox, publish: object) -> None:
+        while True:
+            try:
+                item: Item = await inbox.get()
+            except InboxClosed:
+                return
+            if isinstance(item, Event):
+                self.items.append(item)

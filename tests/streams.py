@@ -95,3 +95,17 @@ def t_gps_ns(week: int, tow_ms: int, sub_ns: int = 0) -> int:
 def garbage(rng: random.Random, n: int) -> bytes:
     """Random bytes that cannot start a frame (no 0xB5), so they never form a valid one."""
     return bytes(rng.choice([b for b in range(256) if b != 0xB5]) for _ in range(n))
+
+
+def epoch_with_mark(
+    k: int, count: int | None, sats: list[tuple[int, int]], week: int = WEEK,
+    tow0_ms: int = TOW0_MS,
+) -> bytes:
+    """Epoch ``k`` of a 5 Hz stream, followed by mark ``count`` (both edges in one TIM-TM2,
+    falling 40 ms after the epoch, 14.16 ms pulse) when ``count`` is given."""
+    tow = tow0_ms + 200 * k
+    data = rxm_raw(week, tow, sats)
+    if count is not None:
+        data += tim_tm2(count, week, tow + 40, 1000 * k, tow + 54, 1000 * k + 160_000,
+                        new_falling=True, new_rising=True)
+    return data

@@ -11,11 +11,11 @@ import time
 from collections.abc import AsyncIterator
 from pathlib import Path
 
+from peers import EventCollector
 from test_recorder import FakeClock, generated_stream
 
 from groundstation.config import load_settings
 from groundstation.live.daemon import Pipeline
-from groundstation.live.fanout import Inbox, InboxClosed, Item
 from groundstation.records import Event
 from groundstation.storage import iter_messages, iter_raw_chunks, read_metadata, read_summary
 from groundstation.storage.mcapio import ExactFile, ReadReport
@@ -243,22 +243,6 @@ class ChunkSource:
         await asyncio.sleep(0.5)
 
 
-class Events:
-    name = "events"
-
-    def __init__(self) -> None:
-        self.items: list[Event] = []
-
-    async def consume(self, inbox: Inbox, publish: object) -> None:
-        while True:
-            try:
-                item: Item = await inbox.get()
-            except InboxClosed:
-                return
-            if isinstance(item, Event):
-                self.items.append(item)
-
-
 def test_daemon_pipeline_alerts_disk_full_and_clears_it(tmp_path: Path) -> None:
     from groundstation.live.fanout import Overflow
 
@@ -269,7 +253,7 @@ def test_daemon_pipeline_alerts_disk_full_and_clears_it(tmp_path: Path) -> None:
         "zenoh": {"enabled": False},
     })
     stream = generated_stream(n=2400)
-    events = Events()
+    events = EventCollector()
     pipeline = Pipeline(settings, source=ChunkSource(stream, disk), open_file=disk.open)
     pipeline.add_sink(events, 10_000, Overflow.NEVER_DROP)
     summary = asyncio.run(pipeline.run())

@@ -9,9 +9,11 @@ import sys
 from collections import Counter
 from pathlib import Path
 
+from peers import EventCollector
+
 from groundstation.demo import DemoOptions, run_demo
-from groundstation.live.fanout import Inbox, InboxClosed, Item, Overflow, SinkSpec
-from groundstation.records import Event, to_jsonable
+from groundstation.live.fanout import Overflow, SinkSpec
+from groundstation.records import to_jsonable
 from groundstation.replay import run_replay
 from groundstation.storage import iter_messages
 
@@ -35,24 +37,11 @@ def test_replay_of_a_live_recording_gives_the_same_monitor_output(tmp_path: Path
     statuses = [json.loads(m.data) for m in iter_messages(mcap, ["/groundstation/status"])]
     assert data_events(recorded), "the faulty flight must have produced monitor events"
 
-    replayed_events: list[dict[str, object]] = []
-
-    class Collect:
-        """Every event the replay's pipeline publishes."""
-
-        name = "collect"
-
-        async def consume(self, inbox: Inbox, publish: object) -> None:
-            while True:
-                try:
-                    item: Item = await inbox.get()
-                except InboxClosed:
-                    return
-                if isinstance(item, Event):
-                    replayed_events.append(to_jsonable(item))
+    collector = EventCollector()
 
     summary, pipeline = asyncio.run(run_replay(
-        mcap, speed=None, sinks=(SinkSpec(Collect(), 100_000, Overflow.NEVER_DROP),)))
+        mcap, speed=None, sinks=(SinkSpec(collector, 100_000, Overflow.NEVER_DROP),)))
+    replayed_events = [to_jsonable(e) for e in collector.items]
     assert summary.bytes_in == live.summary.bytes_in
     assert summary.frames == live.summary.frames
     assert pipeline.monitor is not None

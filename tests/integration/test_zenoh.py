@@ -14,7 +14,7 @@ import time
 from pathlib import Path
 
 from peers import REPO, Daemon, Pty, free_port
-from streams import rxm_raw, tim_tm2
+from streams import epoch_with_mark
 
 from groundstation.bus import Bus, BusSettings, decode, key, open_bus
 
@@ -59,15 +59,8 @@ def start_daemon(tmp_path: Path, pty: Pty, daemons: list[Daemon], endpoint: str)
 
 def fly(pty: Pty, epochs: int) -> None:
     """5 Hz epochs in real time, a camera mark in every other epoch."""
-    count = 0
     for k in range(epochs):
-        tow = TOW0_MS + 200 * k
-        data = rxm_raw(WEEK, tow, SATS)
-        if k % 2 == 0:
-            data += tim_tm2(count, WEEK, tow + 40, 1000 * k, tow + 54, 1000 * k + 160_000,
-                            new_falling=True, new_rising=True)
-            count += 1
-        pty.write(data)
+        pty.write(epoch_with_mark(k, k // 2 if k % 2 == 0 else None, SATS, WEEK, TOW0_MS))
         time.sleep(0.2)
 
 

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 from peers import Daemon, Pty, free_port
-from streams import rxm_raw, tim_tm2
+from streams import epoch_with_mark
 from test_daemon import one, raw_from_mcap, wait_for_size
 from test_zenoh import SATS, STATION, TOW0_MS, WEEK, Collector, wait_until
 
@@ -38,14 +38,9 @@ def test_peer_gone_and_back_publishing_resumes_recording_exact(
     stop = threading.Event()
 
     def fly() -> None:  # 5 Hz epochs, a mark every other epoch, until told to stop
-        k = count = 0
+        k = 0
         while not stop.is_set():
-            tow = TOW0_MS + 200 * k
-            data = rxm_raw(WEEK, tow, SATS)
-            if k % 2 == 0:
-                data += tim_tm2(count, WEEK, tow + 40, 1000 * k, tow + 54, 1000 * k + 160_000,
-                                new_falling=True, new_rising=True)
-                count += 1
+            data = epoch_with_mark(k, k // 2 if k % 2 == 0 else None, SATS, WEEK, TOW0_MS)
             with lock:
                 pty.write(data)
                 sent.extend(data)
