@@ -240,7 +240,9 @@ class Recording:
                 elif fmt == "gzip":
                     with gzip.GzipFile(fileobj=f, mode="rb") as gz:
                         try:
-                            while chunk := gz.read(chunk_bytes):
+                            # read1: what one read decompresses, so a torn end loses nothing
+                            # before it
+                            while chunk := gz.read1(chunk_bytes):
                                 yield chunk, 0
                         except EOFError as err:  # cut short (a copy in progress, a full disk)
                             log.warning("%s: compressed stream ends early (%s): read up to "
