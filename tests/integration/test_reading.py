@@ -103,10 +103,10 @@ def test_missing_path_and_directory_are_input_errors(tmp_path: Path) -> None:
         Recording(tmp_path)
 
 
-def rotated(tmp_path: Path, data: bytes, **kw: object) -> SessionRecorder:
+def rotated(tmp_path: Path, data: bytes, clock: FakeClock | None = None) -> SessionRecorder:
     """A session split in many parts, every part opened in the same second (names ``_1`` ...
     ``_11``: name order is not part order)."""
-    rec = record(tmp_path, data, rotate_size_bytes=1500, **kw)
+    rec = record(tmp_path, data, clock=clock, rotate_size_bytes=1500)
     assert len(rec.stats.files) >= 11
     return rec
 
