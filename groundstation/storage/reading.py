@@ -196,6 +196,9 @@ class Recording:
         self.path = Path(path)
         self.format: Format = detect_format(self.path)
         self.parts: tuple[Path, ...] = session_parts(self.path, follow_parts=follow_parts)
+        if len(self.parts) > 1:
+            log.info("%s: reading %d parts of its session: %s", self.path, len(self.parts),
+                     ", ".join(p.name for p in self.parts))
         self.size_bytes = sum(_size(p) for p in self.parts)
         """Bytes on disk of all parts (compressed), for progress."""
         self._done_bytes = 0

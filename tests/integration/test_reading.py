@@ -173,16 +173,17 @@ def test_parts_written_after_a_full_disk_read_as_one(tmp_path: Path) -> None:
     disk = Disk()
     f = Feeder(tmp_path, disk)
     stream = generated_stream(n=2400)
-    third = len(stream) // 3
-    f.feed(stream[:third])
-    disk.fill(room=333)
-    f.feed(stream[third : 2 * third])
-    disk.full = False
-    f.idle(1.0)
-    f.feed(stream[2 * third :])
+    cuts = [0, len(stream) // 4, len(stream) // 2, len(stream)]
+    for i, (a, b) in enumerate(zip(cuts, cuts[1:], strict=False)):
+        f.feed(stream[a:b])
+        if i == 0:
+            disk.fill(room=100)  # fails in the middle of the second quarter ...
+        elif i == 1:
+            disk.full = False  # ... and the retry opens part 2
+            f.idle(1.0)
     f.rec.close()
     files = f.rec.stats.files
-    assert len(files) == 2
+    assert f.rec.stats.write_failures == 1 and len(files) == 2
     assert raw(files[0]) == stream  # the abandoned, unfinished first part, then the next
     assert raw(f.rec.stats.sidecars[0]) == stream
 
