@@ -62,7 +62,8 @@ class TcpSourceSettings:
 
 @dataclass(frozen=True, slots=True)
 class FileSourceSettings:
-    """A ``.ubx`` or ``.ubx.gz`` file, paced at ``rate_bytes_per_s`` (0 = as fast as possible)."""
+    """A ``.ubx``, ``.ubx.gz`` or ``.mcap`` recording, paced at ``rate_bytes_per_s`` (0 = as fast
+    as possible)."""
 
     path: Path
     rate_bytes_per_s: float = 0.0

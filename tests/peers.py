@@ -3,19 +3,17 @@ real process with its stderr collected."""
 
 from __future__ import annotations
 
-import contextlib
-import os
 import signal
 import socket
 import subprocess
 import sys
 import threading
 import time
-import tty
 from pathlib import Path
 
 from groundstation.live.fanout import Inbox, InboxClosed, Item
 from groundstation.records import Event
+from groundstation.sim.ptylink import PtyLink
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -28,39 +26,13 @@ def free_port() -> int:
         return port
 
 
-class Pty:
+class Pty(PtyLink):
     """A pty pair reachable through a symlink that can be pulled and plugged back."""
 
+    link: Path
+
     def __init__(self, link: Path) -> None:
-        self.link = link
-        self.master = -1
-        self.slave = -1
-        self.plug()
-
-    def plug(self) -> None:
-        self.master, self.slave = os.openpty()
-        tty.setraw(self.slave)
-        tmp = self.link.with_suffix(".new")
-        tmp.unlink(missing_ok=True)
-        os.symlink(os.ttyname(self.slave), tmp)
-        os.replace(tmp, self.link)
-
-    def unplug(self) -> None:
-        self.link.unlink()
-        os.close(self.master)
-        os.close(self.slave)
-
-    def write(self, data: bytes, piece: int = 1024) -> None:
-        for i in range(0, len(data), piece):
-            view = memoryview(data)[i : i + piece]
-            while view:
-                n = os.write(self.master, view)
-                view = view[n:]
-
-    def close(self) -> None:
-        for fd in (self.master, self.slave):
-            with contextlib.suppress(OSError):
-                os.close(fd)
+        super().__init__(link)
 
 
 class Daemon:

@@ -34,7 +34,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from groundstation.demo import DemoOptions, run_demo
+    from groundstation.live.demo import DemoOptions, run_demo
 
     if args.flight < 60:
         raise ConfigError("flight", "must be at least 60 s (static, take-off, lines, landing)")
@@ -72,7 +72,7 @@ def _run_with_view(opts: Any, ready: Any) -> Any:
     from rich.console import Console
     from rich.live import Live
 
-    from groundstation.demo import run_demo
+    from groundstation.live.demo import run_demo
     from groundstation.view.watch import WatchState, render
 
     state = WatchState(opts.station)

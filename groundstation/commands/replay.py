@@ -26,7 +26,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from groundstation.errors import InputError
-    from groundstation.replay import run_replay
+    from groundstation.live.replay import run_replay
 
     if not args.input.exists():
         raise InputError(f"{args.input}: no such file")

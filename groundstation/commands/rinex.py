@@ -6,10 +6,10 @@ import argparse
 import sys
 import time
 
-from groundstation.errors import ConfigError
+from groundstation.errors import ConfigError, GroundstationError
 from groundstation.offline import rinex
 from groundstation.offline.marks import MARK_EDGES
-from groundstation.offline.readers import file_size
+from groundstation.storage.reading import Recording
 
 NAME = "rinex"
 HELP = "MCAP/.ubx -> RINEX 2.11/3.04 obs + nav + time-mark table"
@@ -76,8 +76,8 @@ def run(args: argparse.Namespace) -> int:
     show = args.progress == "always"
     if args.progress == "auto":
         try:
-            show = file_size(args.input) >= PROGRESS_MIN_BYTES
-        except OSError:
+            show = Recording(args.input).size_bytes >= PROGRESS_MIN_BYTES
+        except GroundstationError:
             show = False
     prog = _Progress() if show else None
     try:

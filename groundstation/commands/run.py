@@ -20,7 +20,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     src = parser.add_mutually_exclusive_group()
     src.add_argument("--port", metavar="DEV", help="serial device (e.g. /dev/ttyUSB0)")
     src.add_argument("--tcp", metavar="HOST:PORT", help="TCP server streaming UBX")
-    src.add_argument("--file", type=Path, metavar="PATH", help=".ubx or .ubx.gz file")
+    src.add_argument("--file", type=Path, metavar="PATH",
+                     help=".ubx, .ubx.gz or .mcap recording (a session's later parts follow)")
     parser.add_argument("--baud", metavar="N", help="serial baud rate (default 115200)")
     parser.add_argument("--rate", metavar="BYTES_PER_S", type=float,
                         help="pace a --file source (0 = as fast as possible)")

@@ -3,17 +3,17 @@
 from __future__ import annotations
 
 import argparse
-import os
 import socket
 import sys
 import time
-import tty
 from collections.abc import Iterator
 from pathlib import Path
 
 from groundstation.errors import ConfigError
+from groundstation.pacing import paced
 from groundstation.sim.faults import FaultConfig
-from groundstation.sim.stream import SimConfig, paced, simulate
+from groundstation.sim.ptylink import PtyLink
+from groundstation.sim.stream import SimConfig, simulate
 
 NAME = "simulate"
 HELP = "realistic u-blox stream to a pty, TCP port or file, with faults"
@@ -50,18 +50,15 @@ def parse_speed(value: str | None, live: bool) -> float | None:
     return speed
 
 
-def _serve_pty(chunks: Iterator[tuple[int, bytes]]) -> None:
-    master, slave = os.openpty()
-    tty.setraw(slave)
-    print(os.ttyname(slave), flush=True)
+def _serve_pty(chunks: list[tuple[int, bytes]], speed: float | None) -> None:
+    link = PtyLink()
+    print(link.path, flush=True)
     try:
-        for _, chunk in chunks:
-            os.write(master, chunk)
+        link.feed(chunks, speed)
         # Let the reader drain the buffer before the pty disappears.
         time.sleep(1.0)
     finally:
-        os.close(master)
-        os.close(slave)
+        link.close()
 
 
 def _serve_tcp(port: int, chunks: Iterator[tuple[int, bytes]]) -> None:
@@ -97,7 +94,7 @@ def run(args: argparse.Namespace) -> int:
     )
     if args.pty:
         print(summary, file=sys.stderr)
-        _serve_pty(paced(result.rover_chunks, speed))
+        _serve_pty(result.rover_chunks, speed)
         return 0
     if args.tcp:
         print(summary, file=sys.stderr)

@@ -27,7 +27,7 @@ from groundstation.live.monitor import Monitor
 from groundstation.live.monitor_sink import MonitorSink
 from groundstation.live.publisher import ZenohPublisherSink
 from groundstation.live.recorder import RecorderSink
-from groundstation.live.sources import Source, make_source
+from groundstation.live.sources import FileSource, Source, make_source
 from groundstation.records import Event, Frame, Status, UndecodedFrame
 from groundstation.storage.mcapio import ExactFile
 from groundstation.storage.recorder import FileOpener, SessionRecorder, register_record_topic
@@ -101,7 +101,8 @@ class Pipeline:
         record: add the recorder sink (MCAP + sidecar) as configured.
         clock: UNIX ns clock.
         on_file: called with each recording file as it is created.
-        monitor_data_clock: the monitor's time is the items' host times (replay).
+        monitor_data_clock: the monitor's time is the items' host times (always so for a
+            :class:`~groundstation.live.sources.FileSource`).
         open_file: how the recorder creates its files (a test's fault hook; default
             :class:`~groundstation.storage.mcapio.ExactFile`).
     """
@@ -158,7 +159,7 @@ class Pipeline:
             self.monitor = MonitorSink(
                 make_monitor(settings),
                 disk_path=settings.recorder.out_dir if record else None,
-                clock=clock, data_clock=monitor_data_clock,
+                clock=clock, data_clock=monitor_data_clock or isinstance(self.source, FileSource),
             )
             self.specs.append(SinkSpec(self.monitor, settings.queues.monitor,
                                        Overflow.DROP_OLDEST))

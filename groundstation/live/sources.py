@@ -1,4 +1,4 @@
-"""Byte sources yielding ``(chunk, t_host_ns)``: serial device, TCP client and .ubx file.
+"""Byte sources yielding ``(chunk, t_host_ns)``: serial device, TCP client and recording file.
 
 A device source never ends because its device went away: it reports the loss as an event,
 reconnects with jittered exponential backoff and, once back, reports the outage with its start,
@@ -18,13 +18,12 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import errno
-import gzip
 import logging
 import os
 import random
 import time
 from collections.abc import AsyncIterator, Callable
-from typing import IO, Protocol
+from typing import Protocol
 
 import serial
 
@@ -34,8 +33,10 @@ from groundstation.config import (
     SourceSettings,
     TcpSourceSettings,
 )
-from groundstation.errors import InputError, SourceError
+from groundstation.errors import SourceError
+from groundstation.pacing import LINK_BYTES_PER_S, Pacer, link_time_ns
 from groundstation.records import Event
+from groundstation.storage.reading import Recording
 
 EventSink = Callable[[Event], None]
 
@@ -327,10 +328,27 @@ class TcpSource:
 
 
 class FileSource:
-    """A ``.ubx`` or ``.ubx.gz`` file, paced at ``rate_bytes_per_s`` or as fast as possible.
+    """A recording read as if it arrived now: ``.ubx``, ``.ubx.gz`` or ``.mcap`` (finished or
+    not), told apart by content, with the later parts of its session followed
+    (:mod:`groundstation.storage.reading`).
+
+    Times: an MCAP's chunks keep their recorded host times (its ``/ubx/raw`` ``log_time``), so
+    the monitor reaches what the live daemon saw; a file without times gets the times a link
+    would have delivered its bytes at (``rate_bytes_per_s``, or 115 200 baud), from the moment
+    reading starts. The pipeline runs its monitor on these times, not the wall clock.
+
+    Pacing (:class:`~groundstation.pacing.Pacer`): ``rate_bytes_per_s`` > 0 paces the bytes at
+    that rate (whatever the format); otherwise ``speed`` paces the chunks' times (1: as
+    recorded, N: N times faster); with neither, as fast as the sinks take it.
+
+    Args:
+        settings: path, rate and read size (the chunk size of files without recorded chunks).
+        on_event: unused (a file has no outages); accepted like every source.
+        clock: UNIX ns clock (the start of the synthetic link times).
+        speed: pace on the chunks' times at this multiple of real time (``None``: no pacing).
 
     Raises:
-        InputError: when the file cannot be opened.
+        InputError: when the file is missing or cannot be read.
     """
 
     can_wait = True
@@ -341,42 +359,32 @@ class FileSource:
         on_event: EventSink | None = None,
         *,
         clock: Callable[[], int] = time.time_ns,
+        speed: float | None = None,
     ) -> None:
         self.settings = settings
         self.name = f"file:{settings.path}"
         self._clock = clock
+        self.speed = speed
         self.bytes_read = 0
-
-    def _open(self) -> IO[bytes]:
-        path = self.settings.path
-        try:
-            if path.suffix == ".gz":
-                return gzip.open(path, "rb")  # type: ignore[return-value]
-            return path.open("rb")
-        except OSError as err:
-            raise InputError(f"cannot open {path}: {err}") from err
+        self.chunks_out = 0
 
     async def chunks(self) -> AsyncIterator[tuple[bytes, int]]:
         s = self.settings
+        recording = Recording(s.path)
         rate = s.rate_bytes_per_s
-        with self._open() as f:
-            t0 = time.monotonic()
-            while True:
-                try:
-                    data = f.read(s.read_size_bytes)
-                except (OSError, EOFError) as err:
-                    raise InputError(f"reading {s.path}: {err}") from err
-                if not data:
-                    return
-                if rate > 0:
-                    due = t0 + (self.bytes_read + len(data)) / rate
-                    delay = due - time.monotonic()
-                    if delay > 0:
-                        await asyncio.sleep(delay)
-                else:
-                    await asyncio.sleep(0)  # let the sinks run between chunks
-                self.bytes_read += len(data)
-                yield data, self._clock()
+        link_rate = rate if rate > 0 else LINK_BYTES_PER_S
+        pacer = Pacer(1.0 if rate > 0 else self.speed)
+        start_ns = self._clock()
+        for data, t_host in recording.chunks(s.read_size_bytes):
+            if t_host <= 0:  # no reception times in the file: a link's
+                t_host = link_time_ns(start_ns, self.bytes_read, link_rate)
+            pace_t = link_time_ns(0, self.bytes_read, rate) if rate > 0 else t_host
+            delay = pacer.delay_s(pace_t)
+            # sleep(0) lets the sinks run between chunks when reading as fast as possible
+            await asyncio.sleep(delay)
+            self.bytes_read += len(data)
+            self.chunks_out += 1
+            yield data, t_host
 
 
 def make_source(

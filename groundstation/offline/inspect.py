@@ -13,8 +13,8 @@ from typing import Any
 
 from groundstation import gpstime
 from groundstation.offline.marks import build_marks, nominal_interval_ns
-from groundstation.offline.readers import detect_format, iter_chunks
 from groundstation.records import Frame, RawEpoch, TimeMark, UndecodedFrame
+from groundstation.storage.reading import Recording
 from groundstation.ubx.decode import Decoder, message_name
 from groundstation.ubx.framer import DEFAULT_MAX_PAYLOAD, FramerStats, UbxFramer
 
@@ -197,14 +197,14 @@ def summarise_marks(records: list[TimeMark]) -> TimeMarkSummary:
 def inspect_path(path: str | Path, max_payload: int = DEFAULT_MAX_PAYLOAD) -> Summary:
     """Read a recording through the framer and decoder and summarise it."""
     p = Path(path)
-    fmt = detect_format(p)
+    recording = Recording(p)
     framer = UbxFramer(max_payload)
     insp = Inspector()
     last_t = 0
-    for chunk, t_host_ns in iter_chunks(p):
+    for chunk, t_host_ns in recording.chunks():
         last_t = t_host_ns
         for frame in framer.feed(chunk, t_host_ns):
             insp.add(frame)
     for frame in framer.flush(last_t):
         insp.add(frame)
-    return insp.summary(framer.stats, path=str(p), fmt=fmt)
+    return insp.summary(framer.stats, path=str(p), fmt=recording.format)

@@ -36,8 +36,8 @@ from groundstation.errors import InputError
 from groundstation.gnss.ephemeris import BroadcastEphemeris
 from groundstation.offline import marks as marks_mod
 from groundstation.offline.ephemeris import NavResult, collect_ephemerides
-from groundstation.offline.readers import file_size, iter_chunks
 from groundstation.records import TimeMark
+from groundstation.storage.reading import Recording
 from groundstation.ubx.fastraw import (
     FrameIndex,
     RawBlock,
@@ -834,18 +834,14 @@ class RinexResult:
 
 
 def read_recording(path: Path, progress: ProgressFn | None = None) -> bytes:
-    """All bytes of a recording (``.ubx``, ``.ubx.gz``, log, MCAP ``/ubx/raw``)."""
-    try:
-        size = max(file_size(path), 1)
-    except OSError as err:
-        raise InputError(f"{path}: cannot read: {err}") from err
+    """All bytes of a recording (``.ubx``, ``.ubx.gz``, log, MCAP ``/ubx/raw``; a session's
+    later parts too)."""
+    recording = Recording(path)
     parts: list[bytes] = []
-    got = 0
-    for chunk, _t in iter_chunks(path, chunk_bytes=1 << 20):
+    for chunk, _t in recording.chunks(chunk_bytes=1 << 20):
         parts.append(chunk)
-        got += len(chunk)
         if progress is not None:
-            progress("read", min(got / size, 1.0))
+            progress("read", recording.progress)
     return b"".join(parts)
 
 

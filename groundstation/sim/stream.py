@@ -2,7 +2,7 @@
 
 ``simulate(SimConfig(...))`` returns a :class:`SimResult` with the rover's (possibly damaged) byte
 stream as timed chunks, the base's clean stream, the truth dictionary, and the clean messages.
-:func:`paced` replays timed chunks in real time (or faster) for a pty, a socket or the daemon.
+:func:`groundstation.pacing.paced` replays the timed chunks in real time (or faster).
 """
 
 from __future__ import annotations
@@ -10,8 +10,6 @@ from __future__ import annotations
 import datetime as dt
 import json
 import math
-import time
-from collections.abc import Callable, Iterable, Iterator
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -382,26 +380,3 @@ def _truth(
         "ephemerides": [asdict(e) for e in constellation.all_ephemerides()],
     }
 
-
-def paced(
-    chunks: Iterable[tuple[int, bytes]],
-    speed: float | None,
-    *,
-    clock: Callable[[], float] = time.monotonic,
-    sleep: Callable[[float], None] = time.sleep,
-) -> Iterator[tuple[int, bytes]]:
-    """Yield chunks no earlier than their GPS times allow at ``speed`` × real time.
-
-    ``speed=None`` means as fast as possible. The first chunk goes out at once.
-    """
-    t0_gps: int | None = None
-    t0_host = 0.0
-    for t_gps, chunk in chunks:
-        if speed is not None:
-            if t0_gps is None:
-                t0_gps, t0_host = t_gps, clock()
-            due = t0_host + (t_gps - t0_gps) / NS_PER_S / speed
-            wait = due - clock()
-            if wait > 0:
-                sleep(wait)
-        yield t_gps, chunk

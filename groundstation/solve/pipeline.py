@@ -19,10 +19,10 @@ from groundstation import gpstime
 from groundstation.errors import ConfigError, InputError
 from groundstation.geodesy import ecef_to_llh, enu_rotation
 from groundstation.offline.marks import Mark, build_marks
-from groundstation.offline.readers import iter_chunks
 from groundstation.records import NavSolution, TimeMark
 from groundstation.solve import interpolate as mi
 from groundstation.solve import leverarm, outputs, photos, positions, report
+from groundstation.storage.reading import Recording
 from groundstation.ubx.decode import NAV_POSLLH, NAV_PVT, NAV_SOL, TIM_TM2, Decoder
 from groundstation.ubx.framer import UbxFramer
 
@@ -112,15 +112,14 @@ class SolveResult:
 
 
 def read_flight(path: Path, progress: Progress | None = None) -> FlightRecords:
-    """TIM-TM2 and receiver fixes from a recording (``.ubx``, ``.ubx.gz``, ``.mcap``)."""
+    """TIM-TM2 and receiver fixes from a recording (``.ubx``, ``.ubx.gz``, ``.mcap``; a
+    session's later parts too)."""
     framer = UbxFramer()
     decoder = Decoder()
     tms: list[TimeMark] = []
     nav: list[NavSolution] = []
-    size = max(path.stat().st_size if path.exists() else 1, 1)
-    got = 0
-    for chunk, t_host in iter_chunks(path):
-        got += len(chunk)
+    recording = Recording(path)
+    for chunk, t_host in recording.chunks():
         for fr in framer.feed(chunk, t_host):
             if fr.key not in _WANTED:
                 continue
@@ -130,7 +129,7 @@ def read_flight(path: Path, progress: Progress | None = None) -> FlightRecords:
             elif isinstance(rec, NavSolution):
                 nav.append(rec)
         if progress is not None:
-            progress("read flight", min(got / size, 1.0))
+            progress("read flight", recording.progress)
     for fr in framer.flush():
         if fr.key in _WANTED:
             rec = decoder.decode(fr)

@@ -10,8 +10,9 @@ cuts a file whose write failed back to it, leaving an unfinished but clean file.
 
 Reading: :func:`iter_messages` reads linearly (streaming), which works the same for finished
 files and for files whose writer died: it returns every message up to the last complete chunk
-and stops quietly at the torn tail. :func:`read_summary` uses the seeking reader's summary when
-the file was finished.
+and stops quietly at the torn tail. :func:`read_head_metadata` reads only the metadata before
+the first chunk (the session's part number, for following a session's parts).
+:func:`read_summary` uses the seeking reader's summary when the file was finished.
 """
 
 from __future__ import annotations
@@ -25,11 +26,11 @@ import os
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any, BinaryIO, Protocol
 
 from mcap.data_stream import RecordBuilder
 from mcap.reader import make_reader
-from mcap.records import Channel, ChunkIndex, Message, Metadata, Schema
+from mcap.records import Channel, Chunk, ChunkIndex, DataEnd, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 
@@ -327,7 +328,7 @@ class ReadReport:
 
 
 def iter_messages(
-    path: Path | str,
+    path: Path | str | BinaryIO,
     topics: Iterable[str] | None = None,
     report: ReadReport | None = None,
 ) -> Iterator[McapMessage]:
@@ -337,7 +338,8 @@ def iter_messages(
     chunk is returned and the tail is reported in ``report`` (not raised).
 
     Args:
-        path: the MCAP file.
+        path: the MCAP file, or a binary file open at its start (left open; its position
+            tells how far reading has gone, for progress).
         topics: only these topics (all when ``None``).
         report: optional :class:`ReadReport` filled in as reading goes.
     """
@@ -345,7 +347,7 @@ def iter_messages(
     rep = report if report is not None else ReadReport()
     schemas: dict[int, Schema] = {}
     channels: dict[int, Channel] = {}
-    with Path(path).open("rb") as f:
+    with _opened(path) as f:
         records = StreamReader(f, skip_magic=False).records
         while True:
             try:
@@ -380,7 +382,37 @@ def iter_messages(
                 rep.metadata[record.name] = dict(record.metadata)
 
 
-def iter_raw_chunks(path: Path | str) -> Iterator[tuple[bytes, int]]:
+@contextlib.contextmanager
+def _opened(source: Path | str | BinaryIO) -> Iterator[BinaryIO]:
+    """``source`` opened for reading if it is a path; a file object as it is (not closed)."""
+    if isinstance(source, (str, os.PathLike)):
+        with Path(source).open("rb") as f:
+            yield f
+    else:
+        yield source
+
+
+def read_head_metadata(path: Path | str) -> dict[str, dict[str, str]]:
+    """The metadata records written before the first chunk (where the recorder puts the
+    session's), without reading the rest of the file: a few hundred bytes, finished or not.
+
+    Returns an empty dict for a file that is not MCAP or is torn before its first chunk.
+    """
+    out: dict[str, dict[str, str]] = {}
+    with Path(path).open("rb") as f:
+        records = StreamReader(f, skip_magic=False, emit_chunks=True).records
+        try:
+            for record in records:
+                if isinstance(record, Metadata):
+                    out[record.name] = dict(record.metadata)
+                elif isinstance(record, (Chunk, Message, DataEnd)):
+                    break
+        except Exception as err:  # a torn or foreign file: what was read is all there is
+            log.debug("%s: head ends: %s", path, err)
+    return out
+
+
+def iter_raw_chunks(path: Path | str | BinaryIO) -> Iterator[tuple[bytes, int]]:
     """The ``/ubx/raw`` chunks of a recording as ``(data, log_time_ns)``, finished or not.
 
     Concatenating the data gives exactly the bytes the daemon received, in order.

@@ -29,7 +29,8 @@ from typing import Any
 import pytest
 from peers import Daemon, Pty, free_port
 
-from groundstation.sim.stream import SimConfig, paced, simulate
+from groundstation.pacing import paced
+from groundstation.sim.stream import SimConfig, simulate
 
 CHROMIUM = Path("/usr/bin/chromium")
 STATION = "dash"

@@ -18,8 +18,8 @@ import pytest
 from rinex_ref import read_rinex3_obs
 
 from groundstation.gpstime import NS_PER_WEEK
-from groundstation.offline.readers import iter_chunks
 from groundstation.records import Frame, RawEpoch, TimeMark
+from groundstation.storage.reading import iter_chunks
 from groundstation.ubx.decode import Decoder
 from groundstation.ubx.framer import FramerStats, UbxFramer
 

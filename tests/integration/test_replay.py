@@ -11,10 +11,10 @@ from pathlib import Path
 
 from peers import EventCollector
 
-from groundstation.demo import DemoOptions, run_demo
+from groundstation.live.demo import DemoOptions, run_demo
 from groundstation.live.fanout import Overflow, SinkSpec
+from groundstation.live.replay import run_replay
 from groundstation.records import to_jsonable
-from groundstation.replay import run_replay
 from groundstation.storage import iter_messages
 
 DATA_EVENTS = ("link.dropout", "sat.slip", "sat.half_cycle_set", "sat.half_cycle_cleared",

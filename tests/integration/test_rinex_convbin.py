@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from groundstation.offline import rinex
-from groundstation.offline.readers import iter_chunks
+from groundstation.storage.reading import iter_chunks
 from groundstation.ubx.fastraw import decode_raw, decode_rawx, index_frames
 
 pytestmark = pytest.mark.shared_data

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from pyubx2 import UBXReader
 
-from groundstation.offline.readers import iter_chunks
+from groundstation.storage.reading import iter_chunks
 from groundstation.ubx.build import build_frame
 from groundstation.ubx.fastraw import (
     decode_raw,

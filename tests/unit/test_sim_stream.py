@@ -11,9 +11,10 @@ from pyubx2 import UBXReader
 
 from groundstation.gnss.lnav import EphemerisAssembler
 from groundstation.gpstime import NS_PER_WEEK
+from groundstation.pacing import paced
 from groundstation.records import RawEpoch, Subframe, TimeMark
 from groundstation.sim.faults import FaultConfig
-from groundstation.sim.stream import SimConfig, SimResult, paced, simulate
+from groundstation.sim.stream import SimConfig, SimResult, simulate
 from groundstation.ubx.decode import Decoder
 from groundstation.ubx.framer import UbxFramer
 

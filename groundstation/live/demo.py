@@ -9,11 +9,7 @@ the MCAP and raw sidecar of the session, the base station's stream and the simul
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import logging
-import os
-import threading
-import tty
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -25,7 +21,8 @@ from groundstation.live.daemon import Pipeline, RunSummary
 from groundstation.live.fanout import Inbox, InboxClosed, Item, Overflow
 from groundstation.records import Event, Status, TimeMark
 from groundstation.sim.faults import FaultConfig
-from groundstation.sim.stream import SimConfig, SimResult, paced, simulate
+from groundstation.sim.ptylink import PtyLink
+from groundstation.sim.stream import SimConfig, SimResult, simulate
 
 log = logging.getLogger("groundstation.demo")
 
@@ -85,48 +82,6 @@ class ViewSink:
                 self._marks += 1
 
 
-class PtyFeeder:
-    """Writes the simulated stream into the master side of a pty, paced, in a thread."""
-
-    def __init__(self, chunks: list[tuple[int, bytes]], speed: float | None) -> None:
-        self.master, self.slave = os.openpty()
-        tty.setraw(self.slave)
-        self.path = os.ttyname(self.slave)
-        self._chunks = chunks
-        self._speed = speed
-        self._stop = threading.Event()
-        self.done = threading.Event()
-        self.bytes_written = 0
-        self._thread = threading.Thread(target=self._run, name="pty-feeder", daemon=True)
-
-    def start(self) -> None:
-        self._thread.start()
-
-    def _run(self) -> None:
-        try:
-            for _, chunk in paced(self._chunks, self._speed):
-                if self._stop.is_set():
-                    return
-                view = memoryview(chunk)
-                while view:
-                    n = os.write(self.master, view)
-                    view = view[n:]
-                self.bytes_written += len(chunk)
-        except OSError as err:
-            log.warning("pty writer stopped: %s", err)
-        finally:
-            self.done.set()
-
-    def stop(self) -> None:
-        self._stop.set()
-
-    def close(self) -> None:
-        self._stop.set()
-        for fd in (self.master, self.slave):
-            with contextlib.suppress(OSError):
-                os.close(fd)
-
-
 async def run_demo(
     opts: DemoOptions,
     *,
@@ -139,7 +94,7 @@ async def run_demo(
     faults = FaultConfig.load(opts.faults)
     sim = simulate(SimConfig(duration_s=opts.flight_s, seed=opts.seed, faults=faults))
     opts.out_dir.mkdir(parents=True, exist_ok=True)
-    feeder = PtyFeeder(sim.rover_chunks, opts.speed)
+    feeder = PtyLink()
     overrides: dict[str, Any] = {
         "station": opts.station,
         "receiver": "simulated u-blox LEA-6T (groundstation.sim)",
@@ -197,7 +152,7 @@ async def run_demo(
         if getattr(getattr(pipeline.source, "state", None), "connected", False):
             break
         await asyncio.sleep(0.01)
-    feeder.start()
+    feeder.start_feed(sim.rover_chunks, opts.speed)
     try:
         summary = await runner
     finally:
