@@ -20,7 +20,8 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-from groundstation.bus import Bus, BusSettings, encode, key, open_bus
+from groundstation.bus import Bus, encode, key, open_bus
+from groundstation.config import ZenohSettings
 from groundstation.errors import GroundstationError
 from groundstation.live.fanout import Inbox, InboxClosed, Item, RawChunk
 from groundstation.records import Event, RawEpoch, Status, TimeMark
@@ -49,7 +50,7 @@ class ZenohPublisherSink:
     def __init__(
         self,
         station: str,
-        settings: BusSettings,
+        settings: ZenohSettings,
         *,
         publish_epochs: bool = False,
         publish_raw: bool = False,

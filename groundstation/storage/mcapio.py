@@ -19,7 +19,6 @@ from __future__ import annotations
 import collections
 import contextlib
 import errno
-import json
 import logging
 import os
 from collections.abc import Iterable, Iterator
@@ -32,6 +31,8 @@ from mcap.reader import make_reader
 from mcap.records import Channel, ChunkIndex, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
+
+from groundstation import jsonio
 
 log = logging.getLogger("groundstation.storage")
 
@@ -56,7 +57,7 @@ def json_channel(topic: str, schema: dict[str, Any]) -> ChannelSpec:
     """A JSON channel with a JSON Schema (its ``title`` names the schema)."""
     return ChannelSpec(
         topic, "json", str(schema.get("title", topic)), "jsonschema",
-        json.dumps(schema, separators=(",", ":")).encode(),
+        jsonio.dumps(schema),
     )
 
 
