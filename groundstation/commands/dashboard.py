@@ -7,10 +7,14 @@ import logging
 import signal
 import threading
 from types import FrameType
+from typing import TYPE_CHECKING
 
 from groundstation.commands.options import add_config, add_zenoh_client, layer
 from groundstation.config import DASHBOARD, resolve, zenoh_settings
 from groundstation.errors import ConfigError
+
+if TYPE_CHECKING:
+    from groundstation.view.dashboard import DashboardSettings
 
 NAME = "dashboard"
 HELP = "local web dashboard of the stations on Zenoh (sky plot, link, marks, PPK readiness)"
@@ -37,8 +41,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="stop after S seconds (default: until Ctrl-C or SIGTERM)")
 
 
-def run(args: argparse.Namespace) -> int:
-    from groundstation.view.dashboard import Dashboard, DashboardSettings
+def settings_from_args(args: argparse.Namespace) -> tuple[DashboardSettings, float]:
+    """The dashboard's settings and duration: defaults < file < environment < options."""
+    from groundstation.view.dashboard import DashboardSettings
 
     top = resolve(DASHBOARD, args.config, overrides=layer(args, {
         "station": "stations", "port": "port", "bind": "bind", "ppk_min": "ppk_min",
@@ -52,6 +57,13 @@ def run(args: argparse.Namespace) -> int:
         bus=zenoh_settings(top["zenoh"]),
         ppk_ready_min=values.get("ppk_min", defaults.ppk_ready_min),
     )
+    return settings, duration_s
+
+
+def run(args: argparse.Namespace) -> int:
+    from groundstation.view.dashboard import Dashboard
+
+    settings, duration_s = settings_from_args(args)
     try:
         dashboard = Dashboard(settings)
     except OSError as err:

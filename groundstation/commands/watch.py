@@ -6,7 +6,7 @@ import argparse
 import contextlib
 
 from groundstation.commands.options import add_config, add_zenoh_client, layer
-from groundstation.config import WATCH, resolve, zenoh_settings
+from groundstation.config import WATCH, ZenohSettings, resolve, zenoh_settings
 
 NAME = "watch"
 HELP = "live terminal view of a station over Zenoh"
@@ -20,12 +20,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="stop after S seconds (default: Ctrl-C)")
 
 
+def settings_from_args(args: argparse.Namespace) -> tuple[str, ZenohSettings, float]:
+    """Station, Zenoh settings and duration: defaults < file < environment < options."""
+    values = resolve(WATCH, args.config, overrides=layer(
+        args, {"station": "station", "duration": "duration_s"})).values
+    return (values[""].get("station", "station"), zenoh_settings(values["zenoh"]),
+            values[""].get("duration_s", 0.0))
+
+
 def run(args: argparse.Namespace) -> int:
     from groundstation.view.watch import run_watch
 
-    values = resolve(WATCH, args.config, overrides=layer(
-        args, {"station": "station", "duration": "duration_s"})).values
+    station, zenoh, duration_s = settings_from_args(args)
     with contextlib.suppress(KeyboardInterrupt):
-        run_watch(values[""].get("station", "station"), zenoh_settings(values["zenoh"]),
-                  duration_s=values[""].get("duration_s", 0.0))
+        run_watch(station, zenoh, duration_s=duration_s)
     return 0
