@@ -31,9 +31,10 @@ def test_records_become_strict_json() -> None:
     assert doc["sats"][0]["doppler_hz"] == -100.25 and doc["tow_ns"] == 123_400_000_000
     assert b"NaN" not in out and b"Infinity" not in out
     ev = Event("x.y", 1, "m", "info", {"path": Path("/a/b"), "n": np.float64(2.5),
-                                        "k": np.int32(3), 4: (1, 2), "blob": b"\x01\x02"})
+                                        "k": np.int32(3), "t": (1, 2), "blob": b"\x01\x02"})
     data = jsonio.plain(ev)["data"]
-    assert data == {"path": "/a/b", "n": 2.5, "k": 3, "4": [1, 2], "blob": "AQI="}
+    assert data == {"path": "/a/b", "n": 2.5, "k": 3, "t": [1, 2], "blob": "AQI="}
+    assert jsonio.plain({4: None}) == {"4": None}
 
 
 def test_head_fields_lead_and_the_record_wins() -> None:
