@@ -23,6 +23,7 @@ error, whichever command reads the environment. The Zenoh endpoint default,
 
 from __future__ import annotations
 
+import importlib
 import math
 import os
 import re
@@ -220,6 +221,9 @@ class Key:
         hi: largest value.
         lo_open: ``lo`` itself is not allowed (``> lo`` rather than ``>= lo``).
         choices: the allowed values (strings and integers).
+        choices_from: ``module:NAME`` of the collection that owns the allowed values, read
+            when a value is checked (the solver's interpolators and edges live with the solver,
+            whose imports the daemon should not pay for).
     """
 
     kind: str
@@ -227,6 +231,14 @@ class Key:
     hi: float | None = None
     lo_open: bool = False
     choices: tuple[Any, ...] = ()
+    choices_from: str = ""
+
+    def allowed(self) -> tuple[Any, ...]:
+        """The allowed values (empty: any)."""
+        if not self.choices_from:
+            return self.choices
+        module, _, name = self.choices_from.partition(":")
+        return tuple(getattr(importlib.import_module(module), name))
 
 
 def _num(kind: str, lo: float | None = None, hi: float | None = None, *,
@@ -324,8 +336,8 @@ SOLVER_STATION_KEYS: dict[str, Key] = {
     "photos": STR,
     "out_root": PATH,
     "lever_arm": TRIPLE,
-    "interp": _choice("linear", "spline", "smoother"),
-    "edge": _choice("falling", "rising"),
+    "interp": Key("str", choices_from="groundstation.solve.interpolate:INTERPOLATORS"),
+    "edge": Key("str", choices_from="groundstation.solve.interpolate:EDGES"),
     "epsg": EPSG,
     "shutter_delay_ms": _num("float", -10_000.0, 10_000.0),
     "max_gap_s": _num("float", above=0.0, hi=3600.0),
@@ -497,8 +509,9 @@ def convert(spec: Key, name: str, value: Any, *, from_text: bool = False, origin
         out = _parse(spec, value, from_text=from_text)
     except (TypeError, ValueError, OverflowError) as err:
         raise ConfigError(name, f"{err}{where}") from err
-    if spec.choices and out not in spec.choices:
-        raise ConfigError(name, f"{out!r} is not one of {', '.join(map(str, spec.choices))}{where}")
+    allowed = spec.allowed()
+    if allowed and out not in allowed:
+        raise ConfigError(name, f"{out!r} is not one of {', '.join(map(str, allowed))}{where}")
     if spec.kind in ("int", "float"):
         low_bad = spec.lo is not None and (out <= spec.lo if spec.lo_open else out < spec.lo)
         if low_bad or (spec.hi is not None and out > spec.hi):
