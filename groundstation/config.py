@@ -418,14 +418,14 @@ def known_variables() -> frozenset[str]:
 
 _ENDPOINT = re.compile(
     r"^(?:(?:tcp|udp|tls|quic|ws)/(?:\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.\-]+):[0-9]{1,5}"
-    r"|unixsock-stream/\S+|unixpipe/\S+)(?:#\S*)?$"
+    r"|unixsock-stream/[^?#\s]+|unixpipe/[^?#\s]+)(?:\?[^#\s]*)?(?:#\S*)?$"
 )
 
 
 def _endpoint(value: str) -> str:
     if not _ENDPOINT.match(value):
         raise ValueError(f"{value!r} is not a Zenoh endpoint (e.g. {DEFAULT_ENDPOINT})")
-    port = value.rpartition(":")[2].split("#")[0]
+    port = value.split("?")[0].split("#")[0].rpartition(":")[2]
     if value.startswith(("tcp/", "udp/", "tls/", "quic/", "ws/")) and not 0 <= int(port) < 65536:
         raise ValueError(f"{value!r}: port must be 0..65535")
     return value

@@ -162,11 +162,7 @@ class Pipeline:
             self.specs.append(SinkSpec(self.monitor, settings.queues.monitor,
                                        Overflow.DROP_OLDEST))
         if settings.zenoh.enabled:
-            z = settings.zenoh
-            self.publisher = ZenohPublisherSink(
-                settings.station, z,
-                publish_epochs=z.publish_epochs, publish_raw=z.publish_raw, clock=clock,
-            )
+            self.publisher = ZenohPublisherSink(settings.station, settings.zenoh, clock=clock)
             self.specs.append(SinkSpec(self.publisher, settings.queues.publisher,
                                        Overflow.DROP_OLDEST))
         for spec in sinks:
