@@ -23,25 +23,32 @@ def add_config(parser: argparse.ArgumentParser, scope: Scope, example: str) -> N
 
 
 def add_zenoh_client(parser: argparse.ArgumentParser) -> None:
-    """``--connect``, ``--listen`` and ``--mode`` of a Zenoh client (a view, the solver)."""
+    """The Zenoh options of a client (a view, the solver): connect to the daemon, listen nowhere.
+
+    The names are the daemon's (``--zenoh-connect`` ...); the short ones stay as aliases.
+    """
     parser.add_argument(
-        "--connect", action="append", metavar="ENDPOINT",
+        "--zenoh-connect", "--connect", dest="zenoh_connect", action="append",
+        metavar="ENDPOINT",
         help=f"Zenoh endpoint of the daemon (default {', '.join(CLIENT_ZENOH.connect)}; "
         "repeatable)",
     )
-    parser.add_argument("--listen", action="append", metavar="ENDPOINT",
+    parser.add_argument("--zenoh-listen", "--listen", dest="zenoh_listen", action="append",
+                        metavar="ENDPOINT",
                         help="Zenoh endpoint to listen on (default: none; repeatable)")
-    parser.add_argument("--mode", choices=("peer", "client"),
+    parser.add_argument("--zenoh-mode", "--mode", dest="zenoh_mode", choices=("peer", "client"),
                         help=f"Zenoh mode (default {CLIENT_ZENOH.mode})")
 
 
 def add_zenoh_daemon(parser: argparse.ArgumentParser) -> None:
-    """``--zenoh-listen``, ``--zenoh-connect`` and ``--no-zenoh`` of a publishing daemon."""
+    """The Zenoh options of a publishing daemon (``run``, ``replay``)."""
     parser.add_argument("--no-zenoh", action="store_true", help="do not publish on Zenoh")
     parser.add_argument("--zenoh-listen", action="append", metavar="ENDPOINT",
                         help=f"Zenoh listen endpoint (default {DEFAULT_ENDPOINT}; repeatable)")
     parser.add_argument("--zenoh-connect", action="append", metavar="ENDPOINT",
                         help="Zenoh endpoint to connect to (a router or the solver; repeatable)")
+    parser.add_argument("--zenoh-mode", choices=("peer", "client", "router"),
+                        help="Zenoh mode (default peer)")
 
 
 def zenoh_layer(args: argparse.Namespace) -> dict[str, Any]:
@@ -49,12 +56,11 @@ def zenoh_layer(args: argparse.Namespace) -> dict[str, Any]:
     zen: dict[str, Any] = {}
     if getattr(args, "no_zenoh", False):
         zen["enabled"] = False
-    for opt, k in (("zenoh_listen", "listen"), ("zenoh_connect", "connect"),
-                   ("listen", "listen"), ("connect", "connect")):
-        if getattr(args, opt, None):
-            zen[k] = list(getattr(args, opt))
-    if getattr(args, "mode", None):
-        zen["mode"] = args.mode
+    for k in ("listen", "connect"):
+        if getattr(args, f"zenoh_{k}", None):
+            zen[k] = list(getattr(args, f"zenoh_{k}"))
+    if getattr(args, "zenoh_mode", None):
+        zen["mode"] = args.zenoh_mode
     return zen
 
 

@@ -58,10 +58,10 @@ def _dashboard(args: argparse.Namespace) -> ZenohSettings:
 COMMANDS = [
     Command("run", "GROUNDSTATION_", "--zenoh-connect", ("--port", "/dev/nonexistent-gs"),
             _run, ()),
-    Command("solver", "GROUNDSTATION_SOLVER_", "--connect", (), _solver,
+    Command("solver", "GROUNDSTATION_SOLVER_", "--zenoh-connect", (), _solver,
             (DEFAULT_ENDPOINT,)),
-    Command("watch", "GROUNDSTATION_WATCH_", "--connect", (), _watch, (DEFAULT_ENDPOINT,)),
-    Command("dashboard", "GROUNDSTATION_DASHBOARD_", "--connect", (), _dashboard,
+    Command("watch", "GROUNDSTATION_WATCH_", "--zenoh-connect", (), _watch, (DEFAULT_ENDPOINT,)),
+    Command("dashboard", "GROUNDSTATION_DASHBOARD_", "--zenoh-connect", (), _dashboard,
             (DEFAULT_ENDPOINT,)),
 ]
 IDS = [c.name for c in COMMANDS]
@@ -100,6 +100,10 @@ def test_precedence_defaults_file_environment_options(
 @pytest.mark.parametrize("cmd", [c for c in COMMANDS if c.name != "run"], ids=IDS[1:])
 def test_clients_listen_nowhere_by_default(cmd: Command) -> None:
     assert cmd.zenoh(parse([cmd.name])).listen == ()
+    # one name per option everywhere; the clients' short names stay as aliases
+    z = cmd.zenoh(parse([cmd.name, "--connect", "tcp/10.0.0.4:1", "--listen", "tcp/127.0.0.1:2",
+                         "--mode", "client"]))
+    assert (z.connect, z.listen, z.mode) == (("tcp/10.0.0.4:1",), ("tcp/127.0.0.1:2",), "client")
 
 
 @pytest.mark.parametrize("cmd", COMMANDS, ids=IDS)
