@@ -328,8 +328,6 @@ DAEMON_SCHEMA: Schema = {
 }
 """Every key the daemon's configuration accepts, by section ("" = top level)."""
 
-SCHEMA = DAEMON_SCHEMA
-
 SOLVER_STATION_KEYS: dict[str, Key] = {
     "base": STR,
     "base_xyz": TRIPLE,
