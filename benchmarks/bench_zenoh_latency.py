@@ -21,7 +21,8 @@ import time
 import tty
 from pathlib import Path
 
-from groundstation.bus import BusSettings, decode, key, open_bus
+from groundstation.bus import decode, key, open_bus
+from groundstation.config import ZenohSettings
 from groundstation.ubx.build import build_frame
 
 REPO = Path(__file__).resolve().parents[1]
@@ -67,7 +68,7 @@ def main() -> int:
         with lock:
             rx.setdefault(count, t)
 
-    bus = open_bus(BusSettings(listen=(), connect=(endpoint,)))
+    bus = open_bus(ZenohSettings(listen=(), connect=(endpoint,)))
     try:
         deadline = time.monotonic() + 15
         while not bus.get(key("lat", "q/status"), timeout_s=0.5):

@@ -1,5 +1,9 @@
 """The Zenoh bus: the one module that imports zenoh. Sessions, keys, JSON payloads.
 
+A session is opened from :class:`~groundstation.config.ZenohSettings` (the one Zenoh settings
+type) and listens exactly where it says: an empty ``listen`` list opens no listener (Zenoh's own
+default would be every interface, ``tcp/[::]:0``).
+
 Key space (DESIGN.md): ``groundstation/<station>/{status,timemark,event,epoch,ubx,session,
 q/timemarks,q/status,alive,solution}``. Payloads are UTF-8 JSON objects carrying ``schema``
 (:data:`~groundstation.records.STATUS_SCHEMA_VERSION`) and ``type``; ``docs/zenoh.md`` lists
@@ -8,30 +12,19 @@ every key and field.
 
 from __future__ import annotations
 
-import json
 import logging
-import math
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass
 from typing import Any
 
 import zenoh
 
-from groundstation.records import STATUS_SCHEMA_VERSION, to_jsonable
+from groundstation import jsonio
+from groundstation.config import ZenohSettings
+from groundstation.records import STATUS_SCHEMA_VERSION
 
 log = logging.getLogger("groundstation.zenoh")
 
 KEY_ROOT = "groundstation"
-
-
-@dataclass(frozen=True, slots=True)
-class BusSettings:
-    """How to join the bus. Peer mode, multicast scouting off, loopback only by default."""
-
-    mode: str = "peer"
-    listen: tuple[str, ...] = ("tcp/127.0.0.1:7447",)
-    connect: tuple[str, ...] = ()
-    scouting: bool = False
 
 
 def key(station: str, leaf: str) -> str:
@@ -39,49 +32,38 @@ def key(station: str, leaf: str) -> str:
     return f"{KEY_ROOT}/{station}/{leaf}"
 
 
-def _finite(value: Any) -> Any:
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    if isinstance(value, dict):
-        return {k: _finite(v) for k, v in value.items()}
-    if isinstance(value, list):
-        return [_finite(v) for v in value]
-    return value
-
-
 def encode(kind: str, record: Any, **extra: Any) -> bytes:
-    """A record as a JSON payload with ``schema`` and ``type`` fields."""
-    body = to_jsonable(record) if not isinstance(record, dict) else record
-    payload = {"schema": STATUS_SCHEMA_VERSION, "type": kind, **extra}
-    if isinstance(body, dict):
-        payload.update(body)
-    else:
-        payload["value"] = body
-    return json.dumps(_finite(payload), separators=(",", ":")).encode()
+    """A record (dataclass or dict) as a JSON payload led by ``schema``, ``type`` and ``extra``
+    (:func:`groundstation.jsonio.dumps_with`: NaN and infinity become ``null``)."""
+    return jsonio.dumps_with({"schema": STATUS_SCHEMA_VERSION, "type": kind, **extra}, record)
 
 
 def decode(payload: bytes) -> dict[str, Any]:
-    out = json.loads(payload)
+    """A JSON object payload.
+
+    Raises:
+        ValueError: not JSON, or not an object.
+    """
+    out = jsonio.loads(payload)
     if not isinstance(out, dict):
         raise ValueError("payload is not a JSON object")
     return out
 
 
-def _config(settings: BusSettings) -> Any:
+def _config(settings: ZenohSettings) -> Any:
     conf = zenoh.Config()
-    conf.insert_json5("mode", json.dumps(settings.mode))
+    conf.insert_json5("mode", jsonio.dumps(settings.mode).decode())
     conf.insert_json5("scouting/multicast/enabled", "true" if settings.scouting else "false")
-    if settings.listen:
-        conf.insert_json5("listen/endpoints", json.dumps(list(settings.listen)))
-    if settings.connect:
-        conf.insert_json5("connect/endpoints", json.dumps(list(settings.connect)))
+    # Always set, even empty: left out, Zenoh listens on tcp/[::]:0 (every interface).
+    conf.insert_json5("listen/endpoints", jsonio.dumps(list(settings.listen)).decode())
+    conf.insert_json5("connect/endpoints", jsonio.dumps(list(settings.connect)).decode())
     return conf
 
 
 class Bus:
     """An open Zenoh session with the few operations groundstation uses."""
 
-    def __init__(self, settings: BusSettings) -> None:
+    def __init__(self, settings: ZenohSettings) -> None:
         self.settings = settings
         self._session: Any = zenoh.open(_config(settings))
         self._declared: list[Any] = []
@@ -163,7 +145,7 @@ class Bus:
             log.debug("session close failed", exc_info=True)
 
 
-def open_bus(settings: BusSettings) -> Bus:
+def open_bus(settings: ZenohSettings) -> Bus:
     """Open a session; raises :class:`~groundstation.errors.GroundstationError` on failure."""
     from groundstation.errors import GroundstationError
 

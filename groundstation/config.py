@@ -1,30 +1,47 @@
-"""Typed daemon settings and the one place they are resolved: defaults < TOML < environment < CLI.
+"""Every command's settings and the one resolver: defaults < TOML file < environment < command line.
 
-The configuration is a small nested table (see ``config/groundstation.toml``). Every layer is
-merged into the same plain dictionary, checked against :data:`SCHEMA` (an unknown key is an
-error, never ignored), converted to the section's type and then turned into frozen dataclasses.
-Any problem raises :class:`~groundstation.errors.ConfigError` naming the dotted key, which the
-command line turns into exit status 2.
+A command's configuration is a :class:`Scope`: a schema of sections and keys (each a :class:`Key`
+with its type and range), the prefix of its environment variables and the variable naming its
+file. :func:`resolve` merges the layers of one scope into plain values, checking every key
+against the schema (an unknown key is an error, never ignored), converting and range-checking
+each value (numbers must be finite), and raising :class:`~groundstation.errors.ConfigError`
+naming the dotted key (and the variable, for the environment); the command line turns that into
+exit status 2. The scopes:
 
-Environment variables are ``GROUNDSTATION_<KEY>`` for top-level keys and
-``GROUNDSTATION_<SECTION>_<KEY>`` for the others (``GROUNDSTATION_SOURCE_BAUD=57600``,
-``GROUNDSTATION_RECORDER_OUT_DIR=/data``). Variables that name no setting are ignored, because
-other tools share the prefix (``GROUNDSTATION_CONFIG`` names the file itself).
+- :data:`DAEMON` (``run``; ``demo`` and ``replay`` build the same settings):
+  ``GROUNDSTATION_<KEY>``, ``GROUNDSTATION_<SECTION>_<KEY>`` (``GROUNDSTATION_SOURCE_BAUD``),
+  file ``--config`` or ``GROUNDSTATION_CONFIG``; :func:`load_settings` gives :class:`Settings`.
+- :data:`SOLVER` (``solver``): ``GROUNDSTATION_SOLVER_<KEY>``,
+  ``GROUNDSTATION_SOLVER_ZENOH_<KEY>``, file ``GROUNDSTATION_SOLVER_CONFIG``; per-station
+  ``[stations.<name>]`` tables come from the file only (``solve/service.py`` builds them).
+- :data:`WATCH` and :data:`DASHBOARD`: ``GROUNDSTATION_WATCH_*``, ``GROUNDSTATION_DASHBOARD_*``.
+
+Every ``GROUNDSTATION_*`` variable must name a setting of some scope: a misspelt variable is an
+error, whichever command reads the environment. The Zenoh endpoint default,
+:data:`DEFAULT_ENDPOINT`, is written here and nowhere else.
 """
 
 from __future__ import annotations
 
+import importlib
+import math
 import os
+import re
+import stat
 import tomllib
-from collections.abc import Mapping
-from dataclasses import asdict, dataclass
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Literal
 
+from groundstation import jsonio
 from groundstation.errors import ConfigError
 
 ENV_PREFIX = "GROUNDSTATION_"
 ENV_CONFIG_FILE = "GROUNDSTATION_CONFIG"
+
+DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
+"""Where the daemon listens and the views and the solver connect by default: loopback only."""
 
 VALID_BAUDS: tuple[int, ...] = (
     1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200, 230400, 460800, 921600
@@ -121,15 +138,34 @@ class FramerSettings:
 
 @dataclass(frozen=True, slots=True)
 class ZenohSettings:
-    """The Zenoh publisher: loopback only and no multicast scouting unless configured."""
+    """How a command joins Zenoh: the one settings type for the daemon, the views and the solver.
+
+    The defaults are the daemon's: a peer listening on loopback only, no multicast scouting.
+    Clients (``watch``, ``dashboard``, ``solver``) start from :data:`CLIENT_ZENOH`: they listen
+    nowhere and connect to the daemon. An empty ``listen`` means no listener at all (the bus
+    never lets Zenoh fall back to its own default of every interface).
+
+    Attributes:
+        enabled: publish at all (the daemon's ``--no-zenoh``).
+        mode: ``peer``, ``client`` or ``router``.
+        listen: endpoints to listen on.
+        connect: endpoints to connect to (a router, the daemon).
+        scouting: multicast scouting.
+        publish_epochs: the daemon also puts every raw epoch on ``.../epoch``.
+        publish_raw: the daemon also puts every raw chunk on ``.../ubx``.
+    """
 
     enabled: bool = True
     mode: Literal["peer", "client", "router"] = "peer"
-    listen: tuple[str, ...] = ("tcp/127.0.0.1:7447",)
+    listen: tuple[str, ...] = (DEFAULT_ENDPOINT,)
     connect: tuple[str, ...] = ()
     scouting: bool = False
     publish_epochs: bool = False
     publish_raw: bool = False
+
+
+CLIENT_ZENOH = ZenohSettings(listen=(), connect=(DEFAULT_ENDPOINT,))
+"""A view's or the solver's default: no listener, connect to the local daemon."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -166,78 +202,486 @@ class Settings:
 
     def to_jsonable(self) -> dict[str, Any]:
         """Plain JSON values (paths as strings), for the MCAP metadata record."""
-        out: dict[str, Any] = _jsonable(asdict(self))
+        out: dict[str, Any] = jsonio.plain(self)
         return out
 
 
-def _jsonable(value: Any) -> Any:
-    if isinstance(value, dict):
-        return {k: _jsonable(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_jsonable(v) for v in value]
-    if isinstance(value, Path):
-        return str(value)
+
+
+# -- the schema ----------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class Key:
+    """One setting's type and range.
+
+    Attributes:
+        kind: ``str``, ``int``, ``float``, ``bool``, ``path``, ``strlist``, ``endpoints``
+            (Zenoh endpoints), ``triple`` (three numbers ``X,Y,Z``) or ``epsg`` (a code).
+        lo: smallest value (numbers; for ``int``/``float`` only).
+        hi: largest value.
+        lo_open: ``lo`` itself is not allowed (``> lo`` rather than ``>= lo``).
+        choices: the allowed values (strings and integers).
+        choices_from: ``module:NAME`` of the collection that owns the allowed values, read
+            when a value is checked (the solver's interpolators and edges live with the solver,
+            whose imports the daemon should not pay for).
+    """
+
+    kind: str
+    lo: float | None = None
+    hi: float | None = None
+    lo_open: bool = False
+    choices: tuple[Any, ...] = ()
+    choices_from: str = ""
+
+    def allowed(self) -> tuple[Any, ...]:
+        """The allowed values (empty: any)."""
+        if not self.choices_from:
+            return self.choices
+        module, _, name = self.choices_from.partition(":")
+        return tuple(getattr(importlib.import_module(module), name))
+
+
+def _num(kind: str, lo: float | None = None, hi: float | None = None, *,
+         above: float | None = None) -> Key:
+    """A number ``lo <= v <= hi`` (or ``above < v <= hi``)."""
+    if above is not None:
+        return Key(kind, above, hi, lo_open=True)
+    return Key(kind, lo, hi)
+
+
+STR, BOOL, PATH, STRLIST = Key("str"), Key("bool"), Key("path"), Key("strlist")
+ENDPOINTS, TRIPLE, EPSG = Key("endpoints"), Key("triple"), Key("epsg")
+DURATION = _num("float", 0.0, 10 * 365 * 86_400.0)
+"""How long to run: 0 = until stopped."""
+SECONDS = _num("float", above=0, hi=86_400.0)
+"""A timer: positive and at most a day (a zero or tiny timer would spin the event loop)."""
+
+
+def _choice(*values: Any) -> Key:
+    return Key("int" if all(isinstance(v, int) for v in values) else "str", choices=values)
+
+
+ZENOH_KEYS: dict[str, Key] = {
+    "mode": _choice("peer", "client", "router"),
+    "listen": ENDPOINTS,
+    "connect": ENDPOINTS,
+    "scouting": BOOL,
+}
+"""The ``[zenoh]`` table every scope shares (the daemon adds its publishing switches)."""
+
+Schema = Mapping[str, Mapping[str, Key]]
+
+DAEMON_SCHEMA: Schema = {
+    "": {
+        "station": STR,
+        "receiver": STR,
+        "duration_s": DURATION,
+        # at least 20 Hz: a smaller interval livelocks the daemon (issue 17)
+        "status_interval_s": _num("float", 0.05, 3600.0),
+    },
+    "source": {
+        "type": _choice("serial", "tcp", "file"),
+        "port": STR,
+        "baud": _choice(*VALID_BAUDS),
+        "address": STR,
+        "path": PATH,
+        "rate_bytes_per_s": _num("float", 0.0, 1e10),
+        # one read's buffer: a huge one is allocated and fails on every read (issue 17)
+        "read_size_bytes": _num("int", 1, 1 << 20),
+        "reconnect_min_s": _num("float", 0.001, 3600.0),
+        "reconnect_max_s": _num("float", 0.001, 3600.0),
+        "stall_check_s": _num("float", 0.01, 3600.0),
+        "connect_timeout_s": _num("float", 0.01, 600.0),
+    },
+    "recorder": {
+        "out_dir": PATH,
+        "rotate_size_mb": _num("float", 0.0, 1e7),
+        "rotate_duration_s": _num("float", 0.0, 1e8),
+        # at most 1 s: a crash must lose little (DESIGN.md)
+        "flush_interval_s": _num("float", 0.01, 1.0),
+        "chunk_size_bytes": _num("int", 256, 1 << 28),
+        "compression": _choice("zstd", "lz4", "none"),
+        "sidecar": BOOL,
+        "backlog_mb": _num("float", above=0.0, hi=1e6),
+        "retry_s": _num("float", 0.01, 3600.0),
+    },
+    "queues": {name: _num("int", 1, 10_000_000) for name in ("recorder", "monitor", "publisher")},
+    "framer": {"max_payload_bytes": _num("int", 1, 65535)},
+    "zenoh": {
+        "enabled": BOOL,
+        **ZENOH_KEYS,
+        "publish_epochs": BOOL,
+        "publish_raw": BOOL,
+    },
+    "monitor": {
+        "enabled": BOOL,
+        "dropout_alert_s": SECONDS,
+        "ppk_ready_min": _num("int", 0, 1000),
+        "clean_phase_s": SECONDS,
+        "half_cycle_fraction_max": _num("float", above=0.0, hi=1.0),
+        "no_data_s": SECONDS,
+        "disk_free_min_mb": _num("float", 0.0, 1e9),
+        "elevation_mask_deg": _num("float", 0.0, 90.0),
+        "marks_missed_hold_s": SECONDS,
+        "no_frames_s": SECONDS,
+    },
+}
+"""Every key the daemon's configuration accepts, by section ("" = top level)."""
+
+SOLVER_STATION_KEYS: dict[str, Key] = {
+    "base": STR,
+    "base_xyz": TRIPLE,
+    "photos": STR,
+    "out_root": PATH,
+    "lever_arm": TRIPLE,
+    "interp": Key("str", choices_from="groundstation.solve.interpolate:INTERPOLATORS"),
+    "edge": Key("str", choices_from="groundstation.solve.interpolate:EDGES"),
+    "epsg": EPSG,
+    "shutter_delay_ms": _num("float", -10_000.0, 10_000.0),
+    "max_gap_s": _num("float", above=0.0, hi=3600.0),
+}
+"""What may differ per station in the solver (top-level defaults, ``[stations.<name>]``)."""
+
+SOLVER_SCHEMA: Schema = {
+    "": {"station": STR, "queue_size": _num("int", 1, 10_000), **SOLVER_STATION_KEYS},
+    "zenoh": ZENOH_KEYS,
+}
+
+WATCH_SCHEMA: Schema = {
+    "": {"station": STR, "duration_s": _num("float", 0.0, 10 * 365 * 86_400.0)},
+    "zenoh": ZENOH_KEYS,
+}
+
+DASHBOARD_SCHEMA: Schema = {
+    "": {
+        "stations": STRLIST,
+        "bind": STR,
+        "port": _num("int", 0, 65535),
+        "ppk_min": _num("int", 0, 1000),
+        "duration_s": DURATION,
+    },
+    "zenoh": ZENOH_KEYS,
+}
+
+
+@dataclass(frozen=True, slots=True)
+class Scope:
+    """One command's configuration: its keys, its environment prefix, its free-form tables.
+
+    Attributes:
+        name: the command (for messages).
+        schema: sections and keys.
+        env_prefix: ``GROUNDSTATION_`` plus the command's own part, if any.
+        tables: file-only tables of named tables (the solver's ``stations``), each checked
+            against these keys of the top-level section.
+    """
+
+    name: str
+    schema: Schema
+    env_prefix: str = ENV_PREFIX
+    tables: Mapping[str, Mapping[str, Key]] = field(default_factory=dict)
+
+    @property
+    def config_variable(self) -> str:
+        """The variable that names the configuration file."""
+        return self.env_prefix + "CONFIG"
+
+    def variables(self) -> dict[str, tuple[str, str]]:
+        """Environment variable -> (section, key)."""
+        out: dict[str, tuple[str, str]] = {}
+        for section, keys in self.schema.items():
+            for k in keys:
+                out[self.env_prefix + (f"{section}_{k}" if section else k).upper()] = (section, k)
+        return out
+
+
+DAEMON = Scope("run", DAEMON_SCHEMA)
+SOLVER = Scope("solver", SOLVER_SCHEMA, ENV_PREFIX + "SOLVER_",
+               tables={"stations": SOLVER_STATION_KEYS})
+WATCH = Scope("watch", WATCH_SCHEMA, ENV_PREFIX + "WATCH_")
+DASHBOARD = Scope("dashboard", DASHBOARD_SCHEMA, ENV_PREFIX + "DASHBOARD_")
+SCOPES: tuple[Scope, ...] = (DAEMON, SOLVER, WATCH, DASHBOARD)
+
+
+def known_variables() -> frozenset[str]:
+    """Every ``GROUNDSTATION_*`` variable some command reads."""
+    names: set[str] = set()
+    for scope in SCOPES:
+        names.update(scope.variables())
+        names.add(scope.config_variable)
+    return frozenset(names)
+
+
+# -- converting and checking one value -----------------------------------------------------
+
+_ENDPOINT = re.compile(
+    r"^(?:(?:tcp|udp|tls|quic|ws)/(?:\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.\-]+):[0-9]{1,5}"
+    r"|unixsock-stream/[^?#\s]+|unixpipe/[^?#\s]+)(?:\?[^#\s]*)?(?:#\S*)?$"
+)
+
+
+def _endpoint(value: str) -> str:
+    if not _ENDPOINT.match(value):
+        raise ValueError(f"{value!r} is not a Zenoh endpoint (e.g. {DEFAULT_ENDPOINT})")
+    port = value.split("?")[0].split("#")[0].rpartition(":")[2]
+    if value.startswith(("tcp/", "udp/", "tls/", "quic/", "ws/")) and not 0 <= int(port) < 65536:
+        raise ValueError(f"{value!r}: port must be 0..65535")
     return value
 
 
-# Types a key may take: str, int, float, bool, "path", "strlist".
-_T = str | type
-SCHEMA: dict[str, dict[str, _T]] = {
-    "": {
-        "station": str,
-        "receiver": str,
-        "duration_s": float,
-        "status_interval_s": float,
-    },
-    "source": {
-        "type": str,
-        "port": str,
-        "baud": int,
-        "address": str,
-        "path": "path",
-        "rate_bytes_per_s": float,
-        "read_size_bytes": int,
-        "reconnect_min_s": float,
-        "reconnect_max_s": float,
-        "stall_check_s": float,
-        "connect_timeout_s": float,
-    },
-    "recorder": {
-        "out_dir": "path",
-        "rotate_size_mb": float,
-        "rotate_duration_s": float,
-        "flush_interval_s": float,
-        "chunk_size_bytes": int,
-        "compression": str,
-        "sidecar": bool,
-        "backlog_mb": float,
-        "retry_s": float,
-    },
-    "queues": {"recorder": int, "monitor": int, "publisher": int},
-    "framer": {"max_payload_bytes": int},
-    "zenoh": {
-        "enabled": bool,
-        "mode": str,
-        "listen": "strlist",
-        "connect": "strlist",
-        "scouting": bool,
-        "publish_epochs": bool,
-        "publish_raw": bool,
-    },
-    "monitor": {
-        "enabled": bool,
-        "dropout_alert_s": float,
-        "ppk_ready_min": int,
-        "clean_phase_s": float,
-        "half_cycle_fraction_max": float,
-        "no_data_s": float,
-        "disk_free_min_mb": float,
-        "elevation_mask_deg": float,
-        "marks_missed_hold_s": float,
-        "no_frames_s": float,
-    },
-}
-"""Every key the configuration accepts, by section ("" = top level)."""
+def _number_text(value: Any, *, from_text: bool) -> Any:
+    if isinstance(value, bool) or (isinstance(value, str) and not from_text):
+        raise ValueError(f"expected a number, got {value!r}")
+    return value
+
+
+def _parse(spec: Key, value: Any, *, from_text: bool) -> Any:
+    """``value`` converted to ``spec.kind`` (``from_text`` for environment strings)."""
+    kind = spec.kind
+    if kind == "bool":
+        if isinstance(value, bool):
+            return value
+        text = str(value).strip().lower() if from_text else None
+        if text in {"1", "true", "yes", "on"}:
+            return True
+        if text in {"0", "false", "no", "off"}:
+            return False
+        raise ValueError(f"expected true or false, got {value!r}")
+    if kind == "int":
+        _number_text(value, from_text=from_text)
+        if isinstance(value, float) and not from_text:
+            raise ValueError(f"expected an integer, got {value!r}")
+        return int(str(value).strip()) if isinstance(value, str) else int(value)
+    if kind == "float":
+        v = float(_number_text(value, from_text=from_text))
+        if not math.isfinite(v):
+            raise ValueError(f"expected a finite number, got {value!r}")
+        return v
+    if kind == "str":
+        if not isinstance(value, str):
+            raise ValueError(f"expected a string, got {value!r}")
+        return value
+    if kind == "path":
+        if not isinstance(value, (str, Path)) or not str(value):
+            raise ValueError(f"expected a path, got {value!r}")
+        return Path(value).expanduser()
+    if kind in ("strlist", "endpoints"):
+        if isinstance(value, str):  # environment: comma-separated; a file may give one string
+            value = [v.strip() for v in value.split(",") if v.strip()]
+        if not isinstance(value, (list, tuple)) or not all(isinstance(v, str) for v in value):
+            raise ValueError(f"expected a list of strings, got {value!r}")
+        return tuple(_endpoint(v) for v in value) if kind == "endpoints" else tuple(value)
+    if kind == "triple":
+        if isinstance(value, str):
+            value = [v for v in value.replace(" ", "").split(",") if v]
+        if (not isinstance(value, (list, tuple)) or len(value) != 3
+                or any(isinstance(v, bool) for v in value)):
+            raise ValueError(f"expected three numbers X,Y,Z, got {value!r}")
+        out = tuple(float(v) for v in value)
+        if not all(math.isfinite(v) for v in out):
+            raise ValueError(f"expected finite numbers, got {value!r}")
+        return out
+    if kind == "epsg":
+        text = str(value).strip().upper().removeprefix("EPSG:")
+        if isinstance(value, bool) or not text.isdigit():
+            raise ValueError(f"expected an EPSG code number, got {value!r}")
+        return int(text)
+    raise ValueError(f"no converter for {kind!r}")  # pragma: no cover
+
+
+def convert(spec: Key, name: str, value: Any, *, from_text: bool = False, origin: str = "") -> Any:
+    """One value converted and range-checked.
+
+    Args:
+        spec: the key's type and range.
+        name: the dotted key, for the message.
+        value: the value as the layer holds it.
+        from_text: the value is text to parse (an environment variable).
+        origin: where it came from, added to the message (``environment GROUNDSTATION_X``).
+
+    Raises:
+        ConfigError: naming ``name`` (and ``origin``).
+    """
+    where = f" ({origin})" if origin else ""
+    try:
+        out = _parse(spec, value, from_text=from_text)
+    except (TypeError, ValueError, OverflowError) as err:
+        raise ConfigError(name, f"{err}{where}") from err
+    allowed = spec.allowed()
+    if allowed and out not in allowed:
+        raise ConfigError(name, f"{out!r} is not one of {', '.join(map(str, allowed))}{where}")
+    if spec.kind in ("int", "float"):
+        low_bad = spec.lo is not None and (out <= spec.lo if spec.lo_open else out < spec.lo)
+        if low_bad or (spec.hi is not None and out > spec.hi):
+            low = "" if spec.lo is None else f"{'>' if spec.lo_open else '>='} {spec.lo:g}"
+            high = "" if spec.hi is None else f"<= {spec.hi:g}"
+            rule = " and ".join(r for r in (low, high) if r)
+            raise ConfigError(name, f"must be {rule}, got {out!r}{where}")
+    return out
+
+
+def _dotted(section: str, key: str) -> str:
+    return f"{section}.{key}" if section else key
+
+
+# -- reading the layers --------------------------------------------------------------------
+
+
+def read_toml(path: Path) -> dict[str, Any]:
+    """Parse a TOML configuration file (no validation of its keys yet).
+
+    Raises:
+        ConfigError: key ``config``, one line: missing, not a regular file (a directory or a
+            FIFO, which would block), unreadable, not UTF-8 or not TOML.
+    """
+    try:
+        info = path.stat()
+    except FileNotFoundError as err:
+        raise ConfigError("config", f"file not found: {path}") from err
+    except OSError as err:
+        raise ConfigError("config", f"{path}: {err.strerror or err}") from err
+    if not stat.S_ISREG(info.st_mode):
+        what = "a directory" if stat.S_ISDIR(info.st_mode) else "not a regular file"
+        raise ConfigError("config", f"{path} is {what}")
+    try:
+        with path.open("rb") as f:
+            return tomllib.load(f)
+    except OSError as err:
+        raise ConfigError("config", f"{path}: {err.strerror or err}") from err
+    except UnicodeDecodeError as err:
+        raise ConfigError("config", f"{path}: not UTF-8 text (byte {err.start})") from err
+    except tomllib.TOMLDecodeError as err:
+        raise ConfigError("config", f"{path}: invalid TOML: {err}") from err
+
+
+def check_environment(environ: Mapping[str, str]) -> None:
+    """Refuse a ``GROUNDSTATION_*`` variable that names no setting of any command.
+
+    Raises:
+        ConfigError: naming the variable.
+    """
+    known = known_variables()
+    for var in sorted(environ):
+        if var.startswith(ENV_PREFIX) and var not in known:
+            raise ConfigError(var, "unknown environment variable: it names no setting "
+                                   "(see config/groundstation.toml and config/solver.toml)")
+
+
+def env_layer(scope: Scope, environ: Mapping[str, str]) -> dict[str, Any]:
+    """The scope's settings named by its variables, as a nested layer of strings."""
+    layer: dict[str, Any] = {}
+    for var, (section, k) in scope.variables().items():
+        if var in environ:
+            (layer.setdefault(section, {}) if section else layer)[k] = environ[var]
+    return layer
+
+
+@dataclass(slots=True)
+class Resolved:
+    """A scope's merged, converted values (only what some layer set; defaults are the typed
+    settings' own). ``values[section][key]``; ``tables[table][name][key]``."""
+
+    values: dict[str, dict[str, Any]]
+    tables: dict[str, dict[str, dict[str, Any]]]
+    origin: dict[tuple[str, str], str] = field(default_factory=dict)
+    """Which layer set each value: ``file``, ``environment`` or ``command line``."""
+
+
+Hook = Callable[[dict[str, dict[str, Any]], Mapping[str, Any]], None]
+
+
+def _merge(scope: Scope, out: Resolved, layer: Mapping[str, Any], *, origin: str,
+           env: bool) -> None:
+    names = {sk: v for v, sk in scope.variables().items()} if env else {}
+
+    def put(section: str, k: str, value: Any) -> None:
+        spec = scope.schema[section][k]
+        where = f"environment {names[(section, k)]}" if env else origin
+        out.values[section][k] = convert(spec, _dotted(section, k), value, from_text=env,
+                                         origin=where)
+        out.origin[(section, k)] = origin.split(" ")[0]
+
+    for k, value in layer.items():
+        if k in scope.tables:
+            if env or not isinstance(value, Mapping):
+                raise ConfigError(k, f"must be a table of [{k}.<name>] tables ({origin})")
+            allowed = scope.tables[k]
+            for name, table in value.items():
+                if not isinstance(table, Mapping):
+                    raise ConfigError(f"{k}.{name}", f"must be a table ({origin})")
+                got = out.tables.setdefault(k, {}).setdefault(str(name), {})
+                for sub, sub_value in table.items():
+                    dotted = f"{k}.{name}.{sub}"
+                    if sub not in allowed:
+                        raise ConfigError(dotted, f"unknown key ({origin})")
+                    got[sub] = convert(allowed[sub], dotted, sub_value, origin=origin)
+        elif k in scope.schema and k != "":
+            if not isinstance(value, Mapping):
+                raise ConfigError(k, f"must be a table ({origin})")
+            for sub, sub_value in value.items():
+                if sub not in scope.schema[k]:
+                    raise ConfigError(_dotted(k, sub), f"unknown key ({origin})")
+                put(k, sub, sub_value)
+        elif k in scope.schema.get("", {}):
+            put("", k, value)
+        else:
+            raise ConfigError(k, f"unknown key ({origin})")
+
+
+Layer = tuple[Mapping[str, Any], str, bool]
+"""A layer: its values, where it comes from (``file X``, ``environment``, ``command line``)
+and whether its values are text to parse (the environment)."""
+
+
+def resolve(
+    scope: Scope,
+    config_file: Path | None = None,
+    *,
+    environ: Mapping[str, str] | None = None,
+    overrides: Mapping[str, Any] | None = None,
+    before_layer: Hook | None = None,
+) -> Resolved:
+    """Merge defaults < TOML file < environment < ``overrides`` (the command line) for a scope.
+
+    Args:
+        scope: the command's configuration.
+        config_file: TOML file; ``None`` uses the scope's variable (``GROUNDSTATION_CONFIG``
+            for the daemon) if set, else no file.
+        environ: the environment (``os.environ`` when ``None``).
+        overrides: command-line values as a nested layer (``{"zenoh": {"connect": [...]}}``).
+        before_layer: called with the merged values and each layer before it is merged (the
+            daemon lets a layer that names a device choose the source kind).
+
+    Raises:
+        ConfigError: naming the offending key, or the unknown variable.
+    """
+    env = os.environ if environ is None else environ
+    check_environment(env)
+    if config_file is None and env.get(scope.config_variable):
+        config_file = Path(env[scope.config_variable])
+    layers: list[Layer] = []
+    if config_file is not None:
+        layers.append((read_toml(config_file), f"file {config_file}", False))
+    layers.append((env_layer(scope, env), "environment", True))
+    if overrides:
+        layers.append((overrides, "command line", False))
+    return merge_layers(scope, layers, before_layer=before_layer)
+
+
+def merge_layers(scope: Scope, layers: list[Layer], *, before_layer: Hook | None = None
+                 ) -> Resolved:
+    """Merge already-read layers, lowest first (:func:`resolve` reads them)."""
+    out = Resolved({section: {} for section in scope.schema}, {})
+    out.values.setdefault("", {})
+    for layer, origin, is_env in layers:
+        if before_layer is not None:
+            before_layer(out.values, layer)
+        _merge(scope, out, layer, origin=origin, env=is_env)
+    return out
+
+
+# -- the daemon's settings -----------------------------------------------------------------
 
 _SOURCE_KEYS: dict[str, frozenset[str]] = {
     "serial": frozenset(
@@ -249,95 +693,6 @@ _SOURCE_KEYS: dict[str, frozenset[str]] = {
     "file": frozenset({"path", "rate_bytes_per_s", "read_size_bytes"}),
 }
 _SOURCE_LOCATOR = {"serial": "port", "tcp": "address", "file": "path"}
-
-
-def _dotted(section: str, key: str) -> str:
-    return f"{section}.{key}" if section else key
-
-
-def _convert(section: str, key: str, value: Any, *, from_text: bool) -> Any:
-    """Convert one value to the schema type; ``from_text`` for environment strings."""
-    kind = SCHEMA[section][key]
-    name = _dotted(section, key)
-    try:
-        if kind is bool:
-            if isinstance(value, bool):
-                return value
-            if from_text and str(value).strip().lower() in {"1", "true", "yes", "on"}:
-                return True
-            if from_text and str(value).strip().lower() in {"0", "false", "no", "off"}:
-                return False
-            raise ValueError(f"expected true or false, got {value!r}")
-        if kind is int:
-            if isinstance(value, bool) or (isinstance(value, float) and not from_text):
-                raise ValueError(f"expected an integer, got {value!r}")
-            if isinstance(value, str) and not from_text:
-                raise ValueError(f"expected an integer, got the string {value!r}")
-            return int(value)
-        if kind is float:
-            if isinstance(value, bool) or (isinstance(value, str) and not from_text):
-                raise ValueError(f"expected a number, got {value!r}")
-            return float(value)
-        if kind is str:
-            if not isinstance(value, str):
-                raise ValueError(f"expected a string, got {value!r}")
-            return value
-        if kind == "path":
-            if not isinstance(value, (str, Path)):
-                raise ValueError(f"expected a path, got {value!r}")
-            return Path(value).expanduser()
-        if kind == "strlist":
-            if from_text and isinstance(value, str):
-                return tuple(v.strip() for v in value.split(",") if v.strip())
-            if not isinstance(value, (list, tuple)) or not all(isinstance(v, str) for v in value):
-                raise ValueError(f"expected a list of strings, got {value!r}")
-            return tuple(value)
-    except (TypeError, ValueError) as err:
-        raise ConfigError(name, str(err)) from err
-    raise ConfigError(name, f"no converter for {kind!r}")  # pragma: no cover
-
-
-def _merge_layer(
-    merged: dict[str, dict[str, Any]], layer: Mapping[str, Any], *, origin: str, from_text: bool
-) -> None:
-    """Merge one nested layer into ``merged``, rejecting unknown keys."""
-    for key, value in layer.items():
-        if key in SCHEMA and key != "":
-            if not isinstance(value, Mapping):
-                raise ConfigError(key, f"must be a table ({origin})")
-            for sub, sub_value in value.items():
-                if sub not in SCHEMA[key]:
-                    raise ConfigError(_dotted(key, sub), f"unknown key ({origin})")
-                merged[key][sub] = _convert(key, sub, sub_value, from_text=from_text)
-        elif key in SCHEMA[""]:
-            merged[""][key] = _convert("", key, value, from_text=from_text)
-        else:
-            raise ConfigError(key, f"unknown key ({origin})")
-
-
-def read_toml(path: Path) -> dict[str, Any]:
-    """Parse a TOML configuration file (no validation yet)."""
-    try:
-        with path.open("rb") as f:
-            return tomllib.load(f)
-    except FileNotFoundError as err:
-        raise ConfigError("config", f"file not found: {path}") from err
-    except tomllib.TOMLDecodeError as err:
-        raise ConfigError("config", f"{path}: invalid TOML: {err}") from err
-
-
-def env_layer(environ: Mapping[str, str]) -> dict[str, Any]:
-    """The settings named by ``GROUNDSTATION_*`` variables, as a nested layer of strings."""
-    layer: dict[str, Any] = {}
-    for section, keys in SCHEMA.items():
-        for key in keys:
-            var = ENV_PREFIX + (f"{section}_{key}" if section else key).upper()
-            if var in environ:
-                if section:
-                    layer.setdefault(section, {})[key] = environ[var]
-                else:
-                    layer[key] = environ[var]
-    return layer
 
 
 def _parse_address(address: str) -> tuple[str, int]:
@@ -353,11 +708,6 @@ def _parse_address(address: str) -> tuple[str, int]:
     return host.strip("[]"), port
 
 
-def _positive(name: str, value: float, *, allow_zero: bool = False) -> None:
-    if value < 0 or (value == 0 and not allow_zero):
-        raise ConfigError(name, f"must be {'>= 0' if allow_zero else '> 0'}, got {value}")
-
-
 def _build_source(src: dict[str, Any]) -> SourceSettings:
     kind = src.get("type")
     if kind is None:
@@ -370,82 +720,47 @@ def _build_source(src: dict[str, Any]) -> SourceSettings:
                 f"ambiguous source ({', '.join(present)}): set source.type",
             )
         kind = present[0]
-    if kind not in _SOURCE_KEYS:
-        raise ConfigError("source.type", f"must be serial, tcp or file, got {kind!r}")
     locator = _SOURCE_LOCATOR[kind]
     if locator not in src:
         raise ConfigError(f"source.{locator}", f"required for a {kind} source")
     opts = {k: v for k, v in src.items() if k in _SOURCE_KEYS[kind] and k != locator}
-    for key in ("read_size_bytes", "reconnect_min_s", "reconnect_max_s", "stall_check_s",
-                "connect_timeout_s"):
-        if key in opts:
-            _positive(f"source.{key}", opts[key])
     if kind == "serial":
-        baud = opts.get("baud", 115200)
-        if baud not in VALID_BAUDS:
-            raise ConfigError(
-                "source.baud", f"{baud} is not a valid rate ({', '.join(map(str, VALID_BAUDS))})"
-            )
         if not src["port"]:
             raise ConfigError("source.port", "empty device name")
         return SerialSourceSettings(port=src["port"], **opts)
     if kind == "tcp":
         host, port = _parse_address(src["address"])
         return TcpSourceSettings(host=host, port=port, **opts)
-    if "rate_bytes_per_s" in opts:
-        _positive("source.rate_bytes_per_s", opts["rate_bytes_per_s"], allow_zero=True)
     return FileSourceSettings(path=src["path"], **opts)
 
 
 def build_settings(merged: dict[str, dict[str, Any]]) -> Settings:
-    """Validate a fully merged configuration and build :class:`Settings`."""
+    """Build :class:`Settings` from the daemon's merged, converted values (checks that span
+    several keys: the source, the station name)."""
     top = merged[""]
     source = _build_source(merged["source"])
-    rec = dict(merged["recorder"])
-    if "compression" in rec and rec["compression"] not in ("zstd", "lz4", "none"):
-        raise ConfigError(
-            "recorder.compression", f"must be zstd, lz4 or none: {rec['compression']!r}"
-        )
-    for key in ("rotate_size_mb", "rotate_duration_s"):
-        if key in rec:
-            _positive(f"recorder.{key}", rec[key], allow_zero=True)
-    for key in ("flush_interval_s", "chunk_size_bytes", "backlog_mb", "retry_s"):
-        if key in rec:
-            _positive(f"recorder.{key}", rec[key])
-    if rec.get("flush_interval_s", 0.5) > 1.0:
-        raise ConfigError("recorder.flush_interval_s", "must be at most 1 s (crash safety)")
-    for key, value in merged["queues"].items():
-        _positive(f"queues.{key}", value)
-    if "max_payload_bytes" in merged["framer"]:
-        mp = merged["framer"]["max_payload_bytes"]
-        if not 0 < mp <= 65535:
-            raise ConfigError("framer.max_payload_bytes", f"must be 1..65535, got {mp}")
-    zen = merged["zenoh"]
-    if "mode" in zen and zen["mode"] not in ("peer", "client", "router"):
-        raise ConfigError("zenoh.mode", f"must be peer, client or router, got {zen['mode']!r}")
-    for key, value in merged["monitor"].items():
-        if key != "enabled":
-            _positive(f"monitor.{key}", value, allow_zero=key in ("ppk_ready_min",
-                                                                 "disk_free_min_mb",
-                                                                 "elevation_mask_deg"))
     if "station" in top and not str(top["station"]).strip():
         raise ConfigError("station", "must not be empty")
     if "station" in top and any(c in top["station"] for c in "/\\ \t"):
         raise ConfigError("station", f"no slashes or spaces (it names files): {top['station']!r}")
-    for key in ("duration_s",):
-        if key in top:
-            _positive(key, top[key], allow_zero=True)
-    if "status_interval_s" in top:
-        _positive("status_interval_s", top["status_interval_s"])
     return Settings(
         source=source,
-        recorder=RecorderSettings(**rec),
+        recorder=RecorderSettings(**merged["recorder"]),
         queues=QueueSettings(**merged["queues"]),
         framer=FramerSettings(**merged["framer"]),
-        zenoh=ZenohSettings(**zen),
+        zenoh=ZenohSettings(**merged["zenoh"]),
         monitor=MonitorSettings(**merged["monitor"]),
         **top,
     )
+
+
+def _source_kind_from_layer(merged: dict[str, dict[str, Any]], layer: Mapping[str, Any]) -> None:
+    """A later layer naming a device (port, address or path) chooses the source kind too."""
+    src = layer.get("source")
+    if isinstance(src, Mapping) and "type" not in src:
+        kinds = [k for k, loc in _SOURCE_LOCATOR.items() if loc in src]
+        if len(kinds) == 1:
+            merged["source"]["type"] = kinds[0]
 
 
 def load_settings(
@@ -454,7 +769,7 @@ def load_settings(
     environ: Mapping[str, str] | None = None,
     overrides: Mapping[str, Any] | None = None,
 ) -> Settings:
-    """Resolve the settings: defaults < TOML file < environment < ``overrides`` (the CLI).
+    """Resolve the daemon's settings: defaults < TOML file < environment < ``overrides`` (CLI).
 
     Args:
         config_file: TOML file; ``None`` uses ``$GROUNDSTATION_CONFIG`` if set, else no file.
@@ -466,21 +781,11 @@ def load_settings(
     Raises:
         ConfigError: naming the offending key.
     """
-    env = os.environ if environ is None else environ
-    merged: dict[str, dict[str, Any]] = {section: {} for section in SCHEMA}
-    if config_file is None and env.get(ENV_CONFIG_FILE):
-        config_file = Path(env[ENV_CONFIG_FILE])
-    if config_file is not None:
-        _merge_layer(merged, read_toml(config_file), origin=str(config_file), from_text=False)
-    layers: list[tuple[Mapping[str, Any], str, bool]] = [(env_layer(env), "environment", True)]
-    if overrides:
-        layers.append((overrides, "command line", False))
-    for layer, origin, from_text in layers:
-        src = layer.get("source")
-        if isinstance(src, Mapping) and any(loc in src for loc in _SOURCE_LOCATOR.values()):
-            # A later layer naming a device chooses the source kind too.
-            kinds = [k for k, loc in _SOURCE_LOCATOR.items() if loc in src]
-            if "type" not in src and len(kinds) == 1:
-                merged["source"]["type"] = kinds[0]
-        _merge_layer(merged, layer, origin=origin, from_text=from_text)
-    return build_settings(merged)
+    resolved = resolve(DAEMON, config_file, environ=environ, overrides=overrides,
+                       before_layer=_source_kind_from_layer)
+    return build_settings(resolved.values)
+
+
+def zenoh_settings(values: Mapping[str, Any], base: ZenohSettings = CLIENT_ZENOH) -> ZenohSettings:
+    """A resolved ``[zenoh]`` section over ``base`` (a client's defaults unless given)."""
+    return replace(base, **values)

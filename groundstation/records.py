@@ -234,19 +234,6 @@ Record = RawEpoch | TimeMark | Subframe | Ephemeris | NavSolution | SvInfo | Und
 """What the decoder hands downstream: a decoded record, or the frame itself."""
 
 
-def to_jsonable(record: Any) -> Any:
-    """Convert a record (or anything nested in one) to plain JSON types; bytes become hex."""
-    if dataclasses.is_dataclass(record) and not isinstance(record, type):
-        return {f.name: to_jsonable(getattr(record, f.name)) for f in dataclasses.fields(record)}
-    if isinstance(record, (bytes, bytearray, memoryview)):
-        return bytes(record).hex()
-    if isinstance(record, (tuple, list)):
-        return [to_jsonable(v) for v in record]
-    if isinstance(record, dict):
-        return {str(k): to_jsonable(v) for k, v in record.items()}
-    return record
-
-
 @dataclass(frozen=True, slots=True)
 class Event:
     """Something that happened, for the operator and the record: outages, dropouts, alerts.

@@ -7,17 +7,17 @@ import sys
 from pathlib import Path
 from typing import TextIO
 
-from groundstation.configure import (
+from groundstation.errors import ConfigError
+from groundstation.serialport import SerialLink
+from groundstation.ubx.cfg import Profile, load_profile
+from groundstation.ubx.configure import (
     DEFAULT_RETRIES,
     DEFAULT_SETTLE_S,
     DEFAULT_TIMEOUT_S,
     MessageResult,
     Outcome,
-    SerialLink,
     send_messages,
 )
-from groundstation.errors import ConfigError
-from groundstation.ubx.cfg import Profile, load_profile
 
 NAME = "configure"
 HELP = "send receiver configuration (CFG-*) and check ACKs"

@@ -7,9 +7,14 @@ import logging
 import signal
 import threading
 from types import FrameType
+from typing import TYPE_CHECKING
 
-from groundstation.bus import BusSettings
+from groundstation.commands.options import add_config, add_zenoh_client, layer
+from groundstation.config import DASHBOARD, resolve, zenoh_settings
 from groundstation.errors import ConfigError
+
+if TYPE_CHECKING:
+    from groundstation.view.dashboard import DashboardSettings
 
 NAME = "dashboard"
 HELP = "local web dashboard of the stations on Zenoh (sky plot, link, marks, PPK readiness)"
@@ -18,45 +23,52 @@ log = logging.getLogger("groundstation.dashboard")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    add_config(parser, DASHBOARD, "[zenoh], stations, bind, port, ppk_min")
     parser.add_argument(
         "--station", action="append", metavar="NAME",
         help="station to show from the start (repeatable; others are discovered from their "
         "liveliness tokens)",
     )
-    parser.add_argument("--port", type=int, default=8080, help="web server port (default 8080; "
+    parser.add_argument("--port", type=int, help="web server port (default 8080; "
                         "0 picks a free one)")
-    parser.add_argument("--bind", default="127.0.0.1",
+    parser.add_argument("--bind",
                         help="web server address (default 127.0.0.1: this machine only)")
-    parser.add_argument(
-        "--connect", action="append", metavar="ENDPOINT",
-        help="Zenoh endpoint of the daemon (default tcp/127.0.0.1:7447; repeatable)",
-    )
-    parser.add_argument("--mode", choices=("peer", "client"), default="peer")
+    add_zenoh_client(parser)
     parser.add_argument("--ppk-min", type=int, default=None, metavar="N",
                         help="satellites with clean phase the PPK gauge asks for (default 5, "
                         "the monitor's ppk_ready_min)")
-    parser.add_argument("--duration", type=float, default=0.0, metavar="S",
+    parser.add_argument("--duration", type=float, metavar="S",
                         help="stop after S seconds (default: until Ctrl-C or SIGTERM)")
 
 
-def run(args: argparse.Namespace) -> int:
-    from groundstation.view.dashboard import Dashboard, DashboardSettings
-    from groundstation.view.dashboard.state import PPK_READY_MIN
+def settings_from_args(args: argparse.Namespace) -> tuple[DashboardSettings, float]:
+    """The dashboard's settings and duration: defaults < file < environment < options."""
+    from groundstation.view.dashboard import DashboardSettings
 
-    if not 0 <= args.port <= 65535:
-        raise ConfigError("port", f"{args.port} is not a TCP port")
+    top = resolve(DASHBOARD, args.config, overrides=layer(args, {
+        "station": "stations", "port": "port", "bind": "bind", "ppk_min": "ppk_min",
+        "duration": "duration_s"})).values
+    values, duration_s = top[""], top[""].get("duration_s", 0.0)
+    defaults = DashboardSettings()
     settings = DashboardSettings(
-        stations=tuple(args.station or ()),
-        bind=args.bind,
-        port=args.port,
-        bus=BusSettings(mode=args.mode, listen=(),
-                        connect=tuple(args.connect or ["tcp/127.0.0.1:7447"])),
-        ppk_ready_min=args.ppk_min if args.ppk_min is not None else PPK_READY_MIN,
+        stations=tuple(values.get("stations", defaults.stations)),
+        bind=values.get("bind", defaults.bind),
+        port=values.get("port", defaults.port),
+        bus=zenoh_settings(top["zenoh"]),
+        ppk_ready_min=values.get("ppk_min", defaults.ppk_ready_min),
     )
+    return settings, duration_s
+
+
+def run(args: argparse.Namespace) -> int:
+    from groundstation.view.dashboard import Dashboard
+
+    settings, duration_s = settings_from_args(args)
     try:
         dashboard = Dashboard(settings)
     except OSError as err:
-        raise ConfigError("port", f"cannot serve on {args.bind}:{args.port}: {err}") from err
+        where = f"{settings.bind}:{settings.port}"
+        raise ConfigError("port", f"cannot serve on {where}: {err}") from err
     stop = threading.Event()
 
     def on_signal(signum: int, _frame: FrameType | None) -> None:
@@ -68,5 +80,5 @@ def run(args: argparse.Namespace) -> int:
         dashboard.start()
         log.info("dashboard on %s (Zenoh %s)", dashboard.url, ", ".join(settings.bus.connect))
         print(f"dashboard: {dashboard.url}", flush=True)
-        stop.wait(args.duration if args.duration > 0 else None)
+        stop.wait(duration_s if duration_s > 0 else None)
     return 0

@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from groundstation.commands.simulate import parse_speed
+from groundstation.config import DEFAULT_ENDPOINT
 from groundstation.errors import ConfigError
 from groundstation.view.summary import status_lines
 
@@ -28,7 +29,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out-dir", type=Path, default=Path("flights"), metavar="DIR")
     parser.add_argument("--station", default="demo")
     parser.add_argument("--zenoh-listen", action="append", metavar="ENDPOINT",
-                        help="Zenoh endpoint to publish on (default tcp/127.0.0.1:7447)")
+                        help=f"Zenoh endpoint to publish on (default {DEFAULT_ENDPOINT})")
     parser.add_argument("--no-zenoh", action="store_true", help="do not publish on Zenoh")
     parser.add_argument("--no-view", action="store_true", help="no live view, just the summary")
 
@@ -44,7 +45,7 @@ def run(args: argparse.Namespace) -> int:
         flight_s=args.flight, speed=parse_speed(args.speed, live=True), seed=args.seed,
         faults=args.faults, duration_s=args.duration, out_dir=args.out_dir,
         station=args.station, zenoh=not args.no_zenoh,
-        zenoh_listen=tuple(args.zenoh_listen or ["tcp/127.0.0.1:7447"]),
+        zenoh_listen=tuple(args.zenoh_listen or [DEFAULT_ENDPOINT]),
     )
     speed = "as fast as possible" if opts.speed is None else f"x{opts.speed:g}"
 
@@ -53,7 +54,7 @@ def run(args: argparse.Namespace) -> int:
               file=sys.stderr, flush=True)
         if info["zenoh"]:
             endpoints = info["zenoh"]
-            connect = "" if endpoints == ["tcp/127.0.0.1:7447"] else f" --connect {endpoints[0]}"
+            connect = "" if endpoints == [DEFAULT_ENDPOINT] else f" --connect {endpoints[0]}"
             print(f"demo: publishing on Zenoh {', '.join(endpoints)} (watch it from another "
                   f"terminal: groundstation watch --station {opts.station}{connect})",
                   file=sys.stderr, flush=True)

@@ -3,10 +3,9 @@
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 
-from groundstation import gpstime
+from groundstation import gpstime, jsonio
 from groundstation.offline.inspect import Summary, inspect_path
 
 NAME = "inspect"
@@ -25,7 +24,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     summary = inspect_path(args.path, max_payload=args.max_payload)
     if args.json:
-        json.dump(summary.as_json(), sys.stdout, indent=2)
+        sys.stdout.write(jsonio.dumps(summary.as_json(), indent=2).decode())
         sys.stdout.write("\n")
     else:
         sys.stdout.write(format_summary(summary))

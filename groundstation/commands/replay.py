@@ -7,6 +7,7 @@ import asyncio
 from pathlib import Path
 from typing import Any
 
+from groundstation.commands.options import add_zenoh_daemon, zenoh_layer
 from groundstation.commands.simulate import parse_speed
 from groundstation.view.summary import status_lines
 
@@ -18,10 +19,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("input", type=Path, help=".mcap, .ubx or .ubx.gz recording")
     parser.add_argument("--speed", default="max", help="1 (as recorded), N or max (default)")
     parser.add_argument("--station", default="replay", help="station name on Zenoh")
-    parser.add_argument("--zenoh-listen", action="append", metavar="ENDPOINT",
-                        help="Zenoh endpoint (default tcp/127.0.0.1:7447)")
-    parser.add_argument("--zenoh-connect", action="append", metavar="ENDPOINT")
-    parser.add_argument("--no-zenoh", action="store_true", help="do not publish")
+    add_zenoh_daemon(parser)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -30,11 +28,7 @@ def run(args: argparse.Namespace) -> int:
 
     if not args.input.exists():
         raise InputError(f"{args.input}: no such file")
-    zenoh: dict[str, Any] = {"enabled": not args.no_zenoh}
-    if args.zenoh_listen:
-        zenoh["listen"] = list(args.zenoh_listen)
-    if args.zenoh_connect:
-        zenoh["connect"] = list(args.zenoh_connect)
+    zenoh: dict[str, Any] = {"enabled": not args.no_zenoh, **zenoh_layer(args)}
     speed = parse_speed(args.speed, live=False)
     summary, pipeline = asyncio.run(
         run_replay(args.input, speed=speed, station=args.station, zenoh=zenoh)

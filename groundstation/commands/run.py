@@ -8,7 +8,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from groundstation.config import load_settings
+from groundstation.commands.options import add_config, add_zenoh_daemon, zenoh_layer
+from groundstation.config import DAEMON, Key, convert, load_settings
 from groundstation.live.daemon import RunSummary, run_daemon
 
 NAME = "run"
@@ -16,7 +17,7 @@ HELP = "the live daemon: receive, decode and record a station's stream"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--config", type=Path, help="TOML configuration file")
+    add_config(parser, DAEMON, "config/groundstation.toml")
     src = parser.add_mutually_exclusive_group()
     src.add_argument("--port", metavar="DEV", help="serial device (e.g. /dev/ttyUSB0)")
     src.add_argument("--tcp", metavar="HOST:PORT", help="TCP server streaming UBX")
@@ -28,11 +29,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--station", help="station name (names the recording files)")
     parser.add_argument("--out-dir", type=Path, metavar="DIR", help="directory for recordings")
     parser.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
-    parser.add_argument("--no-zenoh", action="store_true", help="do not publish on Zenoh")
-    parser.add_argument("--zenoh-listen", action="append", metavar="ENDPOINT",
-                        help="Zenoh listen endpoint (default tcp/127.0.0.1:7447; repeatable)")
-    parser.add_argument("--zenoh-connect", action="append", metavar="ENDPOINT",
-                        help="Zenoh endpoint to connect to (a router or the solver; repeatable)")
+    add_zenoh_daemon(parser)
 
 
 def overrides_from_args(args: argparse.Namespace) -> dict[str, Any]:
@@ -46,12 +43,8 @@ def overrides_from_args(args: argparse.Namespace) -> dict[str, Any]:
     if args.file is not None:
         source["path"] = args.file
     if args.baud is not None:
-        try:
-            source["baud"] = int(args.baud)
-        except ValueError:
-            from groundstation.errors import ConfigError
-
-            raise ConfigError("source.baud", f"not a number: {args.baud!r}") from None
+        source["baud"] = convert(Key("int"), "source.baud", args.baud, from_text=True,
+                                 origin="command line")
     if args.rate is not None:
         source["rate_bytes_per_s"] = args.rate
     if source:
@@ -62,13 +55,7 @@ def overrides_from_args(args: argparse.Namespace) -> dict[str, Any]:
         layer["recorder"] = {"out_dir": args.out_dir}
     if args.duration is not None:
         layer["duration_s"] = args.duration
-    zenoh: dict[str, Any] = {}
-    if getattr(args, "no_zenoh", False):
-        zenoh["enabled"] = False
-    if getattr(args, "zenoh_listen", None):
-        zenoh["listen"] = list(args.zenoh_listen)
-    if getattr(args, "zenoh_connect", None):
-        zenoh["connect"] = list(args.zenoh_connect)
+    zenoh = zenoh_layer(args)
     if zenoh:
         layer["zenoh"] = zenoh
     return layer

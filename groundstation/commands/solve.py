@@ -3,10 +3,11 @@
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 from pathlib import Path
+from typing import Any
 
+from groundstation.config import SOLVER_STATION_KEYS, convert
 from groundstation.errors import ConfigError
 from groundstation.solve import interpolate as interp
 from groundstation.solve.pipeline import SolveResult, SolveSettings, solve
@@ -41,27 +42,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-progress", action="store_true", help="no progress on stderr")
 
 
-def _triple(option: str, text: str | None) -> tuple[float, float, float] | None:
+def _option(option: str, key: str, text: str | None) -> Any:
+    """An option's text converted and checked by the solver's configuration key (the same
+    rules as ``config/solver.toml`` and ``GROUNDSTATION_SOLVER_*``), or None if not given."""
     if text is None:
         return None
-    parts = text.replace(" ", "").split(",")
-    try:
-        vals = tuple(float(p) for p in parts)
-    except ValueError as err:
-        raise ConfigError(option, f"expected X,Y,Z numbers, got {text!r}") from err
-    if len(vals) != 3 or not all(math.isfinite(v) for v in vals):
-        raise ConfigError(option, f"expected three finite numbers X,Y,Z, got {text!r}")
-    return vals[0], vals[1], vals[2]
-
-
-def _number(option: str, text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError as err:
-        raise ConfigError(option, f"not a number: {text!r}") from err
-    if not math.isfinite(v):
-        raise ConfigError(option, f"not a finite number: {text!r}")
-    return v
+    return convert(SOLVER_STATION_KEYS[key], option, text, from_text=True)
 
 
 def settings_from_args(args: argparse.Namespace) -> SolveSettings:
@@ -74,19 +60,10 @@ def settings_from_args(args: argparse.Namespace) -> SolveSettings:
         raise ConfigError("--base", "use either --positions or --base, not both")
     if args.base is not None and args.base_xyz is None:
         raise ConfigError("--base-xyz", "required with --base (the base's known ECEF position)")
-    if args.interp not in interp.INTERPOLATORS:
-        raise ConfigError("--interp", f"{args.interp!r}: choose linear, spline or smoother")
-    if args.edge not in interp.EDGES:
-        raise ConfigError("--edge", f"{args.edge!r}: choose falling, rising or mid")
-    epsg = None
-    if args.epsg is not None:
-        text = str(args.epsg).upper().removeprefix("EPSG:")
-        if not text.isdigit():
-            raise ConfigError("--epsg", f"expected an EPSG code number, got {args.epsg!r}")
-        epsg = int(text)
-    max_gap = _number("--max-gap", args.max_gap)
-    if max_gap <= 0:
-        raise ConfigError("--max-gap", "must be positive")
+    interp_name = _option("--interp", "interp", args.interp)
+    edge = _option("--edge", "edge", args.edge)
+    epsg = _option("--epsg", "epsg", args.epsg)
+    max_gap = _option("--max-gap", "max_gap_s", args.max_gap)
     for opt, val in (("--positions", args.positions), ("--base", args.base), ("--eo", args.eo)):
         if val is not None and not Path(val).is_file():
             raise ConfigError(opt, f"{val}: no such file")
@@ -97,15 +74,15 @@ def settings_from_args(args: argparse.Namespace) -> SolveSettings:
         out_dir=Path(args.out),
         positions=Path(args.positions) if args.positions else None,
         base=Path(args.base) if args.base else None,
-        base_ecef_m=_triple("--base-xyz", args.base_xyz),
+        base_ecef_m=_option("--base-xyz", "base_xyz", args.base_xyz),
         source=args.source,
         photos=Path(args.photos) if args.photos else None,
-        lever_arm_m=_triple("--lever-arm", args.lever_arm),
+        lever_arm_m=_option("--lever-arm", "lever_arm", args.lever_arm),
         eo=Path(args.eo) if args.eo else None,
         epsg=epsg,
-        interp=args.interp,
-        edge=args.edge,
-        shutter_delay_ms=_number("--shutter-delay-ms", args.shutter_delay_ms),
+        interp=interp_name,
+        edge=edge,
+        shutter_delay_ms=_option("--shutter-delay-ms", "shutter_delay_ms", args.shutter_delay_ms),
         max_gap_s=max_gap,
         exif_copies=bool(args.exif),
     )

@@ -6,17 +6,17 @@ import argparse
 import signal
 import sys
 import threading
-from pathlib import Path
 from typing import Any
+
+from groundstation.commands.options import add_config, add_zenoh_client, layer
+from groundstation.config import DURATION, SOLVER, convert
 
 NAME = "solver"
 HELP = "the solver service: listens on Zenoh and solves a session when it finishes"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--config", type=Path, metavar="FILE",
-                        help="solver TOML (defaults, [zenoh], [stations.<name>]); see "
-                             "config/solver.toml")
+    add_config(parser, SOLVER, "config/solver.toml: defaults, [zenoh], [stations.<name>]")
     parser.add_argument("--station", help="station whose sessions to solve (default: all, '*')")
     parser.add_argument("--base", metavar="FILE",
                         help="base recording (.ubx/.obs) for every station; may use {dir}, "
@@ -28,42 +28,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--lever-arm", metavar="X,Y,Z", help="lever arm, camera frame, metres")
     parser.add_argument("--interp", help="linear, spline or smoother (default smoother)")
     parser.add_argument("--epsg", help="output CRS (default: the WGS84 UTM zone)")
-    parser.add_argument("--connect", action="append", metavar="ENDPOINT",
-                        help="Zenoh endpoint of the daemon (default tcp/127.0.0.1:7447)")
-    parser.add_argument("--listen", action="append", metavar="ENDPOINT",
-                        help="Zenoh endpoint to listen on (default: none)")
-    parser.add_argument("--mode", choices=("peer", "client"), help="Zenoh mode (default peer)")
+    add_zenoh_client(parser)
     parser.add_argument("--duration", type=float, default=0.0, metavar="S",
                         help="stop after S seconds (default: until SIGINT/SIGTERM)")
 
 
 def overrides_from_args(args: argparse.Namespace) -> dict[str, Any]:
     """The command line as a layer with the configuration file's key names."""
-    out: dict[str, Any] = {}
-    for opt, k in (("station", "station"), ("base", "base"), ("base_xyz", "base_xyz"),
-                   ("photos", "photos"), ("out_root", "out_root"), ("lever_arm", "lever_arm"),
-                   ("interp", "interp"), ("epsg", "epsg")):
-        v = getattr(args, opt)
-        if v is not None:
-            out[k] = v
-    zen: dict[str, Any] = {}
-    if args.connect:
-        zen["connect"] = list(args.connect)
-    if args.listen:
-        zen["listen"] = list(args.listen)
-    if args.mode:
-        zen["mode"] = args.mode
-    if zen:
-        out["zenoh"] = zen
-    return out
+    return layer(args, {opt: opt for opt in (
+        "station", "base", "base_xyz", "photos", "out_root", "lever_arm", "interp", "epsg")})
 
 
 def run(args: argparse.Namespace) -> int:
-    from groundstation.errors import ConfigError
     from groundstation.solve.service import load_service_settings, run_service
 
-    if args.duration < 0:
-        raise ConfigError("duration", "must be >= 0")
+    args.duration = convert(DURATION, "duration", args.duration, origin="command line")
     settings = load_service_settings(args.config, overrides_from_args(args))
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):

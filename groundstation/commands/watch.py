@@ -5,30 +5,33 @@ from __future__ import annotations
 import argparse
 import contextlib
 
-from groundstation.bus import BusSettings
+from groundstation.commands.options import add_config, add_zenoh_client, layer
+from groundstation.config import WATCH, ZenohSettings, resolve, zenoh_settings
 
 NAME = "watch"
 HELP = "live terminal view of a station over Zenoh"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--station", default="station", help="station name (default: station)")
-    parser.add_argument(
-        "--connect", action="append", metavar="ENDPOINT",
-        help="Zenoh endpoint of the daemon (default tcp/127.0.0.1:7447; repeatable)",
-    )
-    parser.add_argument("--mode", choices=("peer", "client"), default="peer")
-    parser.add_argument(
-        "--duration", type=float, default=0.0, help="stop after S seconds (default: Ctrl-C)"
-    )
+    add_config(parser, WATCH, "[zenoh] and station = ...")
+    parser.add_argument("--station", help="station name (default: station)")
+    add_zenoh_client(parser)
+    parser.add_argument("--duration", type=float, metavar="S",
+                        help="stop after S seconds (default: Ctrl-C)")
+
+
+def settings_from_args(args: argparse.Namespace) -> tuple[str, ZenohSettings, float]:
+    """Station, Zenoh settings and duration: defaults < file < environment < options."""
+    values = resolve(WATCH, args.config, overrides=layer(
+        args, {"station": "station", "duration": "duration_s"})).values
+    return (values[""].get("station", "station"), zenoh_settings(values["zenoh"]),
+            values[""].get("duration_s", 0.0))
 
 
 def run(args: argparse.Namespace) -> int:
     from groundstation.view.watch import run_watch
 
-    settings = BusSettings(
-        mode=args.mode, listen=(), connect=tuple(args.connect or ["tcp/127.0.0.1:7447"]),
-    )
+    station, zenoh, duration_s = settings_from_args(args)
     with contextlib.suppress(KeyboardInterrupt):
-        run_watch(args.station, settings, duration_s=args.duration)
+        run_watch(station, zenoh, duration_s=duration_s)
     return 0

@@ -19,7 +19,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from groundstation.bus import BusSettings
 from groundstation.config import Settings
 from groundstation.errors import GroundstationError
 from groundstation.live.fanout import Fanout, InboxStats, Item, Overflow, RawChunk, Sink, SinkSpec
@@ -164,12 +163,7 @@ class Pipeline:
             self.specs.append(SinkSpec(self.monitor, settings.queues.monitor,
                                        Overflow.DROP_OLDEST))
         if settings.zenoh.enabled:
-            z = settings.zenoh
-            self.publisher = ZenohPublisherSink(
-                settings.station,
-                BusSettings(mode=z.mode, listen=z.listen, connect=z.connect, scouting=z.scouting),
-                publish_epochs=z.publish_epochs, publish_raw=z.publish_raw, clock=clock,
-            )
+            self.publisher = ZenohPublisherSink(settings.station, settings.zenoh, clock=clock)
             self.specs.append(SinkSpec(self.publisher, settings.queues.publisher,
                                        Overflow.DROP_OLDEST))
         for spec in sinks:

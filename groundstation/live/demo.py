@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from groundstation.bus import encode
-from groundstation.config import load_settings
+from groundstation.config import DEFAULT_ENDPOINT, load_settings
 from groundstation.live.daemon import Pipeline, RunSummary
 from groundstation.live.fanout import Inbox, InboxClosed, Item, Overflow
 from groundstation.records import Event, Status, TimeMark
@@ -38,7 +38,7 @@ class DemoOptions:
     duration_s: float = 0.0
     out_dir: Path = Path("flights")
     station: str = "demo"
-    zenoh_listen: tuple[str, ...] = ("tcp/127.0.0.1:7447",)
+    zenoh_listen: tuple[str, ...] = (DEFAULT_ENDPOINT,)
     zenoh: bool = True
 
 

@@ -20,7 +20,8 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-from groundstation.bus import Bus, BusSettings, encode, key, open_bus
+from groundstation.bus import Bus, encode, key, open_bus
+from groundstation.config import ZenohSettings
 from groundstation.errors import GroundstationError
 from groundstation.live.fanout import Inbox, InboxClosed, Item, RawChunk
 from groundstation.records import Event, RawEpoch, Status, TimeMark
@@ -38,9 +39,9 @@ class ZenohPublisherSink:
 
     Args:
         station: the station name (key ``groundstation/<station>/...``).
-        settings: how to join the bus.
-        publish_epochs: also put every RawEpoch on ``.../epoch``.
-        publish_raw: also put every raw chunk on ``.../ubx`` (remote recording).
+        settings: how to join the bus, and whether to also put every RawEpoch on
+            ``.../epoch`` (``publish_epochs``) and every raw chunk on ``.../ubx``
+            (``publish_raw``, remote recording).
         clock: UNIX ns clock.
     """
 
@@ -49,16 +50,14 @@ class ZenohPublisherSink:
     def __init__(
         self,
         station: str,
-        settings: BusSettings,
+        settings: ZenohSettings,
         *,
-        publish_epochs: bool = False,
-        publish_raw: bool = False,
         clock: Callable[[], int] = time.time_ns,
     ) -> None:
         self.station = station
         self.settings = settings
-        self.publish_epochs = publish_epochs
-        self.publish_raw = publish_raw
+        self.publish_epochs = settings.publish_epochs
+        self.publish_raw = settings.publish_raw
         self._clock = clock
         self.bus: Bus | None = None
         self._last_try = 0.0

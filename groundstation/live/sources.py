@@ -5,7 +5,7 @@ reconnects with jittered exponential backoff and, once back, reports the outage 
 end and duration. A serial device that vanishes (EIO, ENODEV, end of file on the tty, the device
 node removed) is noticed within ``stall_check_s``.
 
-A serial port is opened exclusively (``flock``, through pyserial's ``exclusive=True``), so two
+A serial port is opened exclusively (``flock``, :func:`groundstation.serialport.open_port`), so two
 daemons never read the same radio (each would get a random half of the bytes). A port another
 process holds when the daemon starts is refused at once (:meth:`SerialSource.claim` raises
 :class:`~groundstation.errors.SourceError`, the command exits with status 1) before any
@@ -17,15 +17,12 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import errno
 import logging
 import os
 import random
 import time
 from collections.abc import AsyncIterator, Callable
 from typing import Protocol
-
-import serial
 
 from groundstation.config import (
     FileSourceSettings,
@@ -36,6 +33,7 @@ from groundstation.config import (
 from groundstation.errors import SourceError
 from groundstation.pacing import LINK_BYTES_PER_S, Pacer, link_time_ns
 from groundstation.records import Event
+from groundstation.serialport import Port, PortInUse, open_port
 from groundstation.storage.reading import Recording
 
 EventSink = Callable[[Event], None]
@@ -62,28 +60,6 @@ class Source(Protocol):
 
 class DeviceVanished(Exception):
     """The device went away; the source reconnects."""
-
-
-class PortInUse(Exception):
-    """Another process holds the serial port (its exclusive lock)."""
-
-
-def lock_holder(path: str) -> int | None:
-    """The pid holding a ``flock`` on ``path`` (from ``/proc/locks``), if it can be told."""
-    try:
-        st = os.stat(path)
-        with open("/proc/locks", encoding="ascii") as f:
-            lines = f.read().splitlines()
-    except OSError:
-        return None
-    want = f"{os.major(st.st_dev):02x}:{os.minor(st.st_dev):02x}:{st.st_ino}"
-    for line in lines:
-        parts = line.split()
-        # "1: FLOCK  ADVISORY  WRITE 4242 00:1a:3 0 EOF" (blocked waiters carry a "->")
-        if len(parts) >= 6 and parts[1] == "FLOCK" and parts[5] == want:
-            with contextlib.suppress(ValueError):
-                return int(parts[4])
-    return None
 
 
 def backoff_delay_s(attempt: int, min_s: float, max_s: float, rand: Callable[[], float]) -> float:
@@ -178,23 +154,10 @@ class SerialSource:
         self._clock = clock
         self._log = logging.getLogger("groundstation.serial")
         self.state = _Reconnecting(self.name, self._log, on_event, clock, rand)
-        self._claimed: serial.Serial | None = None
+        self._claimed: Port | None = None
 
-    def _open(self) -> serial.Serial:
-        s = self.settings
-        try:
-            port = serial.Serial(
-                s.port, s.baud, bytesize=serial.EIGHTBITS, parity=serial.PARITY_NONE,
-                stopbits=serial.STOPBITS_ONE, timeout=0, xonxoff=False, rtscts=False,
-                exclusive=True,
-            )
-        except serial.SerialException as err:
-            if err.errno in (errno.EAGAIN, errno.EWOULDBLOCK):
-                pid = lock_holder(s.port)
-                by = f"process {pid}" if pid is not None else "another process"
-                raise PortInUse(f"{s.port} is in use by {by} (it holds the port's exclusive "
-                                "lock: is another groundstation daemon running on it?)") from err
-            raise
+    def _open(self) -> Port:
+        port = open_port(self.settings.port, self.settings.baud, timeout_s=0)
         os.set_blocking(port.fileno(), False)
         return port
 
@@ -212,7 +175,7 @@ class SerialSource:
             self._claimed = self._open()
         except PortInUse as err:
             raise SourceError(f"refusing to start: {err}") from err
-        except (serial.SerialException, OSError, ValueError) as err:
+        except OSError as err:
             self._log.debug("claim of %s: %s (retried by the source)", self.settings.port, err)
 
     async def _read(self, fd: int) -> bytes:
@@ -261,7 +224,7 @@ class SerialSource:
                 self.state.lost(str(err))  # grabbed while our device was away: keep trying
                 await self.state.wait_before_retry(s.reconnect_min_s, s.reconnect_max_s)
                 continue
-            except (serial.SerialException, OSError, ValueError) as err:
+            except OSError as err:
                 self.state.lost(f"cannot open: {err}")
                 await self.state.wait_before_retry(s.reconnect_min_s, s.reconnect_max_s)
                 continue

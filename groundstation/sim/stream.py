@@ -8,7 +8,6 @@ stream as timed chunks, the base's clean stream, the truth dictionary, and the c
 from __future__ import annotations
 
 import datetime as dt
-import json
 import math
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -16,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from groundstation import gpstime
+from groundstation import gpstime, jsonio
 from groundstation.geodesy import ecef_to_llh
 from groundstation.gnss.lnav_encode import subframe_for
 from groundstation.gpstime import NS_PER_S, NS_PER_WEEK
@@ -113,7 +112,7 @@ class SimResult:
         return b"".join(c for _, c in self.base_chunks)
 
     def write_truth(self, path: str | Path) -> None:
-        Path(path).write_text(json.dumps(self.truth, separators=(",", ":")), encoding="utf-8")
+        Path(path).write_bytes(jsonio.dumps(self.truth))
 
 
 @dataclass(frozen=True, slots=True)

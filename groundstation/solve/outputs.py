@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import csv
 import io
-import json
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -19,7 +18,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from groundstation import gpstime
+from groundstation import gpstime, jsonio
 from groundstation.errors import ConfigError, InputError
 from groundstation.solve.interpolate import flag_names
 from groundstation.solve.positions import QUALITY_NAMES
@@ -285,7 +284,7 @@ def geojson(out: SolveOutput) -> str:
                 "sd_n_m": _clean(r.sd_n_m), "sd_u_m": _clean(r.sd_u_m), "attitude": r.attitude,
             },
         })
-    return json.dumps({"type": "FeatureCollection", "features": feats}, separators=(",", ":"))
+    return jsonio.dumps({"type": "FeatureCollection", "features": feats}).decode()
 
 
 WRITERS: dict[str, Callable[[SolveOutput], str]] = {

@@ -10,18 +10,18 @@ file, a failing engine) stops the service.
 Configuration (``config/solver.toml``): top-level keys are the defaults for every station,
 ``[stations.<name>]`` overrides them per station and ``[zenoh]`` says how to join the bus. Paths
 may use ``{dir}`` (the recording's directory), ``{stem}`` (its name without suffix) and
-``{station}``.
+``{station}``. The keys, their types and ranges, the ``GROUNDSTATION_SOLVER_*`` variables and
+the precedence are :data:`groundstation.config.SOLVER`'s; this module only turns the resolved
+values into :class:`ServiceSettings`.
 """
 
 from __future__ import annotations
 
 import contextlib
 import logging
-import math
 import queue
 import threading
 import time
-import tomllib
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -29,7 +29,19 @@ from typing import Any
 
 import numpy as np
 
-from groundstation.bus import BusSettings
+from groundstation.config import (
+    CLIENT_ZENOH,
+    SOLVER,
+    SOLVER_STATION_KEYS,
+    Layer,
+    Resolved,
+    ZenohSettings,
+    check_environment,
+    env_layer,
+    merge_layers,
+    resolve,
+    zenoh_settings,
+)
 from groundstation.errors import ConfigError, GroundstationError
 from groundstation.solve import interpolate as mi
 from groundstation.solve.pipeline import SolveResult, SolveSettings, solve
@@ -37,7 +49,6 @@ from groundstation.solve.positions import Q_FIX
 
 log = logging.getLogger("groundstation.solver")
 
-DEFAULT_CONNECT = ("tcp/127.0.0.1:7447",)
 QUEUE_SIZE = 16
 """Sessions waiting for the worker; beyond this a session is refused with a failed solution."""
 
@@ -76,9 +87,7 @@ class ServiceSettings:
         queue_size: sessions that may wait for the worker.
     """
 
-    bus: BusSettings = field(
-        default_factory=lambda: BusSettings(listen=(), connect=DEFAULT_CONNECT)
-    )
+    bus: ZenohSettings = CLIENT_ZENOH
     station: str = "*"
     default: StationSolve = field(default_factory=StationSolve)
     stations: Mapping[str, StationSolve] = field(default_factory=dict)
@@ -91,185 +100,80 @@ class ServiceSettings:
 
 # -- configuration --------------------------------------------------------------------------
 
-_STATION_KEYS = {
-    "base", "base_xyz", "photos", "out_root", "lever_arm", "interp", "edge", "epsg",
-    "shutter_delay_ms", "max_gap_s",
-}
-_TOP_KEYS = {"station", "queue_size", "zenoh", "stations"} | _STATION_KEYS
-_ZENOH_KEYS = {"mode", "listen", "connect", "scouting"}
+_FIELDS = {"base_xyz": "base_ecef_m", "lever_arm": "lever_arm_m"}
+"""Configuration key -> :class:`StationSolve` field, where the names differ."""
 
 
-def _triple(name: str, value: Any) -> tuple[float, float, float]:
-    if isinstance(value, str):
-        value = [v for v in value.replace(" ", "").split(",") if v]
-    if (not isinstance(value, (list, tuple)) or len(value) != 3
-            or any(isinstance(v, bool) for v in value)):
-        raise ConfigError(name, f"expected three numbers X,Y,Z, got {value!r}")
-    try:
-        out = tuple(float(v) for v in value)
-    except (TypeError, ValueError) as err:
-        raise ConfigError(name, f"expected three numbers X,Y,Z, got {value!r}") from err
-    if not all(math.isfinite(v) for v in out):
-        raise ConfigError(name, f"expected finite numbers, got {value!r}")
-    return out[0], out[1], out[2]
-
-
-def _number(name: str, value: Any) -> float:
-    if isinstance(value, bool):
-        raise ConfigError(name, f"expected a number, got {value!r}")
-    try:
-        v = float(value)
-    except (TypeError, ValueError) as err:
-        raise ConfigError(name, f"expected a number, got {value!r}") from err
-    if not math.isfinite(v):
-        raise ConfigError(name, f"expected a finite number, got {value!r}")
-    return v
-
-
-def _text(name: str, value: Any) -> str:
-    if not isinstance(value, (str, Path)) or not str(value):
-        raise ConfigError(name, f"expected a non-empty path or text, got {value!r}")
-    return str(value)
-
-
-def _station_solve(base: StationSolve, table: Mapping[str, Any], prefix: str) -> StationSolve:
-    """``base`` with the keys of one table applied; every key is checked and named on error."""
-    out = base
-    for k, v in table.items():
-        name = f"{prefix}{k}"
-        if k not in _STATION_KEYS:
-            raise ConfigError(name, "unknown key")
-        if k == "base":
-            out = replace(out, base=_text(name, v))
-        elif k == "base_xyz":
-            out = replace(out, base_ecef_m=_triple(name, v))
-        elif k == "photos":
-            out = replace(out, photos=_text(name, v))
-        elif k == "out_root":
-            out = replace(out, out_root=Path(_text(name, v)).expanduser())
-        elif k == "lever_arm":
-            out = replace(out, lever_arm_m=_triple(name, v))
-        elif k == "interp":
-            if v not in mi.INTERPOLATORS:
-                raise ConfigError(name, f"{v!r}: choose {', '.join(mi.INTERPOLATORS)}")
-            out = replace(out, interp=str(v))
-        elif k == "edge":
-            if v not in mi.EDGES:
-                raise ConfigError(name, f"{v!r}: choose {', '.join(mi.EDGES)}")
-            out = replace(out, edge=str(v))
-        elif k == "epsg":
-            text = str(v).upper().removeprefix("EPSG:")
-            if isinstance(v, bool) or not text.isdigit():
-                raise ConfigError(name, f"expected an EPSG code number, got {v!r}")
-            out = replace(out, epsg=int(text))
-        elif k == "shutter_delay_ms":
-            out = replace(out, shutter_delay_ms=_number(name, v))
-        elif k == "max_gap_s":
-            gap = _number(name, v)
-            if gap <= 0:
-                raise ConfigError(name, "must be positive")
-            out = replace(out, max_gap_s=gap)
+def _station_solve(base: StationSolve, values: Mapping[str, Any], prefix: str) -> StationSolve:
+    """``base`` with converted values (:data:`~groundstation.config.SOLVER_STATION_KEYS`)
+    applied; ``base`` and ``base_xyz`` must come together."""
+    out = replace(base, **{_FIELDS.get(k, k): v for k, v in values.items()})
+    if out.base is not None and not out.base:
+        raise ConfigError(f"{prefix}base", "expected a non-empty path")
     if (out.base is None) != (out.base_ecef_m is None):
         missing = "base_xyz" if out.base_ecef_m is None else "base"
         raise ConfigError(f"{prefix}{missing}", "base and base_xyz go together")
     return out
 
 
-def _bus(table: Mapping[str, Any], base: BusSettings) -> BusSettings:
-    out = base
-    for k, v in table.items():
-        name = f"zenoh.{k}"
-        if k not in _ZENOH_KEYS:
-            raise ConfigError(name, "unknown key")
-        if k == "mode":
-            if v not in ("peer", "client"):
-                raise ConfigError(name, f"{v!r}: choose peer or client")
-            out = replace(out, mode=str(v))
-        elif k in ("listen", "connect"):
-            if isinstance(v, str):
-                v = [v]
-            if not isinstance(v, list) or not all(isinstance(e, str) for e in v):
-                raise ConfigError(name, f"expected a list of endpoints, got {v!r}")
-            out = (replace(out, listen=tuple(v)) if k == "listen"
-                   else replace(out, connect=tuple(v)))
-        elif k == "scouting":
-            if not isinstance(v, bool):
-                raise ConfigError(name, f"expected true or false, got {v!r}")
-            out = replace(out, scouting=v)
-    return out
+def _service_settings(resolved: Resolved) -> ServiceSettings:
+    top = resolved.values[""]
+    station = top.get("station", "*")
+    if not station or any(c in station for c in "/?#$") or station == "**":
+        raise ConfigError("station", f"{station!r} is not a station name or '*'")
+    keys = {k: v for k, v in top.items() if k in SOLVER_STATION_KEYS}
+    from_file = {k: v for k, v in keys.items() if resolved.origin.get(("", k)) == "file"}
+    later = {k: v for k, v in keys.items() if k not in from_file}
+    default = _station_solve(StationSolve(), keys, "")
+    stations: dict[str, StationSolve] = {}
+    for name, table in resolved.tables.get("stations", {}).items():
+        # file defaults < the station's table < environment and command line
+        merged = replace(StationSolve(), **{_FIELDS.get(k, k): v for k, v in
+                                            {**from_file, **table}.items()})
+        stations[name] = _station_solve(merged, later, f"stations.{name}.")
+    if "mode" in resolved.values["zenoh"] and resolved.values["zenoh"]["mode"] == "router":
+        raise ConfigError("zenoh.mode", "the solver joins as peer or client")
+    return ServiceSettings(zenoh_settings(resolved.values["zenoh"]), station, default, stations,
+                           top.get("queue_size", QUEUE_SIZE))
 
 
 def build_service_settings(
-    file_layer: Mapping[str, Any] | None = None, overrides: Mapping[str, Any] | None = None
+    file_layer: Mapping[str, Any] | None = None, overrides: Mapping[str, Any] | None = None,
+    *, environ: Mapping[str, str] | None = None,
 ) -> ServiceSettings:
-    """Resolve defaults < TOML file < command line into :class:`ServiceSettings`.
+    """Resolve an already-read file layer < environment < command line (the configuration's
+    one resolver, :func:`groundstation.config.merge_layers`, with the solver's scope).
 
     Args:
         file_layer: the parsed TOML file (top-level station defaults, ``[zenoh]``,
             ``[stations.<name>]``).
         overrides: command-line values with the file's key names (``base``, ``base_xyz``,
             ``station``, ``zenoh`` ...); they apply to every station.
+        environ: ``GROUNDSTATION_SOLVER_*`` variables (none when ``None``).
 
     Raises:
         ConfigError: naming the offending key.
     """
-    layers = [file_layer or {}, overrides or {}]
-    default = StationSolve()
-    bus = BusSettings(listen=(), connect=DEFAULT_CONNECT)
-    station = "*"
-    queue_size = QUEUE_SIZE
-    for layer in layers:
-        for k in layer:
-            if k not in _TOP_KEYS:
-                raise ConfigError(k, "unknown key")
-        default = _station_solve(
-            default, {k: v for k, v in layer.items() if k in _STATION_KEYS}, ""
-        )
-        if "zenoh" in layer:
-            if not isinstance(layer["zenoh"], Mapping):
-                raise ConfigError("zenoh", "must be a table")
-            bus = _bus(layer["zenoh"], bus)
-        if "station" in layer:
-            station = _text("station", layer["station"])
-            if any(c in station for c in "/?#$") or station in ("**",):
-                raise ConfigError("station", f"{station!r} is not a station name or '*'")
-        if "queue_size" in layer:
-            q = layer["queue_size"]
-            if isinstance(q, bool) or not isinstance(q, int) or q < 1:
-                raise ConfigError("queue_size", f"expected a positive integer, got {q!r}")
-            queue_size = q
-    cli = {k: v for k, v in (overrides or {}).items() if k in _STATION_KEYS}
-    stations: dict[str, StationSolve] = {}
-    tables = (file_layer or {}).get("stations", {})
-    if not isinstance(tables, Mapping):
-        raise ConfigError("stations", "must be a table of [stations.<name>] tables")
-    for name, table in tables.items():
-        if not isinstance(table, Mapping):
-            raise ConfigError(f"stations.{name}", "must be a table")
-        # Station table over the defaults; the command line still wins.
-        merged = _station_solve(default, table, f"stations.{name}.")
-        stations[str(name)] = _station_solve(merged, cli, "")
-    return ServiceSettings(bus, station, default, stations, queue_size)
+    env = environ or {}
+    check_environment(env)
+    layers: list[Layer] = [(file_layer or {}, "file", False),
+                           (env_layer(SOLVER, env), "environment", True)]
+    if overrides:
+        layers.append((overrides, "command line", False))
+    return _service_settings(merge_layers(SOLVER, layers))
 
 
 def load_service_settings(
-    config_file: Path | None, overrides: Mapping[str, Any] | None = None
+    config_file: Path | None, overrides: Mapping[str, Any] | None = None,
+    *, environ: Mapping[str, str] | None = None,
 ) -> ServiceSettings:
-    """Read the TOML file (if any) and resolve it with the command line.
+    """The solver's settings: defaults < TOML file (``--config`` or
+    ``$GROUNDSTATION_SOLVER_CONFIG``) < ``GROUNDSTATION_SOLVER_*`` < command line.
 
     Raises:
         ConfigError: unreadable or invalid file, or a bad value (naming the key).
     """
-    layer: dict[str, Any] = {}
-    if config_file is not None:
-        try:
-            with config_file.open("rb") as f:
-                layer = tomllib.load(f)
-        except FileNotFoundError as err:
-            raise ConfigError("config", f"file not found: {config_file}") from err
-        except tomllib.TOMLDecodeError as err:
-            raise ConfigError("config", f"{config_file}: invalid TOML: {err}") from err
-    return build_service_settings(layer, overrides)
+    return _service_settings(resolve(SOLVER, config_file, environ=environ, overrides=overrides))
 
 
 # -- deciding what to do with a session -----------------------------------------------------

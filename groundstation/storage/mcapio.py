@@ -20,7 +20,6 @@ from __future__ import annotations
 import collections
 import contextlib
 import errno
-import json
 import logging
 import os
 from collections.abc import Iterable, Iterator
@@ -33,6 +32,8 @@ from mcap.reader import make_reader
 from mcap.records import Channel, Chunk, ChunkIndex, DataEnd, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
+
+from groundstation import jsonio
 
 log = logging.getLogger("groundstation.storage")
 
@@ -57,7 +58,7 @@ def json_channel(topic: str, schema: dict[str, Any]) -> ChannelSpec:
     """A JSON channel with a JSON Schema (its ``title`` names the schema)."""
     return ChannelSpec(
         topic, "json", str(schema.get("title", topic)), "jsonschema",
-        json.dumps(schema, separators=(",", ":")).encode(),
+        jsonio.dumps(schema),
     )
 
 

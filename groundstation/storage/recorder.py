@@ -42,11 +42,8 @@ Write failures (ENOSPC, EDQUOT, EIO ... any ``OSError``) never escape. The desig
 from __future__ import annotations
 
 import contextlib
-import dataclasses
 import datetime as dt
-import json
 import logging
-import math
 import time
 from collections import deque
 from collections.abc import Callable
@@ -54,7 +51,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from groundstation import __version__, gpstime
+from groundstation import __version__, gpstime, jsonio
 from groundstation.records import (
     Ephemeris,
     Event,
@@ -63,7 +60,6 @@ from groundstation.records import (
     Subframe,
     SvInfo,
     TimeMark,
-    to_jsonable,
 )
 from groundstation.storage.mcapio import (
     RAW_TOPIC,
@@ -104,36 +100,6 @@ def session_file_stem(station: str, start_ns: int) -> str:
     """``<station>_<YYYYmmddTHHMMSSZ>`` for a UTC start time given as UNIX ns."""
     when = dt.datetime.fromtimestamp(start_ns / 1e9, tz=dt.UTC)
     return f"{station}_{when:%Y%m%dT%H%M%SZ}"
-
-
-def _json_bytes(obj: Any) -> bytes:
-    return json.dumps(obj, separators=(",", ":"), allow_nan=False, default=str).encode()
-
-
-_FIELD_NAMES: dict[type, tuple[str, ...]] = {}
-
-
-def plain_json(value: Any) -> Any:
-    """:func:`records.to_jsonable`, but NaN/infinity become null and field names are cached per
-    class (half of the recorder's time went to generic dataclass introspection)."""
-    t = type(value)
-    if t is int or t is str or t is bool or value is None:
-        return value
-    if t is float:
-        return value if math.isfinite(value) else None
-    if t is tuple or t is list:
-        return [plain_json(v) for v in value]
-    names = _FIELD_NAMES.get(t)
-    if names is None:
-        if dataclasses.is_dataclass(value) and not isinstance(value, type):
-            names = _FIELD_NAMES[t] = tuple(f.name for f in dataclasses.fields(value))
-        elif isinstance(value, dict):
-            return {str(k): plain_json(v) for k, v in value.items()}
-        elif isinstance(value, (bytes, bytearray, memoryview)):
-            return bytes(value).hex()
-        else:
-            return to_jsonable(value)
-    return {n: plain_json(getattr(value, n)) for n in names}
 
 
 @dataclass(frozen=True, slots=True)
@@ -334,7 +300,7 @@ class SessionRecorder:
                     "sidecar": side.name if self.sidecar else "",
                 },
             )
-            mcap.add_metadata("configuration", {"json": json.dumps(self.configuration)})
+            mcap.add_metadata("configuration", {"json": jsonio.dumps(self.configuration).decode()})
             mcap.flush()
         except OSError:
             for f in created:
@@ -418,14 +384,14 @@ class SessionRecorder:
         spec = ROUTES.get(type(record))
         if spec is None:
             return False
-        body = {"type": type(record).__name__, **plain_json(record)}
         publish = self._publish_time_ns(record, log_time_ns)
         self._records += 1
         if isinstance(record, Event):
             self._events += 1
-        self._write((spec, _json_bytes(body), log_time_ns, publish))
+        body = jsonio.dumps_with({"type": type(record).__name__}, record)
+        self._write((spec, body, log_time_ns, publish))
         if isinstance(record, NavSolution) and record.lat_deg is not None:
-            self._write((LOCATION_CHANNEL, _json_bytes(self._location_fix(record, publish)),
+            self._write((LOCATION_CHANNEL, jsonio.dumps(self._location_fix(record, publish)),
                          log_time_ns, publish))
         return True
 

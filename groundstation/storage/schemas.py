@@ -28,7 +28,7 @@ def _type_schema(tp: Any) -> dict[str, Any]:
     if tp is str:
         return {"type": "string"}
     if tp in (bytes, bytearray):
-        return {"type": "string", "contentEncoding": "base16"}
+        return {"type": "string", "contentEncoding": "base64"}
     if tp is type(None):
         return {"type": "null"}
     if origin is Literal:
@@ -54,7 +54,7 @@ def _type_schema(tp: Any) -> dict[str, Any]:
 
 @cache
 def dataclass_schema(cls: type, *, top_level: bool = True) -> dict[str, Any]:
-    """A JSON Schema for the JSON form of a record (see :func:`records.to_jsonable`).
+    """A JSON Schema for the JSON form of a record (as :mod:`groundstation.jsonio` writes it).
 
     Top-level schemas also allow the ``type`` field the recorder adds (the record class name).
     """

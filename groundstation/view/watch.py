@@ -20,7 +20,8 @@ from rich.table import Table
 from rich.text import Text
 
 from groundstation import gpstime
-from groundstation.bus import Bus, BusSettings, decode, key
+from groundstation.bus import Bus, decode, key
+from groundstation.config import ZenohSettings
 
 STALE_AFTER_S = 3.0
 TIMELINE_S = 300
@@ -222,7 +223,7 @@ def render(state: WatchState, now_s: float | None = None) -> RenderableType:
 
 
 def connect(
-    station: str, settings: BusSettings, state: WatchState
+    station: str, settings: ZenohSettings, state: WatchState
 ) -> Bus:
     """Open the bus, subscribe to the station, and catch up from its queryables."""
     from groundstation.bus import open_bus
@@ -239,7 +240,7 @@ def connect(
 
 def run_watch(
     station: str,
-    settings: BusSettings,
+    settings: ZenohSettings,
     *,
     console: Console | None = None,
     duration_s: float = 0.0,

@@ -206,18 +206,3 @@ def test_missing_file_source_is_an_error(tmp_path: Path) -> None:
     # the session file that was opened is finished, not left torn
     (mcap,) = (tmp_path / "out").glob("*.mcap")
     assert read_summary(mcap) is not None
-
-
-def test_plain_json_matches_to_jsonable() -> None:
-    import math
-
-    from groundstation.records import RawEpoch, SatObs, to_jsonable
-    from groundstation.storage.recorder import plain_json
-
-    sat = SatObs(0, 5, 1.5, 2e7, -100.25, 44, 7, 2, True, False, locktime_ms=3)
-    epoch = RawEpoch(2300, 123_400_000_000, (sat, sat), "RXM-RAW", 99)
-    ev = Event("x.y", 1, "m", "info", {"a": [1, 2.5], "b": b"\x01"})
-    for record in (epoch, ev, TimeMark(0, 1, None, 5, False, True, 1, True, 20, 7)):
-        assert plain_json(record) == to_jsonable(record)
-    nan_sat = SatObs(0, 5, math.nan, math.inf, 0.0, 44, 7, 0, False, False)
-    assert plain_json(nan_sat)["carrier_phase_cyc"] is None

@@ -11,10 +11,10 @@ from pathlib import Path
 
 from peers import EventCollector
 
+from groundstation import jsonio
 from groundstation.live.demo import DemoOptions, run_demo
 from groundstation.live.fanout import Overflow, SinkSpec
 from groundstation.live.replay import run_replay
-from groundstation.records import to_jsonable
 from groundstation.storage import iter_messages
 
 DATA_EVENTS = ("link.dropout", "sat.slip", "sat.half_cycle_set", "sat.half_cycle_cleared",
@@ -41,7 +41,7 @@ def test_replay_of_a_live_recording_gives_the_same_monitor_output(tmp_path: Path
 
     summary, pipeline = asyncio.run(run_replay(
         mcap, speed=None, sinks=(SinkSpec(collector, 100_000, Overflow.NEVER_DROP),)))
-    replayed_events = [to_jsonable(e) for e in collector.items]
+    replayed_events = [jsonio.plain(e) for e in collector.items]
     assert summary.bytes_in == live.summary.bytes_in
     assert summary.frames == live.summary.frames
     assert pipeline.monitor is not None

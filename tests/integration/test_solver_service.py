@@ -20,7 +20,8 @@ from typing import Any
 import pytest
 from peers import REPO, Daemon, free_port
 
-from groundstation.bus import Bus, BusSettings, decode, encode, key, open_bus
+from groundstation.bus import Bus, decode, encode, key, open_bus
+from groundstation.config import ZenohSettings
 
 pytestmark = pytest.mark.skipif(
     shutil.which("rnx2rtkp") is None,
@@ -81,7 +82,7 @@ def session(bus: Bus, station: str, session_id: str, files: list[str],
 def solver(tmp_path: Path, flight: dict[str, Any],
            daemons: list[Daemon]) -> Iterator[tuple[Bus, Solutions, Daemon, Path]]:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    bus = open_bus(BusSettings(listen=(endpoint,)))
+    bus = open_bus(ZenohSettings(listen=(endpoint,)))
     photos = tmp_path / "photos" / "alpha"
     photos.mkdir(parents=True)
     xyz = ", ".join(f"{v:.4f}" for v in flight["truth"]["base"]["ecef_m"])

@@ -16,7 +16,8 @@ from pathlib import Path
 from peers import REPO, Daemon, Pty, free_port
 from streams import epoch_with_mark
 
-from groundstation.bus import Bus, BusSettings, decode, key, open_bus
+from groundstation.bus import Bus, decode, key, open_bus
+from groundstation.config import ZenohSettings
 
 STATION = "zt"
 WEEK = 2300
@@ -67,7 +68,7 @@ def fly(pty: Pty, epochs: int) -> None:
 def test_marks_status_and_late_joiner(tmp_path: Path, pty: Pty, daemons: list[Daemon]) -> None:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     d = start_daemon(tmp_path, pty, daemons, endpoint)
-    bus = open_bus(BusSettings(listen=(), connect=(endpoint,)))
+    bus = open_bus(ZenohSettings(listen=(), connect=(endpoint,)))
     try:
         col = Collector(bus)
         wait_until(lambda: bus.get(key(STATION, "q/status"), timeout_s=1.0) or col.of("status"))
@@ -92,7 +93,7 @@ def test_marks_status_and_late_joiner(tmp_path: Path, pty: Pty, daemons: list[Da
     finally:
         bus.close()
 
-    late = open_bus(BusSettings(listen=(), connect=(endpoint,)))
+    late = open_bus(ZenohSettings(listen=(), connect=(endpoint,)))
     try:
         wait_until(lambda: late.get(key(STATION, "q/status"), timeout_s=1.0))
         replies = late.get(key(STATION, "q/timemarks"), timeout_s=3.0)

@@ -14,7 +14,8 @@ from streams import epoch_with_mark
 from test_daemon import one, raw_from_mcap, wait_for_size
 from test_zenoh import SATS, STATION, TOW0_MS, WEEK, Collector, wait_until
 
-from groundstation.bus import BusSettings, decode, key, open_bus
+from groundstation.bus import decode, key, open_bus
+from groundstation.config import ZenohSettings
 
 
 @pytest.mark.parametrize("mode", ["peer", "client"])
@@ -22,7 +23,7 @@ def test_peer_gone_and_back_publishing_resumes_recording_exact(
     tmp_path: Path, pty: Pty, daemons: list[Daemon], mode: str
 ) -> None:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    peer = open_bus(BusSettings(listen=(endpoint,)))  # the router/solver the daemon joins
+    peer = open_bus(ZenohSettings(listen=(endpoint,)))  # the router/solver the daemon joins
     col = Collector(peer)
     out = tmp_path / "out"
     cfg = tmp_path / "gs.toml"
@@ -54,7 +55,7 @@ def test_peer_gone_and_back_publishing_resumes_recording_exact(
         peer.close()  # the peer goes away mid-stream
         gone_at = time.monotonic()
         d.wait_for("alert: Zenoh: no peer or router connected", timeout_s=6.0, after=gone_at)
-        peer = open_bus(BusSettings(listen=(endpoint,)))  # back, on the same port
+        peer = open_bus(ZenohSettings(listen=(endpoint,)))  # back, on the same port
         d.wait_for("alert cleared: Zenoh: no peer or router connected", timeout_s=10.0,
                    after=gone_at)
         col = Collector(peer)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import pytest
@@ -38,7 +39,7 @@ def test_precedence_defaults_file_env_cli(tmp_path: Path) -> None:
         "file", SerialSourceSettings(port="/dev/a", baud=9600), 5.0)
     assert s.recorder.flush_interval_s == 0.5  # default
     env = {"GROUNDSTATION_STATION": "env", "GROUNDSTATION_SOURCE_BAUD": "57600",
-           "GROUNDSTATION_RECORDER_SIDECAR": "false", "GROUNDSTATION_UNRELATED": "x"}
+           "GROUNDSTATION_RECORDER_SIDECAR": "false", "UNRELATED": "x"}
     s = load_settings(cfg, environ=env)
     assert (s.station, s.source.baud, s.recorder.sidecar) == ("env", 57600, False)  # type: ignore[union-attr]
     s = load_settings(cfg, environ=env, overrides={"station": "cli", "source": {"baud": 115200}})
@@ -100,3 +101,71 @@ def test_settings_are_frozen_and_jsonable(tmp_path: Path) -> None:
     with pytest.raises(AttributeError):
         s.station = "x"  # type: ignore[misc]
     assert s.to_jsonable()["source"]["path"] == "a.ubx"
+
+
+@pytest.mark.parametrize(
+    ("text", "key"),
+    [
+        ('status_interval_s = nan\n', "status_interval_s"),
+        ('status_interval_s = 1e-9\n', "status_interval_s"),
+        ('duration_s = inf\n', "duration_s"),
+        ('[source]\nread_size_bytes = 1000000000000\n', "source.read_size_bytes"),
+        ('[recorder]\nflush_interval_s = nan\n', "recorder.flush_interval_s"),
+        ('[recorder]\nrotate_size_mb = inf\n', "recorder.rotate_size_mb"),
+        ('[recorder]\nrotate_duration_s = -inf\n', "recorder.rotate_duration_s"),
+        ('[recorder]\nretry_s = nan\n', "recorder.retry_s"),
+        ('[recorder]\ncompression = "gzip"\n', "recorder.compression"),
+        ('[monitor]\nelevation_mask_deg = 91\n', "monitor.elevation_mask_deg"),
+        ('[monitor]\nhalf_cycle_fraction_max = 0\n', "monitor.half_cycle_fraction_max"),
+        ('[zenoh]\nlisten = ["foo"]\n', "zenoh.listen"),
+        ('[zenoh]\nconnect = ["tcp/127.0.0.1:99999"]\n', "zenoh.connect"),
+        ('[zenoh]\nmode = "bogus"\n', "zenoh.mode"),
+        ('[queues]\nmonitor = 0\n', "queues.monitor"),
+    ],
+)
+def test_numbers_finite_and_in_range(tmp_path: Path, text: str, key: str) -> None:
+    source = "" if "[source]" in text else '[source]\nport = "/dev/a"\n'
+    cfg = write(tmp_path, text + source)  # a valid source: the bad number is the only fault
+    with pytest.raises(ConfigError) as info:
+        load_settings(cfg, environ={})
+    assert info.value.key == key
+
+
+@pytest.mark.parametrize(
+    ("var", "value", "key"),
+    [
+        ("GROUNDSTATION_SOURCE_BAUD", "fast", "source.baud"),
+        ("GROUNDSTATION_STATUS_INTERVAL_S", "nan", "status_interval_s"),
+        ("GROUNDSTATION_SOURCE_READ_SIZE_BYTES", "1e12", "source.read_size_bytes"),
+        ("GROUNDSTATION_RECORDER_SIDECAR", "maybe", "recorder.sidecar"),
+        ("GROUNDSTATION_ZENOH_LISTEN", "foo", "zenoh.listen"),
+    ],
+)
+def test_bad_environment_value_names_key_and_variable(var: str, value: str, key: str) -> None:
+    with pytest.raises(ConfigError) as info:
+        load_settings(None, environ={"GROUNDSTATION_SOURCE_PORT": "/dev/a", var: value})
+    assert info.value.key == key
+    assert var in str(info.value)
+
+
+def test_unknown_variable_is_refused_naming_it() -> None:
+    with pytest.raises(ConfigError) as info:
+        load_settings(None, environ={"GROUNDSTATION_SOURCE_BAUDRATE": "9600",
+                                     "GROUNDSTATION_SOURCE_PORT": "/dev/a"})
+    assert info.value.key == "GROUNDSTATION_SOURCE_BAUDRATE"
+    # a variable of another command is known (one shell may serve the daemon and the solver)
+    s = load_settings(None, environ={"GROUNDSTATION_SOLVER_BASE": "b.ubx",
+                                     "GROUNDSTATION_SOURCE_PORT": "/dev/a"})
+    assert s.source == SerialSourceSettings(port="/dev/a")
+
+
+def test_config_path_that_is_no_regular_utf8_file(tmp_path: Path) -> None:
+    fifo = tmp_path / "fifo.toml"
+    os.mkfifo(fifo)
+    binary = tmp_path / "bin.toml"
+    binary.write_bytes(b'station = "\xff\xfe"\n')
+    for path, words in ((tmp_path, "is a directory"), (fifo, "not a regular file"),
+                        (binary, "not UTF-8"), (tmp_path / "missing.toml", "not found")):
+        with pytest.raises(ConfigError) as info:
+            load_settings(path, environ={})
+        assert info.value.key == "config" and words in str(info.value)

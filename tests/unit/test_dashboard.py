@@ -11,7 +11,8 @@ from typing import Any
 
 import pytest
 
-from groundstation.bus import BusSettings, encode
+from groundstation.bus import encode
+from groundstation.config import ZenohSettings
 from groundstation.view.dashboard.server import (
     Dashboard,
     DashboardSettings,
@@ -274,7 +275,7 @@ def test_hub_discovers_stations_and_catches_up_when_a_daemon_appears() -> None:
 @pytest.fixture
 def served() -> Iterator[tuple[Dashboard, FakeBus]]:
     bus = FakeBus()
-    settings = DashboardSettings(stations=("st",), port=0, bus=BusSettings())
+    settings = DashboardSettings(stations=("st",), port=0, bus=ZenohSettings())
     dash = Dashboard(settings, bus_factory=lambda _s: bus)
     dash.start()
     yield dash, bus

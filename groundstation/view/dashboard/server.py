@@ -11,7 +11,6 @@ whenever something changes, and at least once a second so that staleness shows.
 
 from __future__ import annotations
 
-import json
 import logging
 import queue
 import shutil
@@ -26,7 +25,9 @@ from pathlib import Path
 from typing import Any, Protocol
 from urllib.parse import parse_qs, urlsplit
 
-from groundstation.bus import KEY_ROOT, BusSettings, key, open_bus
+from groundstation import jsonio
+from groundstation.bus import KEY_ROOT, key, open_bus
+from groundstation.config import CLIENT_ZENOH, ZenohSettings
 from groundstation.view.dashboard.state import PPK_READY_MIN, FileInfo, StationView
 
 log = logging.getLogger("groundstation.dashboard")
@@ -119,7 +120,7 @@ class DashboardSettings:
     stations: tuple[str, ...] = ()
     bind: str = "127.0.0.1"
     port: int = 8080
-    bus: BusSettings = BusSettings(listen=(), connect=("tcp/127.0.0.1:7447",))
+    bus: ZenohSettings = CLIENT_ZENOH
     ppk_ready_min: int = PPK_READY_MIN
 
 
@@ -287,7 +288,7 @@ class _Handler(BaseHTTPRequestHandler):
         self.wfile.write(body)
 
     def _json(self, doc: Any) -> None:
-        self._send(HTTPStatus.OK, json.dumps(doc).encode(), "application/json")
+        self._send(HTTPStatus.OK, jsonio.dumps(doc), "application/json")
 
     def _static(self, name: str) -> None:
         if "/" in name or name.startswith(".") or Path(name).suffix not in STATIC_TYPES:
@@ -323,7 +324,7 @@ class _Handler(BaseHTTPRequestHandler):
                     if hub.closed:
                         break
                     seen = hub.version
-                doc = json.dumps(hub.document(station), separators=(",", ":"))
+                doc = jsonio.dumps(hub.document(station)).decode()
                 self._chunk(f"event: snapshot\ndata: {doc}\n\n".encode())
                 time.sleep(MIN_PUSH_INTERVAL_S)
             self.wfile.write(b"0\r\n\r\n")
@@ -351,7 +352,7 @@ class Dashboard:
     """The bus, the hub and the web server together; a context manager."""
 
     def __init__(self, settings: DashboardSettings,
-                 bus_factory: Callable[[BusSettings], BusLike] = open_bus) -> None:
+                 bus_factory: Callable[[ZenohSettings], BusLike] = open_bus) -> None:
         self.settings = settings
         self.hub = Hub(settings.stations, ppk_ready_min=settings.ppk_ready_min)
         self.http = DashboardHTTPServer((settings.bind, settings.port), self.hub)

@@ -15,6 +15,10 @@ because nothing sent at a guessed rate can be trusted.
 
 If a message is refused or never acknowledged, a final CFG-CFG (save) is skipped so that a
 partial configuration is not written to flash.
+
+This module is the exchange only, over any :class:`Link`; the serial port behind the command is
+:class:`groundstation.serialport.SerialLink`, and ``groundstation configure`` (the command) is
+``commands/configure.py``.
 """
 
 from __future__ import annotations
@@ -26,9 +30,6 @@ from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from typing import Protocol
 
-import serial
-
-from groundstation.errors import SourceError
 from groundstation.ubx.cfg import ACK_ACK_ID, ACK_CLASS, ACK_NAK_ID, CfgMessage
 from groundstation.ubx.framer import UbxFramer
 
@@ -60,68 +61,6 @@ class Link(Protocol):
 
     def reopen(self, baud: int) -> None:
         """Close the port and open it again at ``baud``."""
-
-
-class SerialLink:
-    """A serial port (8N1, no flow control) opened exclusively, for :func:`send_messages`.
-
-    Args:
-        port: device path, e.g. ``/dev/wi232`` or ``/dev/ttyUSB0``.
-        baud: the rate the receiver's port is running at now.
-
-    Raises:
-        SourceError: the port cannot be opened (missing, permission, or locked by another
-            process such as a running daemon).
-    """
-
-    def __init__(self, port: str, baud: int) -> None:
-        self.port = port
-        self._baud = baud
-        self._serial = self._open(baud)
-
-    @property
-    def baud(self) -> int:
-        return self._baud
-
-    def _open(self, baud: int) -> serial.Serial:
-        try:
-            return serial.Serial(
-                self.port, baud, bytesize=serial.EIGHTBITS, parity=serial.PARITY_NONE,
-                stopbits=serial.STOPBITS_ONE, timeout=READ_SLICE_S, write_timeout=5.0,
-                xonxoff=False, rtscts=False, exclusive=True,
-            )
-        except (serial.SerialException, OSError, ValueError) as err:
-            raise SourceError(f"cannot open {self.port} at {baud} baud: {err}") from err
-
-    def write(self, data: bytes) -> None:
-        try:
-            self._serial.write(data)
-            self._serial.flush()  # tcdrain: the bytes are on the wire before the clock starts
-        except (serial.SerialException, OSError) as err:
-            raise SourceError(f"cannot write to {self.port}: {err}") from err
-
-    def read(self, max_wait_s: float) -> bytes:
-        # The port's own timeout (READ_SLICE_S) bounds the blocking read; callers loop.
-        del max_wait_s
-        try:
-            data = bytes(self._serial.read(1))
-            if data and self._serial.in_waiting:
-                data += bytes(self._serial.read(self._serial.in_waiting))
-        except (serial.SerialException, OSError) as err:
-            raise SourceError(f"cannot read from {self.port}: {err}") from err
-        return data
-
-    def discard_input(self) -> None:
-        self._serial.reset_input_buffer()
-
-    def reopen(self, baud: int) -> None:
-        self._serial.close()
-        self._serial = self._open(baud)
-        self._baud = baud
-
-    def close(self) -> None:
-        """Close the port (idempotent)."""
-        self._serial.close()
 
 
 class Outcome(enum.StrEnum):
