@@ -9,6 +9,7 @@ from typing import Any
 
 from groundstation.config import SOLVER_STATION_KEYS, convert
 from groundstation.errors import ConfigError
+from groundstation.solve import engine as ppk
 from groundstation.solve import interpolate as interp
 from groundstation.solve.pipeline import SolveResult, SolveSettings, solve
 
@@ -25,6 +26,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--source", help="position source: pos, rtklib or receiver (default from the options)"
     )
+    parser.add_argument(
+        "--engine", default=ppk.DEFAULT_ENGINE,
+        help=f"PPK engine with --base: {', '.join(ppk.ENGINES)} (default {ppk.DEFAULT_ENGINE})",
+    )
+    parser.add_argument(
+        "--rtk-opt", action="append", default=[], metavar="KEY=VALUE",
+        help="engine option (RTKLIB key, e.g. pos2-arthres=3); repeatable; checked against "
+        "the engine's option table",
+    )
+    parser.add_argument("--rtk-conf", help="RTKLIB options file (.conf) applied over the defaults")
     parser.add_argument("--photos", help="directory of the flight's JPEGs")
     parser.add_argument("--lever-arm", help="lever arm in the camera frame, metres: X,Y,Z")
     parser.add_argument("--eo", help="exterior orientations: name, X, Y, Z, omega, phi, kappa")
@@ -69,12 +80,21 @@ def settings_from_args(args: argparse.Namespace) -> SolveSettings:
             raise ConfigError(opt, f"{val}: no such file")
     if args.photos is not None and not Path(args.photos).is_dir():
         raise ConfigError("--photos", f"{args.photos}: not a directory")
+    if args.rtk_conf is not None and not Path(args.rtk_conf).is_file():
+        raise ConfigError("--rtk-conf", f"{args.rtk_conf}: no such file")
+    rtk_opts = ppk.options.parse_assignments(args.rtk_opt)
+    base_xyz = _option("--base-xyz", "base_xyz", args.base_xyz)
+    if args.base is not None:  # the engine runs: check its options now, before any work
+        ppk.resolve_options(
+            ppk.get_engine(args.engine), base_xyz,
+            Path(args.rtk_conf) if args.rtk_conf else None, rtk_opts,
+        )
     return SolveSettings(
         flight=Path(args.flight),
         out_dir=Path(args.out),
         positions=Path(args.positions) if args.positions else None,
         base=Path(args.base) if args.base else None,
-        base_ecef_m=_option("--base-xyz", "base_xyz", args.base_xyz),
+        base_ecef_m=base_xyz,
         source=args.source,
         photos=Path(args.photos) if args.photos else None,
         lever_arm_m=_option("--lever-arm", "lever_arm", args.lever_arm),
@@ -85,6 +105,9 @@ def settings_from_args(args: argparse.Namespace) -> SolveSettings:
         shutter_delay_ms=_option("--shutter-delay-ms", "shutter_delay_ms", args.shutter_delay_ms),
         max_gap_s=max_gap,
         exif_copies=bool(args.exif),
+        engine=args.engine,
+        rtk_conf=Path(args.rtk_conf) if args.rtk_conf else None,
+        rtk_options=tuple(rtk_opts.items()),
     )
 
 

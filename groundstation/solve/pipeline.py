@@ -22,6 +22,7 @@ from groundstation.offline.marks import Mark, build_marks
 from groundstation.records import NavSolution, TimeMark
 from groundstation.solve import interpolate as mi
 from groundstation.solve import leverarm, outputs, photos, positions, report
+from groundstation.solve.engine import DEFAULT_ENGINE
 from groundstation.storage.reading import Recording
 from groundstation.ubx.decode import NAV_POSLLH, NAV_PVT, NAV_SOL, TIM_TM2, Decoder
 from groundstation.ubx.framer import UbxFramer
@@ -52,6 +53,9 @@ class SolveSettings:
     max_gap_s: float = mi.DEFAULT_MAX_GAP_S
     exif_copies: bool = False
     kappa_offset_deg: float = 0.0
+    engine: str = DEFAULT_ENGINE
+    rtk_conf: Path | None = None
+    rtk_options: tuple[tuple[str, str], ...] = ()
 
     def source_name(self) -> str:
         """The position source: explicit, else ``pos`` with --positions, ``rtklib`` with --base."""
@@ -190,6 +194,7 @@ def solve(settings: SolveSettings, progress: Progress | None = None) -> SolveRes
     opts = positions.SourceOptions(
         flight=s.flight, positions=s.positions, base=s.base, base_ecef_m=s.base_ecef_m,
         work_dir=s.out_dir / "rtklib", nav_solutions=rec.nav,
+        engine=s.engine, rtk_conf=s.rtk_conf, rtklib_overrides=dict(s.rtk_options),
     )
     traj = src.trajectory(opts, progress)
     if len(traj) == 0:

@@ -1,4 +1,4 @@
-"""Antenna trajectories: RTKLIB ``.pos`` import, the rnx2rtkp engine, the receiver's own fix.
+"""Antenna trajectories: RTKLIB ``.pos`` import, a PPK engine's solution, the receiver's own fix.
 
 Every source yields a :class:`Trajectory` (GPS ns, ECEF metres, RTKLIB quality, σ east/north/up)
 and is registered by name in :data:`POSITION_SOURCES`; the pipeline picks one by name.
@@ -10,8 +10,6 @@ import gzip
 import logging
 import math
 import re
-import shutil
-import subprocess
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -21,9 +19,12 @@ import numpy as np
 import numpy.typing as npt
 
 from groundstation import gpstime
-from groundstation.errors import ConfigError, GroundstationError, InputError
+from groundstation.errors import ConfigError, InputError
 from groundstation.geodesy import ecef_to_llh, enu_rotation, llh_to_ecef
 from groundstation.records import NavSolution
+from groundstation.solve.engine import DEFAULT_ENGINE, run_engine
+from groundstation.solve.engine import EngineError as EngineError  # re-exported for callers
+from groundstation.solve.engine import ToolMissingError as ToolMissingError
 
 log = logging.getLogger("groundstation.solve")
 
@@ -32,14 +33,6 @@ QUALITY_NAMES = {1: "fix", 2: "float", 3: "sbas", 4: "dgps", 5: "single", 6: "pp
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
-
-
-class ToolMissingError(GroundstationError):
-    """An external program (RTKLIB ``rnx2rtkp``) is not installed."""
-
-
-class EngineError(GroundstationError):
-    """An external positioning engine ran but failed or produced nothing."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -387,119 +380,7 @@ def trajectory_from_nav(solutions: Iterable[NavSolution], source: str = "receive
     )
 
 
-# -- RTKLIB engine ------------------------------------------------------------------------------
-
-RNX2RTKP = "rnx2rtkp"
-
-RTKLIB_L1_KINEMATIC: dict[str, str] = {
-    "pos1-posmode": "kinematic",
-    "pos1-frequency": "l1",
-    "pos1-soltype": "combined",
-    "pos1-elmask": "15",
-    "pos1-navsys": "1",  # GPS only
-    "pos1-tropopt": "saas",
-    "pos1-ionoopt": "brdc",
-    "pos1-ephem": "brdc",
-    "pos2-armode": "fix-and-hold",
-    "pos2-arthres": "3.0",
-    "pos2-arlockcnt": "5",
-    "pos2-arelmask": "15",
-    "out-solformat": "xyz",
-    "out-outhead": "on",
-    "out-outopt": "on",
-    "out-timesys": "gpst",
-    "out-timeform": "hms",
-    "out-timendec": "6",
-    "ant2-postype": "xyz",
-}
-"""Configuration of :func:`rtklib_config` for u-blox L1 kinematic work (DOMAIN.md §6)."""
-
-
-def rtklib_config(
-    base_ecef_m: tuple[float, float, float], overrides: dict[str, str] | None = None
-) -> str:
-    """An rnx2rtkp configuration file (``key=value`` lines) with the base coordinates set."""
-    opts = dict(RTKLIB_L1_KINEMATIC)
-    opts["ant2-pos1"], opts["ant2-pos2"], opts["ant2-pos3"] = (f"{v:.4f}" for v in base_ecef_m)
-    opts.update(overrides or {})
-    return "".join(f"{k:<18} ={v}\n" for k, v in opts.items())
-
-
-def rnx2rtkp_command(
-    exe: str, conf: Path, out: Path, rover_obs: Path, base_obs: Path, nav: Sequence[Path]
-) -> list[str]:
-    """The argument list (no shell) that runs rnx2rtkp on rover + base + navigation files."""
-    return [exe, "-k", str(conf), "-o", str(out), str(rover_obs), str(base_obs), *map(str, nav)]
-
-
 Progress = Callable[[str, float], None]
-
-
-def _to_rinex(path: Path, work: Path, progress: Progress | None) -> tuple[Path, list[Path]]:
-    """(obs, [nav]) for a RINEX observation file or a recording converted by our RINEX writer."""
-    name = path.name.lower()
-    if re.search(r"\.(obs|rnx|\d\do)(\.gz)?$", name):
-        navs = [
-            p for p in path.parent.glob(path.name.split(".")[0] + "*")
-            if re.search(r"\.(nav|\d\d[ngp])$", p.name.lower())
-        ]
-        return path, navs
-    from groundstation.offline import rinex  # the RINEX writer, imported only when converting
-
-    def prog(stage: str, frac: float) -> None:
-        if progress is not None:
-            progress(f"rinex {path.name}: {stage}", frac)
-
-    res = rinex.convert(path, work, rinex.RinexOptions(version="3.04"), prog)
-    return res.obs_path, [res.nav_path] if res.ephemerides else []
-
-
-def run_rnx2rtkp(
-    rover: Path,
-    base: Path,
-    base_ecef_m: tuple[float, float, float],
-    work_dir: Path,
-    *,
-    exe: str | None = None,
-    overrides: dict[str, str] | None = None,
-    progress: Progress | None = None,
-    timeout_s: float = 3600.0,
-) -> Path:
-    """Convert rover and base to RINEX if needed, run rnx2rtkp, return the ``.pos`` path.
-
-    Raises:
-        ToolMissingError: rnx2rtkp is not installed.
-        EngineError: rnx2rtkp failed or wrote no solution.
-    """
-    exe_path = shutil.which(exe or RNX2RTKP)
-    if exe_path is None:
-        raise ToolMissingError(
-            f"{exe or RNX2RTKP} not found: install RTKLIB (e.g. `apt-get install rtklib`) "
-            "or give a solution with --positions FILE.pos"
-        )
-    work_dir.mkdir(parents=True, exist_ok=True)
-    rover_obs, rover_nav = _to_rinex(rover, work_dir / "rover", progress)
-    base_obs, base_nav = _to_rinex(base, work_dir / "base", progress)
-    nav = rover_nav + base_nav
-    if not nav:
-        raise EngineError("no navigation data (ephemerides) in the rover or base recording")
-    conf = work_dir / "rnx2rtkp.conf"
-    conf.write_text(rtklib_config(base_ecef_m, overrides), encoding="ascii")
-    out = work_dir / "rover.pos"
-    cmd = rnx2rtkp_command(exe_path, conf, out, rover_obs, base_obs, nav)
-    log.info("running %s", " ".join(cmd))
-    if progress is not None:
-        progress("rnx2rtkp", 0.0)
-    try:
-        proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout_s, check=False)
-    except subprocess.TimeoutExpired as err:
-        raise EngineError(f"rnx2rtkp did not finish within {timeout_s:.0f} s") from err
-    if progress is not None:
-        progress("rnx2rtkp", 1.0)
-    if proc.returncode != 0 or not out.exists() or out.stat().st_size == 0:
-        tail = (proc.stderr or proc.stdout or "").strip().splitlines()[-3:]
-        raise EngineError(f"rnx2rtkp failed (exit {proc.returncode}): {' / '.join(tail)}")
-    return out
 
 
 # -- the registry -------------------------------------------------------------------------------
@@ -516,6 +397,8 @@ class SourceOptions:
     work_dir: Path | None = None
     nav_solutions: tuple[NavSolution, ...] = field(default_factory=tuple)
     rtklib_overrides: dict[str, str] = field(default_factory=dict)
+    engine: str = DEFAULT_ENGINE
+    rtk_conf: Path | None = None
 
 
 class PositionSource(Protocol):
@@ -538,7 +421,7 @@ class PosFileSource:
 
 
 class RtklibSource:
-    """rnx2rtkp on the flight and a base (``--base`` + ``--base-xyz``)."""
+    """A PPK engine (``--engine``, default demo5) on the flight and a base (``--base``)."""
 
     name: ClassVar[str] = "rtklib"
 
@@ -550,14 +433,16 @@ class RtklibSource:
         if opts.base_ecef_m is None:
             raise ConfigError("--base-xyz", "the base's known ECEF coordinates are required")
         work = opts.work_dir or opts.flight.parent / "rtklib"
-        out = run_rnx2rtkp(
-            opts.flight, opts.base, opts.base_ecef_m, work,
-            overrides=opts.rtklib_overrides, progress=progress,
+        run = run_engine(
+            opts.engine, opts.flight, opts.base, opts.base_ecef_m, work,
+            conf=opts.rtk_conf, overrides=opts.rtklib_overrides, progress=progress,
         )
-        traj = read_pos(out)
+        traj = read_pos(run.pos_path)
         return Trajectory(
             traj.t_gps_ns, traj.ecef_m, traj.quality, traj.sd_enu_m, traj.ns, traj.ratio,
-            "rnx2rtkp", False, (*traj.notes, f"rnx2rtkp solution {out}"),
+            run.engine, False,
+            (*traj.notes, f"engine {run.engine}: {run.version}", f"solution {run.pos_path}",
+             f"engine options in {run.info_path}", *run.notes),
         )
 
 

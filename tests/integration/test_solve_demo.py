@@ -3,7 +3,8 @@
 The demo writes the session MCAP, the base's stream and the simulator's truth; the test writes a
 photo set (real EXIF, camera clock hours off) for the truth's exposures and runs the solve
 command as a user would, with the base coordinates from the truth. Each output is then read the
-way its consumer reads it.
+way its consumer reads it. Both commands run with no RTKLIB program on PATH, as after a plain
+``pip install``: the default engine is demo5 through pyrtklib5.
 """
 
 from __future__ import annotations
@@ -12,6 +13,7 @@ import csv
 import html.parser
 import json
 import math
+import os
 import re
 import shutil
 import subprocess
@@ -28,17 +30,28 @@ from pyproj import CRS, Transformer
 from groundstation.solve.outputs import CAMERAS_COLUMNS, PIX4D_COLUMNS, REFERENCE_COLUMNS
 from groundstation.solve.photosim import photos_at_times, write_photo_set
 
-pytestmark = pytest.mark.skipif(
-    shutil.which("rnx2rtkp") is None,
-    reason="RTKLIB rnx2rtkp not installed: apt-get install rtklib",
-)
-
+RTKLIB_PROGRAMS = {"rnx2rtkp", "convbin", "rtkrcv", "str2str", "pos2kml", "rtkpost"}
 OUTPUTS = ("cameras.csv", "geo.txt", "reference.csv", "pix4d.csv", "cameras.geojson",
            "report.html")
 
 
+def _path_without_rtklib(shadow: Path) -> str:
+    """A PATH with every program of today's PATH except RTKLIB's (symlinks in ``shadow``)."""
+    shadow.mkdir(parents=True, exist_ok=True)
+    for d in os.environ.get("PATH", "").split(os.pathsep):
+        if not d or not Path(d).is_dir():
+            continue
+        for exe in Path(d).iterdir():
+            link = shadow / exe.name
+            if exe.name not in RTKLIB_PROGRAMS and not link.exists() and not link.is_symlink():
+                link.symlink_to(exe)
+    return str(shadow)
+
+
 def _cli(*args: str, cwd: Path, timeout_s: float = 180.0) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "groundstation.cli", *args], cwd=cwd,
+    env = {**os.environ, "PATH": _path_without_rtklib(cwd / "bin-without-rtklib")}
+    assert shutil.which("rnx2rtkp", path=env["PATH"]) is None
+    return subprocess.run([sys.executable, "-m", "groundstation.cli", *args], cwd=cwd, env=env,
                           capture_output=True, text=True, timeout=timeout_s, check=False)
 
 
@@ -82,7 +95,10 @@ def test_every_output_is_written_and_named(solved: dict[str, Any]) -> None:
         assert f"wrote      {out / name}" in solved["stdout"]
     n = len(solved["truth"]["exposures"])
     assert f"{n} paired, 0 photos without mark, 0 marks without photo" in solved["stdout"]
-    assert "rnx2rtkp" in solved["stdout"]
+    assert "positions  demo5:" in solved["stdout"]
+    assert "engine demo5: RTKLIB EX" in solved["stdout"]
+    engine_json = json.loads((out / "rtklib" / "engine.json").read_text())
+    assert engine_json["engine"] == "demo5" and engine_json["options"]["pos1-frequency"] == "l1"
     # The originals are untouched; the copies carry the camera position in EXIF GPS tags.
     photo_dir: Path = solved["photos"]
     assert {p.name: p.read_bytes() for p in photo_dir.iterdir()} == solved["before"]
@@ -217,4 +233,4 @@ def test_report_html_is_self_contained(solved: dict[str, Any]) -> None:
     assert refs.urls == []
     assert "url(http" not in text and "@import" not in text
     assert {"html", "svg"} <= refs.tags or {"html", "img"} <= refs.tags
-    assert "rnx2rtkp" in text and str(len(solved["truth"]["exposures"])) in text
+    assert "demo5" in text and str(len(solved["truth"]["exposures"])) in text

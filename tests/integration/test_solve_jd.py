@@ -15,7 +15,8 @@ from groundstation import gpstime
 from groundstation.cli import main
 from groundstation.solve import interpolate as ip
 from groundstation.solve import photos, pipeline
-from groundstation.solve.positions import read_pos, run_rnx2rtkp
+from groundstation.solve.engine import run_engine
+from groundstation.solve.positions import read_pos
 
 pytestmark = pytest.mark.shared_data
 
@@ -161,17 +162,21 @@ def test_solve_refuses_to_write_into_the_photo_directory(
     assert rc == 2 and "--out" in capsys.readouterr().err
 
 
-@pytest.mark.skipif(shutil.which("rnx2rtkp") is None,
-                    reason="rnx2rtkp not installed (apt-get install rtklib)")
-def test_rtklib_engine_on_the_real_flight(jd: dict[str, Path], tmp_path: Path) -> None:
-    out = run_rnx2rtkp(jd["rover"], jd["base"], BASE_XYZ, tmp_path)
+@pytest.mark.parametrize("engine", [
+    "demo5",
+    pytest.param("rnx2rtkp", marks=pytest.mark.skipif(
+        shutil.which("rnx2rtkp") is None, reason="rnx2rtkp not installed (apt-get install rtklib)"
+    )),
+])
+def test_rtklib_engine_on_the_real_flight(jd: dict[str, Path], tmp_path: Path, engine: str) -> None:
+    out = run_engine(engine, jd["rover"], jd["base"], BASE_XYZ, tmp_path).pos_path
     ours = read_pos(out)
     ref = read_pos(jd["pos"])
     common, i, j = np.intersect1d(ours.t_gps_ns // 10**6, ref.t_gps_ns // 10**6,
                                   return_indices=True)
     both_fixed = (ours.quality[i] == 1) & (ref.quality[j] == 1)
     d = np.linalg.norm(ours.ecef_m[i][both_fixed] - ref.ecef_m[j][both_fixed], axis=1)
-    print(f"rnx2rtkp L1 GPS: {len(ours)} epochs, {ours.fixed_fraction:.1%} fixed; reference "
+    print(f"{engine} on our RINEX: {len(ours)} epochs, {ours.fixed_fraction:.1%} fixed; reference "
           f"(GPS+GLONASS): {ref.fixed_fraction:.1%}; {both_fixed.sum()} common fixed epochs, "
           f"median difference {np.median(d) * 100:.1f} cm")
     assert len(ours) > 1500 and ours.fixed_fraction > 0.5

@@ -1,4 +1,4 @@
-"""Position sources: every RTKLIB .pos form, the rnx2rtkp configuration, the receiver's fix."""
+"""Position sources: every RTKLIB .pos form, the engines' configuration, the receiver's fix."""
 
 from __future__ import annotations
 
@@ -13,7 +13,9 @@ from groundstation import gpstime
 from groundstation.errors import ConfigError, InputError
 from groundstation.geodesy import ecef_to_llh, llh_to_ecef
 from groundstation.records import NavSolution
+from groundstation.solve import engine
 from groundstation.solve import positions as pos
+from groundstation.solve.engine.rnx2rtkp import Rnx2rtkpEngine, find_rnx2rtkp, rnx2rtkp_command
 
 XYZ = (3774698.5996, -596649.3002, 5089487.3800)
 LAT, LON, H = ecef_to_llh(*XYZ)
@@ -120,22 +122,21 @@ def test_read_pos_gz_and_sorting(tmp_path: Path) -> None:
         pos.read_pos(tmp_path / "missing.pos")
 
 
-def test_rtklib_config_and_command_are_what_the_issue_asks() -> None:
-    conf = pos.rtklib_config((1.0, 2.0, 3.0))
-    kv = dict(line.split("=", 1) for line in conf.replace(" ", "").splitlines())
-    assert kv["pos1-posmode"] == "kinematic" and kv["pos1-frequency"] == "l1"
-    assert kv["pos1-navsys"] == "1" and kv["pos2-armode"] == "fix-and-hold"
-    assert kv["pos1-soltype"] == "combined" and kv["pos1-elmask"] == "15"
-    assert kv["pos2-arthres"] == "3.0" and kv["ant2-pos1"] == "1.0000"
-    cmd = pos.rnx2rtkp_command("rnx2rtkp", Path("c.conf"), Path("o.pos"), Path("r.obs"),
-                               Path("b.obs"), [Path("n.nav")])
+def test_rnx2rtkp_options_and_command() -> None:
+    opts, _ = engine.resolve_options(Rnx2rtkpEngine(), (1.0, 2.0, 3.0))
+    assert opts["pos1-posmode"] == "kinematic" and opts["pos1-frequency"] == "l1"
+    assert opts["pos1-navsys"] == "1" and opts["pos2-armode"] == "fix-and-hold"
+    assert opts["pos1-soltype"] == "combined" and opts["pos1-elmask"] == "15"
+    assert opts["ant2-postype"] == "xyz" and opts["ant2-pos1"] == "1.0000"
+    assert "pos1-ephem" not in opts  # not a key: b34 ignored it without a word
+    cmd = rnx2rtkp_command("rnx2rtkp", Path("c.conf"), Path("o.pos"), Path("r.obs"),
+                           Path("b.obs"), [Path("n.nav")])
     assert cmd == ["rnx2rtkp", "-k", "c.conf", "-o", "o.pos", "r.obs", "b.obs", "n.nav"]
 
 
 def test_missing_rnx2rtkp_is_a_clear_error(tmp_path: Path) -> None:
     with pytest.raises(pos.ToolMissingError, match="install RTKLIB"):
-        pos.run_rnx2rtkp(tmp_path / "r.obs", tmp_path / "b.obs", (1.0, 2.0, 3.0), tmp_path,
-                         exe="rnx2rtkp-that-does-not-exist")
+        find_rnx2rtkp("rnx2rtkp-that-does-not-exist")
 
 
 def test_registry_and_config_errors() -> None:
@@ -172,4 +173,12 @@ def test_rnx2rtkp_failure_is_reported(tmp_path: Path) -> None:
     nav = tmp_path / "r.nav"
     nav.write_text("not rinex either\n")
     with pytest.raises(pos.EngineError):
-        pos.run_rnx2rtkp(bad, bad, (1.0, 2.0, 3.0), tmp_path / "w")
+        engine.run_engine("rnx2rtkp", bad, bad, (1.0, 2.0, 3.0), tmp_path / "w")
+
+
+def test_demo5_failure_is_reported(tmp_path: Path) -> None:
+    bad = tmp_path / "r.obs"
+    bad.write_text("not rinex\n")
+    (tmp_path / "r.nav").write_text("not rinex either\n")
+    with pytest.raises(pos.EngineError, match="demo5"):
+        engine.run_engine("demo5", bad, bad, (1.0, 2.0, 3.0), tmp_path / "w")

@@ -1,0 +1,241 @@
+"""PPK engines: RTKLIB demo5 in a worker process (default) and Debian's ``rnx2rtkp`` (b34).
+
+Engines are registered by name in :data:`ENGINES`. :func:`run_engine` is the one entry point:
+it converts recordings to RINEX, resolves the options (engine defaults < ``--rtk-conf`` <
+``--base-xyz`` < ``--rtk-opt``, each checked against the engine's own option table), runs the
+engine and writes, next to the ``.pos``, ``engine.json`` with the engine's name, version and
+full option set; the same goes into the ``.pos`` header.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import re
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import ClassVar, Protocol
+
+from groundstation.errors import ConfigError, GroundstationError
+from groundstation.solve.engine import options as eo
+
+log = logging.getLogger("groundstation.solve")
+
+Progress = Callable[[str, float], None]
+DEFAULT_ENGINE = "demo5"
+
+
+class ToolMissingError(GroundstationError):
+    """The chosen engine is not installed (no ``rnx2rtkp`` on PATH, no ``pyrtklib5``)."""
+
+
+class EngineError(GroundstationError):
+    """A positioning engine ran but failed or produced nothing."""
+
+
+@dataclass(frozen=True, slots=True)
+class EngineJob:
+    """RINEX inputs and resolved options of one engine run."""
+
+    rover_obs: Path
+    base_obs: Path
+    nav: tuple[Path, ...]
+    options: dict[str, str]
+    work_dir: Path
+    timeout_s: float = 3600.0
+
+
+@dataclass(frozen=True, slots=True)
+class EngineRun:
+    """What an engine produced: the solution and how it was made."""
+
+    engine: str
+    version: str
+    pos_path: Path
+    info_path: Path
+    options: dict[str, str]
+    wall_s: float
+    notes: tuple[str, ...] = field(default_factory=tuple)
+
+
+class Engine(Protocol):
+    """A PPK engine: an option table and a way to run on RINEX files."""
+
+    name: ClassVar[str]
+    defaults: ClassVar[dict[str, str]]
+
+    def option_table(self) -> eo.OptionTable:
+        """The engine's own ``sysopts[]`` (raises ToolMissingError when not installed)."""
+        ...
+
+    def version(self) -> str:
+        """Engine version text for outputs."""
+        ...
+
+    def run(self, job: EngineJob, progress: Progress | None = None) -> EngineRun:
+        """Solve; returns the ``.pos`` (its header and engine.json still to be completed)."""
+        ...
+
+
+def _engines() -> dict[str, type[Engine]]:
+    from groundstation.solve.engine.demo5 import Demo5Engine
+    from groundstation.solve.engine.rnx2rtkp import Rnx2rtkpEngine
+
+    return {Demo5Engine.name: Demo5Engine, Rnx2rtkpEngine.name: Rnx2rtkpEngine}
+
+
+ENGINES: dict[str, type[Engine]] = _engines()
+"""Engine name -> class."""
+
+
+def get_engine(name: str) -> Engine:
+    """The engine registered under ``name``.
+
+    Raises:
+        ConfigError: unknown name (named ``--engine``).
+    """
+    try:
+        return ENGINES[name]()
+    except KeyError as err:
+        known = ", ".join(ENGINES)
+        raise ConfigError("--engine", f"unknown engine {name!r} (known: {known})") from err
+
+
+def resolve_options(
+    engine: Engine,
+    base_ecef_m: tuple[float, float, float] | None,
+    conf: Path | None = None,
+    overrides: Mapping[str, str] | None = None,
+) -> tuple[dict[str, str], list[str]]:
+    """Engine defaults < ``conf`` < base position < ``overrides``, checked; plus notes.
+
+    The output keys our reader needs (:data:`options.OUTPUT_OPTIONS`) are set last; a user value
+    they replace is named in the notes.
+
+    Raises:
+        ConfigError: unknown key or bad value (named), unreadable conf file.
+        ToolMissingError: the engine is not installed.
+    """
+    table = engine.option_table()
+    opts = dict(engine.defaults)
+    notes: list[str] = []
+    user: dict[str, str] = {}
+    if conf is not None:
+        user.update(eo.read_conf(conf, table))
+    if base_ecef_m is not None:
+        user.update(eo.base_position_options(base_ecef_m))
+    if overrides:
+        user.update(eo.check_options(table, overrides, "--rtk-opt"))
+    opts.update(user)
+    for key, value in eo.OUTPUT_OPTIONS.items():
+        if key in user and not _same(table, key, user[key], value):
+            notes.append(f"option {key}={user[key]} replaced by {value} (our reader needs it)")
+        opts[key] = value
+    return eo.check_options(table, opts, f"{engine.name} option"), notes
+
+
+def _same(table: eo.OptionTable, key: str, a: str, b: str) -> bool:
+    """Whether two values of ``key`` mean the same (an enumeration by name or by number)."""
+    spec = table.get(key)
+    choices = spec.choices() if spec is not None else {}
+
+    def norm(v: str) -> str:
+        v = v.strip()
+        return str(choices[v]) if v in choices else v
+
+    return norm(a) == norm(b)
+
+
+def _to_rinex(path: Path, work: Path, progress: Progress | None) -> tuple[Path, list[Path]]:
+    """(obs, [nav]) for a RINEX observation file or a recording converted by our RINEX writer."""
+    name = path.name.lower()
+    if re.search(r"\.(obs|rnx|\d\do)(\.gz)?$", name):
+        navs = [
+            p for p in path.parent.glob(path.name.split(".")[0] + "*")
+            if re.search(r"\.(nav|\d\d[ngpl])(\.gz)?$", p.name.lower())
+        ]
+        return path, sorted(navs)
+    from groundstation.offline import rinex  # the RINEX writer, imported only when converting
+
+    def prog(stage: str, frac: float) -> None:
+        if progress is not None:
+            progress(f"rinex {path.name}: {stage}", frac)
+
+    res = rinex.convert(path, work, rinex.RinexOptions(version="3.04"), prog)
+    return res.obs_path, [res.nav_path] if res.ephemerides else []
+
+
+def run_engine(
+    engine_name: str,
+    rover: Path,
+    base: Path,
+    base_ecef_m: tuple[float, float, float] | None,
+    work_dir: Path,
+    *,
+    conf: Path | None = None,
+    overrides: Mapping[str, str] | None = None,
+    progress: Progress | None = None,
+    timeout_s: float = 3600.0,
+) -> EngineRun:
+    """Convert rover and base to RINEX if needed, run the engine, record how.
+
+    Raises:
+        ConfigError: unknown engine, option key or value.
+        ToolMissingError: the engine is not installed.
+        EngineError: the engine failed or wrote no solution.
+    """
+    engine = get_engine(engine_name)
+    opts, notes = resolve_options(engine, base_ecef_m, conf, overrides)
+    work_dir.mkdir(parents=True, exist_ok=True)
+    rover_obs, rover_nav = _to_rinex(rover, work_dir / "rover", progress)
+    base_obs, base_nav = _to_rinex(base, work_dir / "base", progress)
+    nav = tuple(rover_nav + base_nav)
+    if not nav:
+        raise EngineError("no navigation data (ephemerides) in the rover or base recording")
+    job = EngineJob(rover_obs, base_obs, nav, opts, work_dir, timeout_s)
+    t0 = time.perf_counter()
+    if progress is not None:
+        progress(engine.name, 0.0)
+    run = engine.run(job, progress)
+    wall = time.perf_counter() - t0
+    if progress is not None:
+        progress(engine.name, 1.0)
+    info = {
+        "engine": run.engine,
+        "version": run.version,
+        "inputs": [str(p) for p in (rover_obs, base_obs, *nav)],
+        "pos": str(run.pos_path),
+        "wall_s": round(wall, 3),
+        "options": run.options,
+        "notes": [*notes, *run.notes],
+    }
+    run.info_path.write_text(json.dumps(info, indent=1) + "\n", encoding="utf-8")
+    _stamp_header(run.pos_path, run.engine, run.version, run.options)
+    return EngineRun(
+        run.engine, run.version, run.pos_path, run.info_path, run.options, wall,
+        (*notes, *run.notes),
+    )
+
+
+def _stamp_header(pos: Path, engine: str, version: str, opts: Mapping[str, str]) -> None:
+    """Put the engine and its full option set at the top of the ``.pos`` as ``%`` lines."""
+    head = [f"% engine    : {engine} {version}"]
+    head += [f"% option    : {k}={v}" for k, v in opts.items()]
+    text = pos.read_text(encoding="ascii", errors="replace")
+    pos.write_text("\n".join(head) + "\n" + text, encoding="ascii", errors="replace")
+
+
+__all__ = [
+    "DEFAULT_ENGINE",
+    "ENGINES",
+    "Engine",
+    "EngineError",
+    "EngineJob",
+    "EngineRun",
+    "ToolMissingError",
+    "get_engine",
+    "resolve_options",
+    "run_engine",
+]
