@@ -59,12 +59,16 @@ class TrajectoryConfig:
 
     @classmethod
     def for_duration(
-        cls, duration_s: float, template: TrajectoryConfig | None = None
+        cls,
+        duration_s: float,
+        template: TrajectoryConfig | None = None,
+        static_fraction: float = 0.25,
     ) -> TrajectoryConfig:
-        """A configuration whose whole span is about ``duration_s``: a quarter static at each
-        end, the flight in between with as many (and as long) lines as ``template`` allows."""
+        """A configuration whose whole span is about ``duration_s``: ``static_fraction`` of it
+        static at each end, the flight in between with as many (and as long) lines as
+        ``template`` allows."""
         base = template if template is not None else cls()
-        static = max(duration_s * 0.25, 2.0)
+        static = max(duration_s * static_fraction, 2.0)
         budget = duration_s - 2 * static
         length = base.line_length_m
         n = base.n_lines
@@ -136,6 +140,20 @@ class Leg:
         if s_m <= self.length_m - d_acc:
             return ta + (s_m - d_acc) / v
         return total - math.sqrt(max(0.0, 2 * (self.length_m - s_m) / a))
+
+
+@dataclass(frozen=True, slots=True)
+class Turn:
+    """The copter turning from one survey line to the next.
+
+    Attributes:
+        t_s: seconds since the trajectory start when the line ends and the turn begins.
+        away_azimuth_deg: the side it banks away from (clockwise from north): the airframe
+            hides low satellites there.
+    """
+
+    t_s: float
+    away_azimuth_deg: float
 
 
 @dataclass(frozen=True, slots=True)
@@ -231,6 +249,14 @@ class Trajectory:
                 s += spacing
             line += 1
         return out
+
+    def turns(self) -> list[Turn]:
+        """One turn at the end of every survey line that another line follows."""
+        h = math.radians(self.config.heading_deg)
+        # The next line lies across the first (see __init__); the copter banks towards it.
+        away = math.degrees(math.atan2(-math.cos(h), math.sin(h))) % 360.0
+        ends = [leg.t0_s + leg.duration_s for leg in self.legs if leg.is_line]
+        return [Turn(t, away) for t in ends[:-1]]
 
     def phase(self, t_s: float) -> str:
         """``static``, ``flight`` or ``static`` again: for the squaring model and summaries."""
