@@ -15,7 +15,7 @@ from dataclasses import replace
 
 from groundstation.errors import ConfigError
 from groundstation.sim.faults import FaultConfig
-from groundstation.sim.receiver import FlightLossModel, ReceiverConfig, ShadowModel
+from groundstation.sim.receiver import FlightLossModel, ShadowModel
 from groundstation.sim.stream import SimConfig
 from groundstation.sim.trajectory import TrajectoryConfig
 

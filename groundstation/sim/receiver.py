@@ -349,8 +349,13 @@ def observe(
                     half[s0 : s0 + n_half] = True
                     slip[s0] = True
                     kind = "acquired" if s0 == a else "slip"
+                    cleared = s0 + n_half
                     events.append(LockEvent(
-                        sv, int(t_rx_ns[s0]), "reacquired" if back and s0 == a else kind, hc_s))
+                        sv, int(t_rx_ns[s0]), "reacquired" if back and s0 == a else kind, hc_s,
+                        half_cycle_inverted=True,
+                        resolve_t_rx_ns=int(t_rx_ns[cleared]) if cleared < s1 else None,
+                        resolve_jump_cyc=-0.5 if cleared < s1 else 0.0,
+                    ))
                     continue
                 events.append(_flight_loss(losses, rng, s0, s1, dt_s, t_rx_ns, off, half, slip,
                                            sv))
