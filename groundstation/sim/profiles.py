@@ -1,7 +1,8 @@
 """Named simulation profiles: today's gentle ``default`` flight and the field report's ``seed``.
 
 The ``seed`` profile is the flight the original project failed on (docs/simulator.md): 30 % of the
-span static at each end (15 min of a 50 min recording), lawnmower lines at 30 m in between, every
+span static at each end (15 min of a 50 min recording), in between a lever-arm calibration pass at
+15 m, lawnmower lines at 30 m and a second calibration pass; every
 satellite losing lock in flight on average every 20 s (divided by ``severity``) with whole- and
 half-cycle jumps and 2-10 s of half-cycle flags, C/N0 5 dB lower in flight, low satellites
 shadowed for 10 s in each turn, and about 300 radio gaps per 20 min of flight
@@ -35,7 +36,8 @@ SEED_TRAJECTORY = TrajectoryConfig(
     line_length_m=100.0,
     line_spacing_m=20.0,
     n_lines=60,  # for_duration trims this to what the flight time holds
-    exposure_spacing_m=4.0,
+    exposure_spacing_m=2.0,  # a photo a second at 2 m/s
+    calibration_height_m=15.0,
 )
 
 
