@@ -2,5 +2,6 @@
 
 Entry point: :func:`groundstation.sim.stream.simulate` with a
 :class:`~groundstation.sim.stream.SimConfig`; :func:`groundstation.sim.stream.paced` replays its
-timed chunks in real time.
+timed chunks in real time. :func:`groundstation.sim.profiles.sim_config` builds the configuration
+of a named profile (``default``, ``seed``).
 """
