@@ -21,6 +21,8 @@ import numpy as np
 import pytest
 from peers import REPO
 
+from groundstation.gnss.ephemeris import BroadcastEphemeris
+from groundstation.gnss.orbit import C_M_S, L1_WAVELENGTH_M, rotate_earth, sat_state, toe_gps_ns
 from groundstation.records import RawEpoch, SatObs, SvInfo
 from groundstation.sim.profiles import sim_config
 from groundstation.sim.stream import SimResult, simulate
@@ -298,6 +300,70 @@ def test_phase_jumps_in_the_data_equal_the_truth(seed: Flight) -> None:
     # Noise (about 0.09 cycles at the lowest C/N0 in flight) only: half a cycle stands out.
     assert len(quiet) > 10_000 and max(abs(r) for r in quiet) < 0.4
     assert float(np.std(quiet)) < 0.08
+
+
+def _geometry_cyc(f: Flight, ephs: dict[int, list[BroadcastEphemeris]], sv: int, i: int
+                  ) -> float:
+    """(range - c * satellite clock) / wavelength at epoch ``i``, the rover where the truth's
+    trajectory puts it: what the phase follows apart from the receiver clock and the ambiguity."""
+    t_ns = int(f.truth["start_gps_ns"]) + i * DT_NS
+    traj = f.truth["trajectory"]
+    t_traj = np.asarray(traj["t_gps_ns"], dtype=np.int64)
+    k = int(np.searchsorted(t_traj, t_ns)) - 1
+    w = (t_ns - t_traj[k]) / (t_traj[k + 1] - t_traj[k])
+    rx = np.array([traj[c][k] + w * (traj[c][k + 1] - traj[c][k]) for c in ("x_m", "y_m", "z_m")])
+    eph = min(ephs[sv], key=lambda e: abs(toe_gps_ns(e) - t_ns))
+    dt_toe = (t_ns - toe_gps_ns(eph)) / 1e9
+    tau = 0.075
+    for _ in range(3):
+        st = sat_state(eph, np.array([dt_toe - tau]))
+        rho = float(np.linalg.norm(rotate_earth(st.pos_m, tau)[0] - rx))
+        tau = rho / C_M_S
+    return (rho - C_M_S * float(st.clock_s[0])) / L1_WAVELENGTH_M
+
+
+def _change(f: Flight, ephs: dict[int, list[BroadcastEphemeris]], sv: int, p: int, q: int
+            ) -> float:
+    """Phase change of ``sv`` from epoch p to q minus the geometry's, in cycles."""
+    measured = f.epochs[q][sv].carrier_phase_cyc - f.epochs[p][sv].carrier_phase_cyc
+    return measured - (_geometry_cyc(f, ephs, sv, q) - _geometry_cyc(f, ephs, sv, p))
+
+
+def test_slips_hidden_in_radio_gaps_are_in_the_phase(seed: Flight) -> None:
+    """Across a gap, between two satellites, phase change minus geometry = the truth's jumps."""
+    events = seed.truth["receivers"]["rover"]["lock_events"]
+    jumps: dict[int, dict[int, float]] = defaultdict(dict)  # sv -> epoch -> jump
+    for e in events:
+        if e["jump_cyc"] is not None:
+            jumps[e["sv"]][seed.index(e["t_rx_ns"])] = e["jump_cyc"]
+        if e["resolve_t_rx_ns"] is not None:
+            jumps[e["sv"]][seed.index(e["resolve_t_rx_ns"])] = e["resolve_jump_cyc"]
+    ephs: dict[int, list[BroadcastEphemeris]] = defaultdict(list)
+    for d in seed.truth["ephemerides"]:
+        ephs[d["sv"]].append(BroadcastEphemeris(**d))
+
+    def jumped(sv: int, p: int, q: int) -> float:
+        return sum(j for i, j in jumps[sv].items() if p < i <= q)
+
+    checked = 0
+    for e in events:
+        if e["kind"] != "slip" or e["visible"]:
+            continue
+        i, sv = seed.index(e["t_rx_ns"]), e["sv"]
+        p = max(k for k in seed.epochs if k < i)
+        q = min(k for k in seed.epochs if k > i)
+        if sv not in seed.epochs[p] or sv not in seed.epochs[q]:
+            continue
+        refs = [r for r in seed.epochs[p] if r != sv and r in seed.epochs[q]
+                and not any(p < k <= q for k in jumps[r])]
+        if not refs:
+            continue
+        ref = refs[0]
+
+        residual = _change(seed, ephs, sv, p, q) - _change(seed, ephs, ref, p, q)
+        assert abs(residual - jumped(sv, p, q)) < 0.3, (i, sv, ref, residual, jumped(sv, p, q))
+        checked += 1
+    assert checked > 20
 
 
 @pytest.mark.skipif(shutil.which("convbin") is None, reason="RTKLIB convbin not installed")
