@@ -14,6 +14,7 @@ import subprocess
 import sys
 from collections import defaultdict
 from dataclasses import dataclass, field
+from functools import cached_property
 from pathlib import Path
 from typing import Any
 
@@ -48,6 +49,14 @@ class Flight:
     @property
     def n(self) -> int:
         return int(self.truth["receivers"]["rover"]["epochs"])
+
+    @cached_property
+    def trajectory(self) -> tuple[np.ndarray[Any, np.dtype[np.int64]],
+                                  np.ndarray[Any, np.dtype[np.float64]]]:
+        """The truth's antenna path: GPS ns and ECEF metres, as arrays."""
+        traj = self.truth["trajectory"]
+        xyz = np.stack([np.asarray(traj[c], dtype=np.float64) for c in ("x_m", "y_m", "z_m")], 1)
+        return np.asarray(traj["t_gps_ns"], dtype=np.int64), xyz
 
     def index(self, t_gps_ns: int) -> int:
         return (t_gps_ns - int(self.truth["start_gps_ns"])) // DT_NS
@@ -307,11 +316,10 @@ def _geometry_cyc(f: Flight, ephs: dict[int, list[BroadcastEphemeris]], sv: int,
     """(range - c * satellite clock) / wavelength at epoch ``i``, the rover where the truth's
     trajectory puts it: what the phase follows apart from the receiver clock and the ambiguity."""
     t_ns = int(f.truth["start_gps_ns"]) + i * DT_NS
-    traj = f.truth["trajectory"]
-    t_traj = np.asarray(traj["t_gps_ns"], dtype=np.int64)
+    t_traj, xyz = f.trajectory
     k = int(np.searchsorted(t_traj, t_ns)) - 1
     w = (t_ns - t_traj[k]) / (t_traj[k + 1] - t_traj[k])
-    rx = np.array([traj[c][k] + w * (traj[c][k + 1] - traj[c][k]) for c in ("x_m", "y_m", "z_m")])
+    rx = xyz[k] + w * (xyz[k + 1] - xyz[k])
     eph = min(ephs[sv], key=lambda e: abs(toe_gps_ns(e) - t_ns))
     dt_toe = (t_ns - toe_gps_ns(eph)) / 1e9
     tau = 0.075
