@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from groundstation.commands.simulate import parse_speed
+from groundstation.commands.simulate import add_profile_arguments, parse_speed
 from groundstation.config import DEFAULT_ENDPOINT
 from groundstation.errors import ConfigError
 from groundstation.view.summary import status_lines
@@ -18,14 +18,17 @@ HELP = "simulator + daemon + live view, the embedded default"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--flight", type=float, default=300.0, metavar="S",
-                        help="length of the simulated flight, static ends included (default 300)")
+    parser.add_argument("--flight", type=float, default=None, metavar="S",
+                        help="length of the simulated flight, static ends included (default 300; "
+                        "seed profile 3000)")
     parser.add_argument("--speed", default="1", help="1 (real time, default), N or max")
     parser.add_argument("--duration", type=float, default=0.0, metavar="S",
                         help="stop after S seconds of wall time (default: end of the flight)")
     parser.add_argument("--seed", type=int, default=1)
-    parser.add_argument("--faults", default="default", metavar="none|default|FILE",
-                        help="link and mark faults to inject (default: default)")
+    parser.add_argument("--faults", default=None, metavar="none|default|seed|FILE",
+                        help="link and mark faults to inject (default: default; seed profile: "
+                        "seed)")
+    add_profile_arguments(parser)
     parser.add_argument("--out-dir", type=Path, default=Path("flights"), metavar="DIR")
     parser.add_argument("--station", default="demo")
     parser.add_argument("--zenoh-listen", action="append", metavar="ENDPOINT",
@@ -37,13 +40,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from groundstation.live.demo import DemoOptions, run_demo
 
+    if args.flight is None:
+        args.flight = 3000.0 if args.profile == "seed" else 300.0
     if args.flight < 60:
         raise ConfigError("flight", "must be at least 60 s (static, take-off, lines, landing)")
     if args.duration < 0:
         raise ConfigError("duration", "must be >= 0")
     opts = DemoOptions(
         flight_s=args.flight, speed=parse_speed(args.speed, live=True), seed=args.seed,
-        faults=args.faults, duration_s=args.duration, out_dir=args.out_dir,
+        faults=args.faults or ("seed" if args.profile == "seed" else "default"),
+        profile=args.profile, severity=args.severity, duration_s=args.duration,
+        out_dir=args.out_dir,
         station=args.station, zenoh=not args.no_zenoh,
         zenoh_listen=tuple(args.zenoh_listen or [DEFAULT_ENDPOINT]),
     )

@@ -12,8 +12,9 @@ from pathlib import Path
 from groundstation.errors import ConfigError
 from groundstation.pacing import paced
 from groundstation.sim.faults import FaultConfig
+from groundstation.sim.profiles import DEFAULT_DURATION_S, DEFAULT_FAULTS, PROFILES, sim_config
 from groundstation.sim.ptylink import PtyLink
-from groundstation.sim.stream import SimConfig, simulate
+from groundstation.sim.stream import simulate
 
 NAME = "simulate"
 HELP = "realistic u-blox stream to a pty, TCP port or file, with faults"
@@ -25,14 +26,25 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     out.add_argument("--pty", action="store_true", help="serve the stream on a new pty")
     out.add_argument("--tcp", metavar="PORT", type=int, help="serve on 127.0.0.1:PORT")
     parser.add_argument("--base-out", metavar="FILE.ubx", help="write the base stream here")
-    parser.add_argument("--duration", metavar="S", type=float, default=600.0,
-                        help="simulated span in seconds (default 600)")
+    parser.add_argument("--duration", metavar="S", type=float, default=None,
+                        help="simulated span in seconds (default 600; seed profile 3000)")
     parser.add_argument("--speed", default=None,
                         help="1 (real time), N (N times faster) or max; default: max for "
                         "--out, 1 for --pty/--tcp")
     parser.add_argument("--seed", type=int, default=1)
-    parser.add_argument("--faults", default="none", metavar="none|default|FILE")
+    parser.add_argument("--faults", default=None, metavar="none|default|seed|FILE",
+                        help="link and mark faults (default: none; seed profile: seed)")
+    add_profile_arguments(parser)
     parser.add_argument("--truth", metavar="FILE", help="write the truth JSON here")
+
+
+def add_profile_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--profile`` and ``--severity``, shared by ``simulate`` and ``demo``."""
+    parser.add_argument("--profile", choices=PROFILES, default="default",
+                        help="default: a gentle flight; seed: the field report's failed flight")
+    parser.add_argument("--severity", type=float, default=1.0, metavar="S",
+                        help="seed profile: loss-of-lock rate relative to the field flight "
+                        "(1 = every 20 s per satellite, 0.5 half, 2 double)")
 
 
 def parse_speed(value: str | None, live: bool) -> float | None:
@@ -72,14 +84,17 @@ def _serve_tcp(port: int, chunks: Iterator[tuple[int, bytes]]) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.duration is None:
+        args.duration = DEFAULT_DURATION_S[args.profile]
     if args.duration <= 0:
         raise ConfigError("duration", "must be positive")
-    faults = FaultConfig.load(args.faults)
+    faults = FaultConfig.load(args.faults or DEFAULT_FAULTS[args.profile])
     live = bool(args.pty or args.tcp)
     speed = parse_speed(args.speed, live)
     started = time.monotonic()
-    result = simulate(SimConfig(duration_s=args.duration, seed=args.seed, faults=faults,
-                                with_base=bool(args.base_out) or not live))
+    result = simulate(sim_config(args.profile, duration_s=args.duration, seed=args.seed,
+                                 severity=args.severity, faults=faults,
+                                 with_base=bool(args.base_out) or not live))
     gen_s = time.monotonic() - started
     if args.truth:
         result.write_truth(args.truth)

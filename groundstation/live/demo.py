@@ -21,8 +21,9 @@ from groundstation.live.daemon import Pipeline, RunSummary
 from groundstation.live.fanout import Inbox, InboxClosed, Item, Overflow
 from groundstation.records import Event, Status, TimeMark
 from groundstation.sim.faults import FaultConfig
+from groundstation.sim.profiles import sim_config
 from groundstation.sim.ptylink import PtyLink
-from groundstation.sim.stream import SimConfig, SimResult, simulate
+from groundstation.sim.stream import SimResult, simulate
 
 log = logging.getLogger("groundstation.demo")
 
@@ -35,6 +36,8 @@ class DemoOptions:
     speed: float | None = 1.0
     seed: int = 1
     faults: str = "default"
+    profile: str = "default"
+    severity: float = 1.0
     duration_s: float = 0.0
     out_dir: Path = Path("flights")
     station: str = "demo"
@@ -92,7 +95,8 @@ async def run_demo(
     """Simulate, feed the pty, run the pipeline until the flight ends, ``duration_s`` passes or
     the process is interrupted; return what happened and where it went."""
     faults = FaultConfig.load(opts.faults)
-    sim = simulate(SimConfig(duration_s=opts.flight_s, seed=opts.seed, faults=faults))
+    sim = simulate(sim_config(opts.profile, duration_s=opts.flight_s, seed=opts.seed,
+                              severity=opts.severity, faults=faults))
     opts.out_dir.mkdir(parents=True, exist_ok=True)
     feeder = PtyLink()
     overrides: dict[str, Any] = {

@@ -34,6 +34,9 @@ class FaultConfig:
         dropout_per_min: outages of the radio link.
         dropout_median_s: median outage length (log-normal, so a few are long).
         dropout_max_s: longest outage.
+        flight_dropout_per_min: further outages per minute of flight only (the copter far away,
+            the channel shared), on top of ``dropout_per_min``.
+        dropout_spacing_s: shortest time between the end of one outage and the next.
         corrupt_per_min: frames with one corrupted byte.
         truncate_per_min: frames cut short (the rest of the frame never arrives).
         missed_mark_prob: marks the receiver does not report (its count still increments).
@@ -43,6 +46,8 @@ class FaultConfig:
     dropout_per_min: float = 0.0
     dropout_median_s: float = 0.3
     dropout_max_s: float = 3.0
+    flight_dropout_per_min: float = 0.0
+    dropout_spacing_s: float = 0.0
     corrupt_per_min: float = 0.0
     truncate_per_min: float = 0.0
     missed_mark_prob: float = 0.0
@@ -63,17 +68,34 @@ class FaultConfig:
             duplicate_mark_prob=0.02,
         )
 
+    @classmethod
+    def seed(cls) -> FaultConfig:
+        """The field report's failed flight: about 300 gaps in 20 min of flight, median 0.4 s,
+        none longer than 3 s, none on the ground; otherwise the default's damage."""
+        return cls(
+            dropout_median_s=0.33,
+            dropout_max_s=2.8,
+            flight_dropout_per_min=21.0,
+            dropout_spacing_s=0.5,
+            corrupt_per_min=0.2,
+            truncate_per_min=0.1,
+            missed_mark_prob=0.02,
+            duplicate_mark_prob=0.02,
+        )
+
     @property
     def enabled(self) -> bool:
         return any(getattr(self, f.name) for f in fields(self) if f.name.endswith(("min", "prob")))
 
     @classmethod
     def load(cls, spec: str) -> FaultConfig:
-        """``none``, ``default``, or a TOML/JSON file with any of the attribute names."""
+        """``none``, ``default``, ``seed``, or a TOML/JSON file with any of the attribute names."""
         if spec == "none":
             return cls.none()
         if spec == "default":
             return cls.default()
+        if spec == "seed":
+            return cls.seed()
         path = Path(spec)
         try:
             text = path.read_text(encoding="utf-8")
@@ -148,20 +170,25 @@ def apply_mark_faults(
 
 
 def _dropouts(
-    t0_ns: int, t1_ns: int, config: FaultConfig, rng: np.random.Generator
+    t0_ns: int, t1_ns: int, config: FaultConfig, rng: np.random.Generator,
+    per_min: float | None = None,
 ) -> list[tuple[int, int]]:
-    if config.dropout_per_min <= 0:
+    rate = config.dropout_per_min if per_min is None else per_min
+    if rate <= 0:
         return []
     out: list[tuple[int, int]] = []
     t = float(t0_ns)
-    mean_gap_ns = 60e9 / config.dropout_per_min
+    mean_gap_ns = 60e9 / rate
     while True:
         t += rng.exponential(mean_gap_ns)
         if t >= t1_ns:
             return out
         dur = min(config.dropout_max_s, config.dropout_median_s * float(rng.lognormal(0, 0.8)))
-        out.append((int(t), int(t + max(dur, 0.02) * 1e9)))
-        t += dur * 1e9
+        end = t + max(dur, 0.02) * 1e9
+        if end > t1_ns and per_min is not None:
+            return out  # a flight outage ends in flight
+        out.append((int(t), int(end)))
+        t += dur * 1e9 + config.dropout_spacing_s * 1e9
 
 
 def apply_link_faults(
@@ -169,11 +196,13 @@ def apply_link_faults(
     config: FaultConfig,
     rng: np.random.Generator,
     baud: int = DEFAULT_BAUD,
+    flight_ns: tuple[int, int] | None = None,
 ) -> tuple[list[tuple[int, bytes]], FaultLog]:
     """Damage the byte stream; returns ``(t_gps_ns, chunk)`` pieces in order and the log.
 
     Each message's bytes leave the UART at ``t_gps_ns + i * 10 / baud`` seconds; a byte sent
-    during an outage is lost.
+    during an outage is lost. ``flight_ns`` (take-off, landing) is where the
+    ``flight_dropout_per_min`` outages fall.
     """
     log = FaultLog()
     if not messages:
@@ -181,6 +210,10 @@ def apply_link_faults(
     byte_ns = 10 * 1_000_000_000 / baud
     t0, t1 = messages[0].t_gps_ns, messages[-1].t_gps_ns + 1_000_000_000
     dropouts = _dropouts(t0, t1, config, rng)
+    if flight_ns is not None and config.flight_dropout_per_min > 0:
+        # Sorted by start; a flight profile sets dropout_per_min = 0, so they do not overlap.
+        dropouts = sorted(dropouts + _dropouts(*flight_ns, config, rng,
+                                               per_min=config.flight_dropout_per_min))
     minutes = (t1 - t0) / 60e9
     n_msgs = len(messages)
     corrupt = _pick(rng, n_msgs, config.corrupt_per_min * minutes)

@@ -10,11 +10,17 @@ Observation model (RINEX sign conventions, as u-blox RXM-RAW reports them):
 ``rho`` is the geometric range from the satellite at transmission time, rotated into the ECEF frame
 of the reception time (Earth rotation during the signal's travel), to the antenna at the *true*
 reception time ``t = t_rx - dt_r``; the satellite clock includes the relativistic correction.
+
+Lock model: the default (:class:`SquaringModel` alone) is a gentle flight where a slip re-draws the
+ambiguity. With :class:`FlightLossModel` (the ``seed`` profile, modelled on the field report's
+failed flight) every satellite loses lock in flight at a given mean interval; the phase keeps its
+ambiguity plus a recorded jump of whole or half cycles, the half-cycle flag follows each loss,
+and with :class:`ShadowModel` low satellites on the outside of each turn are not tracked.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -31,6 +37,7 @@ from groundstation.gnss.orbit import (
 )
 from groundstation.gpstime import NS_PER_S, NS_PER_WEEK
 from groundstation.sim.constellation import Constellation
+from groundstation.sim.trajectory import Turn
 
 FloatArray = NDArray[np.float64]
 PositionFn = Callable[[FloatArray], tuple[FloatArray, FloatArray]]
@@ -58,6 +65,44 @@ class SquaringModel:
 
 
 @dataclass(frozen=True, slots=True)
+class FlightLossModel:
+    """Losses of lock in flight as in the field report's failed flight (none when static).
+
+    Attributes:
+        mean_interval_s: mean time between losses of lock of one satellite in flight
+            (exponential; the ``seed`` profile's severity divides it).
+        half_cycle_s: the half-cycle flag (LLI bit 1) lasts a uniform time in this range after
+            each loss, or until the next loss.
+        inverted_prob: probability that the loop relocks with inverted polarity, i.e. half a
+            cycle off until the flag clears (the phase then jumps back by half a cycle).
+        small_jump_prob: probability that the whole-cycle jump is within +-2 cycles (0 included:
+            a loss of lock need not move the phase); otherwise within +-``max_jump_cyc``.
+        max_jump_cyc: largest whole-cycle jump.
+    """
+
+    mean_interval_s: float = 20.0
+    half_cycle_s: tuple[float, float] = (2.0, 10.0)
+    inverted_prob: float = 0.5
+    small_jump_prob: float = 0.3
+    max_jump_cyc: int = 200
+
+
+@dataclass(frozen=True, slots=True)
+class ShadowModel:
+    """Low satellites on the outside of a turn are hidden by the airframe while it banks.
+
+    Attributes:
+        duration_s: how long each turn shadows them.
+        below_elevation_deg: satellites lower than this can be shadowed.
+        half_width_deg: ... if their azimuth is within this of the side the copter banks away from.
+    """
+
+    duration_s: float = 10.0
+    below_elevation_deg: float = 25.0
+    half_width_deg: float = 90.0
+
+
+@dataclass(frozen=True, slots=True)
 class ReceiverConfig:
     """One receiver's characteristics.
 
@@ -71,7 +116,10 @@ class ReceiverConfig:
         phase_sigma_m: carrier-phase noise at 45 dBHz.
         doppler_sigma_hz: Doppler noise at 45 dBHz.
         cno_offset_db: added to the elevation-dependent C/N0 (antenna, airframe).
+        flight_cno_drop_db: C/N0 lost in flight (propellers, banking, motor interference).
         squaring: the carrier-loop model.
+        flight_losses: frequent in-flight losses of lock (replaces the squaring model's slips).
+        shadow: airframe shadowing in turns.
     """
 
     name: str
@@ -83,17 +131,39 @@ class ReceiverConfig:
     phase_sigma_m: float = 0.002
     doppler_sigma_hz: float = 0.05
     cno_offset_db: float = 0.0
+    flight_cno_drop_db: float = 2.0
     squaring: SquaringModel = field(default_factory=SquaringModel)
+    flight_losses: FlightLossModel | None = None
+    shadow: ShadowModel | None = None
 
 
 @dataclass(frozen=True, slots=True)
 class LockEvent:
-    """A loss of lock (cycle slip) or a new acquisition, for the truth file."""
+    """A loss of lock (cycle slip) or a new acquisition, for the truth file.
+
+    ``t_rx_ns`` is the epoch whose LLI carries bit 0. With a :class:`FlightLossModel`, a slip also
+    records the true phase jump at that epoch (cycles, whole or half), whether the loop relocked
+    half a cycle off, and where the half-cycle flag cleared with the jump it made there.
+    """
 
     sv: int
     t_rx_ns: int
-    kind: str  # "acquired" | "slip"
+    kind: str  # "acquired" | "slip" | "reacquired" (after a shadow)
     half_cycle_s: float
+    jump_cyc: float | None = None
+    half_cycle_inverted: bool = False
+    resolve_t_rx_ns: int | None = None
+    resolve_jump_cyc: float = 0.0
+
+
+@dataclass(frozen=True, slots=True)
+class ShadowEvent:
+    """A satellite hidden by the airframe in a turn: not tracked in ``[start, end)``."""
+
+    sv: int
+    start_t_rx_ns: int
+    end_t_rx_ns: int
+    turn: int
 
 
 @dataclass(slots=True)
@@ -118,6 +188,7 @@ class Observations:
     elevation_deg: FloatArray
     azimuth_deg: FloatArray
     events: list[LockEvent]
+    shadows: list[ShadowEvent] = field(default_factory=list)
 
 
 def _runs(mask: NDArray[np.bool_]) -> list[tuple[int, int]]:
@@ -137,6 +208,7 @@ def observe(
     in_flight: Callable[[FloatArray], NDArray[np.bool_]],
     rng: np.random.Generator,
     iono_scale: float = 1.1,
+    turns: Sequence[Turn] = (),
 ) -> Observations:
     """Simulate one receiver's raw measurements at ``n_epochs`` epochs.
 
@@ -150,6 +222,7 @@ def observe(
         in_flight: whether each of those times is in flight (for the squaring model).
         rng: the random generator (the caller seeds it).
         iono_scale: true ionosphere relative to the broadcast Klobuchar model.
+        turns: the rover's turns, for the shadow model (seconds since ``start_gps_ns``).
     """
     svs = constellation.svs
     n_sv = len(svs)
@@ -179,7 +252,9 @@ def observe(
     mesqi = np.zeros(shape, dtype=np.int8)
     tracked = np.zeros(shape, dtype=bool)
     events: list[LockEvent] = []
+    shadows: list[ShadowEvent] = []
     sq = config.squaring
+    losses = config.flight_losses
 
     for j, sv in enumerate(svs):
         # Which ephemeris issue the receiver would use at each epoch (nearest toe).
@@ -225,7 +300,7 @@ def observe(
         trop = 1.02 * saastamoinen_delay_m(lat, h_epoch, np.maximum(elev, 1.0))
         sin_el = np.sin(np.radians(np.clip(elev, 0.0, 90.0)))
         cno_f = 30.0 + 19.0 * sin_el**0.5 + config.cno_offset_db + rng.normal(0, 0.7, n_epochs)
-        cno_f -= 2.0 * flying
+        cno_f -= config.flight_cno_drop_db * flying
         cno_i = np.clip(np.round(cno_f), 15, 55).astype(np.int8)
         scale = 10.0 ** ((45.0 - cno_i.astype(np.float64)) / 20.0)
         clock_term = C_M_S * (bias - clk)
@@ -237,33 +312,54 @@ def observe(
         dop_j += rng.normal(0.0, 1.0, n_epochs) * config.doppler_sigma_hz * scale
         cyc = ph_m / L1_WAVELENGTH_M
 
-        amb = np.zeros(n_epochs)
+        shadowed = _shadowed(config.shadow, turns, t_true_s, elev, azim)
+        for a, b in _runs(shadowed & visible):
+            turn = _turn_at(turns, float(t_true_s[a]))
+            end = int(t_rx_ns[b]) if b < n_epochs else int(t_rx_ns[-1]) + interval_ns
+            shadows.append(ShadowEvent(sv, int(t_rx_ns[a]), end, turn))
+        off = np.zeros(n_epochs)  # ambiguity plus any half-cycle offset, cycles
         half = np.zeros(n_epochs, dtype=bool)
         slip = np.zeros(n_epochs, dtype=bool)
         track = np.zeros(n_epochs, dtype=bool)
         acq_epochs = int(round(sq.acquisition_s / dt_s))
-        for a, b in _runs(visible):
-            a = a + acq_epochs if a > 0 else a
+        for a, b in _runs(visible & ~shadowed):
+            # Back from a shadow the receiver reacquires at once (it still has the satellite).
+            back = a > 0 and bool(shadowed[a - 1])
+            a = a + acq_epochs if a > 0 and not back else a
             if a >= b:
                 continue
             track[a:b] = True
-            # Lock segments: split the run at cycle slips (rate depends on flight state).
-            rates = np.where(flying[a + 1 : b], sq.slip_rate_per_h[1], sq.slip_rate_per_h[0])
-            hits = np.flatnonzero(rng.random(b - a - 1) < rates / 3600.0 * dt_s) + a + 1
+            if losses is None:
+                # Lock segments: split the run at cycle slips (rate depends on flight state).
+                rates = np.where(flying[a + 1 : b], sq.slip_rate_per_h[1], sq.slip_rate_per_h[0])
+                hits = np.flatnonzero(rng.random(b - a - 1) < rates / 3600.0 * dt_s) + a + 1
+            else:
+                p = dt_s / losses.mean_interval_s if losses.mean_interval_s > 0 else 0.0
+                hits = np.flatnonzero(flying[a + 1 : b] & (rng.random(b - a - 1) < p)) + a + 1
             bounds = [a, *(int(i) for i in hits), b]
             for s0, s1 in zip(bounds[:-1], bounds[1:], strict=True):
-                mean = sq.half_cycle_mean_s[1 if flying[s0] else 0]
-                hc_s = sq.half_cycle_min_s + float(rng.exponential(mean))
-                n_half = min(s1 - s0, int(np.ceil(hc_s / dt_s)))
-                # Integer ambiguity: the receiver starts the phase near the code (in cycles).
-                n_int = np.round(pr_j[s0] / L1_WAVELENGTH_M - cyc[s0]) + rng.integers(-5, 6)
-                amb[s0:s1] = n_int
-                half[s0 : s0 + n_half] = True
-                slip[s0] = True
-                events.append(
-                    LockEvent(sv, int(t_rx_ns[s0]), "acquired" if s0 == a else "slip", hc_s)
-                )
-        cp_j = cyc + amb + 0.5 * half
+                if losses is None or s0 == a:
+                    mean = sq.half_cycle_mean_s[1 if flying[s0] else 0]
+                    hc_s = sq.half_cycle_min_s + float(rng.exponential(mean))
+                    n_half = min(s1 - s0, int(np.ceil(hc_s / dt_s)))
+                    # Integer ambiguity: the receiver starts the phase near the code (cycles).
+                    n_int = np.round(pr_j[s0] / L1_WAVELENGTH_M - cyc[s0]) + rng.integers(-5, 6)
+                    off[s0:s1] = n_int
+                    off[s0 : s0 + n_half] += 0.5
+                    half[s0 : s0 + n_half] = True
+                    slip[s0] = True
+                    kind = "acquired" if s0 == a else "slip"
+                    cleared = s0 + n_half
+                    events.append(LockEvent(
+                        sv, int(t_rx_ns[s0]), "reacquired" if back and s0 == a else kind, hc_s,
+                        half_cycle_inverted=True,
+                        resolve_t_rx_ns=int(t_rx_ns[cleared]) if cleared < s1 else None,
+                        resolve_jump_cyc=-0.5 if cleared < s1 else 0.0,
+                    ))
+                    continue
+                events.append(_flight_loss(losses, rng, s0, s1, dt_s, t_rx_ns, off, half, slip,
+                                           sv))
+        cp_j = cyc + off
         order_ok = track
         tracked[:, j] = order_ok
         pr[:, j] = np.where(order_ok, pr_j, 0.0)
@@ -297,4 +393,69 @@ def observe(
         elevation_deg=el,
         azimuth_deg=az,
         events=events,
+        shadows=shadows,
     )
+
+
+def _flight_loss(
+    model: FlightLossModel,
+    rng: np.random.Generator,
+    s0: int,
+    s1: int,
+    dt_s: float,
+    t_rx_ns: NDArray[np.int64],
+    off: FloatArray,
+    half: NDArray[np.bool_],
+    slip: NDArray[np.bool_],
+    sv: int,
+) -> LockEvent:
+    """A loss of lock at epoch ``s0`` of a segment ending at ``s1``: jump, half-cycle flag."""
+    if rng.random() < model.small_jump_prob:
+        jump = int(rng.integers(-2, 3))
+    else:
+        jump = int(rng.integers(1, model.max_jump_cyc + 1)) * (1 if rng.random() < 0.5 else -1)
+    hc_s = float(rng.uniform(*model.half_cycle_s))
+    inverted = bool(rng.random() < model.inverted_prob)
+    n_half = min(s1 - s0, int(np.ceil(hc_s / dt_s - 1e-9)))
+    # The ambiguity continues from the previous epoch's (a half cycle the previous lock still
+    # carried is the receiver's, not the ambiguity's: drop it).
+    before = float(off[s0 - 1])
+    base = before - 0.5 if half[s0 - 1] and before % 1.0 == 0.5 else before
+    off[s0:s1] = base + jump
+    if inverted:
+        off[s0 : s0 + n_half] += 0.5
+    half[s0 : s0 + n_half] = True
+    slip[s0] = True
+    cleared = s0 + n_half
+    resolve = cleared < s1
+    return LockEvent(
+        sv, int(t_rx_ns[s0]), "slip", n_half * dt_s,
+        jump_cyc=float(off[s0] - before),
+        half_cycle_inverted=inverted,
+        resolve_t_rx_ns=int(t_rx_ns[cleared]) if resolve else None,
+        resolve_jump_cyc=float(off[cleared] - off[cleared - 1]) if resolve else 0.0,
+    )
+
+
+def _shadowed(
+    model: ShadowModel | None,
+    turns: Sequence[Turn],
+    t_s: FloatArray,
+    elev: FloatArray,
+    azim: FloatArray,
+) -> NDArray[np.bool_]:
+    """Epochs at which the airframe hides this satellite (low, outside the turn)."""
+    out = np.zeros(t_s.shape, dtype=bool)
+    if model is None:
+        return out
+    low = elev < model.below_elevation_deg
+    for turn in turns:
+        away = np.abs((azim - turn.away_azimuth_deg + 180.0) % 360.0 - 180.0)
+        during = (t_s >= turn.t_s) & (t_s < turn.t_s + model.duration_s)
+        out |= during & low & (away <= model.half_width_deg)
+    return out
+
+
+def _turn_at(turns: Sequence[Turn], t_s: float) -> int:
+    """Index of the last turn that started at or before ``t_s``."""
+    return max((i for i, turn in enumerate(turns) if turn.t_s <= t_s), default=-1)

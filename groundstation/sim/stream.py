@@ -56,6 +56,8 @@ class SimConfig:
         baud: UART speed that spaces the bytes in time.
         rover: rover receiver; ``base``: base receiver.
         n_satellites: constellation size.
+        profile: name of the profile that made this configuration (for the truth).
+        severity: the profile's severity (for the truth).
     """
 
     duration_s: float | None = 600.0
@@ -77,6 +79,8 @@ class SimConfig:
                                                clock_drift_s_s=-1.2e-8)
     )
     n_satellites: int = 31
+    profile: str = "default"
+    severity: float = 1.0
 
 
 @dataclass(slots=True)
@@ -269,7 +273,7 @@ def simulate(config: SimConfig) -> SimResult:
         return (t_s >= trajectory.takeoff_s) & (t_s < trajectory.landing_s)
 
     rover_obs = observe(constellation, config.rover, start, n_epochs, interval_ns, rover_pos,
-                        flying, rngs[0])
+                        flying, rngs[0], turns=trajectory.turns())
     mark_truth, mark_msgs = _marks(trajectory, start, interval_ns, rngs[1])
     _, rover_vel = trajectory.ecef((rover_obs.t_rx_ns - start) / NS_PER_S)
     rover_msgs = _messages(rover_obs, constellation, rover_vel, mark_msgs, rngs[2], config.baud)
@@ -293,7 +297,10 @@ def simulate(config: SimConfig) -> SimResult:
                               config.baud)
 
     sent, mark_faults = apply_mark_faults(rover_msgs, config.faults, rngs[5])
-    rover_chunks, fault_log = apply_link_faults(sent, config.faults, rngs[5], config.baud)
+    flight_ns = (start + round(trajectory.takeoff_s * NS_PER_S),
+                 start + round(trajectory.landing_s * NS_PER_S))
+    rover_chunks, fault_log = apply_link_faults(sent, config.faults, rngs[5], config.baud,
+                                                flight_ns=flight_ns)
     fault_log.faults = sorted(
         mark_faults + fault_log.faults,
         key=lambda f: f.get("t_gps_ns", f.get("start_gps_ns", 0)),
@@ -328,13 +335,23 @@ def _truth(
     missed = sorted(f["count"] for f in fault_log.faults if f["kind"] == "missed_mark")
     duplicated = sorted(f["count"] for f in fault_log.faults if f["kind"] == "duplicate_mark")
 
-    def receiver(obs: Observations) -> dict[str, Any]:
+    def receiver(obs: Observations, lost_tow_ms: set[int]) -> dict[str, Any]:
+        # A slip is visible on the ground only if the epoch whose LLI carries it arrived
+        # (RXM-RAW has no lock time to tell later).
+        events = [
+            {**asdict(e), "visible": (e.t_rx_ns % NS_PER_WEEK) // 1_000_000 not in lost_tow_ms}
+            for e in obs.events
+        ]
+        slips = [e for e in events if e["kind"] == "slip"]
         return {
             "epochs": int(len(obs.t_rx_ns)),
             "first_tow_ms": int((obs.t_rx_ns[0] % NS_PER_WEEK) // 1_000_000),
             "clock_bias_s_first": float(obs.clock_bias_s[0]),
             "clock_bias_s_last": float(obs.clock_bias_s[-1]),
-            "lock_events": [asdict(e) for e in obs.events],
+            "lock_events": events,
+            "slips": len(slips),
+            "slips_hidden": sum(not e["visible"] for e in slips),
+            "shadows": [asdict(sh) for sh in obs.shadows],
             "half_cycle_epochs": int(((obs.lli & 2) > 0).sum()),
             "slip_epochs": int(((obs.lli & 1) > 0).sum()),
         }
@@ -342,6 +359,7 @@ def _truth(
     return {
         "schema": TRUTH_SCHEMA,
         "seed": config.seed,
+        "profile": {"name": config.profile, "severity": config.severity},
         "start_gps_ns": int(start),
         "end_gps_ns": int(end),
         "rate_hz": config.rate_hz,
@@ -351,6 +369,8 @@ def _truth(
             "takeoff_gps_ns": start + round(trajectory.takeoff_s * NS_PER_S),
             "landing_gps_ns": start + round(trajectory.landing_s * NS_PER_S),
         },
+        "turns": [{"t_gps_ns": start + round(turn.t_s * NS_PER_S),
+                   "away_azimuth_deg": turn.away_azimuth_deg} for turn in trajectory.turns()],
         "base": None if base_ecef is None else {
             "ecef_m": list(base_ecef),
             "llh": list(ecef_to_llh(*base_ecef)),
@@ -369,8 +389,8 @@ def _truth(
             for m in marks
         ],
         "receivers": {
-            "rover": receiver(rover_obs),
-            **({"base": receiver(base_obs)} if base_obs is not None else {}),
+            "rover": receiver(rover_obs, set(fault_log.epochs_lost_tow_ms)),
+            **({"base": receiver(base_obs, set())} if base_obs is not None else {}),
         },
         "faults_config": asdict(config.faults),
         "faults": fault_log.faults,

@@ -1,5 +1,8 @@
 """The rover's path: static start, take-off, lawnmower survey lines, landing, static end.
 
+Optionally (the field procedure) a lever-arm calibration pass at a lower height before and after
+the survey lines.
+
 Every leg between waypoints has a trapezoidal speed profile (the copter stops at each waypoint),
 so position, velocity and the time a given distance is reached are all closed-form. Positions are
 local east/north/up metres at the take-off point, converted to ECEF in bulk.
@@ -41,6 +44,8 @@ class TrajectoryConfig:
         dwell_s: hover at each waypoint.
         exposure_spacing_m: distance between camera exposures on the lines.
         site_llh: take-off point (deg, deg, m).
+        calibration_height_m: if set, a lever-arm calibration pass over the first line at this
+            height (lower: over surveyed targets) before the survey and another after it.
     """
 
     static_start_s: float = 60.0
@@ -56,15 +61,20 @@ class TrajectoryConfig:
     dwell_s: float = 1.0
     exposure_spacing_m: float = 2.0
     site_llh: tuple[float, float, float] = DEFAULT_SITE_LLH
+    calibration_height_m: float | None = None
 
     @classmethod
     def for_duration(
-        cls, duration_s: float, template: TrajectoryConfig | None = None
+        cls,
+        duration_s: float,
+        template: TrajectoryConfig | None = None,
+        static_fraction: float = 0.25,
     ) -> TrajectoryConfig:
-        """A configuration whose whole span is about ``duration_s``: a quarter static at each
-        end, the flight in between with as many (and as long) lines as ``template`` allows."""
+        """A configuration whose whole span is about ``duration_s``: ``static_fraction`` of it
+        static at each end, the flight in between with as many (and as long) lines as
+        ``template`` allows."""
         base = template if template is not None else cls()
-        static = max(duration_s * 0.25, 2.0)
+        static = max(duration_s * static_fraction, 2.0)
         budget = duration_s - 2 * static
         length = base.line_length_m
         n = base.n_lines
@@ -93,6 +103,7 @@ class Leg:
     v_max_m_s: float
     accel_m_s2: float
     is_line: bool
+    calibration: bool = False
 
     @property
     def length_m(self) -> float:
@@ -139,6 +150,20 @@ class Leg:
 
 
 @dataclass(frozen=True, slots=True)
+class Turn:
+    """The copter turning from one survey line to the next.
+
+    Attributes:
+        t_s: seconds since the trajectory start when the line ends and the turn begins.
+        away_azimuth_deg: the side it banks away from (clockwise from north): the airframe
+            hides low satellites there.
+    """
+
+    t_s: float
+    away_azimuth_deg: float
+
+
+@dataclass(frozen=True, slots=True)
 class Exposure:
     """A planned camera exposure: seconds since the trajectory start, line index."""
 
@@ -157,26 +182,37 @@ class Trajectory:
         h = math.radians(c.heading_deg)
         along = (math.sin(h), math.cos(h))
         across = (math.cos(h), -math.sin(h))
-        pts: list[tuple[tuple[float, float, float], float, float, bool]] = []
+        pts: list[tuple[tuple[float, float, float], float, float, bool, bool]] = []
         up = (0.0, 0.0, c.height_m)
-        pts.append((up, c.climb_m_s, c.accel_m_s2 * 0.5, False))
+        line0 = ((0.0, 0.0), (c.line_length_m * along[0], c.line_length_m * along[1]))
+
+        def calibration_pass(v_to_start: float, acc_to_start: float) -> None:
+            if c.calibration_height_m is None:
+                return
+            hc = c.calibration_height_m
+            pts.append(((*line0[0], hc), v_to_start, acc_to_start, False, False))
+            pts.append(((*line0[1], hc), c.speed_m_s, c.accel_m_s2, True, True))
+
+        calibration_pass(c.climb_m_s, c.accel_m_s2 * 0.5)  # straight up from the take-off point
+        pts.append((up, c.climb_m_s, c.accel_m_s2 * 0.5, False, False))
         for k in range(c.n_lines):
             off = (k * c.line_spacing_m * across[0], k * c.line_spacing_m * across[1])
             a = (off[0], off[1], c.height_m)
             b = (off[0] + c.line_length_m * along[0], off[1] + c.line_length_m * along[1],
                  c.height_m)
             first, second = (a, b) if k % 2 == 0 else (b, a)
-            pts.append((first, c.speed_m_s * 2, c.accel_m_s2, False))
-            pts.append((second, c.speed_m_s, c.accel_m_s2, True))
-        pts.append((up, c.speed_m_s * 2, c.accel_m_s2, False))
-        pts.append(((0.0, 0.0, 0.0), c.climb_m_s, c.accel_m_s2 * 0.5, False))
+            pts.append((first, c.speed_m_s * 2, c.accel_m_s2, False, False))
+            pts.append((second, c.speed_m_s, c.accel_m_s2, True, False))
+        calibration_pass(c.speed_m_s * 2, c.accel_m_s2)
+        pts.append((up, c.speed_m_s * 2, c.accel_m_s2, False, False))
+        pts.append(((0.0, 0.0, 0.0), c.climb_m_s, c.accel_m_s2 * 0.5, False, False))
         legs: list[Leg] = []
         t = c.static_start_s
         here = (0.0, 0.0, 0.0)
-        for target, v, acc, is_line in pts:
+        for target, v, acc, is_line, calibration in pts:
             if math.dist(here, target) < 1e-9:
                 continue
-            leg = Leg(t, here, target, v, acc, is_line)
+            leg = Leg(t, here, target, v, acc, is_line, calibration)
             legs.append(leg)
             t += leg.duration_s + c.dwell_s
             here = target
@@ -231,6 +267,14 @@ class Trajectory:
                 s += spacing
             line += 1
         return out
+
+    def turns(self) -> list[Turn]:
+        """One turn at the end of every survey line that another survey line follows."""
+        h = math.radians(self.config.heading_deg)
+        # The next line lies across the first (see __init__); the copter banks towards it.
+        away = math.degrees(math.atan2(-math.cos(h), math.sin(h))) % 360.0
+        ends = [lg.t0_s + lg.duration_s for lg in self.legs if lg.is_line and not lg.calibration]
+        return [Turn(t, away) for t in ends[:-1]]
 
     def phase(self, t_s: float) -> str:
         """``static``, ``flight`` or ``static`` again: for the squaring model and summaries."""
