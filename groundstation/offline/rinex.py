@@ -26,7 +26,6 @@ import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -38,6 +37,7 @@ from groundstation.offline import marks as marks_mod
 from groundstation.offline.ephemeris import NavResult, collect_ephemerides
 from groundstation.offline.readers import file_size, iter_chunks
 from groundstation.records import TimeMark
+from groundstation.rules import phase
 from groundstation.ubx.fastraw import (
     FrameIndex,
     RawBlock,
@@ -78,11 +78,6 @@ for (_g, _s), _c in SIGNAL_CODES.items():
 _CODE_TABLE_V0 = np.full(8, -1, dtype=np.int64)
 for _g, _c in VERSION0_CODES.items():
     _CODE_TABLE_V0[_g] = CODE_INDEX[_c]
-
-CPSTD_VALID_GEN8 = 5
-CPSTD_VALID_GEN9 = 14
-CPSTD_SLIP = 15
-SBAS_HALF_CYCLE_LOCK_MS = 8000
 
 # IS-GPS-200 nominal URA (m) per index, as RINEX writers give it.
 URA_M = (2.4, 3.4, 4.85, 6.85, 9.65, 13.65, 24.0, 48.0, 96.0, 192.0, 384.0, 768.0, 1536.0,
@@ -130,25 +125,6 @@ def _empty_obs(source: str) -> ObsSet:
     return ObsSet(z, z, z, s, z, s, f, f, f, f, z, {}, source)
 
 
-def _slip_since_valid(
-    ks: npt.NDArray[np.int64],
-    same_prev: npt.NDArray[np.bool_],
-    slip: npt.NDArray[np.bool_],
-    valid: npt.NDArray[np.bool_],
-) -> npt.NDArray[np.bool_]:
-    """For rows sorted by signal (time order inside), whether a slip happened since the
-    signal's last valid phase, this row included (RTKLIB's carried-forward ``lockflag``)."""
-    n = ks.size
-    pos = np.arange(n)
-    group_start = np.maximum.accumulate(np.where(np.concatenate(([True], ~same_prev)), pos, 0))
-    last_valid_incl = np.maximum.accumulate(np.where(valid, pos, -1))
-    last_valid_excl = np.concatenate(([-1], last_valid_incl[:-1]))
-    base = np.maximum(last_valid_excl, group_start - 1)
-    csum = np.cumsum(slip.astype(np.int64))
-    csum_at = np.where(base >= 0, csum[np.maximum(base, 0)], 0)
-    return np.asarray((csum - csum_at) > 0)
-
-
 def obs_from_raw(block: RawBlock) -> ObsSet:
     """RXM-RAW (u-blox 4/5/6) messages → observations, as RTKLIB ``decode_rxmraw``."""
     h, m = block.header, block.meas
@@ -161,18 +137,7 @@ def obs_from_raw(block: RawBlock) -> ObsSet:
     m = m[ok]
     sv = sv[ok]
     n = int(ok.sum())
-    # A slip flagged while the phase was blank is carried to the next valid phase (RTKLIB).
-    raw_lli = m["lli"].astype(np.int64) & 3
-    if n:
-        order = np.argsort(sv, kind="stable")
-        ks = sv[order]
-        same_prev = ks[1:] == ks[:-1]
-        carried = _slip_since_valid(
-            ks, same_prev, (raw_lli[order] & 1) != 0, m["cpMes"][order] != 0.0
-        )
-        lli_s = raw_lli[order] | np.where(carried & (m["cpMes"][order] != 0.0), 1, 0)
-        raw_lli = np.empty(n, dtype=np.int64)
-        raw_lli[order] = lli_s
+    raw_lli = phase.raw_lli(sv, m["lli"].astype(np.int64), m["cpMes"].astype(np.float64))
     return ObsSet(
         t_gps_ns=t[keep_epoch],
         leap_s=np.full(int(keep_epoch.sum()), -1, dtype=np.int64),
@@ -188,15 +153,6 @@ def obs_from_raw(block: RawBlock) -> ObsSet:
         glo_fcn={},
         source="RXM-RAW",
     )
-
-
-def _group_prev(
-    values: npt.NDArray[Any], same_prev: npt.NDArray[np.bool_], default: int
-) -> npt.NDArray[Any]:
-    prev = np.empty_like(values)
-    prev[0:1] = default
-    prev[1:] = np.where(same_prev, values[:-1], default)
-    return prev
 
 
 def obs_from_rawx(block: RawBlock) -> ObsSet:
@@ -227,39 +183,19 @@ def obs_from_rawx(block: RawBlock) -> ObsSet:
     code_i = code_i[idx]
     code = _CODE_NAMES[code_i]
     trk = m["trkStat"].astype(np.int64)
-    lockt = m["locktime"].astype(np.int64)
-    cpstd = m["cpStdev"].astype(np.int64) & 15
     pr = np.where(trk & 1, m["prMes"], 0.0)
     # Gen9 limit once any earlier message carried a second-band signal (RTKLIB's rcvtype).
     gen9_msg = np.zeros(h.size, dtype=bool)
     np.logical_or.at(gen9_msg, block.epoch, block.meas["sigId"] > 1)
     gen9_msg &= keep_epoch  # RTKLIB returns before looking at a week-0 message
-    gen9_before = np.concatenate(([False], np.logical_or.accumulate(gen9_msg)[:-1]))
-    cp_limit = np.where(gen9_before[ep], CPSTD_VALID_GEN9, CPSTD_VALID_GEN8)
     cp = m["cpMes"].astype(np.float64)
-    cp = np.where(((trk & 2) == 0) | (cp == -0.5) | (cpstd > cp_limit), 0.0, cp)
+    valid, lli = phase.rawx_lli(
+        (gnss * 256 + sv) * 64 + code_i, gnss, trk, m["locktime"].astype(np.int64), cp,
+        m["cpStdev"].astype(np.int64), phase.rawx_gen9_before(gen9_msg)[ep],
+    )
+    cp = np.where(valid, cp, 0.0)
     bds_geo = (sysl == "C") & ((prn <= 5) | (prn >= 59)) & (cp != 0.0)
     cp = np.where(bds_geo, cp + 0.5, cp)
-    halfv = np.where(sysl == "S", lockt > SBAS_HALF_CYCLE_LOCK_MS, (trk & 4) != 0)
-    halfc = ((trk & 8) != 0).astype(np.int64)
-    # Per-signal state in stream order: sort by signal, keep time order inside each signal.
-    key = (gnss * 256 + sv) * 64 + code_i
-    order = np.argsort(key, kind="stable")
-    ks = key[order]
-    same_prev = ks[1:] == ks[:-1]
-    lt, hc, cpv = lockt[order], halfc[order], cp[order] != 0.0
-    prev_lt = _group_prev(lt, same_prev, 0)
-    prev_hc = _group_prev(hc, same_prev, 0)
-    slip = (lt == 0) | (lt < prev_lt) | (hc != prev_hc) | (cpstd[order] >= CPSTD_SLIP)
-    lockflag = _slip_since_valid(ks, same_prev, slip, cpv)
-    n = ks.size
-    lli_s = (
-        np.where(~halfv[order] & cpv, 2, 0)
-        | np.where(hc != prev_hc, 1, 0)
-        | np.where(cpv & lockflag, 1, 0)
-    )
-    lli = np.empty(n, dtype=np.int64)
-    lli[order] = lli_s
     new_row = np.cumsum(keep_epoch) - 1
     glo = sysl == "R"
     fcn = {int(p): int(f) - 7 for p, f in zip(prn[glo], m["freqId"][glo], strict=True)}
