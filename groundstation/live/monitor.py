@@ -26,6 +26,7 @@ from collections import deque
 from dataclasses import dataclass, field
 from typing import Any
 
+from groundstation import events as kinds
 from groundstation.config import MonitorSettings
 from groundstation.gpstime import NS_PER_S
 from groundstation.records import (
@@ -40,11 +41,11 @@ from groundstation.records import (
     SvInfo,
     TimeMark,
 )
+from groundstation.rules.phase import SIGNAL_LOST_AFTER_EPOCHS, phase_events
 
 RATE_WINDOW_NS = 5 * NS_PER_S
 INTERVAL_HISTORY = 25
 RECENT_DROPOUTS = 50
-SAT_LOST_AFTER_EPOCHS = 5  # RTKLIB's default maxout
 RECENT_MARKS = 32
 LINK_HISTORY_NS = 600 * NS_PER_S  # epochs kept for the completeness windows and the timeline
 DISK_FULL_ERRNOS = (errno.ENOSPC, errno.EDQUOT)
@@ -202,7 +203,7 @@ class Monitor:
         self._frameless_since_ns = None
         self._frameless_bytes = 0
         self._frameless_nmea = 0
-        self._clear("no_frames", now_ns, events)
+        self._clear(kinds.ALERT_NO_FRAMES, now_ns, events)
 
     def _check_frames(self, now_ns: int, events: list[Event]) -> None:
         """Bytes arriving for ``no_frames_s`` without one valid UBX frame among them."""
@@ -219,7 +220,7 @@ class Monitor:
             cause = ("wrong baud rate (bytes arrive but no frame checks out), "
                      "or noise on the line")
         self._raise(
-            "no_frames",
+            kinds.ALERT_NO_FRAMES,
             f"no valid frames for {span_s:.0f} s although {self._frameless_bytes} bytes "
             f"arrived: likely cause: {cause}",
             now_ns, events,
@@ -266,7 +267,7 @@ class Monitor:
                 self._check_gap(prev, t, now_ns, events)
         if self._ongoing_since_ns is not None:
             self._ongoing_since_ns = None
-            self._clear("dropout_long", now_ns, events)
+            self._clear(kinds.ALERT_DROPOUT_LONG, now_ns, events)
         self._on_epoch_sats(ep, now_ns, events)
 
     def _learn_interval(self) -> int:
@@ -289,7 +290,7 @@ class Monitor:
         self.dropout_count += 1
         self.missing_epochs += missing
         events.append(Event(
-            "link.dropout", now_ns,
+            kinds.LINK_DROPOUT, now_ns,
             f"link dropout: {missing} epoch(s) missing ({drop.duration_s:.1f} s)",
             "warning",
             {"start_t_gps_ns": drop.start_t_gps_ns, "end_t_gps_ns": drop.end_t_gps_ns,
@@ -333,22 +334,25 @@ class Monitor:
             has_phase = s.cp_valid and s.carrier_phase_cyc != 0.0 and (
                 s.mes_qi is None or s.mes_qi >= 5
             )
-            if sat is None or sat.absent > SAT_LOST_AFTER_EPOCHS:
+            new = sat is None or sat.absent > SIGNAL_LOST_AFTER_EPOCHS
+            if sat is None or new:
                 sat = _Sat(label, t, t, t, t if has_phase else None)
                 self.sats[label] = sat
             sat.absent = 0
-            if s.slip and t != sat.first_seen_ns:
+            # The phase rule's LLI (rules/phase.py, the same as in the RINEX files) decides.
+            ph = phase_events(s.lli, sat.half, new)
+            sat.half = s.half_cycle_unresolved
+            if ph.slip:
                 sat.slips += 1
                 sat.last_slip_ns = t
                 sat.lock_since_ns = t
                 sat.clean_since_ns = t if has_phase and not s.half_cycle_unresolved else None
                 events.append(Event(
-                    "sat.slip", now_ns, f"{label}: cycle slip", "info",
+                    kinds.SAT_SLIP, now_ns, f"{label}: cycle slip", "info",
                     {"sv": label, "t_gps_ns": t, "slips": sat.slips},
                 ))
-            if s.half_cycle_unresolved != sat.half:
-                sat.half = s.half_cycle_unresolved
-                kind = "sat.half_cycle_set" if sat.half else "sat.half_cycle_cleared"
+            if ph.half_cycle_set or ph.half_cycle_cleared:
+                kind = kinds.SAT_HALF_CYCLE_SET if sat.half else kinds.SAT_HALF_CYCLE_CLEARED
                 what = "half-cycle ambiguity unresolved" if sat.half else "half cycle resolved"
                 events.append(Event(kind, now_ns, f"{label}: {what}", "info",
                                     {"sv": label, "t_gps_ns": t}))
@@ -363,7 +367,7 @@ class Monitor:
         for label, sat in list(self.sats.items()):
             if label not in seen:
                 sat.absent += 1
-                if sat.absent > SAT_LOST_AFTER_EPOCHS:
+                if sat.absent > SIGNAL_LOST_AFTER_EPOCHS:
                     del self.sats[label]
 
     # -- marks ----------------------------------------------------------------------------
@@ -379,7 +383,7 @@ class Monitor:
         if ft in self._recent_falling:
             if m.new_falling:  # the same exposure reported as new again
                 self.duplicates += 1
-                events.append(Event("mark.duplicate", now_ns, f"duplicate time mark {m.count}",
+                events.append(Event(kinds.MARK_DUPLICATE, now_ns, f"duplicate time mark {m.count}",
                                     "warning", {"count": m.count, "t_gps_ns": ft}))
             return
         # A falling edge not seen before: from its own record, or from the rising-edge record
@@ -401,12 +405,12 @@ class Monitor:
                 self.missed += step - 1
                 self._last_missed_ns = now_ns
                 events.append(Event(
-                    "mark.missed", now_ns, f"{step - 1} time mark(s) missed "
+                    kinds.MARK_MISSED, now_ns, f"{step - 1} time mark(s) missed "
                     f"(count {last} -> {number})", "warning",
                     {"from_count": last, "to_count": number, "missed": step - 1},
                 ))
-                self._raise("marks_missed", f"{self.missed} time marks missed", now_ns, events,
-                            {"missed": self.missed})
+                self._raise(kinds.ALERT_MARKS_MISSED, f"{self.missed} time marks missed",
+                            now_ns, events, {"missed": self.missed})
         bisect.insort(self._mark_times, ft)
         if self.last_epoch_ns is not None and self._mark_times[0] < (
             self.last_epoch_ns - LINK_HISTORY_NS
@@ -437,7 +441,7 @@ class Monitor:
     def _mark_in_dropout(self, ft: int, now_ns: int, events: list[Event]) -> None:
         self.marks_in_dropout += 1
         events.append(Event(
-            "mark.in_dropout", now_ns,
+            kinds.MARK_IN_DROPOUT, now_ns,
             "time mark inside a link dropout: its photo sits on an interpolation gap",
             "warning", {"t_gps_ns": ft},
         ))
@@ -445,38 +449,39 @@ class Monitor:
     # -- events from elsewhere ------------------------------------------------------------
 
     def _on_event(self, ev: Event, now_ns: int, events: list[Event]) -> None:
-        if ev.kind == "recorder.file_opened":
+        if ev.kind == kinds.RECORDER_FILE_OPENED:
             self.recording["file"] = ev.data.get("path")
             self.session_id = str(ev.data.get("session_id") or self.session_id)
-        elif ev.kind == "source.lost":
+        elif ev.kind == kinds.SOURCE_LOST:
             self.source_connected = False
-        elif ev.kind == "source.connected":
+        elif ev.kind == kinds.SOURCE_CONNECTED:
             self.source_connected = True
-        elif ev.kind == "source.outage":
+        elif ev.kind == kinds.SOURCE_OUTAGE:
             self.source_outages += 1
             self.source_connected = True
-        elif ev.kind == "zenoh.disconnected":
-            self._raise("zenoh_disconnected", ev.message, now_ns, events)
-        elif ev.kind == "zenoh.connected":
-            self._clear("zenoh_disconnected", now_ns, events)
-        elif ev.kind == "recorder.write_failed":
-            name = "disk_full" if ev.data.get("errno") in DISK_FULL_ERRNOS else "recording_failed"
+        elif ev.kind == kinds.ZENOH_DISCONNECTED:
+            self._raise(kinds.ALERT_ZENOH_DISCONNECTED, ev.message, now_ns, events)
+        elif ev.kind == kinds.ZENOH_CONNECTED:
+            self._clear(kinds.ALERT_ZENOH_DISCONNECTED, now_ns, events)
+        elif ev.kind == kinds.RECORDER_WRITE_FAILED:
+            full = ev.data.get("errno") in DISK_FULL_ERRNOS
+            name = kinds.ALERT_DISK_FULL if full else kinds.ALERT_RECORDING_FAILED
             self._raise(name, ev.message, now_ns, events,
                         {"error": ev.data.get("error", ""), "errno": ev.data.get("errno", 0)})
-        elif ev.kind == "recorder.dropped":
-            for name in ("disk_full", "recording_failed"):
+        elif ev.kind == kinds.RECORDER_DROPPED:
+            for name in (kinds.ALERT_DISK_FULL, kinds.ALERT_RECORDING_FAILED):
                 alert = self.alerts.get(name)
                 if alert is not None:  # the alert now says what is being lost
                     alert.message = f"{alert.message.split('; ')[0]}; {ev.message}"
-        elif ev.kind == "recorder.recovered":
-            self._clear("disk_full", now_ns, events)
-            self._clear("recording_failed", now_ns, events)
-        elif ev.kind.endswith(".behind") and ev.kind.startswith("recorder"):
+        elif ev.kind == kinds.RECORDER_RECOVERED:
+            self._clear(kinds.ALERT_DISK_FULL, now_ns, events)
+            self._clear(kinds.ALERT_RECORDING_FAILED, now_ns, events)
+        elif kinds.sink_of(ev.kind, kinds.BEHIND_SUFFIX) == "recorder":
             self.recorder_behind = True
-            self._raise("recorder_behind", ev.message, now_ns, events)
-        elif ev.kind.endswith(".caught_up") and ev.kind.startswith("recorder"):
+            self._raise(kinds.ALERT_RECORDER_BEHIND, ev.message, now_ns, events)
+        elif kinds.sink_of(ev.kind, kinds.CAUGHT_UP_SUFFIX) == "recorder":
             self.recorder_behind = False
-            self._clear("recorder_behind", now_ns, events)
+            self._clear(kinds.ALERT_RECORDER_BEHIND, now_ns, events)
 
     # -- alerts ---------------------------------------------------------------------------
 
@@ -489,14 +494,14 @@ class Monitor:
             alert.message = message
             return
         self.alerts[name] = _Alert(name, message, now_ns, data or {})
-        events.append(Event("alert.raised", now_ns, message, "warning",
+        events.append(Event(kinds.ALERT_RAISED, now_ns, message, "warning",
                             {"alert": name, **(data or {})}))
 
     def _clear(self, name: str, now_ns: int, events: list[Event]) -> None:
         alert = self.alerts.pop(name, None)
         if alert is None:
             return
-        events.append(Event("alert.cleared", now_ns, f"cleared: {alert.message}", "info",
+        events.append(Event(kinds.ALERT_CLEARED, now_ns, f"cleared: {alert.message}", "info",
                             {"alert": name, "duration_s": (now_ns - alert.since_ns) / 1e9}))
 
     def _evaluate_alerts(self, now_ns: int, events: list[Event]) -> None:
@@ -505,46 +510,49 @@ class Monitor:
         if ongoing is not None and self._ongoing_since_ns is None:
             self._ongoing_since_ns = now_ns
             events.append(Event(
-                "link.dropout_started", now_ns,
+                kinds.LINK_DROPOUT_STARTED, now_ns,
                 "link dropout: no epoch since "
                 f"{(now_ns - (self.last_epoch_host_ns or now_ns)) / 1e9:.1f} s",
                 "warning", {"start_t_gps_ns": ongoing.start_t_gps_ns},
             ))
         if ongoing is not None and ongoing.duration_s >= th.dropout_alert_s:
-            self._raise("dropout_long", f"link dropout longer than {th.dropout_alert_s:g} s",
-                        now_ns, events, {"start_t_gps_ns": ongoing.start_t_gps_ns})
+            self._raise(kinds.ALERT_DROPOUT_LONG,
+                        f"link dropout longer than {th.dropout_alert_s:g} s", now_ns, events,
+                        {"start_t_gps_ns": ongoing.start_t_gps_ns})
         if self.last_byte_ns is not None:
             if (now_ns - self.last_byte_ns) / 1e9 >= th.no_data_s:
-                self._raise("no_data", f"no data for {th.no_data_s:g} s or more", now_ns, events)
+                self._raise(kinds.ALERT_NO_DATA, f"no data for {th.no_data_s:g} s or more",
+                            now_ns, events)
             else:
-                self._clear("no_data", now_ns, events)
+                self._clear(kinds.ALERT_NO_DATA, now_ns, events)
         if self.epochs and self.first_epoch_ns is not None and self.last_epoch_ns is not None:
             warmed_up = self.last_epoch_ns - self.first_epoch_ns >= th.clean_phase_s * NS_PER_S
             ready, tracked, half = self._sat_counts()
             if warmed_up and ready < th.ppk_ready_min:
-                self._raise("ppk_ready_low",
+                self._raise(kinds.ALERT_PPK_READY_LOW,
                             f"only {ready} satellites with clean phase for "
                             f"{th.clean_phase_s:g} s (need {th.ppk_ready_min})",
                             now_ns, events, {"ppk_ready": ready})
             elif ready >= th.ppk_ready_min:
-                self._clear("ppk_ready_low", now_ns, events)
+                self._clear(kinds.ALERT_PPK_READY_LOW, now_ns, events)
             frac = half / tracked if tracked else 0.0
             if frac > th.half_cycle_fraction_max:
-                self._raise("half_cycle_high",
+                self._raise(kinds.ALERT_HALF_CYCLE_HIGH,
                             f"{half} of {tracked} satellites with unresolved half cycles",
                             now_ns, events, {"fraction": round(frac, 3)})
             else:
-                self._clear("half_cycle_high", now_ns, events)
+                self._clear(kinds.ALERT_HALF_CYCLE_HIGH, now_ns, events)
         self._check_frames(now_ns, events)
         if (self._last_missed_ns is not None
                 and now_ns - self._last_missed_ns >= th.marks_missed_hold_s * NS_PER_S):
-            self._clear("marks_missed", now_ns, events)
+            self._clear(kinds.ALERT_MARKS_MISSED, now_ns, events)
         if self.disk_free_mb is not None:
             if self.disk_free_mb < th.disk_free_min_mb:
-                self._raise("disk_low", f"disk space low: {self.disk_free_mb:.0f} MB free",
-                            now_ns, events, {"free_mb": round(self.disk_free_mb, 1)})
+                self._raise(kinds.ALERT_DISK_LOW,
+                            f"disk space low: {self.disk_free_mb:.0f} MB free", now_ns, events,
+                            {"free_mb": round(self.disk_free_mb, 1)})
             else:
-                self._clear("disk_low", now_ns, events)
+                self._clear(kinds.ALERT_DISK_LOW, now_ns, events)
 
     def _sat_counts(self) -> tuple[int, int, int]:
         """(PPK-ready, tracked with phase, half-cycle unresolved) over the current satellites."""

@@ -254,20 +254,30 @@ def rawx_lli(
 
 # -- what the operator is told ----------------------------------------------------------------
 
+SIGNAL_LOST_AFTER_EPOCHS = 5
+"""A signal missing from more than this many received epochs is lost; when it comes back it is
+a new signal (RTKLIB's default ``maxout``). A link dropout says nothing about tracking, so only
+epochs that arrived count."""
+
 
 @dataclass(frozen=True, slots=True)
 class PhaseEvents:
-    """The events one measurement's LLI causes, given the signal's half-cycle state before."""
+    """The events one measurement's LLI causes."""
 
     slip: bool
     half_cycle_set: bool
     half_cycle_cleared: bool
 
 
-def phase_events(lli: int, half_before: bool) -> PhaseEvents:
+def phase_events(lli: int, half_before: bool, new: bool) -> PhaseEvents:
     """Events from one LLI: bit 0 is a slip; a change of bit 1 sets or clears the half cycle.
 
-    ``half_before`` is the signal's bit 1 at its previous appearance (False at its first).
+    Args:
+        lli: the measurement's LLI (this module's rule).
+        half_before: the signal's bit 1 at its previous appearance (False when ``new``).
+        new: the signal's first appearance, or its first after it was lost
+            (:data:`SIGNAL_LOST_AFTER_EPOCHS`): bit 0 then only says the receiver just locked.
     """
     half = bool(lli & LLI_HALF_CYCLE)
-    return PhaseEvents(bool(lli & LLI_SLIP), half and not half_before, half_before and not half)
+    before = half_before and not new
+    return PhaseEvents(bool(lli & LLI_SLIP) and not new, half and not before, before and not half)
