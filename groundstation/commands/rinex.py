@@ -8,8 +8,8 @@ import time
 
 from groundstation.errors import ConfigError
 from groundstation.offline import rinex
-from groundstation.offline.marks import MARK_EDGES
 from groundstation.offline.readers import file_size
+from groundstation.rules.marks import MARK_EDGES
 
 NAME = "rinex"
 HELP = "MCAP/.ubx -> RINEX 2.11/3.04 obs + nav + time-mark table"
