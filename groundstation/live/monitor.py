@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import bisect
 import errno
-import statistics
 from collections import deque
 from dataclasses import dataclass, field
 from typing import Any
@@ -41,12 +40,13 @@ from groundstation.records import (
     SvInfo,
     TimeMark,
 )
+from groundstation.rules.epochs import interval_from_spacings, is_dropout, missing_epochs
+from groundstation.rules.marks import Mark, MarkTracker, mark_number
 from groundstation.rules.phase import SIGNAL_LOST_AFTER_EPOCHS, phase_events
 
 RATE_WINDOW_NS = 5 * NS_PER_S
 INTERVAL_HISTORY = 25
 RECENT_DROPOUTS = 50
-RECENT_MARKS = 32
 LINK_HISTORY_NS = 600 * NS_PER_S  # epochs kept for the completeness windows and the timeline
 DISK_FULL_ERRNOS = (errno.ENOSPC, errno.EDQUOT)
 NO_FRAMES_MIN_BYTES = 64  # a few stray bytes after the last frame are no evidence of anything
@@ -135,13 +135,9 @@ class Monitor:
         self.sats: dict[str, _Sat] = {}
         self._svinfo: dict[str, tuple[int, int, bool]] = {}
         # marks
-        self.marks = 0
+        self._mark_rule = MarkTracker()
         self.last_mark: TimeMark | None = None
-        self._recent_falling: deque[int] = deque(maxlen=RECENT_MARKS)
         self.marks_recovered = 0
-        self._last_count: dict[int, int] = {}
-        self.missed = 0
-        self.duplicates = 0
         self.marks_in_dropout = 0
         self.multi_in_epoch = 0
         self._mark_times: list[int] = []  # falling-edge GPS ns, sorted
@@ -257,12 +253,13 @@ class Monitor:
             self._early.append(t)
             if len(self._diffs) >= 4:
                 self.interval_ns = self._learn_interval()
+            if self.interval_ns is not None:
                 for a, b in zip(self._early, self._early[1:], strict=False):
                     self._check_gap(a, b, now_ns, events)
                 self._early.clear()
         else:
             if len(self._diffs) == INTERVAL_HISTORY and self.epochs % INTERVAL_HISTORY == 0:
-                self.interval_ns = self._learn_interval()
+                self.interval_ns = self._learn_interval() or self.interval_ns
             if prev is not None:
                 self._check_gap(prev, t, now_ns, events)
         if self._ongoing_since_ns is not None:
@@ -270,16 +267,15 @@ class Monitor:
             self._clear(kinds.ALERT_DROPOUT_LONG, now_ns, events)
         self._on_epoch_sats(ep, now_ns, events)
 
-    def _learn_interval(self) -> int:
-        med = statistics.median_low(self._diffs)
-        return max(10_000_000, round(med / 10_000_000) * 10_000_000)
+    def _learn_interval(self) -> int | None:
+        return interval_from_spacings(self._diffs)
 
     def _check_gap(self, prev: int, t: int, now_ns: int, events: list[Event]) -> None:
         assert self.interval_ns is not None
         d = t - prev
-        if d <= self.interval_ns * 3 // 2:
+        if not is_dropout(d, self.interval_ns):
             return
-        missing = max(1, round(d / self.interval_ns) - 1)
+        missing = missing_epochs(d, self.interval_ns)
         drop = Dropout(
             start_t_gps_ns=prev + self.interval_ns,
             end_t_gps_ns=t - self.interval_ns,
@@ -377,40 +373,47 @@ class Monitor:
             width = (m.rising_t_gps_ns - m.falling_t_gps_ns) / 1e6
             if 0 <= width < 10_000:
                 self.last_pulse_ms = width
-        ft = m.falling_t_gps_ns
-        if ft is None:
-            return
-        if ft in self._recent_falling:
-            if m.new_falling:  # the same exposure reported as new again
-                self.duplicates += 1
-                events.append(Event(kinds.MARK_DUPLICATE, now_ns, f"duplicate time mark {m.count}",
-                                    "warning", {"count": m.count, "t_gps_ns": ft}))
-            return
-        # A falling edge not seen before: from its own record, or from the rising-edge record
-        # that repeats it when the falling-edge record was lost on the link.
-        self._recent_falling.append(ft)
-        self.marks += 1
-        if not m.new_falling:
-            self.marks_recovered += 1
+        # Pairing, numbering, duplicates and lost marks: the marks rule (rules/marks.py), the
+        # same RINEX, inspect and the solver apply to the recording.
+        up = self._mark_rule.feed(m)
+        if up.duplicate:  # the same exposure reported as new again
+            events.append(Event(kinds.MARK_DUPLICATE, now_ns, f"duplicate time mark {m.count}",
+                                "warning", {"count": m.count, "t_gps_ns": m.falling_t_gps_ns}))
+        for mark in up.new:
+            self._new_mark(m, mark, up.recovered, now_ns, events)
+
+    @property
+    def marks(self) -> int:
+        return self._mark_rule.marks
+
+    @property
+    def missed(self) -> int:
+        return self._mark_rule.missed
+
+    @property
+    def duplicates(self) -> int:
+        return self._mark_rule.duplicates
+
+    def _new_mark(
+        self, m: TimeMark, mark: Mark, recovered: bool, now_ns: int, events: list[Event]
+    ) -> None:
         self.last_mark = m
-        # ``count`` counts rising edges: a record that carries this mark's rising edge has the
-        # mark's own number, a falling-edge-only record the number before it. A jump between
-        # consecutive marks' numbers is marks whose every record was lost.
-        number = m.count if m.new_rising else (m.count + 1) & 0xFFFF
-        last = self._last_count.get(m.channel)
-        self._last_count[m.channel] = number
-        if last is not None:
-            step = (number - last) & 0xFFFF
-            if 1 < step < 0x8000:
-                self.missed += step - 1
-                self._last_missed_ns = now_ns
-                events.append(Event(
-                    kinds.MARK_MISSED, now_ns, f"{step - 1} time mark(s) missed "
-                    f"(count {last} -> {number})", "warning",
-                    {"from_count": last, "to_count": number, "missed": step - 1},
-                ))
-                self._raise(kinds.ALERT_MARKS_MISSED, f"{self.missed} time marks missed",
-                            now_ns, events, {"missed": self.missed})
+        if recovered:
+            self.marks_recovered += 1
+        if mark.lost_before:
+            number = mark_number(m)
+            last = (number - mark.lost_before - 1) & 0xFFFF
+            self._last_missed_ns = now_ns
+            events.append(Event(
+                kinds.MARK_MISSED, now_ns, f"{mark.lost_before} time mark(s) missed "
+                f"(count {last} -> {number})", "warning",
+                {"from_count": last, "to_count": number, "missed": mark.lost_before},
+            ))
+            self._raise(kinds.ALERT_MARKS_MISSED, f"{self.missed} time marks missed",
+                        now_ns, events, {"missed": self.missed})
+        ft = mark.falling_t_gps_ns
+        if ft is None:
+            return  # no exposure time to place among the epochs
         bisect.insort(self._mark_times, ft)
         if self.last_epoch_ns is not None and self._mark_times[0] < (
             self.last_epoch_ns - LINK_HISTORY_NS
