@@ -21,12 +21,18 @@ from groundstation.offline.readers import file_size, iter_chunks
 from groundstation.offline.rinex.marks_table import marks_csv
 from groundstation.offline.rinex.nav_writer import write_nav
 from groundstation.offline.rinex.obs_writer import HeaderInfo, ProgressFn, kept_epochs, write_obs
-from groundstation.offline.rinex.observations import SIGNAL_CODES, obs_from_raw, obs_from_rawx
+from groundstation.offline.rinex.observations import (
+    SIGNAL_CODES,
+    ObsSet,
+    obs_from_raw,
+    obs_from_rawx,
+)
 from groundstation.records import TimeMark
 from groundstation.rules import epochs as epochs_rule
 from groundstation.rules import marks as marks_mod
 from groundstation.ubx.fastraw import (
     FrameIndex,
+    RawBlock,
     decode_raw,
     decode_rawx,
     decode_timtm2,
@@ -147,6 +153,36 @@ def _receiver(data: bytes, index: FrameIndex, source: str) -> tuple[str, str]:
     return family.get(source, "u-blox"), ""
 
 
+def observations_of(data: bytes, index: FrameIndex) -> tuple[RawBlock, ObsSet, int]:
+    """The raw-measurement messages a recording is converted from (RXM-RAWX when it has at
+    least as many as RXM-RAW), their observations, and how many messages were rejected."""
+    rawx = decode_rawx(data, index)
+    raw = decode_raw(data, index)
+    rejected = int(rawx.rejected.size + raw.rejected.size)
+    if rawx.frame.size >= raw.frame.size:
+        return rawx, obs_from_rawx(rawx), rejected
+    return raw, obs_from_raw(raw), rejected
+
+
+def _leap_by_offset(index: FrameIndex, block: RawBlock) -> list[tuple[int, int]]:
+    """Leap seconds the receiver declared, by stream position (for UTC-based time marks)."""
+    if block.source != "RXM-RAWX":
+        return []
+    valid = (block.header["recStat"] & 1) != 0
+    return list(
+        zip(
+            index.start[block.frame[valid]].tolist(),
+            block.header["leapS"][valid].astype(np.int64).tolist(),
+            strict=True,
+        )
+    )
+
+
+def time_marks_of(data: bytes, index: FrameIndex, block: RawBlock) -> list[TimeMark]:
+    """The TIM-TM2 records of a recording, on GPS time, as the conversion reads them."""
+    return _time_marks(data, index, _leap_by_offset(index, block))
+
+
 def convert(
     input_path: str | Path,
     out_dir: str | Path,
@@ -176,26 +212,10 @@ def convert(
     index = index_frames(data)
     if progress is not None:
         progress("index", 1.0)
-    rawx = decode_rawx(data, index)
-    raw = decode_raw(data, index)
-    if rawx.frame.size >= raw.frame.size:
-        block, obs = rawx, obs_from_rawx(rawx)
-    else:
-        block, obs = raw, obs_from_raw(raw)
+    block, obs, rejected = observations_of(data, index)
     if obs.t_gps_ns.size == 0:
         raise InputError(f"{src}: no raw measurements (RXM-RAW / RXM-RAWX) with a GPS week")
-    rejected = int(rawx.rejected.size + raw.rejected.size)
-    # Leap seconds the receiver declared, by stream position (for UTC-based time marks).
-    leap_by_offset: list[tuple[int, int]] = []
-    if block.source == "RXM-RAWX":
-        valid = (block.header["recStat"] & 1) != 0
-        leap_by_offset = list(
-            zip(
-                index.start[block.frame[valid]].tolist(),
-                block.header["leapS"][valid].astype(np.int64).tolist(),
-                strict=True,
-            )
-        )
+    leap_by_offset = _leap_by_offset(index, block)
     leap = leap_by_offset[-1][1] if leap_by_offset else gpstime.leap_seconds_at_gps(
         int(obs.t_gps_ns[0]))
     tms = _time_marks(data, index, leap_by_offset)
