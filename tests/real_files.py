@@ -1,4 +1,10 @@
-"""The real UBX recordings in ``../shared/data/real`` that the equivalence tests run over."""
+"""The real UBX recordings in ``../shared/data/real`` (every one the tests run over)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
 
 REAL_UBX_FILES = [
     "tomojitakasu__RTKLIB/test/data/rcvraw/ubx_20080526.ubx",
@@ -18,3 +24,13 @@ REAL_UBX_FILES = [
     "nav-solutions__data/UBX/16dBatt_no_interference_coldstart.ubx.gz",
     "rtklibexplorer__GNSS_IMU/data/walk_0827/gnss_1730.ubx",
 ]
+
+
+def real_bytes(shared_data: Path, name: str) -> bytes:
+    """All bytes of one recording (decompressed); skips the test when the file is absent."""
+    from groundstation.offline.rinex import read_recording
+
+    path = shared_data / "real" / name
+    if not path.exists():
+        pytest.skip(f"{path} is absent")
+    return read_recording(path)

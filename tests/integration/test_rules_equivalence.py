@@ -19,11 +19,10 @@ from functools import cache
 from pathlib import Path
 
 import pytest
-from real_files import REAL_UBX_FILES
+from real_files import REAL_UBX_FILES, real_bytes
 
 from groundstation import events as kinds
 from groundstation.live.monitor import Monitor
-from groundstation.offline.rinex import read_recording
 from groundstation.offline.rinex.convert import observations_of, time_marks_of
 from groundstation.offline.rinex.observations import GNSS_LETTER, SIGNAL_CODES, VERSION0_CODES
 from groundstation.records import Event
@@ -168,7 +167,4 @@ def test_demo_flight_monitor_equals_rinex() -> None:
 @pytest.mark.shared_data
 @pytest.mark.parametrize("name", REAL_UBX_FILES)
 def test_real_file_monitor_equals_rinex(shared_data: Path, name: str) -> None:
-    path = shared_data / "real" / name
-    if not path.exists():
-        pytest.skip(f"{path} is absent")
-    assert_equivalent(read_recording(path))
+    assert_equivalent(real_bytes(shared_data, name))

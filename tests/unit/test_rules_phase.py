@@ -9,9 +9,8 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 import pytest
-from real_files import REAL_UBX_FILES
+from real_files import REAL_UBX_FILES, real_bytes
 
-from groundstation.offline.rinex import read_recording
 from groundstation.rules import phase
 from groundstation.ubx.fastraw import RawBlock, decode_raw, decode_rawx, index_frames
 
@@ -98,10 +97,7 @@ def assert_forms_agree(data: bytes) -> int:
 @pytest.mark.shared_data
 @pytest.mark.parametrize("name", REAL_UBX_FILES)
 def test_streaming_equals_vectorised_on_real_files(shared_data: Path, name: str) -> None:
-    path = shared_data / "real" / name
-    if not path.exists():
-        pytest.skip(f"{path} is absent")
-    assert assert_forms_agree(read_recording(path)) > 0
+    assert assert_forms_agree(real_bytes(shared_data, name)) > 0
 
 
 def test_streaming_equals_vectorised_on_random_sequences() -> None:
