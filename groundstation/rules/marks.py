@@ -13,6 +13,7 @@ a whole recording (RINEX, inspect, the solver), so live and offline counts canno
 
 from __future__ import annotations
 
+from collections import deque
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from typing import Literal
@@ -81,6 +82,29 @@ class MarkUpdate:
     recovered: bool = False
 
 
+SEEN_EDGES_KEPT = 1 << 16
+"""Edges remembered to recognise repeats: hours of marks at several per second. A receiver
+repeats only its latest edges, so forgetting the oldest changes nothing but the memory a
+station running for days needs."""
+
+
+class _SeenEdges:
+    """A set of edge times that forgets the oldest beyond :data:`SEEN_EDGES_KEPT`."""
+
+    def __init__(self) -> None:
+        self._set: set[int] = set()
+        self._order: deque[int] = deque()
+
+    def __contains__(self, t: int) -> bool:
+        return t in self._set
+
+    def add(self, t: int) -> None:
+        self._set.add(t)
+        self._order.append(t)
+        if len(self._order) > SEEN_EDGES_KEPT:
+            self._set.discard(self._order.popleft())
+
+
 class MarkTracker:
     """The marks rule, one TIM-TM2 record at a time, in stream order.
 
@@ -99,9 +123,8 @@ class MarkTracker:
         self.marks = 0
         self.missed = 0
         self.duplicates = 0
-        # Every edge seen: a session of hours at one mark per second is tens of thousands.
-        self._seen_falling: set[int] = set()
-        self._seen_rising: set[int] = set()
+        self._seen_falling = _SeenEdges()
+        self._seen_rising = _SeenEdges()
         self._open: tuple[int, Mark] | None = None  # a mark whose rising edge has not come yet
         self._last_number: int | None = None
 
