@@ -207,8 +207,8 @@ async def run(args: argparse.Namespace, out_dir: Path) -> int:
           + ", ".join(f"{q.name} delivered {q.delivered} dropped {q.dropped}"
                       for q in summary.queues))
     if mon is not None:
-        print(f"monitor: {mon.epochs} epochs, {mon.dropout_count} dropouts measured, "
-              f"{mon.marks} marks, {mon.missed} missed, alerts now {sorted(mon.alerts)}")
+        print(f"monitor: {mon.epochs} epochs, {mon.link.dropout_count} dropouts measured, "
+              f"{mon.marks} marks, {mon.missed} missed, alerts now {sorted(mon.alerts.active)}")
     if pub is not None:
         print(f"publisher: {pub.published} puts, {pub.failed} failed, {len(pub.marks)} marks "
               "held for q/timemarks")

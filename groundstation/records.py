@@ -55,9 +55,9 @@ class SatObs:
     """One satellite's measurement in a raw epoch.
 
     ``lli`` follows RINEX: bit 0 lost lock since the previous epoch (cycle slip possible),
-    bit 1 half-cycle ambiguity unresolved. For RXM-RAW it is the receiver's own ``lli``; for
-    RXM-RAWX the decoder derives bit 1 from ``trkStat`` and leaves bit 0 to stateful consumers
-    (``slip`` is derived from the lock-time counter by :class:`~groundstation.ubx.decode.Decoder`).
+    bit 1 half-cycle ambiguity unresolved; ``slip``, ``half_cycle_unresolved`` and (RXM-RAWX)
+    ``cp_valid`` are its bits and the phase validity under the phase rule
+    (:mod:`groundstation.rules.phase`), the same the RINEX files get.
     """
 
     gnss: int

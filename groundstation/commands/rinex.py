@@ -8,7 +8,7 @@ import time
 
 from groundstation.errors import ConfigError, GroundstationError
 from groundstation.offline import rinex
-from groundstation.offline.marks import MARK_EDGES
+from groundstation.rules.marks import MARK_EDGES
 from groundstation.storage.reading import Recording
 
 NAME = "rinex"

@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from groundstation import events as kinds
 from groundstation.config import Settings
 from groundstation.errors import GroundstationError
 from groundstation.live.fanout import Fanout, InboxStats, Item, Overflow, RawChunk, Sink, SinkSpec
@@ -142,7 +143,7 @@ class Pipeline:
 
             def announce(path: Path) -> None:
                 self.publish(Event(
-                    "recorder.file_opened", self._clock(), f"recording to {path}", "info",
+                    kinds.RECORDER_FILE_OPENED, self._clock(), f"recording to {path}", "info",
                     {"path": str(path), "session_id": session.session_id},
                 ))
                 if user_on_file is not None:

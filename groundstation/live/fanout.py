@@ -22,6 +22,7 @@ from collections.abc import Callable, Collection
 from dataclasses import dataclass
 from typing import Any, Protocol, runtime_checkable
 
+from groundstation import events as kinds
 from groundstation.records import Event
 
 log = logging.getLogger("groundstation.fanout")
@@ -104,7 +105,7 @@ class Inbox:
                         or now - self._last_drop_event_ns >= self._drop_interval_ns):
                     self._last_drop_event_ns = now
                     event = Event(
-                        "fanout.dropped", now,
+                        kinds.FANOUT_DROPPED, now,
                         f"sink {self.name} is slow: {self.dropped} item(s) dropped so far",
                         "warning", {"sink": self.name, "dropped": self.dropped},
                     )
@@ -114,7 +115,7 @@ class Inbox:
                     self.behind = True
                     log.warning("sink %s fell behind (%d items queued)", self.name, len(self))
                     event = Event(
-                        f"{self.name}.behind", self._clock(),
+                        kinds.behind(self.name), self._clock(),
                         f"{self.name} is falling behind: {len(self)} items queued "
                         "(nothing is dropped)", "error",
                         {"sink": self.name, "queued": len(self), "limit": self.maxsize},
@@ -154,7 +155,7 @@ class Inbox:
             self.behind = False
             log.info("sink %s caught up", self.name)
             self._on_event(Event(
-                f"{self.name}.caught_up", self._clock(), f"{self.name} caught up", "info",
+                kinds.caught_up(self.name), self._clock(), f"{self.name} caught up", "info",
                 {"sink": self.name, "over_limit": self.over_limit},
             ))
         return item

@@ -12,6 +12,7 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
+from groundstation import events as kinds
 from groundstation.live.fanout import Inbox, InboxClosed, Item, RawChunk
 from groundstation.live.monitor import Monitor
 from groundstation.records import Event, Status
@@ -79,9 +80,9 @@ class MonitorSink:
     def _emit(self, status: Status | None, events: list[Event],
               publish: Callable[[Item], None]) -> None:
         for ev in events:
-            if ev.kind == "alert.raised":  # the journal shows what the operator must act on
+            if ev.kind == kinds.ALERT_RAISED:  # the journal shows what the operator must act on
                 log.warning("alert: %s", ev.message)
-            elif ev.kind == "alert.cleared":
+            elif ev.kind == kinds.ALERT_CLEARED:
                 log.info("alert %s", ev.message)
             publish(ev)
         if status is not None:
@@ -94,8 +95,7 @@ class MonitorSink:
         if now is None:
             return
         if item is not None and not isinstance(item, Status):
-            if isinstance(item, Event) and item.kind.startswith(("alert.", "link.", "sat.",
-                                                                  "mark.")):
+            if isinstance(item, Event) and item.kind.startswith(kinds.MONITOR_PREFIXES):
                 pass  # our own events coming back through the fanout
             elif isinstance(item, RawChunk):
                 self.monitor.on_bytes(len(item.data), item.t_host_ns)

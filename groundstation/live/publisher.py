@@ -20,6 +20,7 @@ import time
 from collections.abc import Callable
 from typing import Any
 
+from groundstation import events as kinds
 from groundstation.bus import Bus, encode, key, open_bus
 from groundstation.config import ZenohSettings
 from groundstation.errors import GroundstationError
@@ -85,7 +86,7 @@ class ZenohPublisherSink:
             if not self._unavailable_reported:
                 self._unavailable_reported = True
                 log.warning("%s; recording goes on, retrying every %g s", err, RETRY_S)
-                publish(Event("zenoh.unavailable", self._clock(), str(err), "warning",
+                publish(Event(kinds.ZENOH_UNAVAILABLE, self._clock(), str(err), "warning",
                               {"retry_s": RETRY_S}))
             return
         self.bus = bus
@@ -97,7 +98,7 @@ class ZenohPublisherSink:
         bus.liveliness_token(key(st, "alive"))
         if self._unavailable_reported:
             self._unavailable_reported = False
-            publish(Event("zenoh.available", self._clock(), "Zenoh session open again", "info"))
+            publish(Event(kinds.ZENOH_AVAILABLE, self._clock(), "Zenoh session open again", "info"))
         self._put("session", encode("session", self.session, station=st))
         log.info("publishing on Zenoh as %s (%s, listen %s, connect %s)", key(st, "**"),
                  self.settings.mode, list(self.settings.listen), list(self.settings.connect))
@@ -119,7 +120,7 @@ class ZenohPublisherSink:
             if self.disconnected:
                 self.disconnected = False
                 log.info("Zenoh connected again (%s)", endpoints)
-                publish(Event("zenoh.connected", self._clock(),
+                publish(Event(kinds.ZENOH_CONNECTED, self._clock(),
                               f"Zenoh connected again ({endpoints})", "info",
                               {"connect": list(self.settings.connect)}))
             return
@@ -129,7 +130,7 @@ class ZenohPublisherSink:
             self.disconnected = True
             log.warning("Zenoh: no peer or router connected (%s)", endpoints)
             publish(Event(
-                "zenoh.disconnected", self._clock(),
+                kinds.ZENOH_DISCONNECTED, self._clock(),
                 f"Zenoh: no peer or router connected ({endpoints}): status, marks and events "
                 "reach nobody; recording goes on and Zenoh keeps trying", "warning",
                 {"connect": list(self.settings.connect)},
@@ -166,7 +167,7 @@ class ZenohPublisherSink:
             self._put("status", self.latest_status)
         elif isinstance(item, Event):
             self._put("event", encode("event", item, station=st))
-            if item.kind == "recorder.file_opened":
+            if item.kind == kinds.RECORDER_FILE_OPENED:
                 path = item.data.get("path")
                 if path and path not in self.session["files"]:
                     self.session["files"].append(path)

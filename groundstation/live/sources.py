@@ -24,6 +24,7 @@ import time
 from collections.abc import AsyncIterator, Callable
 from typing import Protocol
 
+from groundstation import events as kinds
 from groundstation.config import (
     FileSourceSettings,
     SerialSourceSettings,
@@ -96,7 +97,7 @@ class _Reconnecting:
             self._attempts = 0
             self._log.warning("%s: lost: %s", self.name, reason)
             self._on_event(Event(
-                "source.lost", now, f"{self.name}: {reason}", "warning",
+                kinds.SOURCE_LOST, now, f"{self.name}: {reason}", "warning",
                 {"source": self.name, "reason": reason, "start_ns": now},
             ))
 
@@ -111,7 +112,7 @@ class _Reconnecting:
             self._log.warning("%s: back after %.3f s (%d attempts)", self.name, duration_s,
                               self._attempts)
             self._on_event(Event(
-                "source.outage", now,
+                kinds.SOURCE_OUTAGE, now,
                 f"{self.name}: outage of {duration_s:.3f} s ({self._outage_reason})", "warning",
                 {"source": self.name, "start_ns": start, "end_ns": now,
                  "duration_s": duration_s, "reason": self._outage_reason,
@@ -120,7 +121,7 @@ class _Reconnecting:
             self._outage_start_ns = None
         else:
             self._log.info("%s: connected", self.name)
-            self._on_event(Event("source.connected", now, f"{self.name}: connected", "info",
+            self._on_event(Event(kinds.SOURCE_CONNECTED, now, f"{self.name}: connected", "info",
                                  {"source": self.name}))
 
     async def wait_before_retry(self, min_s: float, max_s: float) -> None:

@@ -12,31 +12,24 @@ from pathlib import Path
 from typing import Any
 
 from groundstation import gpstime
-from groundstation.offline.marks import build_marks, nominal_interval_ns
 from groundstation.records import Frame, RawEpoch, TimeMark, UndecodedFrame
+from groundstation.rules.epochs import Gap, find_gaps, nominal_interval_ns
+from groundstation.rules.marks import track_marks
 from groundstation.storage.reading import Recording
 from groundstation.ubx.decode import Decoder, message_name
 from groundstation.ubx.framer import DEFAULT_MAX_PAYLOAD, FramerStats, UbxFramer
 
 
-@dataclass(frozen=True, slots=True)
-class Gap:
-    """Missing epochs between two received ones."""
-
-    after_t_gps_ns: int
-    before_t_gps_ns: int
-    missing_epochs: int
-    duration_s: float
-
-    def as_json(self) -> dict[str, Any]:
-        return {
-            "after": gpstime.format_gps(self.after_t_gps_ns),
-            "before": gpstime.format_gps(self.before_t_gps_ns),
-            "after_t_gps_ns": self.after_t_gps_ns,
-            "before_t_gps_ns": self.before_t_gps_ns,
-            "missing_epochs": self.missing_epochs,
-            "duration_s": round(self.duration_s, 3),
-        }
+def gap_json(g: Gap) -> dict[str, Any]:
+    """A gap as ``inspect --json`` prints it."""
+    return {
+        "after": gpstime.format_gps(g.after_t_gps_ns),
+        "before": gpstime.format_gps(g.before_t_gps_ns),
+        "after_t_gps_ns": g.after_t_gps_ns,
+        "before_t_gps_ns": g.before_t_gps_ns,
+        "missing_epochs": g.missing_epochs,
+        "duration_s": round(g.duration_s, 3),
+    }
 
 
 @dataclass(frozen=True, slots=True)
@@ -81,7 +74,7 @@ class Summary:
 
     def as_json(self) -> dict[str, Any]:
         d = asdict(self)
-        d["gaps"] = [g.as_json() for g in self.gaps]
+        d["gaps"] = [gap_json(g) for g in self.gaps]
         d["timemarks"] = asdict(self.timemarks)
         d["satellites"] = list(self.satellites)
         d["span"] = None
@@ -130,13 +123,7 @@ class Inspector:
     def summary(self, stats: FramerStats, *, path: str = "", fmt: str = "") -> Summary:
         times = sorted(self.epoch_times)
         interval_ns = nominal_interval_ns(times)
-        gaps: list[Gap] = []
-        if interval_ns:
-            for a, b in zip(times, times[1:], strict=False):
-                d = b - a
-                if d > interval_ns * 3 // 2:
-                    missing = round(d / interval_ns) - 1
-                    gaps.append(Gap(a, b, max(missing, 1), d / 1e9))
+        gaps = find_gaps(times, interval_ns)
         return Summary(
             path=path,
             format=fmt,
@@ -168,26 +155,18 @@ class Inspector:
 
 
 def summarise_marks(records: list[TimeMark]) -> TimeMarkSummary:
-    """Pulses, their edges and count continuity, from TIM-TM2 records (pairing and numbering
-    as :func:`~groundstation.offline.marks.build_marks` does for RINEX and the solver)."""
+    """Pulses, their edges, count continuity and duplicates, from TIM-TM2 records (the marks
+    rule of :mod:`groundstation.rules.marks`, as for RINEX, the solver and the monitor)."""
     if not records:
         return TimeMarkSummary()
-    marks = build_marks(records)
-    seen: set[int] = set()
-    repeated = 0
-    for r in records:
-        ft = r.falling_t_gps_ns
-        if r.new_falling and ft is not None:
-            if ft in seen:
-                repeated += 1  # the same exposure reported as new again
-            seen.add(ft)
+    marks, tracker = track_marks(records)
     return TimeMarkSummary(
         records=len(records),
         falling=sum(m.falling_t_gps_ns is not None for m in marks),
         rising=sum(m.rising_t_gps_ns is not None for m in marks),
         count_jumps=sum(m.lost_before > 0 for m in marks),
         missed_marks=sum(m.lost_before for m in marks),
-        repeated_counts=repeated,
+        repeated_counts=tracker.duplicates,
         first_count=records[0].count,
         last_count=records[-1].count,
         time_bases=tuple(sorted({r.time_base_name for r in records})),

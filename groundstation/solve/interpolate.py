@@ -17,6 +17,7 @@ import numpy.typing as npt
 
 from groundstation.errors import ConfigError
 from groundstation.geodesy import ecef_to_llh, enu_rotation
+from groundstation.rules.marks import edge_time_ns
 from groundstation.solve.positions import Q_FIX, Q_FLOAT, Q_SINGLE, Trajectory
 
 FloatArray = npt.NDArray[np.float64]
@@ -64,18 +65,11 @@ def mark_time_ns(
     edge: Edge,
     shutter_delay_ms: float = 0.0,
 ) -> int | None:
-    """The instant a mark stands for: the chosen edge (or their midpoint) plus the shutter delay."""
-    if edge == "falling":
-        t = falling_t_gps_ns
-    elif edge == "rising":
-        t = rising_t_gps_ns
-    elif edge == "mid":
-        if falling_t_gps_ns is None or rising_t_gps_ns is None:
-            return None
-        t = (falling_t_gps_ns + rising_t_gps_ns) // 2
-    else:
+    """The instant a mark stands for: the chosen edge (or their midpoint) plus the shutter delay
+    (the rule of :func:`groundstation.rules.marks.edge_time_ns`)."""
+    if edge not in EDGES:
         raise ConfigError("--edge", f"unknown edge {edge!r} (falling, rising, mid)")
-    return None if t is None else t + round(shutter_delay_ms * 1e6)
+    return edge_time_ns(falling_t_gps_ns, rising_t_gps_ns, edge, round(shutter_delay_ms * 1e6))
 
 
 @dataclass(frozen=True, slots=True)

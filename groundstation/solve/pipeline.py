@@ -18,8 +18,8 @@ import numpy.typing as npt
 from groundstation import gpstime
 from groundstation.errors import ConfigError, InputError
 from groundstation.geodesy import ecef_to_llh, enu_rotation
-from groundstation.offline.marks import Mark, build_marks
 from groundstation.records import NavSolution, TimeMark
+from groundstation.rules.marks import Mark, build_marks
 from groundstation.solve import interpolate as mi
 from groundstation.solve import leverarm, outputs, photos, positions, report
 from groundstation.solve.engine import DEFAULT_ENGINE

@@ -61,6 +61,7 @@ from groundstation.records import (
     SvInfo,
     TimeMark,
 )
+from groundstation.rules.marks import record_time_ns
 from groundstation.storage.mcapio import (
     RAW_TOPIC,
     ChannelSpec,
@@ -605,8 +606,7 @@ class SessionRecorder:
             self._week, self._tow_ns = record.gps_week, record.tow_ns
             t = gpstime.gps_to_unix_ns(record.t_gps_ns)
         elif isinstance(record, TimeMark):
-            edge = record.falling_t_gps_ns if record.new_falling else record.rising_t_gps_ns
-            edge = edge if edge is not None else record.falling_t_gps_ns
+            edge = record_time_ns(record)  # the marks rule (rules/marks.py)
             t = gpstime.gps_to_unix_ns(edge) if edge is not None else None
         elif isinstance(record, (NavSolution, SvInfo)):
             week = record.gps_week if isinstance(record, NavSolution) else None

@@ -30,6 +30,7 @@ from groundstation.records import (
     TimeMark,
     UndecodedFrame,
 )
+from groundstation.rules.phase import RawPhase, RawxPhase
 from groundstation.ubx.timemark import timemark_from_fields
 
 log = logging.getLogger("groundstation.decode")
@@ -91,8 +92,8 @@ class DecoderStats:
 class Decoder:
     """Maps frames to records.
 
-    It keeps a little state: the lock-time counter and half-cycle-subtracted bit of each RXM-RAWX
-    signal (to derive cycle slips as RTKLIB does) and the latest leap-second count the receiver
+    It keeps a little state: the phase rule's per-signal state (:mod:`groundstation.rules.phase`,
+    the same LLI as the RINEX files) and the latest leap-second count the receiver
     reported (to put UTC-based time marks on GPS time).
 
     Args:
@@ -105,7 +106,8 @@ class Decoder:
         self._decoded: Counter[str] = Counter()
         self._undecodable: Counter[str] = Counter()
         self._passed = 0
-        self._lock: dict[tuple[int, int, int], tuple[int, bool]] = {}
+        self._raw_phase = RawPhase()  # the phase rule's per-signal state (rules/phase.py)
+        self._rawx_phase = RawxPhase()
         self.leap_s: int | None = None
         self._handlers: dict[tuple[int, int], Callable[[Any, Frame], Record]] = {
             RXM_RAW: self._rxm_raw,
@@ -161,6 +163,8 @@ class Decoder:
             svid = _n(msg, "sv", i)
             gnss, sv = gnss_of_svid(svid)
             lli = _n(msg, "lli", i)
+            if msg.week != 0:  # the phase rule: slips carried over blank phase
+                lli = self._raw_phase.lli(svid, lli, _n(msg, "cpMes", i))
             sats.append(
                 SatObs(
                     gnss=gnss,
@@ -189,16 +193,16 @@ class Decoder:
             trk = p[base + 30]
             gnss, sv, sig = _n(msg, "gnssId", i), _n(msg, "svId", i), _n(msg, "sigId", i)
             lock_ms = _n(msg, "locktime", i)
-            cp_valid = bool(trk & 2)
-            half_valid = bool(trk & 4)
             half_sub = bool(trk & 8)
-            key = (gnss, sv, sig)
-            # As RTKLIB: a lock-time reset or a change of the half-cycle-subtracted bit is a slip.
-            prev_lock_ms, prev_half_sub = self._lock.get(key, (0, False))
-            slip = lock_ms == 0 or lock_ms < prev_lock_ms or half_sub != prev_half_sub
-            self._lock[key] = (lock_ms, half_sub)
-            half_unresolved = cp_valid and not half_valid
-            lli = (1 if slip else 0) | (2 if half_unresolved else 0)
+            # The phase rule (rules/phase.py): usable phase, slip and half cycle, as in RINEX.
+            ph = self._rawx_phase.measurement(
+                (gnss, sv, sig), gnss=gnss, trk_stat=trk, lock_ms=lock_ms,
+                cp_cyc=_n(msg, "cpMes", i), cp_stdev_idx=p[base + 28],
+            ) if msg.week != 0 else None
+            cp_valid = ph.cp_valid if ph is not None else bool(trk & 2)
+            lli = ph.lli if ph is not None else 0
+            slip = bool(lli & 1)
+            half_unresolved = bool(lli & 2)
             sats.append(
                 SatObs(
                     gnss=gnss,
@@ -223,6 +227,9 @@ class Decoder:
                     do_stdev_idx=p[base + 29] & 0x0F,
                 )
             )
+        if msg.week != 0 and msg.numMeas:
+            sig_ids = (_n(msg, "sigId", i) for i in range(1, msg.numMeas + 1))
+            self._rawx_phase.end_message(max(sig_ids))
         return RawEpoch(
             msg.week,
             _tow_ns_from_s(msg.rcvTow),

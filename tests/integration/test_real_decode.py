@@ -15,6 +15,7 @@ from functools import cache
 from pathlib import Path
 
 import pytest
+from real_files import REAL_UBX_FILES
 from rinex_ref import read_rinex3_obs
 
 from groundstation.gpstime import NS_PER_WEEK
@@ -25,24 +26,7 @@ from groundstation.ubx.framer import FramerStats, UbxFramer
 
 pytestmark = pytest.mark.shared_data
 
-UBX_FILES = [
-    "tomojitakasu__RTKLIB/test/data/rcvraw/ubx_20080526.ubx",
-    "tridge__pyUblox/data/6P-raw-PPP.ubx",
-    "tridge__pyUblox/data/6P-raw-PPP-2.ubx",
-    "gpsd__gpsd-mirror/test/daemon/ublox-aek-4t.log",
-    "gpsd__gpsd-mirror/test/daemon/ublox-lea-4t.log",
-    "gpsd__gpsd-mirror/test/daemon/ublox-neo-m8t.log",
-    "gpsd__gpsd-mirror/test/daemon/ublox-zed-f9p_hpg1.11.log",
-    "jdesbonnet__GNSS_RTK_data/20181004/rover-20181004-1237.ubx.gz",
-    "jdesbonnet__GNSS_RTK_data/20181004/base-20181004-1236.ubx.gz",
-    "jdesbonnet__GNSS_RTK_data/20181004/rover-20181004-1532.ubx.gz",
-    "jdesbonnet__GNSS_RTK_data/20181004/base-20181004-1452.ubx.gz",
-    "jdesbonnet__GNSS_RTK_data/20181009/rover-20181009-1221.ubx.gz",
-    "jdesbonnet__GNSS_RTK_data/20181009/base-20181009-1220.ubx.gz",
-    "jdesbonnet__GNSS_RTK_data/20181104/rover-20181104-1634.ubx.gz",
-    "nav-solutions__data/UBX/16dBatt_no_interference_coldstart.ubx.gz",
-    "rtklibexplorer__GNSS_IMU/data/walk_0827/gnss_1730.ubx",
-]
+UBX_FILES = REAL_UBX_FILES
 
 
 def stem(rel: str) -> str:

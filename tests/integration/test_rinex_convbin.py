@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 from groundstation.offline import rinex
+from groundstation.offline.rinex import format as rinex_format
 from groundstation.storage.reading import iter_chunks
 from groundstation.ubx.fastraw import decode_raw, decode_rawx, index_frames
 
@@ -132,7 +133,7 @@ def test_lli_identical_on_the_epochs_convbin_decoded(
     full = rinex.obs_from_rawx(block) if rawx.frame.size else rinex.obs_from_raw(block)
     keep_t = {
         t for t in full.t_gps_ns.tolist()
-        if rinex._epoch_line(t, 0, 0, True, [])[2:29] in ref_times
+        if rinex_format.epoch_line(t, 0, 0, True, [])[2:29] in ref_times
     }
     keep = np.isin(block.gps_week * 604_800_000_000_000 + block.tow_ns, list(keep_t))
     sub = block.subset(keep)

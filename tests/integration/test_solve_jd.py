@@ -37,7 +37,7 @@ def jd(shared_data: Path) -> dict[str, Path]:
 
 def test_linear_marks_equal_rtklib_events_within_a_millimetre(jd: dict[str, Path]) -> None:
     rec = pipeline.read_flight(jd["rover"])
-    from groundstation.offline.marks import build_marks
+    from groundstation.rules.marks import build_marks
 
     marks = build_marks(rec.timemarks)
     times = [ip.mark_time_ns(m.falling_t_gps_ns, m.rising_t_gps_ns, "falling") for m in marks]
@@ -84,7 +84,7 @@ def _photos_for_marks(
 def test_solve_command_end_to_end(jd: dict[str, Path], tmp_path: Path,
                                   capsys: pytest.CaptureFixture[str]) -> None:
     rec = pipeline.read_flight(jd["rover"])
-    from groundstation.offline.marks import build_marks
+    from groundstation.rules.marks import build_marks
 
     marks = build_marks(rec.timemarks)
     t = [m.falling_t_gps_ns for m in marks]

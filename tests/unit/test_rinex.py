@@ -11,9 +11,11 @@ import pytest
 
 from groundstation import gpstime
 from groundstation.gnss.ephemeris import BroadcastEphemeris
-from groundstation.offline import marks as mk
 from groundstation.offline import rinex
+from groundstation.offline.rinex import marks_table
 from groundstation.records import TimeMark
+from groundstation.rules import epochs as ep_rule
+from groundstation.rules import marks as mk
 from groundstation.ubx.build import build_frame
 from groundstation.ubx.fastraw import decode_raw, decode_rawx, index_frames
 
@@ -224,13 +226,13 @@ def test_marks_pairing_events_and_dropouts() -> None:
     mids = mk.event_times_ns(marks, "mid")
     assert [(t - base) // 1_000_000 for t in mids] == [60_000_107, 60_000_157]
     epochs = [gpstime.gps_ns(WEEK, round(s * 1e9)) for s in (59999.8, 60000.0, 60000.2, 60003.4)]
-    assert mk.nominal_interval_ns(epochs) == 200_000_000
-    where = [mk.locate(mk.mark_time_ns(m, "falling") or 0, epochs, 200_000_000) for m in marks]
+    assert ep_rule.nominal_interval_ns(epochs) == 200_000_000
+    where = [ep_rule.locate(mk.mark_time_ns(m, "falling") or 0, epochs, 200_000_000) for m in marks]
     assert [(w.in_dropout, w.outside) for w in where] == [
         (False, True), (False, False), (False, False), (True, False)]
-    table = mk.marks_csv(marks, epochs, "falling").splitlines()
-    assert table[0].split(",") == list(mk.CSV_COLUMNS)
-    row = dict(zip(mk.CSV_COLUMNS, table[2].split(","), strict=True))
+    table = marks_table.marks_csv(marks, epochs, "falling").splitlines()
+    assert table[0].split(",") == list(marks_table.CSV_COLUMNS)
+    row = dict(zip(marks_table.CSV_COLUMNS, table[2].split(","), strict=True))
     assert row["falling_gps_tow_s"] == "60000.100000000"
     assert row["falling_utc"] == "2018-11-04T16:39:42.100000000Z"
     assert row["pulse_ms"] == "14.000000" and row["in_dropout"] == "0"
@@ -253,7 +255,8 @@ def test_convert_accepts_every_edge_choice(tmp_path: Path, edge: mk.MarkEdge) ->
 def test_vectorised_field_formatting_equals_python_formatting() -> None:
     import numpy as np
 
-    from groundstation.offline.rinex import _f14_3, _format_chunk_exact
+    from groundstation.offline.rinex.format import f14_3 as _f14_3
+    from groundstation.offline.rinex.format import format_chunk_exact as _format_chunk_exact
 
     rng = np.random.default_rng(3)
     edge = [0.0005, 0.0015, -0.0004, -0.0005, 2.0005, 999999999.9994, -99999999.9996, 1e-9,

@@ -9,7 +9,6 @@ full option set; the same goes into the ``.pos`` header.
 
 from __future__ import annotations
 
-import json
 import logging
 import re
 import time
@@ -18,6 +17,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import ClassVar, Protocol
 
+from groundstation import jsonio
 from groundstation.errors import ConfigError, GroundstationError
 from groundstation.solve.engine import options as eo
 
@@ -211,7 +211,7 @@ def run_engine(
         "options": run.options,
         "notes": [*notes, *run.notes],
     }
-    run.info_path.write_text(json.dumps(info, indent=1) + "\n", encoding="utf-8")
+    run.info_path.write_bytes(jsonio.dumps(info, indent=1) + b"\n")
     _stamp_header(run.pos_path, run.engine, run.version, run.options)
     return EngineRun(
         run.engine, run.version, run.pos_path, run.info_path, run.options, wall,

@@ -8,7 +8,6 @@ solver service.
 from __future__ import annotations
 
 import functools
-import json
 import os
 import signal
 import subprocess
@@ -17,6 +16,7 @@ import tempfile
 from pathlib import Path
 from typing import Any, ClassVar
 
+from groundstation import jsonio
 from groundstation.solve.engine import EngineError, EngineJob, EngineRun, Progress, ToolMissingError
 from groundstation.solve.engine import options as eo
 
@@ -34,7 +34,7 @@ def _call_worker(request: dict[str, Any], work: Path, timeout_s: float) -> dict[
     req = work / "demo5-request.json"
     resp = work / "demo5-response.json"
     resp.unlink(missing_ok=True)
-    req.write_text(json.dumps(request), encoding="utf-8")
+    req.write_bytes(jsonio.dumps(request))
     cmd = [sys.executable, "-m", WORKER_MODULE, str(req), str(resp)]
     # The worker must import this very package, wherever it is being run from.
     env = dict(os.environ)
@@ -56,7 +56,7 @@ def _call_worker(request: dict[str, Any], work: Path, timeout_s: float) -> dict[
     if proc.returncode != 0 or not resp.exists():
         tail = " / ".join(err_text.splitlines()[-3:])
         raise EngineError(f"demo5 worker failed (exit {proc.returncode}): {tail}")
-    out: dict[str, Any] = json.loads(resp.read_text(encoding="utf-8"))
+    out: dict[str, Any] = jsonio.loads(resp.read_bytes())
     return out
 
 

@@ -14,12 +14,13 @@ Requests:
 from __future__ import annotations
 
 import importlib.metadata
-import json
 import sys
 from pathlib import Path
 from typing import Any
 
 import pyrtklib5 as rtk
+
+from groundstation import jsonio
 
 
 def version() -> tuple[str, str]:
@@ -78,7 +79,7 @@ def main(argv: list[str] | None = None) -> int:
     if len(args) != 2:
         sys.stderr.write("usage: python -m groundstation.solve.engine.worker REQUEST RESPONSE\n")
         return 2
-    req = json.loads(Path(args[0]).read_text(encoding="utf-8"))
+    req = jsonio.loads(Path(args[0]).read_bytes())
     if req.get("op") == "table":
         ver, lib = version()
         resp: dict[str, Any] = {"version": ver, "library": lib, "rows": option_rows()}
@@ -87,7 +88,7 @@ def main(argv: list[str] | None = None) -> int:
     else:
         sys.stderr.write(f"unknown request {req.get('op')!r}\n")
         return 2
-    Path(args[1]).write_text(json.dumps(resp), encoding="utf-8")
+    Path(args[1]).write_bytes(jsonio.dumps(resp))
     return 0
 
 

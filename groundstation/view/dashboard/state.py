@@ -16,6 +16,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
+from groundstation import events as kinds
 from groundstation import gpstime
 from groundstation.bus import decode
 
@@ -183,26 +184,26 @@ class StationView:
         self.events.append(msg)
         kind = msg.get("kind")
         data = msg.get("data") or {}
-        if kind == "link.dropout_started":
+        if kind == kinds.LINK_DROPOUT_STARTED:
             start = data.get("start_t_gps_ns")
             if isinstance(start, int):
                 self.pending_dropout_gps_ns = start
-        elif kind == "link.dropout":
+        elif kind == kinds.LINK_DROPOUT:
             if data.get("start_t_gps_ns") not in self.dropouts:
                 self._dropouts_since_status[0] += 1
                 self._dropouts_since_status[1] += int(data.get("missing_epochs") or 0)
             self._add_dropout(data)
             self.pending_dropout_gps_ns = None
-        elif kind == "mark.in_dropout":
+        elif kind == kinds.MARK_IN_DROPOUT:
             t = data.get("t_gps_ns")
             if isinstance(t, int):
                 self.marks_in_dropout.add(t)
-        elif kind == "source.lost":
+        elif kind == kinds.SOURCE_LOST:
             start = data.get("start_ns")
             gps = self._host_to_gps(int(start)) if isinstance(start, int) else None
             if gps is not None and not self._outage_open():
                 self.outages.append(_Span(gps, None))
-        elif kind == "source.outage":
+        elif kind == kinds.SOURCE_OUTAGE:
             start, end = data.get("start_ns"), data.get("end_ns")
             a = self._host_to_gps(int(start)) if isinstance(start, int) else None
             b = self._host_to_gps(int(end)) if isinstance(end, int) else None
@@ -211,7 +212,7 @@ class StationView:
                     self.outages[-1] = _Span(a, b)
                 else:
                     self.outages.append(_Span(a, b))
-        elif kind == "source.connected" and self._outage_open():
+        elif kind == kinds.SOURCE_CONNECTED and self._outage_open():
             t = msg.get("t_host_ns")
             gps = self._host_to_gps(int(t)) if isinstance(t, int) else None
             self.outages[-1].end_gps_ns = gps if gps is not None else self.outages[-1].start_gps_ns

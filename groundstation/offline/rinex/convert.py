@@ -1,0 +1,286 @@
+"""UBX recording -> RINEX observation and navigation files and the time-mark table.
+
+Every falling edge (or the chosen edge) becomes an event epoch, frames after damage are
+recovered, and AID-EPH gives a navigation file.
+"""
+
+from __future__ import annotations
+
+import bisect
+import logging
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from groundstation import gpstime
+from groundstation.errors import InputError
+from groundstation.offline.ephemeris import collect_ephemerides
+from groundstation.offline.rinex.marks_table import marks_csv
+from groundstation.offline.rinex.nav_writer import write_nav
+from groundstation.offline.rinex.obs_writer import HeaderInfo, ProgressFn, kept_epochs, write_obs
+from groundstation.offline.rinex.observations import (
+    SIGNAL_CODES,
+    ObsSet,
+    obs_from_raw,
+    obs_from_rawx,
+)
+from groundstation.records import TimeMark
+from groundstation.rules import epochs as epochs_rule
+from groundstation.rules import marks as marks_mod
+from groundstation.storage.reading import Recording
+from groundstation.ubx.fastraw import (
+    FrameIndex,
+    RawBlock,
+    decode_raw,
+    decode_rawx,
+    decode_timtm2,
+    index_frames,
+)
+from groundstation.ubx.timemark import timemark_from_fields
+
+log = logging.getLogger("groundstation.rinex")
+
+# -- the whole conversion ---------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class RinexOptions:
+    """Options of :func:`convert` (see ``groundstation rinex --help``)."""
+
+    version: str = "3.04"
+    marks: marks_mod.MarkEdge = "falling"
+    shutter_delay_ns: int = 0
+    marker: str | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class RinexResult:
+    """What a conversion produced."""
+
+    obs_path: Path
+    nav_path: Path
+    marks_path: Path
+    source: str
+    epochs: int
+    events: int
+    marks: int
+    marks_in_dropout: int
+    ephemerides: int
+    dropped_epochs: int
+    damaged_frames: int
+    frames: int
+    rejected_messages: int
+    nav_parity_errors: int
+    skipped_systems: tuple[str, ...] = ()
+    notes: tuple[str, ...] = field(default_factory=tuple)
+
+
+def read_recording(path: Path, progress: ProgressFn | None = None) -> bytes:
+    """All bytes of a recording (``.ubx``, ``.ubx.gz``, log, MCAP ``/ubx/raw``; a session's
+    later parts too)."""
+    recording = Recording(path)
+    parts: list[bytes] = []
+    for chunk, _t in recording.chunks(chunk_bytes=1 << 20):
+        parts.append(chunk)
+        if progress is not None:
+            progress("read", recording.progress)
+    return b"".join(parts)
+
+
+def _time_marks(
+    data: bytes, index: FrameIndex, leap_by_offset: list[tuple[int, int]]
+) -> list[TimeMark]:
+    """TIM-TM2 records, UTC-based edges put on GPS time with the leap seconds the receiver
+    declared last before each record (as :class:`~groundstation.ubx.decode.Decoder` does)."""
+    sel, rows = decode_timtm2(data, index)
+    offsets = [o for o, _ in leap_by_offset]
+    out: list[TimeMark] = []
+    for i, r in zip(sel.tolist(), rows.tolist(), strict=True):
+        ch, flags, count, wn_r, wn_f, ms_r, sub_r, ms_f, sub_f, acc = r
+        j = bisect.bisect_right(offsets, int(index.start[i])) - 1
+        leap = leap_by_offset[j][1] if j >= 0 else None
+        out.append(timemark_from_fields(
+            ch, flags, count, wn_r, ms_r, sub_r, wn_f, ms_f, sub_f, acc, leap_s=leap, t_host_ns=0
+        ))
+    return out
+
+
+def _approx_position(data: bytes, index: FrameIndex) -> tuple[float, float, float] | None:
+    """The receiver's first good 3D fix (NAV-SOL or NAV-PVT), ECEF metres."""
+    import struct
+
+    from groundstation.geodesy import llh_to_ecef
+
+    mv = memoryview(data)
+    for key in ((0x01, 0x06), (0x01, 0x07)):
+        for i in index.select(key).tolist():
+            s = int(index.start[i]) + 6
+            p = bytes(mv[s : s + int(index.length[i])])
+            if key == (0x01, 0x06) and len(p) >= 52:
+                fix, flags = p[10], p[11]
+                x, y, z = struct.unpack_from("<iii", p, 12)
+                if fix >= 3 and flags & 1 and (x or y or z):
+                    return x / 100.0, y / 100.0, z / 100.0
+            elif key == (0x01, 0x07) and len(p) >= 92:
+                fix, flags = p[20], p[21]
+                lon, lat, h_mm = struct.unpack_from("<iii", p, 24)
+                if fix >= 3 and flags & 1:
+                    return llh_to_ecef(lat * 1e-7, lon * 1e-7, h_mm / 1000.0)
+    return None
+
+
+def _receiver(data: bytes, index: FrameIndex, source: str) -> tuple[str, str]:
+    """Receiver type and version from MON-VER if recorded, else from the message set."""
+    sel = index.select((0x0A, 0x04))
+    if sel.size:
+        s = int(index.start[sel[0]]) + 6
+        p = data[s : s + int(index.length[sel[0]])]
+        sw = p[:30].split(b"\0")[0].decode("ascii", "replace").strip()
+        hw = p[30:40].split(b"\0")[0].decode("ascii", "replace").strip()
+        model = ""
+        for k in range(40, len(p), 30):
+            ext = p[k : k + 30].split(b"\0")[0].decode("ascii", "replace")
+            if ext.startswith("MOD="):
+                model = ext[4:]
+        return f"u-blox {model or hw}".strip(), sw
+    family = {"RXM-RAWX": "u-blox M8/F9 (RAWX)", "RXM-RAW": "u-blox 4/5/6 (RAW)"}
+    return family.get(source, "u-blox"), ""
+
+
+def observations_of(data: bytes, index: FrameIndex) -> tuple[RawBlock, ObsSet, int]:
+    """The raw-measurement messages a recording is converted from (RXM-RAWX when it has at
+    least as many as RXM-RAW), their observations, and how many messages were rejected."""
+    rawx = decode_rawx(data, index)
+    raw = decode_raw(data, index)
+    rejected = int(rawx.rejected.size + raw.rejected.size)
+    if rawx.frame.size >= raw.frame.size:
+        return rawx, obs_from_rawx(rawx), rejected
+    return raw, obs_from_raw(raw), rejected
+
+
+def _leap_by_offset(index: FrameIndex, block: RawBlock) -> list[tuple[int, int]]:
+    """Leap seconds the receiver declared, by stream position (for UTC-based time marks)."""
+    if block.source != "RXM-RAWX":
+        return []
+    valid = (block.header["recStat"] & 1) != 0
+    return list(
+        zip(
+            index.start[block.frame[valid]].tolist(),
+            block.header["leapS"][valid].astype(np.int64).tolist(),
+            strict=True,
+        )
+    )
+
+
+def time_marks_of(data: bytes, index: FrameIndex, block: RawBlock) -> list[TimeMark]:
+    """The TIM-TM2 records of a recording, on GPS time, as the conversion reads them."""
+    return _time_marks(data, index, _leap_by_offset(index, block))
+
+
+def convert(
+    input_path: str | Path,
+    out_dir: str | Path,
+    options: RinexOptions | None = None,
+    progress: ProgressFn | None = None,
+) -> RinexResult:
+    """Convert one recording to ``<stem>.obs``, ``<stem>.nav`` and ``<stem>.marks.csv``.
+
+    Args:
+        input_path: ``.ubx``, ``.ubx.gz``, raw log or MCAP.
+        out_dir: output directory (created if missing).
+        options: version, mark edge, shutter delay, marker name.
+        progress: optional progress callback.
+
+    Raises:
+        InputError: unreadable input or no raw measurements in it.
+    """
+    opt = options or RinexOptions()
+    src = Path(input_path)
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    stem = src.name
+    for suffix in (".gz", ".ubx", ".mcap", ".log"):
+        if stem.endswith(suffix):
+            stem = stem[: -len(suffix)]
+    data = read_recording(src, progress)
+    index = index_frames(data)
+    if progress is not None:
+        progress("index", 1.0)
+    block, obs, rejected = observations_of(data, index)
+    if obs.t_gps_ns.size == 0:
+        raise InputError(f"{src}: no raw measurements (RXM-RAW / RXM-RAWX) with a GPS week")
+    leap_by_offset = _leap_by_offset(index, block)
+    leap = leap_by_offset[-1][1] if leap_by_offset else gpstime.leap_seconds_at_gps(
+        int(obs.t_gps_ns[0]))
+    tms = _time_marks(data, index, leap_by_offset)
+    mark_list = marks_mod.build_marks(tms)
+    events = marks_mod.event_times_ns(mark_list, opt.marks, opt.shutter_delay_ns)
+    rec_type, rec_vers = _receiver(data, index, obs.source)
+    approx = _approx_position(data, index) or (0.0, 0.0, 0.0)
+    week_hint = int(obs.t_gps_ns[0] // gpstime.NS_PER_WEEK)
+    nav = collect_ephemerides(data, index, week_hint)
+    epochs_sorted = np.sort(obs.t_gps_ns).tolist()
+    interval = epochs_rule.nominal_interval_ns(epochs_sorted)
+    comments = (
+        f"converted from {src.name}",
+        f"observations: {obs.source}; LLI bit 0 slip, bit 1 half cycle unresolved",
+        f"events (flag 5): {opt.marks} edge + shutter delay {opt.shutter_delay_ns / 1e6:g} ms",
+    )
+    info = HeaderInfo(
+        marker=opt.marker or stem,
+        receiver_type=rec_type,
+        receiver_version=rec_vers,
+        approx_ecef_m=approx,
+        leap_s=leap,
+        comments=comments,
+    )
+    obs_path = out / f"{stem}.obs"
+    nav_path = out / f"{stem}.nav"
+    marks_path = out / f"{stem}.marks.csv"
+    wr = write_obs(obs_path, obs, events, info, opt.version, interval, progress)
+    n_eph = write_nav(nav_path, nav.ephemerides, opt.version, leap, nav)
+    written = np.sort(obs.t_gps_ns[kept_epochs(obs)]).tolist()
+    marks_path.write_text(
+        marks_csv(mark_list, written, opt.marks, opt.shutter_delay_ns), encoding="ascii"
+    )
+    in_gap = 0
+    for m in mark_list:
+        t = marks_mod.mark_time_ns(m, opt.marks, opt.shutter_delay_ns)
+        if t is not None and epochs_rule.locate(t, written, interval).in_dropout:
+            in_gap += 1
+    notes: list[str] = []
+    if block.source == "RXM-RAWX" and block.meas.size:
+        pairs = block.meas["gnssId"].astype(np.int64) * 256 + block.meas["sigId"]
+        v1 = block.header["version"][block.epoch] >= 1
+        uniq, counts = np.unique(pairs[v1], return_counts=True)
+        unknown = [
+            f"gnssId {g // 256} sigId {g % 256} ({n})"
+            for g, n in zip(uniq.tolist(), counts.tolist(), strict=True)
+            if (g // 256, g % 256) not in SIGNAL_CODES
+        ]
+        if unknown:
+            notes.append("signals without a RINEX 3.04 code here, left out: " + ", ".join(unknown))
+    if math.isfinite(approx[0]) and approx == (0.0, 0.0, 0.0):
+        notes.append("no NAV-SOL/NAV-PVT fix: APPROX POSITION XYZ is zero")
+    if not nav.ephemerides:
+        notes.append("no GPS ephemeris found (RXM-SFRB, RXM-SFRBX, AID-EPH): empty nav file")
+    return RinexResult(
+        obs_path=obs_path,
+        nav_path=nav_path,
+        marks_path=marks_path,
+        source=obs.source,
+        epochs=wr.epochs,
+        events=wr.events,
+        marks=len(mark_list),
+        marks_in_dropout=in_gap,
+        ephemerides=n_eph,
+        dropped_epochs=wr.dropped_epochs,
+        damaged_frames=index.damaged,
+        frames=len(index),
+        rejected_messages=rejected,
+        nav_parity_errors=nav.parity_errors,
+        skipped_systems=wr.skipped_systems,
+        notes=tuple(notes),
+    )
