@@ -12,12 +12,14 @@ The values are those pyubx2 gives for the same fields (``tests/unit/test_decode.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import struct
 from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any, TypeVar
 
 from pyubx2.ubxtypes_core import UBX_MSGIDS
 
@@ -144,6 +146,33 @@ def gnss_of_svid(svid: int) -> tuple[int, int]:
 _SVID = tuple(gnss_of_svid(s) for s in range(256))  # one lookup per satellite in the hot path
 
 
+T = TypeVar("T")
+
+
+def positional_constructor(cls: type[T]) -> Callable[..., T]:
+    """A constructor of a frozen, slotted dataclass taking every field positionally.
+
+    The same object as ``cls(*values)``, about three times faster: the generated ``__init__`` of a
+    frozen dataclass calls ``object.__setattr__`` once per field, this sets each slot through its
+    descriptor. It matters for the records made per satellite (80 000 on a 40-minute file).
+    """
+    names = [f.name for f in dataclasses.fields(cls)]  # type: ignore[arg-type]
+    ns: dict[str, Any] = {"new": object.__new__, "cls": cls}
+    lines = [f"def make({', '.join(names)}):", "    o = new(cls)"]
+    for i, name in enumerate(names):
+        ns[f"set{i}"] = cls.__dict__[name].__set__
+        lines.append(f"    set{i}(o, {name})")
+    lines.append("    return o")
+    exec("\n".join(lines), ns)  # noqa: S102 - code built from the dataclass's own field names
+    make: Callable[..., T] = ns["make"]
+    make.__doc__ = f"{cls.__name__}(*fields), built slot by slot."
+    return make
+
+
+_sat_obs = positional_constructor(SatObs)
+_sv_info_sat = positional_constructor(SvInfoSat)
+
+
 def _need(name: str, payload: bytes, size: int) -> None:
     if len(payload) < size:
         raise PayloadError(f"{len(payload)}-byte payload, {name} needs {size}")
@@ -234,7 +263,7 @@ class Decoder:
         sats = []
         for cp, pr, do, svid, qi, cno, lli in _RAW_SV.iter_unpack(p[8:end]):
             gnss, sv = svid_map[svid]
-            sats.append(SatObs(
+            sats.append(_sat_obs(
                 gnss, sv, cp, pr, do, cno, qi, lli, bool(lli & _LLI_HALF), bool(lli & _LLI_SLIP)
             ))
         return RawEpoch(week, itow * 1_000_000, tuple(sats), "RXM-RAW", frame.t_host_ns)
@@ -260,7 +289,7 @@ class Decoder:
             slip = lock_ms == 0 or lock_ms < prev_lock_ms or half_sub != prev_half_sub
             locks[key] = (lock_ms, half_sub)
             half_unresolved = cp_valid and not trk & _HALF_VALID
-            sats.append(SatObs(
+            sats.append(_sat_obs(
                 gnss, sv, cp, pr, do, cno, None, (1 if slip else 0) | (2 if half_unresolved else 0),
                 half_unresolved, slip, sig, freq, lock_ms, trk, bool(trk & _PR_VALID), cp_valid,
                 half_sub, pr_std & _STD, cp_std & _STD, do_std & _STD,
@@ -401,7 +430,7 @@ class Decoder:
         sats = []
         for _, svid, flags, quality, cno, elev, azim, _ in _SVINFO_SAT.iter_unpack(p[8:end]):
             gnss, sv = svid_map[svid]
-            sats.append(SvInfoSat(
+            sats.append(_sv_info_sat(
                 gnss, sv if gnss != 1 else svid, cno, elev, azim, bool(flags & _SVINFO_USED),
                 quality & _SVINFO_QUALITY, not flags & _SVINFO_UNHEALTHY,
             ))  # fmt: skip
@@ -414,7 +443,7 @@ class Decoder:
         end = 8 + 12 * n
         _need(f"NAV-SAT with {n} satellites", p, end)
         sats = [
-            SvInfoSat(
+            _sv_info_sat(
                 gnss, sv, cno, elev, azim, bool(flags & _SAT_USED), flags & _SAT_QUALITY,
                 (flags >> _SAT_HEALTH_LO) & ((1 << _SAT_HEALTH_W) - 1) != 2,
             )
