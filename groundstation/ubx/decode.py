@@ -156,12 +156,21 @@ def positional_constructor(cls: type[T]) -> Callable[..., T]:
     frozen dataclass calls ``object.__setattr__`` once per field, this sets each slot through its
     descriptor. It matters for the records made per satellite (80 000 on a 40-minute file).
     """
-    names = [f.name for f in dataclasses.fields(cls)]  # type: ignore[arg-type]
+    fields = dataclasses.fields(cls)  # type: ignore[arg-type]
     ns: dict[str, Any] = {"new": object.__new__, "cls": cls}
-    lines = [f"def make({', '.join(names)}):", "    o = new(cls)"]
-    for i, name in enumerate(names):
-        ns[f"set{i}"] = cls.__dict__[name].__set__
-        lines.append(f"    set{i}(o, {name})")
+    params = []
+    lines = ["    o = new(cls)"]
+    for i, f in enumerate(fields):
+        if f.default_factory is not dataclasses.MISSING:
+            raise TypeError(f"{cls.__name__}.{f.name}: default factories are not supported")
+        if f.default is dataclasses.MISSING:
+            params.append(f.name)
+        else:
+            ns[f"default{i}"] = f.default
+            params.append(f"{f.name}=default{i}")
+        ns[f"set{i}"] = cls.__dict__[f.name].__set__
+        lines.append(f"    set{i}(o, {f.name})")
+    lines.insert(0, f"def make({', '.join(params)}):")
     lines.append("    return o")
     exec("\n".join(lines), ns)  # noqa: S102 - code built from the dataclass's own field names
     make: Callable[..., T] = ns["make"]

@@ -86,13 +86,20 @@ def test_index_matches_framer_on_synthetic_damage() -> None:
     assert len(index) > 200
 
 
-def test_index_skips_frames_inside_frames() -> None:
+def test_valid_frame_inside_a_frame_wins_in_bulk_and_streaming() -> None:
+    # The rule of framer.scan_ubx: a valid frame that ends inside another frame's claimed span
+    # proves that span false, whether or not the outer checksum happens to pass; so the inner
+    # frame comes out as soon as it is complete, in any chunking, and the outer is damage.
     inner = build_frame(0x01, 0x02, b"abcd")
     outer = build_frame(0x0A, 0x04, b"xx" + inner + b"yy")
     data = outer + build_frame(0x01, 0x06, bytes(52))
     index = index_frames(data)
-    assert index.start.tolist() == [0, len(outer)] == _framer_offsets(data)
-    assert index.damaged == 0
+    assert index.start.tolist() == [8, len(outer)] == _framer_offsets(data)
+    assert index.damaged == 1
+    f = UbxFramer()
+    got = [fr.offset for k in range(len(data)) for fr in f.feed(data[k : k + 1], k)]
+    assert got + [fr.offset for fr in f.flush()] == [8, len(outer)]
+    assert f.stats.bad_checksum == 1
 
 
 def test_index_of_empty_and_tiny_inputs() -> None:
