@@ -22,6 +22,7 @@ sentence, a valid RTCM3 frame, or garbage.
 
 from __future__ import annotations
 
+import bisect
 import re
 from collections import Counter
 from dataclasses import dataclass, field
@@ -83,15 +84,12 @@ def crc24q(data: bytes | bytearray | memoryview) -> int:
     return crc
 
 
-def _nmea_ok(sentence: bytes) -> bool:
-    m = _NMEA.fullmatch(sentence)
-    if m is None:
-        return False
+def _nmea_checksum_ok(m: re.Match[bytes]) -> bool:
+    """Whether a sentence matched by ``_NMEA`` carries the XOR of its body."""
     x = 0
     for b in m.group(1):
         x ^= b
     return x == int(m.group(2), 16)
-
 
 
 IntArray = npt.NDArray[np.int64]
@@ -149,13 +147,19 @@ class UbxScan:
     hold: int
 
 
-_OK, _BAD, _LONG, _TRUNC, _WAIT = range(5)
+_BAD, _LONG, _TRUNC = range(3)
+_VECTOR_BYTES = 4096
+"""From this many bytes on, sync words are found and checksums computed with numpy."""
 
 
 def scan_ubx(
     data: bytes | bytearray | memoryview, lo: int, n: int, max_payload: int, *, final: bool
 ) -> UbxScan:
     """The UBX framing rule (see the module docstring) over ``data[lo:n]``.
+
+    Sync words and checksums are found with numpy on long inputs (whole files, big chunks) and
+    with ``bytes.find`` / :func:`ubx_checksum` on short ones (serial reads), for speed; the rule
+    that decides on them is this one loop.
 
     Args:
         data: the bytes; ``lo`` must be where an earlier scan's frames or ``hold`` left off.
@@ -164,54 +168,92 @@ def scan_ubx(
         max_payload: longest payload accepted as possible.
         final: no more bytes will come: a frame still incomplete is truncated.
     """
-    arr = np.frombuffer(data, dtype=np.uint8, count=n)
-    seg = arr[lo:n]
-    cand = np.flatnonzero((seg[:-1] == SYNC1) & (seg[1:] == SYNC2)).astype(np.int64) + lo
-    has_header = cand + HEADER_LEN <= n
-    length = np.zeros(cand.size, dtype=np.int64)
-    hc = cand[has_header]
-    length[has_header] = arr[hc + 4].astype(np.int64) | (arr[hc + 5].astype(np.int64) << 8)
-    end = cand + OVERHEAD + length
-    possible = has_header & (length <= max_payload)
-    complete = possible & (end <= n)
-    valid = np.zeros(cand.size, dtype=bool)
-    if complete.any():
-        valid[complete] = _checksums_ok(arr, cand[complete], end[complete])
+    buf = data if isinstance(data, (bytes, bytearray)) else bytes(data)
+    vector = n - lo >= _VECTOR_BYTES
+    arr = np.frombuffer(buf, dtype=np.uint8, count=n) if vector else None
+    if arr is not None:
+        seg = arr[lo:n]
+        cand: list[int] = (
+            np.flatnonzero((seg[:-1] == SYNC1) & (seg[1:] == SYNC2)) + lo
+        ).tolist()
+    else:
+        cand = []
+        j = buf.find(b"\xb5\x62", lo, n)
+        while j >= 0:
+            cand.append(j)
+            j = buf.find(b"\xb5\x62", j + 1, n)
+    # Each sync word: its claimed end, or None when its header has not arrived; then which
+    # complete ones pass their checksum.
+    ends: list[int | None] = []
+    complete: list[int] = []
+    for c in cand:
+        if c + HEADER_LEN > n:
+            ends.append(None)
+            continue
+        length = buf[c + 4] | (buf[c + 5] << 8)
+        e = c + OVERHEAD + length
+        ends.append(e)
+        if length <= max_payload and e <= n:
+            complete.append(c)
+    valid: set[int] = set()
+    if complete:
+        if arr is not None and len(complete) > 8:
+            st = np.array(complete, dtype=np.int64)
+            en = st + OVERHEAD + (arr[st + 4].astype(np.int64) | (arr[st + 5].astype(np.int64) << 8))
+            valid = set(st[_checksums_ok(arr, st, en)].tolist())
+        else:
+            for c in complete:
+                e = c + OVERHEAD + (buf[c + 4] | (buf[c + 5] << 8))
+                if ubx_checksum(memoryview(buf)[c + 2 : e - 2]) == (buf[e - 2], buf[e - 1]):
+                    valid.add(c)
     # A candidate holds a valid frame inside when some valid frame after it ends before it does
-    # (a valid frame that starts after it ends, ends after it too): a suffix minimum of ends.
-    nested = np.zeros(cand.size, dtype=bool)
-    if valid.any():
-        v_start = cand[valid]
-        suffix_min = np.minimum.accumulate(end[valid][::-1])[::-1]
-        k = np.searchsorted(v_start, cand, side="right")
-        inner = k < v_start.size
-        nested[inner] = suffix_min[k[inner]] < end[inner]
-    status = np.full(cand.size, _BAD, dtype=np.int64)
-    status[valid] = _OK
-    status[nested & possible] = _BAD
-    status[has_header & ~possible] = _LONG
-    waiting = (~has_header | (possible & ~complete)) & ~(nested & possible)
-    status[waiting] = _TRUNC if final else _WAIT
+    # (a valid frame that starts after its end also ends after it): a suffix minimum of ends.
+    v_start = [c for c in cand if c in valid]
+    suffix_min: list[int] = []
+    m = 1 << 62
+    for c in reversed(v_start):
+        e = c + OVERHEAD + (buf[c + 4] | (buf[c + 5] << 8))
+        m = min(m, e)
+        suffix_min.append(m)
+    suffix_min.reverse()
     starts: list[int] = []
     lengths: list[int] = []
-    counts = [0] * 5
+    counts = [0, 0, 0]
     hold = n
     pos = lo
-    for c, st, ln in zip(cand.tolist(), status.tolist(), length.tolist(), strict=True):
+    for c, e in zip(cand, ends, strict=True):
         if c < pos:
             continue  # inside an accepted frame: payload, not a frame
-        if st == _WAIT:
+        if e is None:  # header not complete
+            if final:
+                counts[_TRUNC] += 1
+                continue
             hold = c
             break
-        if st == _OK:
+        length = e - c - OVERHEAD
+        if length > max_payload:
+            counts[_LONG] += 1
+            continue
+        k = bisect.bisect_right(v_start, c)
+        if k < len(v_start) and suffix_min[k] < e:
+            counts[_BAD] += 1  # a valid frame inside proves the length false
+            continue
+        if e > n:
+            if final:
+                counts[_TRUNC] += 1
+                continue
+            hold = c
+            break
+        if c in valid:
             starts.append(c)
-            lengths.append(ln)
-            pos = c + OVERHEAD + ln
+            lengths.append(length)
+            pos = e
         else:
-            counts[st] += 1
-    if not final and hold == n and n > max(lo, pos) and arr[n - 1] == SYNC1:
+            counts[_BAD] += 1
+    if not final and hold == n and n > max(lo, pos) and buf[n - 1] == SYNC1:
         hold = n - 1  # may be the first half of a sync word
     return UbxScan(starts, lengths, counts[_BAD], counts[_LONG], counts[_TRUNC], hold)
+
 
 @dataclass(frozen=True, slots=True)
 class FramerStats:
@@ -413,18 +455,19 @@ class UbxFramer:
 
     def _try_nmea(self, buf: bytearray, i: int, b: int, at_end: bool) -> int:
         # A sentence is printable ASCII: it cannot cross a UBX sync word, so only the end of
-        # the bytes at hand can leave it undecided.
-        stop = buf.find(b"\n", i, min(i + NMEA_MAX_LEN, b))
-        if stop < 0:
-            if at_end and b - i < NMEA_MAX_LEN:
+        # the bytes at hand can leave it undecided. The pattern ends at the first line feed.
+        stop = min(i + NMEA_MAX_LEN, b)
+        m = _NMEA.match(buf, i, stop)
+        if m is None:
+            if at_end and b - i < NMEA_MAX_LEN and buf.find(b"\n", i, stop) < 0:
                 return 0
             return -1
-        sentence = bytes(buf[i : stop + 1])
-        if not _nmea_ok(sentence):
+        if not _nmea_checksum_ok(m):
             return -1
+        size = m.end() - i
         self._c.nmea_sentences += 1
-        self._c.nmea_bytes += len(sentence)
-        return len(sentence)
+        self._c.nmea_bytes += size
+        return size
 
 
 def iter_frames(
