@@ -1,13 +1,14 @@
-"""UBX frame -> record: the hot messages unpacked with ``struct`` from :mod:`~groundstation.ubx.layouts`.
+"""UBX frame -> record: the hot messages unpacked with ``struct`` from the layouts.
 
 RXM-RAW/RAWX, RXM-SFRB/SFRBX, AID-EPH, TIM-TM2 and NAV-SOL/PVT/POSLLH/SVINFO/SAT become our
-records; any other message stays a :class:`Frame` (pyubx2 parses those where a tool needs them,
-and names them: :func:`message_name`). A frame that passed its checksum but whose payload does not
-fit its layout (shorter than its fixed part or than its declared repeats need) becomes an
+records (layouts in :mod:`~groundstation.ubx.layouts`); any other message stays a
+:class:`Frame` (pyubx2 parses those where a tool needs them, and names them:
+:func:`message_name`). A frame that passed its checksum but whose payload does not fit its
+layout (shorter than its fixed part, or than its declared repeats need) becomes an
 :class:`UndecodedFrame`: it is counted, logged and its bytes are kept, never dropped.
 
-The values are those pyubx2 gives for the same fields (``tests/unit/test_decode.py`` and
-``tests/integration/test_decode_pyubx2.py`` check it field for field on every real recording).
+The values are those pyubx2 gives for the same fields: ``tests/unit/test_decode.py`` checks it
+field for field on every real recording and on the simulator's output.
 """
 
 from __future__ import annotations
@@ -89,7 +90,8 @@ _PR_VALID = L.RAWX_TRK_STAT.mask("prValid")
 _CP_VALID = L.RAWX_TRK_STAT.mask("cpValid")
 _HALF_VALID = L.RAWX_TRK_STAT.mask("halfCyc")
 _HALF_SUB = L.RAWX_TRK_STAT.mask("subHalfCyc")
-_STD = L.RAWX_STDEV.mask("std")
+_STD = L.RAWX_PR_STDEV.mask("prStd")
+assert _STD == L.RAWX_CP_STDEV.mask("cpStd") == L.RAWX_DO_STDEV.mask("doStd")
 _LEAP_VALID = L.RAWX_REC_STAT.mask("leapSec")
 _CLK_RESET = L.RAWX_REC_STAT.mask("clkReset")
 _LLI_SLIP = L.RAW_LLI.mask("slip")

@@ -98,7 +98,9 @@ _CHECKSUM_WINDOW = 1 << 20
 """Checksums are computed over windows of about this many bytes (bounds memory on whole files)."""
 
 
-def _checksums_ok(arr: npt.NDArray[np.uint8], start: IntArray, end: IntArray) -> npt.NDArray[np.bool_]:
+def _checksums_ok(
+    arr: npt.NDArray[np.uint8], start: IntArray, end: IntArray
+) -> npt.NDArray[np.bool_]:
     """Whether each complete candidate ``[start, end)`` has a right Fletcher checksum.
 
     Both sums come from two prefix sums over a window of the data: the uint32 wrap-around keeps
@@ -199,7 +201,8 @@ def scan_ubx(
     if complete:
         if arr is not None and len(complete) > 8:
             st = np.array(complete, dtype=np.int64)
-            en = st + OVERHEAD + (arr[st + 4].astype(np.int64) | (arr[st + 5].astype(np.int64) << 8))
+            ln = arr[st + 4].astype(np.int64) | (arr[st + 5].astype(np.int64) << 8)
+            en = st + OVERHEAD + ln
             valid = set(st[_checksums_ok(arr, st, en)].tolist())
         else:
             for c in complete:
@@ -212,8 +215,7 @@ def scan_ubx(
     suffix_min: list[int] = []
     m = 1 << 62
     for c in reversed(v_start):
-        e = c + OVERHEAD + (buf[c + 4] | (buf[c + 5] << 8))
-        m = min(m, e)
+        m = min(m, c + OVERHEAD + (buf[c + 4] | (buf[c + 5] << 8)))
         suffix_min.append(m)
     suffix_min.reverse()
     starts: list[int] = []
@@ -221,15 +223,16 @@ def scan_ubx(
     counts = [0, 0, 0]
     hold = n
     pos = lo
-    for c, e in zip(cand, ends, strict=True):
+    for c, e_or_none in zip(cand, ends, strict=True):
         if c < pos:
             continue  # inside an accepted frame: payload, not a frame
-        if e is None:  # header not complete
+        if e_or_none is None:  # header not complete
             if final:
                 counts[_TRUNC] += 1
                 continue
             hold = c
             break
+        e = e_or_none
         length = e - c - OVERHEAD
         if length > max_payload:
             counts[_LONG] += 1

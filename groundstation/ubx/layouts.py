@@ -196,9 +196,10 @@ class Message:
         ] if n else []
         return head, rows
 
-    def scaled(self, name: str, raw: int | float) -> float:
+    def scaled(self, name: str, raw: int | float) -> int | float:
         """A field's value with its resolution applied, as pyubx2 computes it."""
-        return round(raw * self.scales.get(name, 1.0), SCALE_ROUND)
+        scale = self.scales.get(name)
+        return raw if scale is None else round(raw * scale, SCALE_ROUND)
 
     def payload(self, rows: Iterable[Mapping[str, Any]] = (), **values: Any) -> bytes:
         """Encode a payload: fixed-part fields by name (missing ones zero), group rows.
@@ -252,10 +253,14 @@ TIM_TM2_FLAGS = Bits({
 """TIM-TM2 ``flags``: mode 1 = running; timeBase 0 receiver, 1 GPS, 2 UTC; utc = UTC
 available; time = time valid."""
 RAWX_REC_STAT = Bits({"leapSec": (0, 1), "clkReset": (1, 1)})
-RAWX_TRK_STAT = Bits({"prValid": (0, 1), "cpValid": (1, 1), "halfCyc": (2, 1), "subHalfCyc": (3, 1)})
+RAWX_TRK_STAT = Bits({
+    "prValid": (0, 1), "cpValid": (1, 1), "halfCyc": (2, 1), "subHalfCyc": (3, 1),
+})  # fmt: skip
 """RXM-RAWX ``trkStat``: halfCyc = half-cycle valid; subHalfCyc = half cycle subtracted."""
-RAWX_STDEV = Bits({"std": (0, 4)})
-"""RXM-RAWX ``prStdev`` / ``cpStdev`` / ``doStdev``: the index in the low four bits."""
+RAWX_PR_STDEV = Bits({"prStd": (0, 4)})
+"""RXM-RAWX ``prStdev`` (and ``cpStdev``, ``doStdev``): the index in the low four bits."""
+RAWX_CP_STDEV = Bits({"cpStd": (0, 4)})
+RAWX_DO_STDEV = Bits({"doStd": (0, 4)})
 RAW_LLI = Bits({"slip": (0, 1), "halfCyc": (1, 1)})
 """RXM-RAW ``lli`` (RINEX LLI): bit 0 loss of lock, bit 1 half-cycle ambiguity."""
 NAV_SOL_FLAGS = Bits({"gpsfixOK": (0, 1), "diffSoln": (1, 1), "wknSet": (2, 1), "towSet": (3, 1)})
@@ -268,6 +273,13 @@ NAV_SVINFO_FLAGS = Bits({
     "unhealthy": (4, 1), "orbitAlm": (5, 1), "orbitAop": (6, 1), "smoothed": (7, 1),
 })  # fmt: skip
 NAV_SVINFO_QUALITY = Bits({"qualityInd": (0, 4)})
+NAV_SVINFO_GLOBAL = Bits({"chipGen": (0, 3)})
+"""NAV-SVINFO ``globalFlags``: 0 Antaris, 1 u-blox 5, 2 u-blox 6, 3 u-blox 7, 4 u-blox 8."""
+NAV_PVT_VALID = Bits({"validDate": (0, 1), "validTime": (1, 1), "fullyResolved": (2, 1),
+                      "validMag": (3, 1)})  # fmt: skip
+NAV_PVT_FLAGS2 = Bits({"confirmedAvai": (5, 1), "confirmedDate": (6, 1), "confirmedTime": (7, 1)})
+NAV_PVT_FLAGS3 = Bits({"invalidLlh": (0, 1), "lastCorrectionAge": (1, 4), "authTime": (13, 1),
+                       "nmaFixStatus": (14, 1)})  # fmt: skip
 NAV_SAT_FLAGS = Bits({
     "qualityInd": (0, 3), "svUsed": (3, 1), "health": (4, 2), "diffCorr": (6, 1),
     "smoothed": (7, 1), "orbitSource": (8, 3), "ephAvail": (11, 1), "almAvail": (12, 1),
@@ -295,8 +307,8 @@ RXM_RAWX = Message(
     _f("prMes:R8 cpMes:R8 doMes:R4 gnssId:U1 svId:U1 sigId:U1 freqId:U1 locktime:U2 cno:U1 "
        "prStdev:X1 cpStdev:X1 doStdev:X1 trkStat:X1 reserved2:U1"),
     count="numMeas",
-    bits={"recStat": RAWX_REC_STAT, "trkStat": RAWX_TRK_STAT, "prStdev": RAWX_STDEV,
-          "cpStdev": RAWX_STDEV, "doStdev": RAWX_STDEV},
+    bits={"recStat": RAWX_REC_STAT, "trkStat": RAWX_TRK_STAT, "prStdev": RAWX_PR_STDEV,
+          "cpStdev": RAWX_CP_STDEV, "doStdev": RAWX_DO_STDEV},
 )  # fmt: skip
 AID_EPH = Message(
     "AID-EPH", 0x0B, 0x31,
@@ -327,14 +339,17 @@ NAV_PVT = Message(
        "hAcc:U4 vAcc:U4 velN:I4 velE:I4 velD:I4 gSpeed:I4 headMot:I4*1e-5 sAcc:U4 "
        "headAcc:U4*1e-5 pDOP:U2*0.01 flags3:X2 reserved0:U4 headVeh:I4*1e-5 magDec:I2*0.01 "
        "magAcc:U2*0.01"),
-    bits={"flags": NAV_PVT_FLAGS},
+    bits={"valid": NAV_PVT_VALID, "flags": NAV_PVT_FLAGS, "flags2": NAV_PVT_FLAGS2,
+          "flags3": NAV_PVT_FLAGS3},
     min_length=84,  # u-blox 7 (protocol 14) ends after headAcc/pDOP/reserved
 )  # fmt: skip
 NAV_SVINFO = Message(
     "NAV-SVINFO", 0x01, 0x30,
     _f("iTOW:U4 numCh:U1 globalFlags:X1 reserved1:U2"),
     _f("chn:U1 svid:U1 flags:X1 quality:X1 cno:U1 elev:I1 azim:I2 prRes:I4"),
-    count="numCh", bits={"flags": NAV_SVINFO_FLAGS, "quality": NAV_SVINFO_QUALITY},
+    count="numCh",
+    bits={"globalFlags": NAV_SVINFO_GLOBAL, "flags": NAV_SVINFO_FLAGS,
+          "quality": NAV_SVINFO_QUALITY},
 )  # fmt: skip
 NAV_SAT = Message(
     "NAV-SAT", 0x01, 0x35,
