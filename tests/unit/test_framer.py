@@ -1,14 +1,20 @@
-"""The UBX framer: chunking invariance, resynchronisation after damage, statistics."""
+"""The UBX framer: chunking invariance, resynchronisation after damage, statistics, and the
+same frames as the bulk index (one rule)."""
 
 from __future__ import annotations
 
 import random
+from pathlib import Path
 
+import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from streams import flight_stream, garbage, rxm_raw, tim_tm2
 
+from groundstation.offline.readers import iter_chunks
+from groundstation.records import Frame
 from groundstation.ubx.build import build_frame
+from groundstation.ubx.fastraw import index_frames
 from groundstation.ubx.framer import UbxFramer, crc24q, iter_frames, ubx_checksum
 
 
@@ -196,3 +202,91 @@ def test_false_long_header_does_not_hold_back_later_frames() -> None:
         out += got
     assert framer.stats.bad_checksum == 1
     assert framer.stats.garbage_bytes == len(bogus)
+
+
+# -- one rule: the streaming framer in any chunking equals the bulk index ----------------------
+
+REAL_UBX = (
+    "tomojitakasu__RTKLIB/test/data/rcvraw/ubx_20080526.ubx",
+    "tridge__pyUblox/data/6P-raw-PPP.ubx",
+    "tridge__pyUblox/data/6P-raw-PPP-2.ubx",
+    "gpsd__gpsd-mirror/test/daemon/ublox-aek-4t.log",
+    "gpsd__gpsd-mirror/test/daemon/ublox-lea-4t.log",
+    "gpsd__gpsd-mirror/test/daemon/ublox-neo-m8t.log",
+    "gpsd__gpsd-mirror/test/daemon/ublox-zed-f9p_hpg1.11.log",
+    "jdesbonnet__GNSS_RTK_data/20181004/rover-20181004-1237.ubx.gz",
+    "jdesbonnet__GNSS_RTK_data/20181004/base-20181004-1236.ubx.gz",
+    "jdesbonnet__GNSS_RTK_data/20181004/rover-20181004-1532.ubx.gz",
+    "jdesbonnet__GNSS_RTK_data/20181004/base-20181004-1452.ubx.gz",
+    "jdesbonnet__GNSS_RTK_data/20181009/rover-20181009-1221.ubx.gz",
+    "jdesbonnet__GNSS_RTK_data/20181009/base-20181009-1220.ubx.gz",
+    "jdesbonnet__GNSS_RTK_data/20181104/rover-20181104-1634.ubx.gz",
+    "nav-solutions__data/UBX/16dBatt_no_interference_coldstart.ubx.gz",
+    "rtklibexplorer__GNSS_IMU/data/walk_0827/gnss_1730.ubx",
+)
+
+
+def stream_in_random_chunks(data: bytes, seed: int, largest: int) -> tuple[list[Frame], UbxFramer]:
+    rng = random.Random(seed)
+    framer = UbxFramer()
+    out: list[Frame] = []
+    pos = 0
+    while pos < len(data):
+        n = rng.choice((1, 2, 7, rng.randint(1, 64), rng.randint(1, largest)))
+        out += framer.feed(data[pos : pos + n], pos)
+        pos += n
+    out += framer.flush(pos)
+    return out, framer
+
+
+def damage(data: bytes, seed: int, events: int) -> bytes:
+    """A copy with the damage a serial link does: flipped bytes, lost runs, repeated runs,
+    inserted noise, sync words with false (often long) lengths."""
+    rng = random.Random(seed)
+    out = bytearray(data)
+    for _ in range(events):
+        at = rng.randrange(max(len(out), 1))
+        kind = rng.randrange(5)
+        if kind == 0:
+            out[at] ^= 1 << rng.randrange(8)
+        elif kind == 1:
+            del out[at : at + rng.randint(1, 300)]
+        elif kind == 2:
+            out[at:at] = out[max(0, at - 200) : at][: rng.randint(1, 200)]
+        elif kind == 3:
+            out[at:at] = rng.randbytes(rng.randint(1, 50))
+        else:
+            out[at:at] = b"\xb5\x62" + rng.randbytes(2) + rng.randint(0, 9000).to_bytes(2, "little")
+    return bytes(out)
+
+
+def assert_same_frames(data: bytes, seed: int) -> None:
+    index = index_frames(data)
+    frames, framer = stream_in_random_chunks(data, seed, largest=5000)
+    assert [f.offset for f in frames] == index.start.tolist()
+    assert [f.raw for f in frames] == [index.raw(data, i) for i in range(len(index))]
+    s = framer.stats
+    assert s.damaged_frames == index.damaged
+    assert s.bytes_in == s.frame_bytes + s.garbage_bytes + s.nmea_bytes + s.rtcm3_bytes
+    assert s.pending_bytes == 0
+    whole = UbxFramer()
+    whole.feed(data, 0)
+    whole.flush(0)
+    assert whole.stats == s  # counts do not depend on the chunking either
+
+
+def test_streaming_equals_bulk_on_damaged_synthetic_streams() -> None:
+    data, _ = flight_stream(200)
+    for seed in range(6):
+        assert_same_frames(damage(data, seed, events=60), seed)
+
+
+@pytest.mark.shared_data
+@pytest.mark.parametrize("rel", REAL_UBX)
+def test_streaming_equals_bulk_on_real_files_and_damaged_copies(
+    shared_data: Path, rel: str
+) -> None:
+    data = b"".join(c for c, _ in iter_chunks(shared_data / "real" / rel))
+    assert_same_frames(data, 1)
+    part = data[: 400_000]
+    assert_same_frames(damage(part, 2, events=max(20, len(part) // 2000)), 3)
