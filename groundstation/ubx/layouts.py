@@ -213,12 +213,15 @@ class Message:
         if unknown:
             raise ValueError(f"{self.name} has no field {sorted(unknown)}")
         out = [self.head.pack(*(values.get(n, 0) for n in self.head_names))]
-        for row in rows:
-            bad = set(row) - set(self.block_names)
-            if bad:
-                raise ValueError(f"{self.name} group has no field {sorted(bad)}")
-            out.append(self.block.pack(*(row.get(n, 0) for n in self.block_names)))
+        out.extend(self.row(**row) for row in rows)
         return b"".join(out)
+
+    def row(self, **values: Any) -> bytes:
+        """Encode one repetition of the group, fields by name (missing ones zero)."""
+        bad = set(values) - set(self.block_names)
+        if bad:
+            raise ValueError(f"{self.name} group has no field {sorted(bad)}")
+        return self.block.pack(*(values.get(n, 0) for n in self.block_names))
 
     def frame(self, rows: Iterable[Mapping[str, Any]] = (), **values: Any) -> bytes:
         """A complete frame (sync, header, :meth:`payload`, checksum)."""

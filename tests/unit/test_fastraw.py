@@ -4,7 +4,6 @@ pyubx2, field by field, on synthetic damage and on the real recordings."""
 from __future__ import annotations
 
 import random
-import struct
 from pathlib import Path
 
 import numpy as np
@@ -12,6 +11,7 @@ import pytest
 from pyubx2 import UBXReader
 
 from groundstation.offline.readers import iter_chunks
+from groundstation.ubx import layouts as L
 from groundstation.ubx.build import build_frame
 from groundstation.ubx.fastraw import (
     decode_raw,
@@ -51,16 +51,13 @@ def _framer_offsets(data: bytes) -> list[int]:
 
 
 def _rawx_payload(n: int, rng: random.Random) -> bytes:
-    head = struct.pack("<dHbBBB2x", 1000.5, 2026, 18, n, 1, 1)
-    meas = b"".join(
-        struct.pack(
-            "<ddfBBBBHBBBBBx",
-            2e7 + rng.random(), 1e8 + rng.random(), rng.random(), 0, rng.randint(1, 32),
-            0, 0, rng.randint(0, 64500), 40, 3, 2, 1, 15,
-        )
+    rows = [
+        {"prMes": 2e7 + rng.random(), "cpMes": 1e8 + rng.random(), "doMes": rng.random(),
+         "svId": rng.randint(1, 32), "locktime": rng.randint(0, 64500), "cno": 40, "prStdev": 3,
+         "cpStdev": 2, "doStdev": 1, "trkStat": 15}
         for _ in range(n)
-    )
-    return head + meas
+    ]
+    return L.RXM_RAWX.payload(rows, rcvTow=1000.5, week=2026, leapS=18, recStat=1, version=1)
 
 
 def test_index_matches_framer_on_synthetic_damage() -> None:
