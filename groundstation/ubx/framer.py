@@ -154,6 +154,62 @@ _VECTOR_BYTES = 4096
 """From this many bytes on, sync words are found and checksums computed with numpy."""
 
 
+_Candidates = tuple[list[int], list[int | None], list[bool], list[int], list[int]]
+
+
+def _candidates_np(buf: bytes | bytearray, lo: int, n: int, max_payload: int) -> _Candidates:
+    """:func:`scan_ubx`'s candidates, found with numpy (long inputs)."""
+    arr = np.frombuffer(buf, dtype=np.uint8, count=n)
+    seg = arr[lo:n]
+    c = np.flatnonzero((seg[:-1] == SYNC1) & (seg[1:] == SYNC2)).astype(np.int64) + lo
+    has_header = c + HEADER_LEN <= n
+    length = np.zeros(c.size, dtype=np.int64)
+    hc = c[has_header]
+    length[has_header] = arr[hc + 4].astype(np.int64) | (arr[hc + 5].astype(np.int64) << 8)
+    e = c + OVERHEAD + length
+    complete = has_header & (length <= max_payload) & (e <= n)
+    ok = np.zeros(c.size, dtype=bool)
+    if complete.any():
+        ok[complete] = _checksums_ok(arr, c[complete], e[complete])
+    suffix_min = np.minimum.accumulate(e[ok][::-1])[::-1]
+    ends: list[int | None] = list(e.tolist())
+    for k in np.flatnonzero(~has_header).tolist():
+        ends[k] = None
+    return c.tolist(), ends, ok.tolist(), c[ok].tolist(), suffix_min.tolist()
+
+
+def _candidates_py(buf: bytes | bytearray, lo: int, n: int, max_payload: int) -> _Candidates:
+    """:func:`scan_ubx`'s candidates, found with ``bytes.find`` (short inputs: serial reads)."""
+    cand: list[int] = []
+    ends: list[int | None] = []
+    valid: list[bool] = []
+    j = buf.find(b"\xb5\x62", lo, n)
+    while j >= 0:
+        cand.append(j)
+        if j + HEADER_LEN > n:
+            ends.append(None)
+            valid.append(False)
+        else:
+            length = buf[j + 4] | (buf[j + 5] << 8)
+            e = j + OVERHEAD + length
+            ends.append(e)
+            valid.append(
+                length <= max_payload
+                and e <= n
+                and ubx_checksum(memoryview(buf)[j + 2 : e - 2]) == (buf[e - 2], buf[e - 1])
+            )
+        j = buf.find(b"\xb5\x62", j + 1, n)
+    v_start = [c for c, ok in zip(cand, valid, strict=True) if ok]
+    suffix_min: list[int] = []
+    m = 1 << 62
+    for e_or_none, ok in zip(reversed(ends), reversed(valid), strict=True):
+        if ok and e_or_none is not None:
+            m = min(m, e_or_none)
+            suffix_min.append(m)
+    suffix_min.reverse()
+    return cand, ends, valid, v_start, suffix_min
+
+
 def scan_ubx(
     data: bytes | bytearray | memoryview, lo: int, n: int, max_payload: int, *, final: bool
 ) -> UbxScan:
@@ -171,59 +227,20 @@ def scan_ubx(
         final: no more bytes will come: a frame still incomplete is truncated.
     """
     buf = data if isinstance(data, (bytes, bytearray)) else bytes(data)
-    vector = n - lo >= _VECTOR_BYTES
-    arr = np.frombuffer(buf, dtype=np.uint8, count=n) if vector else None
-    if arr is not None:
-        seg = arr[lo:n]
-        cand: list[int] = (
-            np.flatnonzero((seg[:-1] == SYNC1) & (seg[1:] == SYNC2)) + lo
-        ).tolist()
+    # Each sync word: its claimed end (None while its header has not arrived) and whether it is
+    # complete with a right checksum; then, of the valid ones, starts and a suffix minimum of
+    # ends: a candidate holds a valid frame inside when some valid frame after it ends before
+    # it does (a valid frame that starts after its end also ends after it).
+    if n - lo >= _VECTOR_BYTES:
+        cand, ends, valid, v_start, suffix_min = _candidates_np(buf, lo, n, max_payload)
     else:
-        cand = []
-        j = buf.find(b"\xb5\x62", lo, n)
-        while j >= 0:
-            cand.append(j)
-            j = buf.find(b"\xb5\x62", j + 1, n)
-    # Each sync word: its claimed end, or None when its header has not arrived; then which
-    # complete ones pass their checksum.
-    ends: list[int | None] = []
-    complete: list[int] = []
-    for c in cand:
-        if c + HEADER_LEN > n:
-            ends.append(None)
-            continue
-        length = buf[c + 4] | (buf[c + 5] << 8)
-        e = c + OVERHEAD + length
-        ends.append(e)
-        if length <= max_payload and e <= n:
-            complete.append(c)
-    valid: set[int] = set()
-    if complete:
-        if arr is not None and len(complete) > 8:
-            st = np.array(complete, dtype=np.int64)
-            ln = arr[st + 4].astype(np.int64) | (arr[st + 5].astype(np.int64) << 8)
-            en = st + OVERHEAD + ln
-            valid = set(st[_checksums_ok(arr, st, en)].tolist())
-        else:
-            for c in complete:
-                e = c + OVERHEAD + (buf[c + 4] | (buf[c + 5] << 8))
-                if ubx_checksum(memoryview(buf)[c + 2 : e - 2]) == (buf[e - 2], buf[e - 1]):
-                    valid.add(c)
-    # A candidate holds a valid frame inside when some valid frame after it ends before it does
-    # (a valid frame that starts after its end also ends after it): a suffix minimum of ends.
-    v_start = [c for c in cand if c in valid]
-    suffix_min: list[int] = []
-    m = 1 << 62
-    for c in reversed(v_start):
-        m = min(m, c + OVERHEAD + (buf[c + 4] | (buf[c + 5] << 8)))
-        suffix_min.append(m)
-    suffix_min.reverse()
+        cand, ends, valid, v_start, suffix_min = _candidates_py(buf, lo, n, max_payload)
     starts: list[int] = []
     lengths: list[int] = []
     counts = [0, 0, 0]
     hold = n
     pos = lo
-    for c, e_or_none in zip(cand, ends, strict=True):
+    for c, e_or_none, ok in zip(cand, ends, valid, strict=True):
         if c < pos:
             continue  # inside an accepted frame: payload, not a frame
         if e_or_none is None:  # header not complete
@@ -247,7 +264,7 @@ def scan_ubx(
                 continue
             hold = c
             break
-        if c in valid:
+        if ok:
             starts.append(c)
             lengths.append(length)
             pos = e
