@@ -22,8 +22,6 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, TypeVar
 
-from pyubx2.ubxtypes_core import UBX_MSGIDS
-
 from groundstation.geodesy import ecef_to_llh, llh_to_ecef
 from groundstation.records import (
     Ephemeris,
@@ -118,6 +116,9 @@ def message_name(cls: int, mid: int) -> str:
     key = (cls, mid)
     name = _NAMES.get(key)
     if name is None:
+        # pyubx2 knows the long tail; imported on first need (it takes ~50 ms to import)
+        from pyubx2.ubxtypes_core import UBX_MSGIDS
+
         name = UBX_MSGIDS.get(bytes(key)) or f"UBX-{cls:02X}-{mid:02X}"
         _NAMES[key] = name
     return name
