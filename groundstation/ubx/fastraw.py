@@ -18,9 +18,6 @@ import numpy.typing as npt
 from groundstation.ubx import layouts as L
 from groundstation.ubx.framer import DEFAULT_MAX_PAYLOAD, OVERHEAD, scan_ubx
 
-RXM_RAW = L.RXM_RAW.key
-RXM_RAWX = L.RXM_RAWX.key
-
 RAWX_HEADER = L.RXM_RAWX.head_dtype
 RAWX_MEAS = L.RXM_RAWX.block_dtype
 RAW_HEADER = L.RXM_RAW.head_dtype
@@ -132,17 +129,12 @@ class RawBlock:
         return self.header["iTOW"].astype(np.int64) * 1_000_000
 
 
-def _decode_block(
-    source: str,
-    data: bytes | memoryview,
-    index: FrameIndex,
-    key: tuple[int, int],
-    header_dtype: np.dtype[Any],
-    meas_dtype: np.dtype[Any],
-    count_field: str,
-) -> RawBlock:
+def _decode_block(layout: L.Message, data: bytes | memoryview, index: FrameIndex) -> RawBlock:
+    """Every message of one layout with a counted group: fixed parts and group rows as arrays."""
+    assert isinstance(layout.count, str)
+    header_dtype, meas_dtype, count_field = layout.head_dtype, layout.block_dtype, layout.count
     arr = np.frombuffer(data, dtype=np.uint8)
-    sel = index.select(key)
+    sel = index.select(layout.key)
     hsize, msize = header_dtype.itemsize, meas_dtype.itemsize
     sel = sel[index.length[sel] >= hsize]
     pstart = index.start[sel] + 6
@@ -159,27 +151,26 @@ def _decode_block(
     offs = np.repeat(pstart + hsize, count) + k * msize
     mbytes = arr[offs[:, None] + np.arange(msize)]
     meas = mbytes.reshape(-1).view(meas_dtype)
-    return RawBlock(source, sel, header.copy(), meas.copy(), epoch, rejected)
+    return RawBlock(layout.name, sel, header.copy(), meas.copy(), epoch, rejected)
 
 
 def decode_rawx(data: bytes | memoryview, index: FrameIndex) -> RawBlock:
     """Every RXM-RAWX message of ``data`` as arrays (``RAWX_HEADER`` / ``RAWX_MEAS`` rows)."""
-    return _decode_block("RXM-RAWX", data, index, RXM_RAWX, RAWX_HEADER, RAWX_MEAS, "numMeas")
+    return _decode_block(L.RXM_RAWX, data, index)
 
 
 def decode_raw(data: bytes | memoryview, index: FrameIndex) -> RawBlock:
     """Every RXM-RAW (u-blox 6) message of ``data`` as arrays (``RAW_HEADER`` / ``RAW_SV``)."""
-    return _decode_block("RXM-RAW", data, index, RXM_RAW, RAW_HEADER, RAW_SV, "numSV")
+    return _decode_block(L.RXM_RAW, data, index)
 
 
-TIM_TM2 = L.TIM_TM2.key
 TIM_TM2_DTYPE = L.TIM_TM2.head_dtype
 
 
 def decode_timtm2(data: bytes | memoryview, index: FrameIndex) -> tuple[IntArray, npt.NDArray[Any]]:
     """Every TIM-TM2 message as (frame positions, ``TIM_TM2_DTYPE`` rows)."""
     arr = np.frombuffer(data, dtype=np.uint8)
-    sel = index.select(TIM_TM2)
+    sel = index.select(L.TIM_TM2.key)
     size = TIM_TM2_DTYPE.itemsize
     sel = sel[index.length[sel] >= size]
     rows = arr[(index.start[sel] + 6)[:, None] + np.arange(size)]

@@ -160,6 +160,15 @@ class Message:
         return _dtype(self.group)
 
     @cached_property
+    def offsets(self) -> dict[str, int]:
+        """Byte offset of each field of the fixed part."""
+        out, at = {}, 0
+        for f in self.fields:
+            out[f.name] = at
+            at += f.size
+        return out
+
+    @cached_property
     def scales(self) -> dict[str, float]:
         return {f.name: f.scale for f in (*self.fields, *self.group) if f.scale != 1.0}
 

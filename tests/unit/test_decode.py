@@ -10,7 +10,7 @@ from typing import Any
 
 import pytest
 from pyubx2 import UBXMessage, UBXReader
-from streams import WEEK, rxm_raw, t_gps_ns, tim_tm2
+from streams import REAL_UBX_FILES, WEEK, rxm_raw, t_gps_ns, tim_tm2
 
 from groundstation.errors import DecodeError
 from groundstation.offline.readers import iter_chunks
@@ -95,24 +95,6 @@ def test_unparseable_frame_is_kept_and_counted() -> None:
 
 # -- field for field against pyubx2: layouts and records, real recordings and the simulator ----
 
-REAL_UBX = (
-    "tomojitakasu__RTKLIB/test/data/rcvraw/ubx_20080526.ubx",
-    "tridge__pyUblox/data/6P-raw-PPP.ubx",
-    "tridge__pyUblox/data/6P-raw-PPP-2.ubx",
-    "gpsd__gpsd-mirror/test/daemon/ublox-aek-4t.log",
-    "gpsd__gpsd-mirror/test/daemon/ublox-lea-4t.log",
-    "gpsd__gpsd-mirror/test/daemon/ublox-neo-m8t.log",
-    "gpsd__gpsd-mirror/test/daemon/ublox-zed-f9p_hpg1.11.log",
-    "jdesbonnet__GNSS_RTK_data/20181004/rover-20181004-1237.ubx.gz",
-    "jdesbonnet__GNSS_RTK_data/20181004/base-20181004-1236.ubx.gz",
-    "jdesbonnet__GNSS_RTK_data/20181004/rover-20181004-1532.ubx.gz",
-    "jdesbonnet__GNSS_RTK_data/20181004/base-20181004-1452.ubx.gz",
-    "jdesbonnet__GNSS_RTK_data/20181009/rover-20181009-1221.ubx.gz",
-    "jdesbonnet__GNSS_RTK_data/20181009/base-20181009-1220.ubx.gz",
-    "jdesbonnet__GNSS_RTK_data/20181104/rover-20181104-1634.ubx.gz",
-    "nav-solutions__data/UBX/16dBatt_no_interference_coldstart.ubx.gz",
-    "rtklibexplorer__GNSS_IMU/data/walk_0827/gnss_1730.ubx",
-)
 # pyubx2 spells these differently from the u-blox specification we follow (or merges reserved
 # bytes with a neighbour); every other field must exist in pyubx2 under the same name.
 NOT_IN_PYUBX2 = {"RXM-RAWX": {"version"}}
@@ -265,7 +247,7 @@ def _frames_of(data: bytes) -> list[Frame]:
 
 @pytest.mark.slow
 @pytest.mark.shared_data
-@pytest.mark.parametrize("rel", REAL_UBX)
+@pytest.mark.parametrize("rel", REAL_UBX_FILES)
 def test_every_hot_frame_of_real_recordings_equals_pyubx2(shared_data: Path, rel: str) -> None:
     data = b"".join(c for c, _ in iter_chunks(shared_data / "real" / rel))
     seen = check_against_pyubx2(_frames_of(data))

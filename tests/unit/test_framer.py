@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from streams import flight_stream, garbage, rxm_raw, tim_tm2
+from streams import REAL_UBX_FILES, flight_stream, garbage, rxm_raw, tim_tm2
 
 from groundstation.offline.readers import iter_chunks
 from groundstation.records import Frame
@@ -206,24 +206,6 @@ def test_false_long_header_does_not_hold_back_later_frames() -> None:
 
 # -- one rule: the streaming framer in any chunking equals the bulk index ----------------------
 
-REAL_UBX = (
-    "tomojitakasu__RTKLIB/test/data/rcvraw/ubx_20080526.ubx",
-    "tridge__pyUblox/data/6P-raw-PPP.ubx",
-    "tridge__pyUblox/data/6P-raw-PPP-2.ubx",
-    "gpsd__gpsd-mirror/test/daemon/ublox-aek-4t.log",
-    "gpsd__gpsd-mirror/test/daemon/ublox-lea-4t.log",
-    "gpsd__gpsd-mirror/test/daemon/ublox-neo-m8t.log",
-    "gpsd__gpsd-mirror/test/daemon/ublox-zed-f9p_hpg1.11.log",
-    "jdesbonnet__GNSS_RTK_data/20181004/rover-20181004-1237.ubx.gz",
-    "jdesbonnet__GNSS_RTK_data/20181004/base-20181004-1236.ubx.gz",
-    "jdesbonnet__GNSS_RTK_data/20181004/rover-20181004-1532.ubx.gz",
-    "jdesbonnet__GNSS_RTK_data/20181004/base-20181004-1452.ubx.gz",
-    "jdesbonnet__GNSS_RTK_data/20181009/rover-20181009-1221.ubx.gz",
-    "jdesbonnet__GNSS_RTK_data/20181009/base-20181009-1220.ubx.gz",
-    "jdesbonnet__GNSS_RTK_data/20181104/rover-20181104-1634.ubx.gz",
-    "nav-solutions__data/UBX/16dBatt_no_interference_coldstart.ubx.gz",
-    "rtklibexplorer__GNSS_IMU/data/walk_0827/gnss_1730.ubx",
-)
 
 
 def stream_in_random_chunks(data: bytes, seed: int, largest: int) -> tuple[list[Frame], UbxFramer]:
@@ -282,7 +264,7 @@ def test_streaming_equals_bulk_on_damaged_synthetic_streams() -> None:
 
 
 @pytest.mark.shared_data
-@pytest.mark.parametrize("rel", REAL_UBX)
+@pytest.mark.parametrize("rel", REAL_UBX_FILES)
 def test_streaming_equals_bulk_on_real_files_and_damaged_copies(
     shared_data: Path, rel: str
 ) -> None:
