@@ -272,3 +272,20 @@ def test_streaming_equals_bulk_on_real_files_and_damaged_copies(
     assert_same_frames(data, 1)
     part = data[: 400_000]
     assert_same_frames(damage(part, 2, events=max(20, len(part) // 2000)), 3)
+
+
+def test_ubx_framing_does_not_depend_on_rtcm3_or_nmea() -> None:
+    # A valid UBX frame is a frame even inside what would otherwise be a valid RTCM3 frame: UBX
+    # framing never waits for, nor is hidden by, the recognition of the bytes between frames
+    # (that is what lets the bulk index ignore NMEA and RTCM3).
+    ok = tim_tm2(1, 2000, 1000, 0, None)
+    body = bytes([0xD3, 0x00, len(ok) + 4]) + b"ab" + ok + b"cd"
+    rtcm = body + crc24q(body).to_bytes(3, "big")
+    data = rtcm + ok
+    for sizes in ([], [1], [9, 2]):
+        frames, framer = feed_in_chunks(data, sizes)
+        assert frames == [ok, ok]
+        s = framer.stats
+        assert s.rtcm3_frames == 0  # cut by a UBX frame, so not a whole RTCM3 frame
+        assert s.garbage_bytes == len(rtcm) - len(ok)
+    assert index_frames(data).start.tolist() == [5, len(rtcm)]
