@@ -35,8 +35,9 @@ class FrameIndex:
         cls: message class of each frame.
         id: message id of each frame.
         length: payload length of each frame (the frame is ``length + 8`` bytes).
-        damaged: sync words that did not start a valid frame (bad checksum, impossible
-            length, cut off by the end of the data) and were not inside a valid frame.
+        damaged: sync words that did not start a frame (bad checksum, a valid frame inside,
+            impossible length, cut off by the end of the data) and were not inside a frame:
+            the framer's ``damaged_frames`` for the same bytes.
     """
 
     start: IntArray
