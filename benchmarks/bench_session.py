@@ -36,6 +36,7 @@ from groundstation import gpstime
 from groundstation.config import load_settings
 from groundstation.live.daemon import Pipeline
 from groundstation.sim.stream import SimConfig, simulate
+from groundstation.ubx import layouts as L
 from groundstation.ubx.build import build_frame
 
 MS_PER_WEEK = 604_800_000
@@ -72,19 +73,20 @@ def shifted(raw: bytes, shift_ms: int, count_shift: int) -> bytes:
     ``count_shift``), checksum recomputed. Subframes (RXM-SFRB) are left as they are."""
     cls, mid = raw[2], raw[3]
     p = bytearray(raw[6:-2])
-    if (cls, mid) == (0x02, 0x10):  # RXM-RAW: iTOW I4, week I2
-        _shift_tow(p, 0, 4, shift_ms)
-    elif (cls, mid) == (0x01, 0x06):  # NAV-SOL: iTOW U4, fTOW I4, week I2
-        _shift_tow(p, 0, 8, shift_ms)
-    elif (cls, mid) == (0x01, 0x30):  # NAV-SVINFO: iTOW U4
-        tow = struct.unpack_from("<I", p, 0)[0]
-        struct.pack_into("<I", p, 0, (tow + shift_ms) % MS_PER_WEEK)
-    elif (cls, mid) == (0x0D, 0x03):  # TIM-TM2: count U2, wnR U2, wnF U2, towMsR U4 .. towMsF U4
-        count = struct.unpack_from("<H", p, 2)[0]
-        struct.pack_into("<H", p, 2, (count + count_shift) & 0xFFFF)
-        if struct.unpack_from("<H", p, 4)[0]:
-            _shift_tow(p, 8, 4, shift_ms)
-        _shift_tow(p, 16, 6, shift_ms)
+    raw_o, sol_o, tm2_o = L.RXM_RAW.offsets, L.NAV_SOL.offsets, L.TIM_TM2.offsets
+    if (cls, mid) == L.RXM_RAW.key:
+        _shift_tow(p, raw_o["iTOW"], raw_o["week"], shift_ms)
+    elif (cls, mid) == L.NAV_SOL.key:
+        _shift_tow(p, sol_o["iTOW"], sol_o["week"], shift_ms)
+    elif (cls, mid) == L.NAV_SVINFO.key:
+        tow = struct.unpack_from("<I", p, L.NAV_SVINFO.offsets["iTOW"])[0]
+        struct.pack_into("<I", p, L.NAV_SVINFO.offsets["iTOW"], (tow + shift_ms) % MS_PER_WEEK)
+    elif (cls, mid) == L.TIM_TM2.key:
+        count = struct.unpack_from("<H", p, tm2_o["count"])[0]
+        struct.pack_into("<H", p, tm2_o["count"], (count + count_shift) & 0xFFFF)
+        if struct.unpack_from("<H", p, tm2_o["wnR"])[0]:
+            _shift_tow(p, tm2_o["towMsR"], tm2_o["wnR"], shift_ms)
+        _shift_tow(p, tm2_o["towMsF"], tm2_o["wnF"], shift_ms)
     else:
         return raw
     return build_frame(cls, mid, bytes(p))

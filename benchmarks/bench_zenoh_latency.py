@@ -12,7 +12,6 @@ import os
 import signal
 import socket
 import statistics
-import struct
 import subprocess
 import sys
 import tempfile
@@ -23,23 +22,24 @@ from pathlib import Path
 
 from groundstation.bus import decode, key, open_bus
 from groundstation.config import ZenohSettings
-from groundstation.ubx.build import build_frame
+from groundstation.ubx import layouts as L
 
 REPO = Path(__file__).resolve().parents[1]
 WEEK, TOW0_MS = 2300, 300_000_000
 
 
 def tim_tm2(count: int, tow_ms: int) -> bytes:
-    flags = 0x01 | 0x02 | 0x04 | 0x80 | (1 << 3) | 0x20 | 0x40
-    return build_frame(0x0D, 0x03, struct.pack(
-        "<BBHHHIIIIL", 0, flags, count, WEEK, WEEK, tow_ms + 14, 0, tow_ms, 0, 20))
+    flags = L.TIM_TM2_FLAGS.compose(
+        mode=1, run=1, newFallingEdge=1, newRisingEdge=1, timeBase=1, utc=1, time=1
+    )
+    return L.TIM_TM2.frame(flags=flags, count=count, wnR=WEEK, wnF=WEEK, towMsR=tow_ms + 14,
+                           towMsF=tow_ms, accEst=20)
 
 
 def rxm_raw(tow_ms: int) -> bytes:
-    body = struct.pack("<iHBB", tow_ms, WEEK, 8, 0)
-    for prn in range(1, 9):
-        body += struct.pack("<ddfBbbB", 1e8 + prn, 2e7 + prn, 100.0, prn, 7, 45, 0)
-    return build_frame(0x02, 0x10, body)
+    rows = [{"cpMes": 1e8 + prn, "prMes": 2e7 + prn, "doMes": 100.0, "sv": prn, "mesQI": 7,
+             "cno": 45} for prn in range(1, 9)]
+    return L.RXM_RAW.frame(rows, iTOW=tow_ms, week=WEEK)
 
 
 def main() -> int:

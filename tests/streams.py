@@ -3,30 +3,49 @@
 from __future__ import annotations
 
 import random
-import struct
 
 from groundstation.gpstime import NS_PER_WEEK
-from groundstation.ubx.build import build_frame
+from groundstation.ubx import layouts as L
 
 WEEK = 2300
 TOW0_MS = 345_600_000
 
+REAL_UBX_FILES = (
+    "tomojitakasu__RTKLIB/test/data/rcvraw/ubx_20080526.ubx",
+    "tridge__pyUblox/data/6P-raw-PPP.ubx",
+    "tridge__pyUblox/data/6P-raw-PPP-2.ubx",
+    "gpsd__gpsd-mirror/test/daemon/ublox-aek-4t.log",
+    "gpsd__gpsd-mirror/test/daemon/ublox-lea-4t.log",
+    "gpsd__gpsd-mirror/test/daemon/ublox-neo-m8t.log",
+    "gpsd__gpsd-mirror/test/daemon/ublox-zed-f9p_hpg1.11.log",
+    "jdesbonnet__GNSS_RTK_data/20181004/rover-20181004-1237.ubx.gz",
+    "jdesbonnet__GNSS_RTK_data/20181004/base-20181004-1236.ubx.gz",
+    "jdesbonnet__GNSS_RTK_data/20181004/rover-20181004-1532.ubx.gz",
+    "jdesbonnet__GNSS_RTK_data/20181004/base-20181004-1452.ubx.gz",
+    "jdesbonnet__GNSS_RTK_data/20181009/rover-20181009-1221.ubx.gz",
+    "jdesbonnet__GNSS_RTK_data/20181009/base-20181009-1220.ubx.gz",
+    "jdesbonnet__GNSS_RTK_data/20181104/rover-20181104-1634.ubx.gz",
+    "nav-solutions__data/UBX/16dBatt_no_interference_coldstart.ubx.gz",
+    "rtklibexplorer__GNSS_IMU/data/walk_0827/gnss_1730.ubx",
+)
+"""Every UBX recording under ``../shared/data/real`` (relative to it)."""
+
 
 def rxm_raw(week: int, tow_ms: int, sats: list[tuple[int, int]]) -> bytes:
     """An RXM-RAW frame; ``sats`` are (prn, lli) with made-up but plausible values."""
-    body = struct.pack("<iHBB", tow_ms, week, len(sats), 0)
-    for prn, lli in sats:
-        body += struct.pack(
-            "<ddfBbbB",
-            110_000_000.125 + prn * 1000.5 + tow_ms / 1000.0,
-            21_000_000.5 + prn * 100.25,
-            -1234.5 + prn,
-            prn,
-            7,
-            40 + prn % 10,
-            lli,
-        )
-    return build_frame(0x02, 0x10, body)
+    rows = [
+        {
+            "cpMes": 110_000_000.125 + prn * 1000.5 + tow_ms / 1000.0,
+            "prMes": 21_000_000.5 + prn * 100.25,
+            "doMes": -1234.5 + prn,
+            "sv": prn,
+            "mesQI": 7,
+            "cno": 40 + prn % 10,
+            "lli": lli,
+        }
+        for prn, lli in sats
+    ]
+    return L.RXM_RAW.frame(rows, iTOW=tow_ms, week=week)
 
 
 def tim_tm2(
@@ -42,24 +61,15 @@ def tim_tm2(
     time_base: int = 1,
 ) -> bytes:
     """A TIM-TM2 frame as a LEA-6T in running mode with both edges would send it."""
-    flags = 0x01 | 0x02 | (time_base << 3) | 0x20 | 0x40
-    flags |= 0x04 if new_falling else 0
-    flags |= 0x80 if new_rising else 0
-    wn_r = week if rising_ms is not None else 0
-    body = struct.pack(
-        "<BBHHHIIIIL",
-        0,
-        flags,
-        count,
-        wn_r,
-        week,
-        rising_ms or 0,
-        rising_sub_ns,
-        falling_ms,
-        falling_sub_ns,
-        21,
+    flags = L.TIM_TM2_FLAGS.compose(
+        mode=1, run=1, timeBase=time_base, utc=1, time=1, newFallingEdge=int(new_falling),
+        newRisingEdge=int(new_rising),
     )
-    return build_frame(0x0D, 0x03, body)
+    return L.TIM_TM2.frame(
+        ch=0, flags=flags, count=count, wnR=week if rising_ms is not None else 0, wnF=week,
+        towMsR=rising_ms or 0, towSubMsR=rising_sub_ns, towMsF=falling_ms,
+        towSubMsF=falling_sub_ns, accEst=21,
+    )
 
 
 def flight_stream(

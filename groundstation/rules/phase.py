@@ -15,7 +15,7 @@ bit 1 half-cycle ambiguity unresolved), after RTKLIB demo5's u-blox decoder (``u
 
 Two forms of the same rule: :class:`RawPhase` / :class:`RawxPhase` take one message at a time
 (the decoder, hence the monitor), :func:`raw_lli` / :func:`rawx_lli` take whole arrays (RINEX).
-``tests/integration/test_phase_equivalence.py`` proves they agree on every real recording.
+``tests/unit/test_rules_phase.py`` proves they agree on every real recording.
 The operator's events follow from the LLI sequence of a signal (:func:`phase_events`).
 """
 
@@ -27,9 +27,11 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-LLI_SLIP = 1
+from groundstation.ubx import layouts as L
+
+LLI_SLIP = L.RAW_LLI.mask("slip")
 """LLI bit 0: lost lock since the previous epoch (cycle slip possible)."""
-LLI_HALF_CYCLE = 2
+LLI_HALF_CYCLE = L.RAW_LLI.mask("halfCyc")
 """LLI bit 1: half-cycle ambiguity unresolved."""
 
 CPSTD_VALID_GEN8 = 5
@@ -42,10 +44,10 @@ SBAS_HALF_CYCLE_LOCK_MS = 8000
 """SBAS phase is half-cycle ambiguous until locked this long (``trkStat`` bit 2 says nothing)."""
 GNSS_SBAS = 1
 
-TRK_PR_VALID = 1
-TRK_CP_VALID = 2
-TRK_HALF_VALID = 4
-TRK_HALF_SUB = 8
+TRK_PR_VALID = L.RAWX_TRK_STAT.mask("prValid")
+TRK_CP_VALID = L.RAWX_TRK_STAT.mask("cpValid")
+TRK_HALF_VALID = L.RAWX_TRK_STAT.mask("halfCyc")
+TRK_HALF_SUB = L.RAWX_TRK_STAT.mask("subHalfCyc")
 
 BoolArray = npt.NDArray[np.bool_]
 IntArray = npt.NDArray[np.int64]

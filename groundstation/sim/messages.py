@@ -1,28 +1,16 @@
-"""UBX frames a LEA-6T sends, built with struct: RXM-RAW, RXM-SFRB, NAV-SOL, NAV-SVINFO, TIM-TM2."""
+"""UBX frames a LEA-6T sends: RXM-RAW, RXM-SFRB, NAV-SOL, NAV-SVINFO, TIM-TM2, packed from the
+protocol layouts of :mod:`groundstation.ubx.layouts` (the decoder reads the same tables)."""
 
 from __future__ import annotations
 
-import struct
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from groundstation.ubx.build import build_frame
+from groundstation.gpstime import NS_PER_WEEK
+from groundstation.ubx import layouts as L
 
-_RAW_HEAD = struct.Struct("<iHBB")
-_RAW_SAT = struct.Struct("<ddfBbbB")
-_SFRB = struct.Struct("<BB10I")
-_NAV_SOL = struct.Struct("<IiHBBiiiIiiiIHBBI")
-_SVINFO_HEAD = struct.Struct("<IBBH")
-_SVINFO_SAT = struct.Struct("<BBBBBbhi")
-_TM2 = struct.Struct("<BBHHHIIIII")
-
-TM2_MODE_RUNNING = 0x01
-TM2_RUN = 0x02
-TM2_NEW_FALLING = 0x04
-TM2_TIMEBASE_GPS = 0x08
-TM2_UTC_VALID = 0x20
-TM2_TIME_VALID = 0x40
-TM2_NEW_RISING = 0x80
+_TM2 = L.TIM_TM2_FLAGS
+_SOL = L.NAV_SOL_FLAGS
 
 
 @dataclass(frozen=True, slots=True)
@@ -59,14 +47,14 @@ class RawSat:
 def rxm_raw(tow_ms: int, week: int, sats: Sequence[tuple[float, float, float, int, int, int, int]]
             ) -> bytes:
     """RXM-RAW (02 10). ``sats`` rows: cpMes, prMes, doMes, sv, mesQI, cno, lli."""
-    body = [_RAW_HEAD.pack(tow_ms, week, len(sats), 0)]
-    body.extend(_RAW_SAT.pack(*s) for s in sats)
-    return build_frame(0x02, 0x10, b"".join(body))
+    names = L.RXM_RAW.block_names
+    return L.RXM_RAW.frame((dict(zip(names, s, strict=True)) for s in sats), iTOW=tow_ms,
+                           week=week)
 
 
 def rxm_sfrb(channel: int, svid: int, words: Sequence[int]) -> bytes:
     """RXM-SFRB (02 11): the 10 data words of one subframe, 24 bits each in a U4."""
-    return build_frame(0x02, 0x11, _SFRB.pack(channel, svid, *(w & 0xFFFFFF for w in words)))
+    return L.RXM_SFRB.frame(({"dwrd": w & 0xFFFFFF} for w in words), chn=channel, svid=svid)
 
 
 def nav_sol(
@@ -81,12 +69,13 @@ def nav_sol(
     f_tow_ns: int = 0,
 ) -> bytes:
     """NAV-SOL (01 06): 3D fix, GPS fix OK, week and time of week valid."""
-    flags = 0x01 | 0x04 | 0x08
-    payload = _NAV_SOL.pack(
-        tow_ms, f_tow_ns, week, 3, flags, *ecef_cm, p_acc_cm, *vel_cm_s, s_acc_cm_s,
-        pdop_x100, 0, num_sv, 0,
-    )
-    return build_frame(0x01, 0x06, payload)
+    return L.NAV_SOL.frame(
+        iTOW=tow_ms, fTOW=f_tow_ns, week=week, gpsFix=3,
+        flags=_SOL.compose(gpsfixOK=1, wknSet=1, towSet=1),
+        ecefX=ecef_cm[0], ecefY=ecef_cm[1], ecefZ=ecef_cm[2], pAcc=p_acc_cm,
+        ecefVX=vel_cm_s[0], ecefVY=vel_cm_s[1], ecefVZ=vel_cm_s[2], sAcc=s_acc_cm_s,
+        pDOP=pdop_x100, numSV=num_sv,
+    )  # fmt: skip
 
 
 def nav_svinfo(
@@ -94,9 +83,11 @@ def nav_svinfo(
 ) -> bytes:
     """NAV-SVINFO (01 30), chip generation u-blox 6. Rows: chn, svid, flags, quality, cno,
     elev, azim, prRes (cm)."""
-    body = [_SVINFO_HEAD.pack(tow_ms, len(sats), 2, 0)]
-    body.extend(_SVINFO_SAT.pack(*s) for s in sats)
-    return build_frame(0x01, 0x30, b"".join(body))
+    names = L.NAV_SVINFO.block_names
+    return L.NAV_SVINFO.frame(
+        (dict(zip(names, s, strict=True)) for s in sats), iTOW=tow_ms,
+        globalFlags=L.NAV_SVINFO_GLOBAL.compose(chipGen=2),
+    )
 
 
 def tim_tm2(
@@ -109,21 +100,21 @@ def tim_tm2(
     channel: int = 0,
 ) -> bytes:
     """TIM-TM2 (0D 03) of a LEA-6T in running mode, both edges, time base GPS."""
-    flags = TM2_MODE_RUNNING | TM2_RUN | TM2_TIMEBASE_GPS | TM2_UTC_VALID | TM2_TIME_VALID
-    if new_falling:
-        flags |= TM2_NEW_FALLING
-    if new_rising:
-        flags |= TM2_NEW_RISING
+    flags = _TM2.compose(
+        mode=1, run=1, timeBase=1, utc=1, time=1, newFallingEdge=int(new_falling),
+        newRisingEdge=int(new_rising),
+    )
 
     def split(t: int | None) -> tuple[int, int, int]:
         if t is None:
             return 0, 0, 0
-        week, rem = divmod(t, 604_800 * 1_000_000_000)
+        week, rem = divmod(t, NS_PER_WEEK)
         ms, sub = divmod(rem, 1_000_000)
         return week, ms, sub
 
     wn_r, ms_r, sub_r = split(rising_gps_ns)
     wn_f, ms_f, sub_f = split(falling_gps_ns)
-    payload = _TM2.pack(channel, flags, count & 0xFFFF, wn_r, wn_f, ms_r, sub_r, ms_f, sub_f,
-                        acc_ns)
-    return build_frame(0x0D, 0x03, payload)
+    return L.TIM_TM2.frame(
+        ch=channel, flags=flags, count=count & 0xFFFF, wnR=wn_r, wnF=wn_f, towMsR=ms_r,
+        towSubMsR=sub_r, towMsF=ms_f, towSubMsF=sub_f, accEst=acc_ns,
+    )

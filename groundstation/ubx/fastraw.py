@@ -1,10 +1,10 @@
 """Vectorised (numpy) bulk decoding of UBX recordings: frame index, RXM-RAW and RXM-RAWX arrays.
 
-For offline work on whole files, where :class:`~groundstation.ubx.framer.UbxFramer` plus pyubx2
-would spend seconds in Python loops. :func:`index_frames` finds every checksum-valid UBX frame
-with the same resynchronising rule as the framer (a failed frame never hides the next one);
-:func:`decode_rawx` and :func:`decode_raw` turn all RXM-RAWX / RXM-RAW payloads into structured
-arrays in one ``np.frombuffer`` each. Field names follow the u-blox protocol specification.
+For offline work on whole files, where a record per satellite would cost seconds.
+:func:`index_frames` is the framer's rule (:func:`~groundstation.ubx.framer.scan_ubx`) run over
+the whole recording; :func:`decode_rawx` and :func:`decode_raw` turn all RXM-RAWX / RXM-RAW
+payloads into structured arrays in one ``np.frombuffer`` each. The dtypes are derived from
+:mod:`~groundstation.ubx.layouts` (field names as in the u-blox specification).
 """
 
 from __future__ import annotations
@@ -15,55 +15,13 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from groundstation.ubx.framer import DEFAULT_MAX_PAYLOAD, OVERHEAD, SYNC1, SYNC2
+from groundstation.ubx import layouts as L
+from groundstation.ubx.framer import DEFAULT_MAX_PAYLOAD, OVERHEAD, scan_ubx
 
-RXM_RAW = (0x02, 0x10)
-RXM_RAWX = (0x02, 0x15)
-
-_BLOCK_BYTES = 1 << 20
-"""Checksums are computed over windows of this many candidate-start bytes (bounds memory)."""
-
-RAWX_HEADER = np.dtype(
-    [
-        ("rcvTow", "<f8"),
-        ("week", "<u2"),
-        ("leapS", "i1"),
-        ("numMeas", "u1"),
-        ("recStat", "u1"),
-        ("version", "u1"),
-        ("reserved1", "u1", (2,)),
-    ]
-)
-RAWX_MEAS = np.dtype(
-    [
-        ("prMes", "<f8"),
-        ("cpMes", "<f8"),
-        ("doMes", "<f4"),
-        ("gnssId", "u1"),
-        ("svId", "u1"),
-        ("sigId", "u1"),
-        ("freqId", "u1"),
-        ("locktime", "<u2"),
-        ("cno", "u1"),
-        ("prStdev", "u1"),
-        ("cpStdev", "u1"),
-        ("doStdev", "u1"),
-        ("trkStat", "u1"),
-        ("reserved2", "u1"),
-    ]
-)
-RAW_HEADER = np.dtype([("iTOW", "<i4"), ("week", "<i2"), ("numSV", "u1"), ("reserved1", "u1")])
-RAW_SV = np.dtype(
-    [
-        ("cpMes", "<f8"),
-        ("prMes", "<f8"),
-        ("doMes", "<f4"),
-        ("sv", "u1"),
-        ("mesQI", "i1"),
-        ("cno", "i1"),
-        ("lli", "u1"),
-    ]
-)
+RAWX_HEADER = L.RXM_RAWX.head_dtype
+RAWX_MEAS = L.RXM_RAWX.block_dtype
+RAW_HEADER = L.RXM_RAW.head_dtype
+RAW_SV = L.RXM_RAW.block_dtype
 
 IntArray = npt.NDArray[np.int64]
 
@@ -77,8 +35,9 @@ class FrameIndex:
         cls: message class of each frame.
         id: message id of each frame.
         length: payload length of each frame (the frame is ``length + 8`` bytes).
-        damaged: sync words that did not start a valid frame (bad checksum, impossible
-            length, cut off by the end of the data) and were not inside a valid frame.
+        damaged: sync words that did not start a frame (bad checksum, a valid frame inside,
+            impossible length, cut off by the end of the data) and were not inside a frame:
+            the framer's ``damaged_frames`` for the same bytes.
     """
 
     start: IntArray
@@ -105,89 +64,25 @@ class FrameIndex:
         return bytes(data[s : s + int(self.length[i]) + OVERHEAD])
 
 
-def _valid_candidates(
-    arr: npt.NDArray[np.uint8], lo: int, hi: int, max_payload: int
-) -> tuple[IntArray, IntArray, int]:
-    """Valid frames whose sync word lies in ``[lo, hi)``: (starts, payload lengths, bad count)."""
-    n = arr.size
-    stop = min(n, hi + 1)
-    seg = arr[lo:stop]
-    cand = np.flatnonzero((seg[:-1] == SYNC1) & (seg[1:] == SYNC2)).astype(np.int64) + lo
-    if cand.size == 0:
-        return cand, cand, 0
-    has_header = cand + 6 <= n
-    lengths = np.zeros(cand.size, dtype=np.int64)
-    hc = cand[has_header]
-    lengths[has_header] = arr[hc + 4].astype(np.int64) | (arr[hc + 5].astype(np.int64) << 8)
-    ends = cand + OVERHEAD + lengths
-    ok = has_header & (lengths <= max_payload) & (ends <= n)
-    if not ok.any():
-        return cand[:0], cand[:0], int(cand.size)
-    # Fletcher checksum of body [s, e) from two prefix sums; uint32 wrap-around keeps the
-    # sums right modulo 256, which is all the checksum needs.
-    w_lo = int(cand[ok].min()) + 2
-    w_hi = int(ends[ok].max()) - 2
-    p1 = np.zeros(w_hi - w_lo + 1, dtype=np.uint32)
-    np.cumsum(arr[w_lo:w_hi], dtype=np.uint32, out=p1[1:])
-    q = np.zeros(p1.size, dtype=np.uint32)
-    np.cumsum(p1[1:], dtype=np.uint32, out=q[1:])
-    s = cand[ok] + 2 - w_lo
-    e = ends[ok] - 2 - w_lo
-    ck_a = (p1[e] - p1[s]) & np.uint32(0xFF)
-    ck_b = (q[e] - q[s] - (e - s).astype(np.uint32) * p1[s]) & np.uint32(0xFF)
-    okc = np.flatnonzero(ok)
-    fe = ends[ok]
-    good = (ck_a == arr[fe - 2]) & (ck_b == arr[fe - 1])
-    valid = okc[good]
-    return cand[valid], lengths[valid], int(cand.size - valid.size)
-
-
 def index_frames(data: bytes | memoryview, max_payload: int = DEFAULT_MAX_PAYLOAD) -> FrameIndex:
-    """Index every checksum-valid UBX frame of ``data``.
-
-    A sync word starts a frame if its length is possible and its checksum is right; frames are
-    then taken in order, each one starting at or after the end of the one before (so the bytes
-    of an accepted frame are never re-read, and a damaged frame never hides the next one: the
-    same rule as :class:`~groundstation.ubx.framer.UbxFramer`).
+    """Index every UBX frame of ``data``: the framer's rule
+    (:func:`~groundstation.ubx.framer.scan_ubx`) over the whole recording at once.
 
     Args:
         data: the whole recording.
         max_payload: longest payload accepted as possible.
 
     Returns:
-        The frame index.
+        The frame index; its frames are those :class:`~groundstation.ubx.framer.UbxFramer`
+        returns for the same bytes in any chunking.
     """
+    scan = scan_ubx(data, 0, len(data), max_payload, final=True)
     arr = np.frombuffer(data, dtype=np.uint8)
-    starts: list[IntArray] = []
-    lengths: list[IntArray] = []
-    bad = 0
-    for lo in range(0, max(arr.size - 1, 0), _BLOCK_BYTES):
-        s, ln, b = _valid_candidates(arr, lo, lo + _BLOCK_BYTES, max_payload)
-        starts.append(s)
-        lengths.append(ln)
-        bad += b
-    start = np.concatenate(starts) if starts else np.zeros(0, dtype=np.int64)
-    length = np.concatenate(lengths) if lengths else np.zeros(0, dtype=np.int64)
-    end = start + length + OVERHEAD
-    if start.size > 1 and bool((start[1:] < end[:-1]).any()):
-        keep = np.zeros(start.size, dtype=bool)
-        pos = 0
-        for i, (s0, e0) in enumerate(zip(start.tolist(), end.tolist(), strict=True)):
-            if s0 >= pos:
-                keep[i] = True
-                pos = e0
-        # A valid-looking frame inside an accepted one is payload, not a frame nor damage.
-        start, length = start[keep], length[keep]
-    # Sync words inside accepted frames are payload bytes, not damage.
-    if start.size:
-        all_sync = np.flatnonzero((arr[:-1] == SYNC1) & (arr[1:] == SYNC2))
-        end = start + length + OVERHEAD
-        j = np.searchsorted(start, all_sync, side="right") - 1
-        inside = (j >= 0) & (all_sync < end[np.maximum(j, 0)])
-        bad = int(all_sync.size - inside.sum())
+    start = np.array(scan.start, dtype=np.int64)
+    length = np.array(scan.length, dtype=np.int64)
     cls = arr[start + 2] if start.size else np.zeros(0, dtype=np.uint8)
     mid = arr[start + 3] if start.size else np.zeros(0, dtype=np.uint8)
-    return FrameIndex(start, cls, mid, length, bad)
+    return FrameIndex(start, cls, mid, length, scan.bad_checksum + scan.too_long + scan.truncated)
 
 
 @dataclass(frozen=True, slots=True)
@@ -235,17 +130,12 @@ class RawBlock:
         return self.header["iTOW"].astype(np.int64) * 1_000_000
 
 
-def _decode_block(
-    source: str,
-    data: bytes | memoryview,
-    index: FrameIndex,
-    key: tuple[int, int],
-    header_dtype: np.dtype[Any],
-    meas_dtype: np.dtype[Any],
-    count_field: str,
-) -> RawBlock:
+def _decode_block(layout: L.Message, data: bytes | memoryview, index: FrameIndex) -> RawBlock:
+    """Every message of one layout with a counted group: fixed parts and group rows as arrays."""
+    assert isinstance(layout.count, str)
+    header_dtype, meas_dtype, count_field = layout.head_dtype, layout.block_dtype, layout.count
     arr = np.frombuffer(data, dtype=np.uint8)
-    sel = index.select(key)
+    sel = index.select(layout.key)
     hsize, msize = header_dtype.itemsize, meas_dtype.itemsize
     sel = sel[index.length[sel] >= hsize]
     pstart = index.start[sel] + 6
@@ -262,40 +152,26 @@ def _decode_block(
     offs = np.repeat(pstart + hsize, count) + k * msize
     mbytes = arr[offs[:, None] + np.arange(msize)]
     meas = mbytes.reshape(-1).view(meas_dtype)
-    return RawBlock(source, sel, header.copy(), meas.copy(), epoch, rejected)
+    return RawBlock(layout.name, sel, header.copy(), meas.copy(), epoch, rejected)
 
 
 def decode_rawx(data: bytes | memoryview, index: FrameIndex) -> RawBlock:
     """Every RXM-RAWX message of ``data`` as arrays (``RAWX_HEADER`` / ``RAWX_MEAS`` rows)."""
-    return _decode_block("RXM-RAWX", data, index, RXM_RAWX, RAWX_HEADER, RAWX_MEAS, "numMeas")
+    return _decode_block(L.RXM_RAWX, data, index)
 
 
 def decode_raw(data: bytes | memoryview, index: FrameIndex) -> RawBlock:
     """Every RXM-RAW (u-blox 6) message of ``data`` as arrays (``RAW_HEADER`` / ``RAW_SV``)."""
-    return _decode_block("RXM-RAW", data, index, RXM_RAW, RAW_HEADER, RAW_SV, "numSV")
+    return _decode_block(L.RXM_RAW, data, index)
 
 
-TIM_TM2 = (0x0D, 0x03)
-TIM_TM2_DTYPE = np.dtype(
-    [
-        ("ch", "u1"),
-        ("flags", "u1"),
-        ("count", "<u2"),
-        ("wnR", "<u2"),
-        ("wnF", "<u2"),
-        ("towMsR", "<u4"),
-        ("towSubMsR", "<u4"),
-        ("towMsF", "<u4"),
-        ("towSubMsF", "<u4"),
-        ("accEst", "<u4"),
-    ]
-)
+TIM_TM2_DTYPE = L.TIM_TM2.head_dtype
 
 
 def decode_timtm2(data: bytes | memoryview, index: FrameIndex) -> tuple[IntArray, npt.NDArray[Any]]:
     """Every TIM-TM2 message as (frame positions, ``TIM_TM2_DTYPE`` rows)."""
     arr = np.frombuffer(data, dtype=np.uint8)
-    sel = index.select(TIM_TM2)
+    sel = index.select(L.TIM_TM2.key)
     size = TIM_TM2_DTYPE.itemsize
     sel = sel[index.length[sel] >= size]
     rows = arr[(index.start[sel] + 6)[:, None] + np.arange(size)]

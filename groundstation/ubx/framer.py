@@ -1,22 +1,34 @@
 """Sans-I/O UBX framer: bytes in, checksum-verified frames out, nothing intact ever lost.
 
-The framer never trusts the length field of a frame that fails: after a bad checksum, an
-impossible length or a frame cut short at the end of the stream it resumes the search at the
-byte after the failed sync word. A damaged frame therefore never swallows the frame that
-follows it (RTKLIB and pyubx2 skip the claimed length and lose it, often a TIM-TM2).
+This module owns the resynchronising rule, once, in :func:`scan_ubx`; the streaming
+:class:`UbxFramer` (any chunking) and the bulk index of whole files
+(:func:`groundstation.ubx.fastraw.index_frames`) both call it. The rule:
 
-NMEA sentences and RTCM3 frames interleaved with UBX are recognised (checksum / CRC verified)
-and counted, so they are not mistaken for garbage. Every byte is accounted for: it is part of a
-valid UBX frame, a valid NMEA sentence, a valid RTCM3 frame, or garbage.
+- a sync word starts a frame if its length is at most ``max_payload``, its checksum is right,
+  and no other valid frame *ends* strictly inside it (a valid frame inside the claimed span
+  proves the length field false: that frame is released as soon as it is complete instead of
+  being held back until a long false length has arrived, and the result does not depend on how
+  the bytes were cut into chunks);
+- frames are taken in stream order, each one at or after the end of the one before; a sync word
+  that fails is damage and the search resumes at the next byte, so a damaged frame never
+  swallows the frame that follows it (RTKLIB and pyubx2 skip the claimed length and lose it,
+  often a TIM-TM2).
+
+NMEA sentences and RTCM3 frames interleaved with UBX are recognised (checksum / CRC verified) in
+the bytes between UBX frames and counted, so they are not mistaken for garbage; UBX framing never
+depends on them. Every byte is accounted for: it is part of a valid UBX frame, a valid NMEA
+sentence, a valid RTCM3 frame, or garbage.
 """
 
 from __future__ import annotations
 
+import bisect
 import re
 from collections import Counter
 from dataclasses import dataclass, field
 
 import numpy as np
+import numpy.typing as npt
 
 from groundstation.records import Frame
 
@@ -28,7 +40,7 @@ DEFAULT_MAX_PAYLOAD = 8192
 NMEA_MAX_LEN = 120  # NMEA 0183 says 82; u-blox PUBX sentences run longer
 RTCM3_PREAMBLE = 0xD3
 
-_CANDIDATE = re.compile(rb"[\xb5$\xd3]")
+_CANDIDATE = re.compile(rb"[$\xd3]")
 _NMEA = re.compile(rb"\$([A-Z][A-Z0-9]{1,9},[\x20-\x29\x2b-\x7e]*)\*([0-9A-Fa-f]{2})\r?\n")
 # Weights n..1 for the Fletcher checksum's second byte, sliced from the end for each length.
 _WEIGHTS = np.arange(65535 + 4, 0, -1, dtype=np.int64)
@@ -72,14 +84,195 @@ def crc24q(data: bytes | bytearray | memoryview) -> int:
     return crc
 
 
-def _nmea_ok(sentence: bytes) -> bool:
-    m = _NMEA.fullmatch(sentence)
-    if m is None:
-        return False
+def _nmea_checksum_ok(m: re.Match[bytes]) -> bool:
+    """Whether a sentence matched by ``_NMEA`` carries the XOR of its body."""
     x = 0
     for b in m.group(1):
         x ^= b
     return x == int(m.group(2), 16)
+
+
+IntArray = npt.NDArray[np.int64]
+
+_CHECKSUM_WINDOW = 1 << 20
+"""Checksums are computed over windows of about this many bytes (bounds memory on whole files)."""
+
+
+def _checksums_ok(
+    arr: npt.NDArray[np.uint8], start: IntArray, end: IntArray
+) -> npt.NDArray[np.bool_]:
+    """Whether each complete candidate ``[start, end)`` has a right Fletcher checksum.
+
+    Both sums come from two prefix sums over a window of the data: the uint32 wrap-around keeps
+    them right modulo 256, which is all the checksum needs.
+    """
+    ok = np.zeros(start.size, dtype=bool)
+    i = 0
+    while i < start.size:
+        j = int(np.searchsorted(start, start[i] + _CHECKSUM_WINDOW, side="left"))
+        j = max(j, i + 1)
+        s_, e_ = start[i:j], end[i:j]
+        w_lo = int(s_[0]) + 2
+        w_hi = int(e_.max()) - 2
+        p1 = np.zeros(w_hi - w_lo + 1, dtype=np.uint32)
+        np.cumsum(arr[w_lo:w_hi], dtype=np.uint32, out=p1[1:])
+        q = np.zeros(p1.size, dtype=np.uint32)
+        np.cumsum(p1[1:], dtype=np.uint32, out=q[1:])
+        b = s_ + 2 - w_lo
+        e = e_ - 2 - w_lo
+        ck_a = (p1[e] - p1[b]) & np.uint32(0xFF)
+        ck_b = (q[e] - q[b] - (e - b).astype(np.uint32) * p1[b]) & np.uint32(0xFF)
+        ok[i:j] = (ck_a == arr[e_ - 2]) & (ck_b == arr[e_ - 1])
+        i = j
+    return ok
+
+
+@dataclass(frozen=True, slots=True)
+class UbxScan:
+    """What :func:`scan_ubx` decided about ``data[lo:n]``.
+
+    Attributes:
+        start: offset of each accepted frame's sync word, in stream order.
+        length: payload length of each accepted frame (the frame is ``length + 8`` bytes).
+        bad_checksum: sync words that failed their checksum or hold a valid frame inside.
+        too_long: sync words whose length field is above the maximum.
+        truncated: sync words whose frame the data ended before (only when ``final``).
+        hold: where the undecided bytes begin (``n`` when everything is decided): a sync word
+            (or a last ``0xB5``) whose frame needs more bytes. Nothing after it is decided.
+    """
+
+    start: list[int]
+    length: list[int]
+    bad_checksum: int
+    too_long: int
+    truncated: int
+    hold: int
+
+
+_BAD, _LONG, _TRUNC = range(3)
+_VECTOR_BYTES = 4096
+"""From this many bytes on, sync words are found and checksums computed with numpy."""
+
+
+_Candidates = tuple[list[int], list[int | None], list[bool], list[int], list[int]]
+
+
+def _candidates_np(buf: bytes | bytearray, lo: int, n: int, max_payload: int) -> _Candidates:
+    """:func:`scan_ubx`'s candidates, found with numpy (long inputs)."""
+    arr = np.frombuffer(buf, dtype=np.uint8, count=n)
+    seg = arr[lo:n]
+    c = np.flatnonzero((seg[:-1] == SYNC1) & (seg[1:] == SYNC2)).astype(np.int64) + lo
+    has_header = c + HEADER_LEN <= n
+    length = np.zeros(c.size, dtype=np.int64)
+    hc = c[has_header]
+    length[has_header] = arr[hc + 4].astype(np.int64) | (arr[hc + 5].astype(np.int64) << 8)
+    e = c + OVERHEAD + length
+    complete = has_header & (length <= max_payload) & (e <= n)
+    ok = np.zeros(c.size, dtype=bool)
+    if complete.any():
+        ok[complete] = _checksums_ok(arr, c[complete], e[complete])
+    suffix_min = np.minimum.accumulate(e[ok][::-1])[::-1]
+    ends: list[int | None] = list(e.tolist())
+    for k in np.flatnonzero(~has_header).tolist():
+        ends[k] = None
+    return c.tolist(), ends, ok.tolist(), c[ok].tolist(), suffix_min.tolist()
+
+
+def _candidates_py(buf: bytes | bytearray, lo: int, n: int, max_payload: int) -> _Candidates:
+    """:func:`scan_ubx`'s candidates, found with ``bytes.find`` (short inputs: serial reads)."""
+    cand: list[int] = []
+    ends: list[int | None] = []
+    valid: list[bool] = []
+    j = buf.find(b"\xb5\x62", lo, n)
+    while j >= 0:
+        cand.append(j)
+        if j + HEADER_LEN > n:
+            ends.append(None)
+            valid.append(False)
+        else:
+            length = buf[j + 4] | (buf[j + 5] << 8)
+            e = j + OVERHEAD + length
+            ends.append(e)
+            valid.append(
+                length <= max_payload
+                and e <= n
+                and ubx_checksum(memoryview(buf)[j + 2 : e - 2]) == (buf[e - 2], buf[e - 1])
+            )
+        j = buf.find(b"\xb5\x62", j + 1, n)
+    v_start = [c for c, ok in zip(cand, valid, strict=True) if ok]
+    suffix_min: list[int] = []
+    m = 1 << 62
+    for e_or_none, ok in zip(reversed(ends), reversed(valid), strict=True):
+        if ok and e_or_none is not None:
+            m = min(m, e_or_none)
+            suffix_min.append(m)
+    suffix_min.reverse()
+    return cand, ends, valid, v_start, suffix_min
+
+
+def scan_ubx(
+    data: bytes | bytearray | memoryview, lo: int, n: int, max_payload: int, *, final: bool
+) -> UbxScan:
+    """The UBX framing rule (see the module docstring) over ``data[lo:n]``.
+
+    Sync words and checksums are found with numpy on long inputs (whole files, big chunks) and
+    with ``bytes.find`` / :func:`ubx_checksum` on short ones (serial reads), for speed; the rule
+    that decides on them is this one loop.
+
+    Args:
+        data: the bytes; ``lo`` must be where an earlier scan's frames or ``hold`` left off.
+        lo: first byte to look at.
+        n: end of the bytes at hand.
+        max_payload: longest payload accepted as possible.
+        final: no more bytes will come: a frame still incomplete is truncated.
+    """
+    buf = data if isinstance(data, (bytes, bytearray)) else bytes(data)
+    # Each sync word: its claimed end (None while its header has not arrived) and whether it is
+    # complete with a right checksum; then, of the valid ones, starts and a suffix minimum of
+    # ends: a candidate holds a valid frame inside when some valid frame after it ends before
+    # it does (a valid frame that starts after its end also ends after it).
+    if n - lo >= _VECTOR_BYTES:
+        cand, ends, valid, v_start, suffix_min = _candidates_np(buf, lo, n, max_payload)
+    else:
+        cand, ends, valid, v_start, suffix_min = _candidates_py(buf, lo, n, max_payload)
+    starts: list[int] = []
+    lengths: list[int] = []
+    counts = [0, 0, 0]
+    hold = n
+    pos = lo
+    for c, e_or_none, ok in zip(cand, ends, valid, strict=True):
+        if c < pos:
+            continue  # inside an accepted frame: payload, not a frame
+        if e_or_none is None:  # header not complete
+            if final:
+                counts[_TRUNC] += 1
+                continue
+            hold = c
+            break
+        e = e_or_none
+        length = e - c - OVERHEAD
+        if length > max_payload:
+            counts[_LONG] += 1
+            continue
+        k = bisect.bisect_right(v_start, c)
+        if k < len(v_start) and suffix_min[k] < e:
+            counts[_BAD] += 1  # a valid frame inside proves the length false
+            continue
+        if e > n:
+            if final:
+                counts[_TRUNC] += 1
+                continue
+            hold = c
+            break
+        if ok:
+            starts.append(c)
+            lengths.append(length)
+            pos = e
+        else:
+            counts[_BAD] += 1
+    if not final and hold == n and n > max(lo, pos) and buf[n - 1] == SYNC1:
+        hold = n - 1  # may be the first half of a sync word
+    return UbxScan(starts, lengths, counts[_BAD], counts[_LONG], counts[_TRUNC], hold)
 
 
 @dataclass(frozen=True, slots=True)
@@ -88,7 +281,8 @@ class FramerStats:
 
     ``garbage_bytes`` counts every byte that is not part of a valid UBX frame, NMEA sentence or
     RTCM3 frame, including the bytes of damaged frames. ``damaged_frames`` counts sync words whose
-    frame failed, by cause: bad checksum, length above the maximum, or cut off at end of stream.
+    frame failed, by cause: bad checksum (or a valid frame inside its claimed span), length above
+    the maximum, or cut off at end of stream.
     """
 
     bytes_in: int
@@ -126,9 +320,10 @@ class _Counters:
 class UbxFramer:
     """Turns a byte stream cut into arbitrary chunks into verified UBX frames.
 
-    Feeding the same bytes in any chunking yields the same frames (only ``t_host_ns`` differs:
-    a frame carries the time of the chunk that completed it). Call :meth:`flush` at the end of a
-    stream to resolve bytes still waiting for more data.
+    Feeding the same bytes in any chunking yields the same frames and counts (only
+    ``t_host_ns`` differs: a frame carries the time of the chunk that completed it); the frames
+    are those :func:`~groundstation.ubx.fastraw.index_frames` finds in the whole stream. Call
+    :meth:`flush` at the end of a stream to resolve bytes still waiting for more data.
 
     Args:
         max_payload: a claimed payload length above this is treated as damage.
@@ -151,9 +346,11 @@ class UbxFramer:
         self._buf = bytearray()
         self._base = 0  # stream offset of self._buf[0]
         self._c = _Counters()
-        # Look-ahead while a frame waits for its claimed length: (its stream offset, the stream
-        # offset from which the search for a valid inner frame goes on).
-        self._lookahead: tuple[int, int] = (-1, 0)
+        # Stream offsets: where the UBX rule resumes (bytes before it are decided) and where the
+        # accounting of the bytes between frames (NMEA, RTCM3, garbage) resumes; the second may
+        # lag, on an RTCM3 frame that waits for a UBX decision after it.
+        self._ubx_at = 0
+        self._gap_at = 0
 
     @property
     def stats(self) -> FramerStats:
@@ -193,121 +390,78 @@ class UbxFramer:
     def _scan(self, t_host_ns: int, *, final: bool) -> list[Frame]:
         buf = self._buf
         n = len(buf)
+        base = self._base
         c = self._c
+        if n == 0:
+            return []
+        scan = scan_ubx(buf, self._ubx_at - base, n, self.max_payload, final=final)
+        c.bad_checksum += scan.bad_checksum
+        c.too_long += scan.too_long
+        c.truncated += scan.truncated
         out: list[Frame] = []
-        pos = 0
+        gap = self._gap_at - base
+        by_type = c.frames_by_type
+        for s, ln in zip(scan.start, scan.length, strict=True):
+            if gap < s:
+                self._account_gap(buf, gap, s, hard=True, at_end=False)
+            e = s + OVERHEAD + ln
+            raw = bytes(buf[s:e])
+            key = (raw[2], raw[3])
+            out.append(Frame(raw[2], raw[3], raw[6:-2], raw, t_host_ns, base + s))
+            by_type[key] += 1
+            gap = e
+        c.frames += len(scan.start)
+        c.frame_bytes += sum(scan.length) + OVERHEAD * len(scan.start)
+        hold = scan.hold
+        if gap < hold:
+            gap = self._account_gap(buf, gap, hold, hard=final, at_end=hold == n and not final)
+        keep = min(gap, hold)
+        self._ubx_at = base + hold
+        self._gap_at = base + gap
+        if keep:
+            del buf[:keep]
+            self._base = base + keep
+        return out
+
+    def _account_gap(self, buf: bytearray, a: int, b: int, *, hard: bool, at_end: bool) -> int:
+        """Count the bytes of ``buf[a:b]`` (between UBX frames) as NMEA, RTCM3 or garbage.
+
+        ``hard``: ``b`` is a frame or the end of the stream, so nothing may cross it. Otherwise
+        an item that may cross it waits (``at_end``: ``b`` is where the bytes at hand end).
+        Returns where the accounting stopped (``b``, or the start of a waiting item).
+        """
+        c = self._c
+        pos = a
         search = _CANDIDATE.search
-        while pos < n:
-            m = search(buf, pos)
+        while pos < b:
+            m = search(buf, pos, b)
             if m is None:
-                c.garbage_bytes += n - pos
-                pos = n
-                break
+                c.garbage_bytes += b - pos
+                return b
             i = m.start()
             c.garbage_bytes += i - pos
-            pos = i
-            lead = buf[i]
-            if lead == SYNC1:
-                step = self._try_ubx(buf, i, n, t_host_ns, out, final)
-            elif lead == RTCM3_PREAMBLE:
-                step = self._try_rtcm3(buf, i, n, final) if self._rtcm3 else 1
+            if buf[i] == RTCM3_PREAMBLE:
+                step = self._try_rtcm3(buf, i, b, hard) if self._rtcm3 else -1
             else:
-                step = self._try_nmea(buf, i, n, final) if self._nmea else 1
-            if step == 0:  # need more bytes to decide
-                break
+                step = self._try_nmea(buf, i, b, at_end) if self._nmea else -1
+            if step == 0:  # needs bytes beyond b
+                return i
             if step < 0:  # not a valid message here: one byte of garbage, search on
                 c.garbage_bytes += 1
                 pos = i + 1
             else:
                 pos = i + step
-        if pos:
-            del buf[:pos]
-            self._base += pos
-        return out
+        return b
 
-    def _try_ubx(
-        self, buf: bytearray, i: int, n: int, t_host_ns: int, out: list[Frame], final: bool
-    ) -> int:
-        """Length of the valid frame at ``i``; 0 = wait for more bytes; -1 = not a frame."""
-        c = self._c
-        if i + 1 >= n:
-            return -1 if final else 0
-        if buf[i + 1] != SYNC2:
-            return -1
-        if i + HEADER_LEN > n:
-            if final:
-                c.truncated += 1
-                return -1
-            return 0
-        length = buf[i + 4] | (buf[i + 5] << 8)
-        if length > self.max_payload:
-            c.too_long += 1
-            return -1
-        end = i + OVERHEAD + length
-        if end > n:
-            if final:
-                c.truncated += 1
-                return -1
-            if self._valid_frame_inside(buf, i, n):
-                # A complete, valid frame inside the claimed span proves this header false
-                # (its length field is damage): give up on it now rather than hold every
-                # later frame back until the claimed length has arrived.
-                c.bad_checksum += 1
-                return -1
-            return 0
-        raw = bytes(buf[i:end])
-        ck_a, ck_b = ubx_checksum(memoryview(raw)[2:-2])
-        if ck_a != raw[-2] or ck_b != raw[-1]:
-            c.bad_checksum += 1
-            return -1
-        cls, mid = raw[2], raw[3]
-        out.append(Frame(cls, mid, raw[6:-2], raw, t_host_ns, self._base + i))
-        c.frames += 1
-        c.frames_by_type[(cls, mid)] += 1
-        c.frame_bytes += len(raw)
-        return len(raw)
-
-    def _valid_frame_inside(self, buf: bytearray, i: int, n: int) -> bool:
-        """Whether a complete frame with a valid checksum starts after the sync word at ``i``
-        (and within the ``n`` bytes at hand). Resumes where the last call stopped."""
-        cand = self._base + i
-        owner, resume = self._lookahead
-        j = i + 2 if owner != cand else max(i + 2, resume - self._base)
-        earliest_open: int | None = None
-        while True:
-            j = buf.find(b"\xb5\x62", j, n)
-            if j < 0:
-                break
-            if j + HEADER_LEN > n:
-                earliest_open = j if earliest_open is None else earliest_open
-                break
-            length = buf[j + 4] | (buf[j + 5] << 8)
-            end = j + OVERHEAD + length
-            if length <= self.max_payload and end <= n:
-                body = memoryview(buf)[j + 2 : end - 2]
-                try:
-                    ck = ubx_checksum(body)
-                finally:
-                    body.release()
-                if ck == (buf[end - 2], buf[end - 1]):
-                    self._lookahead = (-1, 0)
-                    return True
-            elif length <= self.max_payload and earliest_open is None:
-                earliest_open = j  # not complete yet: look at it again next time
-            j += 1
-        resume_at = earliest_open if earliest_open is not None else max(i + 2, n - 1)
-        self._lookahead = (cand, self._base + resume_at)
-        return False
-
-    def _try_rtcm3(self, buf: bytearray, i: int, n: int, final: bool) -> int:
-        if i + 3 > n:
-            return -1 if final else 0
+    def _try_rtcm3(self, buf: bytearray, i: int, b: int, hard: bool) -> int:
+        if i + 3 > b:
+            return -1 if hard else 0
         if buf[i + 1] & 0xFC:
             return -1
         length = ((buf[i + 1] & 0x03) << 8) | buf[i + 2]
         end = i + 3 + length + 3
-        if end > n:
-            return -1 if final else 0
+        if end > b:
+            return -1 if hard else 0
         body = memoryview(buf)[i : end - 3]
         try:
             ok = crc24q(body) == int.from_bytes(buf[end - 3 : end], "big")
@@ -319,18 +473,21 @@ class UbxFramer:
         self._c.rtcm3_bytes += end - i
         return end - i
 
-    def _try_nmea(self, buf: bytearray, i: int, n: int, final: bool) -> int:
-        stop = buf.find(b"\n", i, i + NMEA_MAX_LEN)
-        if stop < 0:
-            if n - i < NMEA_MAX_LEN and not final:
+    def _try_nmea(self, buf: bytearray, i: int, b: int, at_end: bool) -> int:
+        # A sentence is printable ASCII: it cannot cross a UBX sync word, so only the end of
+        # the bytes at hand can leave it undecided. The pattern ends at the first line feed.
+        stop = min(i + NMEA_MAX_LEN, b)
+        m = _NMEA.match(buf, i, stop)
+        if m is None:
+            if at_end and b - i < NMEA_MAX_LEN and buf.find(b"\n", i, stop) < 0:
                 return 0
             return -1
-        sentence = bytes(buf[i : stop + 1])
-        if not _nmea_ok(sentence):
+        if not _nmea_checksum_ok(m):
             return -1
+        size = m.end() - i
         self._c.nmea_sentences += 1
-        self._c.nmea_bytes += len(sentence)
-        return len(sentence)
+        self._c.nmea_bytes += size
+        return size
 
 
 def iter_frames(

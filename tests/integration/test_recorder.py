@@ -6,7 +6,6 @@ import asyncio
 import gzip
 import json
 import random
-import struct
 from pathlib import Path
 
 import pytest
@@ -19,6 +18,7 @@ from groundstation.records import Event, TimeMark
 from groundstation.storage import iter_messages, iter_raw_chunks, read_metadata, read_summary
 from groundstation.storage.mcapio import ReadReport
 from groundstation.storage.recorder import SessionRecorder
+from groundstation.ubx import layouts as L
 from groundstation.ubx.build import build_frame
 from groundstation.ubx.decode import Decoder
 from groundstation.ubx.framer import UbxFramer
@@ -27,10 +27,13 @@ T0_NS = 1_700_000_000_000_000_000
 
 
 def tim_tm2(count: int, tow_ms: int) -> bytes:
-    flags = 0x01 | 0x02 | 0x04 | 0x08 | 0x40 | 0x80  # running, run, new falling/rising, GPS, valid
-    payload = struct.pack("<BBHHHIIIII", 0, flags, count, 2300, 2300, tow_ms + 14, 160_000,
-                          tow_ms, 255_555, 20)
-    return build_frame(0x0D, 0x03, payload)
+    flags = L.TIM_TM2_FLAGS.compose(
+        mode=1, run=1, newFallingEdge=1, newRisingEdge=1, timeBase=1, time=1
+    )
+    return L.TIM_TM2.frame(
+        flags=flags, count=count, wnR=2300, wnF=2300, towMsR=tow_ms + 14, towSubMsR=160_000,
+        towMsF=tow_ms, towSubMsF=255_555, accEst=20,
+    )
 
 
 def generated_stream(seed: int = 7, n: int = 240) -> bytes:

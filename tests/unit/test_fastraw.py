@@ -4,7 +4,6 @@ pyubx2, field by field, on synthetic damage and on the real recordings."""
 from __future__ import annotations
 
 import random
-import struct
 from pathlib import Path
 
 import numpy as np
@@ -12,6 +11,7 @@ import pytest
 from pyubx2 import UBXReader
 
 from groundstation.storage.reading import iter_chunks
+from groundstation.ubx import layouts as L
 from groundstation.ubx.build import build_frame
 from groundstation.ubx.fastraw import (
     decode_raw,
@@ -51,16 +51,13 @@ def _framer_offsets(data: bytes) -> list[int]:
 
 
 def _rawx_payload(n: int, rng: random.Random) -> bytes:
-    head = struct.pack("<dHbBBB2x", 1000.5, 2026, 18, n, 1, 1)
-    meas = b"".join(
-        struct.pack(
-            "<ddfBBBBHBBBBBx",
-            2e7 + rng.random(), 1e8 + rng.random(), rng.random(), 0, rng.randint(1, 32),
-            0, 0, rng.randint(0, 64500), 40, 3, 2, 1, 15,
-        )
+    rows = [
+        {"prMes": 2e7 + rng.random(), "cpMes": 1e8 + rng.random(), "doMes": rng.random(),
+         "svId": rng.randint(1, 32), "locktime": rng.randint(0, 64500), "cno": 40, "prStdev": 3,
+         "cpStdev": 2, "doStdev": 1, "trkStat": 15}
         for _ in range(n)
-    )
-    return head + meas
+    ]
+    return L.RXM_RAWX.payload(rows, rcvTow=1000.5, week=2026, leapS=18, recStat=1, version=1)
 
 
 def test_index_matches_framer_on_synthetic_damage() -> None:
@@ -86,13 +83,20 @@ def test_index_matches_framer_on_synthetic_damage() -> None:
     assert len(index) > 200
 
 
-def test_index_skips_frames_inside_frames() -> None:
+def test_valid_frame_inside_a_frame_wins_in_bulk_and_streaming() -> None:
+    # The rule of framer.scan_ubx: a valid frame that ends inside another frame's claimed span
+    # proves that span false, whether or not the outer checksum happens to pass; so the inner
+    # frame comes out as soon as it is complete, in any chunking, and the outer is damage.
     inner = build_frame(0x01, 0x02, b"abcd")
     outer = build_frame(0x0A, 0x04, b"xx" + inner + b"yy")
     data = outer + build_frame(0x01, 0x06, bytes(52))
     index = index_frames(data)
-    assert index.start.tolist() == [0, len(outer)] == _framer_offsets(data)
-    assert index.damaged == 0
+    assert index.start.tolist() == [8, len(outer)] == _framer_offsets(data)
+    assert index.damaged == 1
+    f = UbxFramer()
+    got = [fr.offset for k in range(len(data)) for fr in f.feed(data[k : k + 1], k)]
+    assert got + [fr.offset for fr in f.flush()] == [8, len(outer)]
+    assert f.stats.bad_checksum == 1
 
 
 def test_index_of_empty_and_tiny_inputs() -> None:

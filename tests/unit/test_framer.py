@@ -1,14 +1,20 @@
-"""The UBX framer: chunking invariance, resynchronisation after damage, statistics."""
+"""The UBX framer: chunking invariance, resynchronisation after damage, statistics, and the
+same frames as the bulk index (one rule)."""
 
 from __future__ import annotations
 
 import random
+from pathlib import Path
 
+import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from streams import flight_stream, garbage, rxm_raw, tim_tm2
+from streams import REAL_UBX_FILES, flight_stream, garbage, rxm_raw, tim_tm2
 
+from groundstation.records import Frame
+from groundstation.storage.reading import iter_chunks
 from groundstation.ubx.build import build_frame
+from groundstation.ubx.fastraw import index_frames
 from groundstation.ubx.framer import UbxFramer, crc24q, iter_frames, ubx_checksum
 
 
@@ -196,3 +202,90 @@ def test_false_long_header_does_not_hold_back_later_frames() -> None:
         out += got
     assert framer.stats.bad_checksum == 1
     assert framer.stats.garbage_bytes == len(bogus)
+
+
+# -- one rule: the streaming framer in any chunking equals the bulk index ----------------------
+
+
+
+def stream_in_random_chunks(data: bytes, seed: int, largest: int) -> tuple[list[Frame], UbxFramer]:
+    rng = random.Random(seed)
+    framer = UbxFramer()
+    out: list[Frame] = []
+    pos = 0
+    while pos < len(data):
+        n = rng.choice((1, 2, 7, rng.randint(1, 64), rng.randint(1, largest)))
+        out += framer.feed(data[pos : pos + n], pos)
+        pos += n
+    out += framer.flush(pos)
+    return out, framer
+
+
+def damage(data: bytes, seed: int, events: int) -> bytes:
+    """A copy with the damage a serial link does: flipped bytes, lost runs, repeated runs,
+    inserted noise, sync words with false (often long) lengths."""
+    rng = random.Random(seed)
+    out = bytearray(data)
+    for _ in range(events):
+        at = rng.randrange(max(len(out), 1))
+        kind = rng.randrange(5)
+        if kind == 0:
+            out[at] ^= 1 << rng.randrange(8)
+        elif kind == 1:
+            del out[at : at + rng.randint(1, 300)]
+        elif kind == 2:
+            out[at:at] = out[max(0, at - 200) : at][: rng.randint(1, 200)]
+        elif kind == 3:
+            out[at:at] = rng.randbytes(rng.randint(1, 50))
+        else:
+            out[at:at] = b"\xb5\x62" + rng.randbytes(2) + rng.randint(0, 9000).to_bytes(2, "little")
+    return bytes(out)
+
+
+def assert_same_frames(data: bytes, seed: int) -> None:
+    index = index_frames(data)
+    frames, framer = stream_in_random_chunks(data, seed, largest=5000)
+    assert [f.offset for f in frames] == index.start.tolist()
+    assert [f.raw for f in frames] == [index.raw(data, i) for i in range(len(index))]
+    s = framer.stats
+    assert s.damaged_frames == index.damaged
+    assert s.bytes_in == s.frame_bytes + s.garbage_bytes + s.nmea_bytes + s.rtcm3_bytes
+    assert s.pending_bytes == 0
+    whole = UbxFramer()
+    whole.feed(data, 0)
+    whole.flush(0)
+    assert whole.stats == s  # counts do not depend on the chunking either
+
+
+def test_streaming_equals_bulk_on_damaged_synthetic_streams() -> None:
+    data, _ = flight_stream(200)
+    for seed in range(6):
+        assert_same_frames(damage(data, seed, events=60), seed)
+
+
+@pytest.mark.shared_data
+@pytest.mark.parametrize("rel", REAL_UBX_FILES)
+def test_streaming_equals_bulk_on_real_files_and_damaged_copies(
+    shared_data: Path, rel: str
+) -> None:
+    data = b"".join(c for c, _ in iter_chunks(shared_data / "real" / rel))
+    assert_same_frames(data, 1)
+    part = data[: 400_000]
+    assert_same_frames(damage(part, 2, events=max(20, len(part) // 2000)), 3)
+
+
+def test_ubx_framing_does_not_depend_on_rtcm3_or_nmea() -> None:
+    # A valid UBX frame is a frame even inside what would otherwise be a valid RTCM3 frame: UBX
+    # framing never waits for, nor is hidden by, the recognition of the bytes between frames
+    # (that is what lets the bulk index ignore NMEA and RTCM3).
+    ok = tim_tm2(1, 2000, 1000, 0, None)
+    body = bytes([0xD3, 0x00, len(ok) + 4]) + b"ab" + ok + b"cd"
+    rtcm = body + crc24q(body).to_bytes(3, "big")
+    data = rtcm + ok
+    for sizes in ([], [1], [9, 2]):
+        frames, framer = feed_in_chunks(data, sizes)
+        assert frames == [ok, ok]
+        s = framer.stats
+        assert s.rtcm3_frames == 0  # cut by a UBX frame, so not a whole RTCM3 frame
+        assert s.garbage_bytes == len(rtcm) - len(ok)
+    assert index_frames(data).start.tolist() == [5, len(rtcm)]

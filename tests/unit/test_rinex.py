@@ -3,7 +3,6 @@ navigation records, and the time-mark table, on synthetic messages."""
 
 from __future__ import annotations
 
-import struct
 from pathlib import Path
 
 import numpy as np
@@ -16,6 +15,7 @@ from groundstation.offline.rinex import marks_table
 from groundstation.records import TimeMark
 from groundstation.rules import epochs as ep_rule
 from groundstation.rules import marks as mk
+from groundstation.ubx import layouts as L
 from groundstation.ubx.build import build_frame
 from groundstation.ubx.fastraw import decode_raw, decode_rawx, index_frames
 
@@ -36,16 +36,18 @@ def meas(
     cno: int = 40,
     freq: int = 0,
 ) -> bytes:
-    return struct.pack(
-        "<ddfBBBBHBBBBBx", pr, cp, -100.5, gnss, sv, sig, freq, lock_ms, cno, 3, cpstd, 1, trk
+    return L.RXM_RAWX.row(
+        prMes=pr, cpMes=cp, doMes=-100.5, gnssId=gnss, svId=sv, sigId=sig, freqId=freq,
+        locktime=lock_ms, cno=cno, prStdev=3, cpStdev=cpstd, doStdev=1, trkStat=trk,
     )
 
 
 def rawx(epochs: list[list[bytes]], version: int = 1, step_s: float = 0.2) -> bytes:
     out = []
     for k, ms in enumerate(epochs):
-        head = struct.pack("<dHbBBB2x", TOW0_S + k * step_s, WEEK, 18, len(ms), 1, version)
-        out.append(build_frame(0x02, 0x15, head + b"".join(ms)))
+        head = L.RXM_RAWX.payload(rcvTow=TOW0_S + k * step_s, week=WEEK, leapS=18,
+                                  numMeas=len(ms), recStat=1, version=version)
+        out.append(build_frame(*L.RXM_RAWX.key, head + b"".join(ms)))
     return b"".join(out)
 
 
@@ -111,7 +113,7 @@ def test_codes_per_signal_and_systems() -> None:
 
 def test_bds_geo_phase_half_cycle_shift_and_week_zero_skipped() -> None:
     data = rawx([[meas(3, gnss=3)], [meas(3, gnss=3, lock_ms=10200)]])
-    zero = build_frame(0x02, 0x15, struct.pack("<dHbBBB2x", 18.0, 0, 0, 0, 0, 1))
+    zero = L.RXM_RAWX.frame(rcvTow=18.0, version=1)
     o = obs_of(zero + data)
     assert o.t_gps_ns.size == 2
     assert o.cp_cyc.tolist() == [1.0e8 + 0.5, 1.0e8 + 0.5]
@@ -119,9 +121,9 @@ def test_bds_geo_phase_half_cycle_shift_and_week_zero_skipped() -> None:
 
 def test_rxm_raw_lli_as_sent_with_slip_carried_over_blank_phase() -> None:
     def raw_msg(itow: int, cp: float, lli: int) -> bytes:
-        head = struct.pack("<ihBx", itow, 1481, 1)
-        sv = struct.pack("<ddfBbbB", cp, 2.0e7, 1.0, 26, 7, 45, lli)
-        return build_frame(0x02, 0x10, head + sv)
+        sv = {"cpMes": cp, "prMes": 2.0e7, "doMes": 1.0, "sv": 26, "mesQI": 7, "cno": 45,
+              "lli": lli}
+        return L.RXM_RAW.frame([sv], iTOW=itow, week=1481)
 
     data = b"".join(
         raw_msg(1000 * k, cp, lli)
@@ -241,10 +243,13 @@ def test_marks_pairing_events_and_dropouts() -> None:
 @pytest.mark.parametrize("edge", mk.MARK_EDGES)
 def test_convert_accepts_every_edge_choice(tmp_path: Path, edge: mk.MarkEdge) -> None:
     recs = rawx([[meas(5)], [meas(5, lock_ms=10200)], [meas(5, lock_ms=10400)]])
-    tm = struct.pack("<BBHHHIIIII", 0, 0x4D | 0x80, 1, WEEK, WEEK, 60000_210, 5, 60000_200, 7, 9)
+    tm = L.TIM_TM2.frame(
+        flags=0x4D | 0x80, count=1, wnR=WEEK, wnF=WEEK, towMsR=60000_210, towSubMsR=5,
+        towMsF=60000_200, towSubMsF=7, accEst=9,
+    )
     src = tmp_path / "flight.ubx"
     cut = len(recs) // 3 * 2
-    src.write_bytes(recs[:cut] + build_frame(0x0D, 0x03, tm) + recs[cut:])
+    src.write_bytes(recs[:cut] + tm + recs[cut:])
     res = rinex.convert(src, tmp_path / "out", rinex.RinexOptions(marks=edge))
     assert res.epochs == 3 and res.marks == 1
     assert res.events == (2 if edge == "both" else 1)

@@ -30,6 +30,7 @@ from groundstation.records import TimeMark
 from groundstation.rules import epochs as epochs_rule
 from groundstation.rules import marks as marks_mod
 from groundstation.storage.reading import Recording
+from groundstation.ubx import layouts as L
 from groundstation.ubx.fastraw import (
     FrameIndex,
     RawBlock,
@@ -164,7 +165,7 @@ def _leap_by_offset(index: FrameIndex, block: RawBlock) -> list[tuple[int, int]]
     """Leap seconds the receiver declared, by stream position (for UTC-based time marks)."""
     if block.source != "RXM-RAWX":
         return []
-    valid = (block.header["recStat"] & 1) != 0
+    valid = (block.header["recStat"] & L.RAWX_REC_STAT.mask("leapSec")) != 0
     return list(
         zip(
             index.start[block.frame[valid]].tolist(),

@@ -21,6 +21,7 @@ import numpy.typing as npt
 
 from groundstation import gpstime
 from groundstation.rules import phase
+from groundstation.ubx import layouts as L
 from groundstation.ubx.fastraw import RawBlock
 
 SYSTEMS = "GRECJSI"
@@ -146,7 +147,7 @@ def obs_from_rawx(block: RawBlock) -> ObsSet:
     code_i = code_i[idx]
     code = _CODE_NAMES[code_i]
     trk = m["trkStat"].astype(np.int64)
-    pr = np.where(trk & 1, m["prMes"], 0.0)
+    pr = np.where(trk & phase.TRK_PR_VALID, m["prMes"], 0.0)
     # Gen9 limit once any earlier message carried a second-band signal (RTKLIB's rcvtype).
     gen9_msg = np.zeros(h.size, dtype=bool)
     np.logical_or.at(gen9_msg, block.epoch, block.meas["sigId"] > 1)
@@ -162,7 +163,7 @@ def obs_from_rawx(block: RawBlock) -> ObsSet:
     new_row = np.cumsum(keep_epoch) - 1
     glo = sysl == "R"
     fcn = {int(p): int(f) - 7 for p, f in zip(prn[glo], m["freqId"][glo], strict=True)}
-    leap = np.where(h["recStat"] & 1, h["leapS"].astype(np.int64), -1)
+    leap = np.where(h["recStat"] & L.RAWX_REC_STAT.mask("leapSec"), h["leapS"].astype(np.int64), -1)
     return ObsSet(
         t_gps_ns=(block.gps_week * gpstime.NS_PER_WEEK + block.tow_ns)[keep_epoch],
         leap_s=leap[keep_epoch],

@@ -1,0 +1,92 @@
+"""Whole-process time of ``groundstation inspect`` against RTKLIB ``convbin`` on the same recording.
+
+As issue 12 states the target: ``groundstation inspect X.ubx.gz`` against
+``convbin -r ubx -od -os -o X.obs -n X.nav X.ubx`` (convbin cannot read gzip, so it gets the
+file decompressed beforehand). Both run as fresh processes, interleaved; the best of N runs
+counts, and the CPU time (user + system, from ``wait4``) is shown beside the wall time because
+the machine is shared: on a busy machine wall time overstates both, CPU time much less. Our
+process gets its bytecode cache in a temporary directory (``PYTHONPYCACHEPREFIX``, one warm-up
+run first), as an installed package has it, even where ``PYTHONDONTWRITEBYTECODE`` is set.
+
+    .venv/bin/python benchmarks/bench_inspect.py [INPUT.ubx.gz] [--runs 7]
+"""
+
+from __future__ import annotations
+
+import argparse
+import gzip
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+DEFAULT_INPUT = (
+    REPO.parent / "shared/data/real/jdesbonnet__GNSS_RTK_data/20181104/rover-20181104-1634.ubx.gz"
+)
+
+
+def run(cmd: list[str], env: dict[str, str] | None = None) -> tuple[float, float]:
+    """(wall s, CPU s) of one fresh process."""
+    t0 = time.perf_counter()
+    proc = subprocess.Popen(
+        cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, cwd=REPO, env=env
+    )
+    _, status, usage = os.wait4(proc.pid, 0)
+    wall = time.perf_counter() - t0
+    proc.returncode = os.waitstatus_to_exitcode(status)
+    if proc.returncode != 0:
+        raise SystemExit(f"{cmd[0]} failed with {proc.returncode}")
+    return wall, usage.ru_utime + usage.ru_stime
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("input", nargs="?", type=Path, default=DEFAULT_INPUT)
+    ap.add_argument("--runs", type=int, default=7)
+    args = ap.parse_args()
+    if not args.input.exists():
+        print(f"input not found: {args.input}", file=sys.stderr)
+        return 2
+    convbin = shutil.which("convbin")
+    if convbin is None:
+        print("convbin not installed (apt-get install rtklib)", file=sys.stderr)
+        return 2
+    gs = shutil.which("groundstation") or ""
+    ours_cmd = [gs] if gs else [sys.executable, "-m", "groundstation.cli"]
+    with tempfile.TemporaryDirectory() as tmp:
+        t = Path(tmp)
+        ubx = t / "input.ubx"
+        opener = gzip.open if args.input.suffix == ".gz" else open
+        with opener(args.input, "rb") as src, ubx.open("wb") as dst:
+            shutil.copyfileobj(src, dst)
+        cb = [convbin, "-r", "ubx", "-od", "-os", "-o", str(t / "cb.obs"), "-n", str(t / "cb.nav"),
+              str(ubx)]
+        ours = [*ours_cmd, "inspect", str(args.input)]
+        env = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
+        env["PYTHONPYCACHEPREFIX"] = str(t / "pycache")
+        run(cb)
+        run(ours, env)  # warm-up: page cache, bytecode cache
+        times: dict[str, list[tuple[float, float]]] = {"convbin": [], "groundstation": []}
+        for _ in range(args.runs):  # interleaved, so load changes hit both alike
+            times["convbin"].append(run(cb))
+            times["groundstation"].append(run(ours, env))
+        size_mb = ubx.stat().st_size / 1e6
+    print(f"input: {args.input.name} ({size_mb:.2f} MB decompressed), {args.runs} runs each")
+    best = {}
+    for name, v in times.items():
+        walls = sorted(w for w, _ in v)
+        cpus = sorted(c for _, c in v)
+        best[name] = (walls[0], cpus[0])
+        print(f"{name:<14} wall best {walls[0]:.3f} s  median {walls[len(v) // 2]:.3f} s   "
+              f"CPU best {cpus[0]:.3f} s  median {cpus[len(v) // 2]:.3f} s")
+    print(f"ratio inspect / convbin: wall best {best['groundstation'][0] / best['convbin'][0]:.2f}"
+          f"  CPU best {best['groundstation'][1] / best['convbin'][1]:.2f}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
