@@ -235,7 +235,7 @@ def _runs(values: IntArray) -> list[tuple[int, int]]:
 
 def quality_timeline(
     t_gps_ns: IntArray, quality: IntArray, *, max_gap_s: float, radio_gaps: Sequence[Span],
-    outages: Sequence[Span], mark_t_gps_ns: IntArray,
+    outages: Sequence[Span], mark_t_gps_ns: IntArray, events_recorded: bool = True,
 ) -> str:
     """Solution quality per epoch, solution gaps, radio gaps, source outages and the marks."""
     with matplotlib.rc_context(_RC):
@@ -260,6 +260,11 @@ def quality_timeline(
                                 *((s, "source outages", "#6a1b9a") for s in outages)):
             a, b = _dates([sp.start_gps_ns, sp.end_gps_ns])
             ax.broken_barh([(a, max(b - a, step))], (rows[row] - 0.35, 0.7), color=colour)
+        if not events_recorded:
+            for row in ("radio gaps", "source outages"):
+                ax.text(0.5, rows[row], "not recorded in this file (plain UBX, not a station "
+                        "session)", transform=ax.get_yaxis_transform(), ha="center",
+                        va="center", fontsize=8, color="#666")
         md = _dates(mark_t_gps_ns[mark_t_gps_ns >= 0])
         ax.vlines(md, rows["marks"] - 0.35, rows["marks"] + 0.35, color="black", lw=0.6)
         ax.set_yticks(list(rows.values()), list(rows))
@@ -297,7 +302,7 @@ def satellites(
             ax.scatter(d[half], y[half] + 0.3, s=2, c="#f39c12", marker="s", linewidths=0,
                        rasterized=True)
         if slip.any():
-            ax.scatter(d[slip], y[slip], s=30, marker="|", c="#d73027", linewidths=1.2)
+            ax.scatter(d[slip], y[slip], s=16, marker="|", c="#d73027", linewidths=0.8)
         if repaired is not None and repaired.any():
             ax.scatter(d[repaired], y[repaired], s=18, marker="x", c="#1f77b4", linewidths=1.0)
         ax.set_yticks(range(len(names)), names, fontsize=7 if len(names) > 20 else 8)

@@ -322,9 +322,9 @@ def solve(settings: SolveSettings, progress: Progress | None = None) -> SolveRes
     files = outputs.write_all(out, s.out_dir)
     # Report.
     te, tn = proj.forward(traj_llh[:, 0], traj_llh[:, 1])
-    engine, version, engine_opts = _engine(traj, opts)
-    base_check, base_doubtful = _base_check(s, traj)
-    radio_gaps, outages = report.station_events(s.flight)
+    engine, version, engine_opts = report.engine_of(traj, opts.rtklib_overrides, s.positions)
+    base_check, base_doubtful = report.check_base(s.base, s.base_ecef_m, traj, s.positions)
+    radio_gaps, outages, events_recorded = report.station_events(s.flight)
     unmatched = tuple(
         (photo_list[i].name, photo_list[i].error or "no mark within the pairing window")
         for i in match.unmatched_photos
@@ -332,7 +332,8 @@ def solve(settings: SolveSettings, progress: Progress | None = None) -> SolveRes
     data = report.ReportInput(
         flight=s.flight.name, engine_name=engine, engine_version=version,
         engine_options=engine_opts, position_source=f"{traj.source}: {len(traj)} epochs",
-        base_name=s.base.name if s.base else None, base_ecef_m=s.base_ecef_m,
+        base_name=s.base.name if s.base else None,
+        base_ecef_m=s.base_ecef_m or report.pos_header(s.positions).ref_ecef_m,
         base_check=base_check, base_doubtful=base_doubtful, epsg=epsg, crs_name=proj.name,
         projected=proj.projected, lever_arm_m=s.lever_arm_m,
         shutter_delay_ms=s.shutter_delay_ms, edge=s.edge, interp=s.interp, max_gap_s=s.max_gap_s,
@@ -347,7 +348,7 @@ def solve(settings: SolveSettings, progress: Progress | None = None) -> SolveRes
         pair_t_gps_ns=np.array([mp.t_gps_ns[p.mark] for p in match.pairs], dtype=np.int64)
         if match else np.zeros(0, np.int64),
         pair_residual_s=np.array([p.residual_s for p in match.pairs]) if match else np.zeros(0),
-        radio_gaps=radio_gaps, source_outages=outages,
+        radio_gaps=radio_gaps, source_outages=outages, station_events=events_recorded,
         satellites=report.satellites_from_recording(s.flight),
         lever_residual_m=lever_est.residual_m if lever_est else np.zeros(0),
         lever_outlier=lever_est.outlier if lever_est else np.zeros(0, bool),
@@ -365,35 +366,6 @@ def solve(settings: SolveSettings, progress: Progress | None = None) -> SolveRes
         tuple(rows), marks, mp, traj, match, lever_est, tuple(files), epsg, tuple(notes),
         tuple(recon),
     )
-
-
-def _engine(
-    traj: positions.Trajectory, opts: positions.SourceOptions
-) -> tuple[str, str, dict[str, str]]:
-    """Name, version and options of the engine that made the trajectory (for the report)."""
-    if traj.source == "rnx2rtkp":
-        conf = dict(positions.RTKLIB_L1_KINEMATIC)
-        conf.update(opts.rtklib_overrides)
-        return "RTKLIB rnx2rtkp", "", conf
-    if traj.metre_level:
-        return "receiver's own fix", "", {}
-    return f"imported solution file ({traj.source})", "", {}
-
-
-def _base_check(s: SolveSettings, traj: positions.Trajectory) -> tuple[str, bool]:
-    """How the base coordinates were checked against the base receiver's own fixes."""
-    if s.base_ecef_m is None:
-        if traj.metre_level:
-            return "no base (receiver's own fix)", False
-        return "inside the imported solution; not checked here", False
-    how = "given with --base-xyz"
-    if s.base is None or s.base.suffix.lower() not in (".ubx", ".gz", ".mcap"):
-        return f"{how}; not checked (no u-blox base recording)", False
-    try:
-        fixes = [n.ecef_m for n in read_flight(s.base).nav if n.fix_ok and n.ecef_m]
-    except InputError as err:
-        return f"{how}; not checked ({err})", True
-    return report.check_base(fixes, s.base_ecef_m, how)
 
 
 def _apply_enu(

@@ -17,6 +17,7 @@ import html
 import json
 import logging
 import math
+import re
 import shutil
 import subprocess
 import tempfile
@@ -28,11 +29,21 @@ import numpy as np
 import numpy.typing as npt
 
 from groundstation import gpstime
+from groundstation.errors import GroundstationError
 from groundstation.solve import figures
 from groundstation.solve.figures import QUALITY_COLOURS, Span
 from groundstation.solve.interpolate import FLAG_GAP
 from groundstation.solve.outputs import CameraRow
-from groundstation.solve.positions import Q_FIX, Q_FLOAT, Q_SINGLE, QUALITY_NAMES
+from groundstation.solve.positions import (
+    Q_DGPS,
+    Q_FIX,
+    Q_FLOAT,
+    Q_PPP,
+    Q_SBAS,
+    Q_SINGLE,
+    QUALITY_NAMES,
+    Trajectory,
+)
 
 log = logging.getLogger("groundstation.solve")
 
@@ -100,6 +111,7 @@ class ReportInput:
         pair_t_gps_ns, pair_residual_s: mark time and residual of every pair.
         track_*: the trajectory in the output CRS.
         radio_gaps, source_outages: link dropouts and source outages recorded by the station.
+        station_events: the recording is a station session that records them (else unknown).
         satellites: the rover's raw observations (None when the recording has none).
         slips_found, slips_repaired: conditioning counts (None when no conditioning ran).
         lever_residual_m, lever_outlier: lever-arm estimate from an EO file.
@@ -141,6 +153,7 @@ class ReportInput:
     pair_residual_s: FloatArray = field(default_factory=lambda: np.zeros(0))
     radio_gaps: tuple[Span, ...] = ()
     source_outages: tuple[Span, ...] = ()
+    station_events: bool = True
     satellites: SatelliteObs | None = None
     slips_found: int | None = None
     slips_repaired: int | None = None
@@ -148,6 +161,11 @@ class ReportInput:
     lever_outlier: BoolArray = field(default_factory=lambda: np.zeros(0, bool))
     metre_level: bool = False
     notes: tuple[str, ...] = ()
+
+
+QUALITY_KEYS = {Q_FIX: "fixed", Q_FLOAT: "float", Q_SBAS: "sbas", Q_DGPS: "dgps",
+                Q_SINGLE: "single", Q_PPP: "ppp"}
+"""Count keys of the positioned rows per RTKLIB quality (every positioned row has one)."""
 
 
 # -- time and number formatting ---------------------------------------------------------------
@@ -190,10 +208,7 @@ def counts(inp: ReportInput) -> dict[str, int]:
             in_radio += 1
     return {
         "rows": len(rows),
-        "fixed": sum(1 for r in pos if r.quality == Q_FIX),
-        "float": sum(1 for r in pos if r.quality == Q_FLOAT),
-        "single": sum(1 for r in pos if r.quality == Q_SINGLE),
-        "other": sum(1 for r in pos if r.quality not in (Q_FIX, Q_FLOAT, Q_SINGLE)),
+        **{QUALITY_KEYS[q]: sum(1 for r in pos if r.quality == q) for q in QUALITY_KEYS},
         "not_positioned": sum(1 for r in rows if not r.positioned),
         "photos": inp.photos_total,
         "photos_matched": sum(1 for r in rows if r.photo and r.mark >= 0),
@@ -242,10 +257,11 @@ def warnings(inp: ReportInput) -> list[str]:
     if c["not_positioned"]:
         out.append(f"{c['not_positioned']} camera position(s) could not be computed (see the "
                    "flags column: outside the trajectory, no edge, or a photo without mark).")
-    not_fixed = c["float"] + c["single"] + c["other"]
-    if not_fixed:
-        out.append(f"{not_fixed} camera position(s) are not ambiguity-fixed ({c['float']} float, "
-                   f"{c['single']} single, {c['other']} other): expect decimetres to metres.")
+    worse = {k: c[k] for k in QUALITY_KEYS.values() if k != "fixed" and c[k]}
+    if worse:
+        parts = ", ".join(f"{v} {k}" for k, v in worse.items())
+        out.append(f"{sum(worse.values())} camera position(s) are not ambiguity-fixed ({parts}): "
+                   "expect decimetres (float) to metres (dgps, single).")
     if c["marks_bridging_gap"]:
         out.append(f"{c['marks_bridging_gap']} camera position(s) are interpolated across a gap "
                    f"of more than {inp.max_gap_s:g} s between solved epochs.")
@@ -391,8 +407,8 @@ def _counts_table(inp: ReportInput) -> str:
     left = (
         '<table class="counts"><caption><b>Camera positions</b> (rows of cameras.csv)</caption>'
         + row("rows", "rows")
-        + row("fixed", "fixed") + row("float", "float") + row("single", "single")
-        + (row("other quality", "other") if c["other"] else "")
+        + "".join(row(k, k) for k in QUALITY_KEYS.values()
+                  if c[k] or k in ("fixed", "float", "single"))
         + row("not positioned", "not_positioned")
         + row("bridging a gap > " + f"{inp.max_gap_s:g} s", "marks_bridging_gap")
         + row("inside radio dropouts", "marks_in_radio_gap")
@@ -412,8 +428,9 @@ def _counts_table(inp: ReportInput) -> str:
         "</tr>"
         + f'<tr><th>slips repaired</th><td data-count="slips_repaired">{_e(slips_rep)}</td>'
         "</tr>"
-        + f'<tr><th>radio dropouts / source outages</th><td>{len(inp.radio_gaps)} / '
-        f"{len(inp.source_outages)}</td></tr>"
+        + "<tr><th>radio dropouts / source outages</th><td>"
+        + (f"{len(inp.radio_gaps)} / {len(inp.source_outages)}" if inp.station_events
+           else "not recorded (plain UBX file)") + "</td></tr>"
         + "</table>"
     )
     return f'<div class="cols"><div>{left}</div><div>{right}</div></div>'
@@ -469,7 +486,8 @@ def _figures(inp: ReportInput) -> list[tuple[str, str, str]]:
         "Quality over time",
         figures.quality_timeline(inp.track_t_gps_ns, inp.track_quality,
                                  max_gap_s=inp.max_gap_s, radio_gaps=inp.radio_gaps,
-                                 outages=inp.source_outages, mark_t_gps_ns=t_rows),
+                                 outages=inp.source_outages, mark_t_gps_ns=t_rows,
+                                 events_recorded=inp.station_events),
         ("Solution quality per epoch (hatched: no solved epoch for longer than the gap limit), "
         "radio dropouts and source outages recorded by the ground station, and the camera "
         "marks. Bottom axis UTC, top axis GPS seconds of week."),
@@ -625,8 +643,11 @@ def satellites_from_recording(path: Path) -> SatelliteObs | None:
     )
 
 
-def station_events(path: Path) -> tuple[tuple[Span, ...], tuple[Span, ...]]:
+def station_events(path: Path) -> tuple[tuple[Span, ...], tuple[Span, ...], bool]:
     """Radio dropouts and source outages a ground-station session recorded (MCAP only).
+
+    Returns (dropouts, outages, recorded): ``recorded`` is False for a plain UBX file, which
+    cannot tell.
 
     Outages carry host times; they are put on GPS time with the least-delayed offset between
     host clock and the receiver's fixes, as the dashboard does.
@@ -635,7 +656,7 @@ def station_events(path: Path) -> tuple[tuple[Span, ...], tuple[Span, ...]]:
     from groundstation.storage.reading import detect_format, session_parts
 
     if detect_format(path) != "mcap":
-        return (), ()
+        return (), (), False
     gaps: list[Span] = []
     host_outages: list[tuple[int, int]] = []
     offsets: list[int] = []
@@ -663,17 +684,112 @@ def station_events(path: Path) -> tuple[tuple[Span, ...], tuple[Span, ...]]:
     if offsets and host_outages:
         off = min(offsets)
         outages = tuple(Span(a - off, b - off) for a, b in host_outages)
-    return tuple(gaps), outages
+    return tuple(gaps), outages, True
+
+
+@dataclass(frozen=True, slots=True)
+class PosHeader:
+    """What an imported RTKLIB ``.pos`` file says about itself."""
+
+    program: str = ""
+    ref_ecef_m: tuple[float, float, float] | None = None
+    lines: tuple[str, ...] = ()
+
+
+def pos_header(path: Path | None) -> PosHeader:
+    """The ``%`` header of a ``.pos`` file (plain or gzip); empty when none or unreadable."""
+    import gzip
+
+    from groundstation.solve.positions import _layout_from_header
+
+    if path is None:
+        return PosHeader()
+    lines: list[str] = []
+    try:
+        opener = gzip.open if path.suffix == ".gz" else open
+        with opener(path, "rt", encoding="ascii", errors="replace") as f:
+            for line in f:
+                if not line.startswith("%"):
+                    break
+                lines.append(line.rstrip("\n"))
+    except OSError:
+        return PosHeader()
+    program = ""
+    for line in lines:
+        body = line.lstrip("%").strip()
+        if body.startswith("program"):
+            program = body.split(":", 1)[-1].strip()
+    return PosHeader(program, _layout_from_header(lines, None).ref_ecef_m, tuple(lines))
+
+
+def engine_of(
+    traj: Trajectory, rtklib_overrides: dict[str, str], positions_file: Path | None
+) -> tuple[str, str, dict[str, str]]:
+    """Name, version and options of the engine that made the trajectory."""
+    from groundstation.solve.positions import RTKLIB_L1_KINEMATIC
+
+    if traj.source == "rnx2rtkp":
+        conf = dict(RTKLIB_L1_KINEMATIC)
+        conf.update(rtklib_overrides)
+        return "RTKLIB rnx2rtkp", "", conf
+    if traj.metre_level:
+        return "receiver's own fix", "", {}
+    head = pos_header(positions_file)
+    if head.program:
+        name, _, version = head.program.partition(" ")
+        return name, f"{version} (from the header of {traj.source})".strip(), {}
+    return f"imported solution file ({traj.source})", "", {}
 
 
 def check_base(
-    base_fixes_ecef_m: Sequence[tuple[float, float, float]],
+    base: Path | None,
     base_ecef_m: tuple[float, float, float] | None,
+    traj: Trajectory,
+    positions_file: Path | None,
+) -> tuple[str, bool]:
+    """How the base coordinates were checked: (text, doubtful).
+
+    Given coordinates are compared with the mean of the base receiver's own fixes in a u-blox
+    base recording; an imported solution's reference position is taken from its header.
+    """
+    if base_ecef_m is None:
+        if traj.metre_level:
+            return "no base (receiver's own fix)", False
+        ref = pos_header(positions_file).ref_ecef_m
+        if ref is not None:
+            return ("reference position from the header of the imported solution; not checked "
+                    "against a base recording"), False
+        return "unknown (the imported solution does not state its base)", True
+    how = "given with --base-xyz"
+    if base is None or detect_recording(base) is None:
+        return f"{how}; not checked (no u-blox base recording)", False
+    from groundstation.solve.pipeline import read_flight
+
+    try:
+        fixes = [n.ecef_m for n in read_flight(base).nav if n.fix_ok and n.ecef_m]
+    except GroundstationError as err:
+        return f"{how}; not checked ({err})", True
+    return compare_base(fixes, base_ecef_m, how)
+
+
+def detect_recording(path: Path) -> str | None:
+    """The recording format of a base file (``mcap``, ``gzip``, ``raw``); None for RINEX."""
+    from groundstation.storage.reading import detect_format
+
+    if path.suffix.lower() in (".obs", ".rnx") or re.search(r"\.\d\d[oO]$", path.name):
+        return None
+    try:
+        return detect_format(path)
+    except GroundstationError:
+        return None
+
+
+def compare_base(
+    base_fixes_ecef_m: Sequence[tuple[float, float, float]],
+    base_ecef_m: tuple[float, float, float],
     how_given: str,
 ) -> tuple[str, bool]:
     """How the base coordinates compare with the base receiver's own fixes: (text, doubtful)."""
-    if base_ecef_m is None:
-        return "no base coordinates", True
     if not base_fixes_ecef_m:
         return f"{how_given}; not checked (the base recording has no receiver fix)", False
     mean = np.mean(np.asarray(base_fixes_ecef_m, dtype=np.float64), axis=0)
