@@ -96,6 +96,8 @@ def _dates(t_gps_ns: npt.ArrayLike) -> FloatArray:
 
 def _time_axes(ax: Axes, t0_gps_ns: int) -> None:
     """UTC (HH:MM:SS) below, GPS seconds of week above."""
+    loc = mdates.AutoDateLocator(minticks=4, maxticks=9)  # type: ignore[no-untyped-call]
+    ax.xaxis.set_major_locator(loc)
     ax.xaxis.set_major_formatter(mdates.DateFormatter("%H:%M:%S"))  # type: ignore[no-untyped-call]
     ax.set_xlabel("UTC (" + gpstime.gps_to_datetime(t0_gps_ns).strftime("%Y-%m-%d") + ")")
     d0 = float(_dates([t0_gps_ns])[0])
@@ -266,7 +268,7 @@ def quality_timeline(
                         "session)", transform=ax.get_yaxis_transform(), ha="center",
                         va="center", fontsize=8, color="#666")
         md = _dates(mark_t_gps_ns[mark_t_gps_ns >= 0])
-        ax.vlines(md, rows["marks"] - 0.35, rows["marks"] + 0.35, color="black", lw=0.6)
+        ax.vlines(md, rows["marks"] - 0.35, rows["marks"] + 0.35, color="#333", lw=0.4)
         ax.set_yticks(list(rows.values()), list(rows))
         ax.set_ylim(-0.6, 3.6)
         ax.grid(axis="y", visible=False)

@@ -282,9 +282,9 @@ def warnings(inp: ReportInput) -> list[str]:
     if inp.marks_duplicate:
         out.append(f"{inp.marks_duplicate} duplicate time mark(s) set aside.")
     if c["nadir_assumed"]:
-        out.append(f"Attitude assumed for {c['nadir_assumed']} photo(s): nadir camera (omega = "
-                   "phi = 0), kappa from the direction of travel. The lever arm is applied with "
-                   "this assumed attitude.")
+        out.append(f"Attitude assumed for {c['nadir_assumed']} camera position(s): nadir camera "
+                   "(omega = phi = 0), kappa from the direction of travel. The lever arm is "
+                   "applied with this assumed attitude.")
     if inp.lever_arm_m is None and c["rows"]:
         out.append("No lever arm applied: the positions are those of the antenna, not of the "
                    "camera's projection centre.")
@@ -319,7 +319,8 @@ ul.warn li{margin:.2em 0}ul.warn{border-left:4px solid #d73027;padding:.3em 1em 
 background:#fff6f5}
 p.ok{border-left:4px solid #1a9850;padding:.3em 1em;background:#f3fbf5}
 figure{margin:1em 0;break-inside:avoid}figcaption{font-size:.9em;color:#333;margin-top:.2em}
-svg.fig{width:100%;height:auto;display:block}
+svg.fig{width:100%;height:auto;max-height:94vh;display:block}
+table.counts{width:100%}
 .opts{columns:3 15em;font-size:12px;margin:.3em 0}code,pre{font-size:12px}
 caption{text-align:left}
 pre{background:#f6f6f6;padding:.5em;white-space:pre-wrap}
@@ -360,7 +361,8 @@ def _summary(inp: ReportInput) -> str:
         from groundstation.geodesy import ecef_to_llh
 
         la, lo, h = ecef_to_llh(*inp.base_ecef_m)
-        base = (f"{_e(inp.base_name or '')}<br>ECEF X {inp.base_ecef_m[0]:.4f}, "
+        name = f"{_e(inp.base_name)}<br>" if inp.base_name else ""
+        base = (f"{name}ECEF X {inp.base_ecef_m[0]:.4f}, "
                 f"Y {inp.base_ecef_m[1]:.4f}, Z {inp.base_ecef_m[2]:.4f} m<br>"
                 f"lat {la:.9f}°, lon {lo:.9f}°, h {h:.3f} m (WGS84)<br>"
                 f"checked: {_e(inp.base_check)}")
