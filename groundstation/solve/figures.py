@@ -157,6 +157,7 @@ def trajectory(
                    edgecolors="black", linewidths=0.7, zorder=3)
         ax.set_aspect("equal", adjustable="datalim")
         ax.autoscale_view()
+        ax.apply_aspect()  # the final limits, which the scale bar and the corners depend on
         ax.ticklabel_format(useOffset=False, style="plain")
         unit = "m" if projected else "deg"
         ax.set_xlabel(f"Easting ({unit})" if projected else "Longitude (deg)")
@@ -202,17 +203,17 @@ def _free_corners(ax: Axes, xs: FloatArray, ys: FloatArray) -> list[str]:
 
 def _scale_bar(ax: Axes, corner: str) -> None:
     x0, x1 = ax.get_xlim()
-    y0, y1 = ax.get_ylim()
     length = _nice((x1 - x0) / 5.0)
     fx, fy = _CORNERS[corner]
     bx = x0 + fx * (x1 - x0)
-    by = y0 + (fy + 0.02) * (y1 - y0)
-    ax.add_patch(Rectangle((bx - 0.01 * (x1 - x0), by - 0.025 * (y1 - y0)),
-                           length + 0.02 * (x1 - x0), 0.085 * (y1 - y0),
-                           facecolor="white", edgecolor="#999", alpha=0.9, zorder=4))
-    ax.plot([bx, bx + length], [by, by], color="black", lw=3, solid_capstyle="butt", zorder=5)
-    ax.text(bx + length / 2, by + 0.012 * (y1 - y0), f"{length:g} m", ha="center", va="bottom",
-            fontsize=8, zorder=5)
+    tr = ax.get_xaxis_transform()  # x in metres, y in axes fraction: the box keeps its height
+    ax.add_patch(Rectangle((bx - 0.015 * (x1 - x0), fy), length + 0.03 * (x1 - x0), 0.075,
+                           transform=tr, facecolor="white", edgecolor="#999", alpha=0.9,
+                           zorder=4))
+    ax.plot([bx, bx + length], [fy + 0.022, fy + 0.022], transform=tr, color="black", lw=3,
+            solid_capstyle="butt", zorder=5)
+    ax.text(bx + length / 2, fy + 0.035, f"{length:g} m", transform=tr, ha="center",
+            va="bottom", fontsize=8, zorder=5)
 
 
 def _north_arrow(ax: Axes, projected: bool, corner: str) -> None:

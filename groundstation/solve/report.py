@@ -724,6 +724,10 @@ def pos_header(path: Path | None) -> PosHeader:
     return PosHeader(program, _layout_from_header(lines, None).ref_ecef_m, tuple(lines))
 
 
+_RNX2RTKP_NOTE = "rnx2rtkp solution "
+"""How the rnx2rtkp source names its solution file in the trajectory's notes."""
+
+
 def engine_of(
     traj: Trajectory, rtklib_overrides: dict[str, str], positions_file: Path | None
 ) -> tuple[str, str, dict[str, str]]:
@@ -733,7 +737,10 @@ def engine_of(
     if traj.source == "rnx2rtkp":
         conf = dict(RTKLIB_L1_KINEMATIC)
         conf.update(rtklib_overrides)
-        return "RTKLIB rnx2rtkp", "", conf
+        # The engine states its version in the header of the solution it wrote.
+        out = next((Path(n.removeprefix(_RNX2RTKP_NOTE)) for n in traj.notes
+                    if n.startswith(_RNX2RTKP_NOTE)), None)
+        return "RTKLIB rnx2rtkp", pos_header(out).program, conf
     if traj.metre_level:
         return "receiver's own fix", "", {}
     head = pos_header(positions_file)

@@ -242,7 +242,8 @@ def test_warnings_name_what_a_reviewer_must_know(flight: dict[str, Any]) -> None
         assert "not ambiguity-fixed" in text and "interpolated across a gap" in text
         assert "rnx2rtkp ver.EX 2.5.1" in text  # engine and version from the solution header
     else:
-        assert "RTKLIB rnx2rtkp" in text and "pos2-armode" in text  # engine and options
+        assert "RTKLIB rnx2rtkp RTKLIB ver.2.4.3" in text  # engine and version
+        assert "pos2-armode = fix-and-hold" in text  # and its options
         assert "m from the mean of the base receiver" in text
 
 
