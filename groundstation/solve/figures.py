@@ -77,11 +77,11 @@ def to_svg(fig: Figure, name: str) -> str:
     text = buf.getvalue()
     text = text[text.index("<svg"):]
     # Inline in HTML: no namespace declarations or RDF metadata (URLs a reviewer might take
-    # for links); root size in pt -> scale to the container, aspect kept by the viewBox.
+    # for links). The root keeps its natural size (type as designed, readable on screen and
+    # on A4); the page's CSS only shrinks it when the window is narrower.
     text = re.sub(r"<metadata>.*?</metadata>", "", text, count=1, flags=re.S)
     text = re.sub(r'\s+xmlns(:\w+)?="[^"]*"', "", text[:2000]) + text[2000:]
-    return re.sub(r'<svg([^>]*?) width="[0-9.]+pt" height="[0-9.]+pt"',
-                  rf'<svg\1 class="fig" role="img" aria-label="{name}"', text, count=1)
+    return text.replace("<svg", f'<svg class="fig" role="img" aria-label="{name}"', 1)
 
 
 def _dates(t_gps_ns: npt.ArrayLike) -> FloatArray:
@@ -141,7 +141,7 @@ def trajectory(
         dx = max(float(np.ptp(xs)), 1e-9)
         dy = max(float(np.ptp(ys)), 1e-9)
         # The frame follows the flight's shape within limits; equal scale on both axes.
-        height = min(max(WIDTH_IN * dy / dx, 4.0), 8.0) + 0.9
+        height = min(max(WIDTH_IN * dy / dx, 4.0), 6.6) + 0.9  # fits a 768 px screen
         fig, ax = plt.subplots(figsize=(WIDTH_IN, height), layout="constrained")
         seg_ok = ok[1:] & ok[:-1] & (np.diff(t_gps_ns) <= max_gap_s * 1e9)
         pts = np.column_stack([x_m, y_m])
@@ -163,6 +163,7 @@ def trajectory(
         ax.set_xlabel(f"Easting ({unit})" if projected else "Longitude (deg)")
         ax.set_ylabel(f"Northing ({unit})" if projected else "Latitude (deg)")
         ax.set_title(crs, fontsize=9, loc="left")
+        ax.tick_params(labelsize=9)
         ax.tick_params(axis="y", labelrotation=90)
         for lab in ax.get_yticklabels():
             lab.set_verticalalignment("center")

@@ -319,7 +319,8 @@ ul.warn li{margin:.2em 0}ul.warn{border-left:4px solid #d73027;padding:.3em 1em 
 background:#fff6f5}
 p.ok{border-left:4px solid #1a9850;padding:.3em 1em;background:#f3fbf5}
 figure{margin:1em 0;break-inside:avoid}figcaption{font-size:.9em;color:#333;margin-top:.2em}
-svg.fig{width:100%;height:auto;max-height:94vh;display:block}
+svg.fig{width:100%;max-width:900px;height:auto;display:block}
+svg.fig[aria-label=trajectory]{width:auto;max-height:92vh}
 table.counts{width:100%}
 .opts{columns:3 15em;font-size:12px;margin:.3em 0}code,pre{font-size:12px}
 caption{text-align:left}

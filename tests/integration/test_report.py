@@ -277,10 +277,11 @@ def test_report_renders_in_chromium(flight: dict[str, Any], tmp_path: Path) -> N
         names = [b[0] for b in boxes]
         assert names[:2] == ["trajectory", "quality"] and "sigmas" in names
         assert "satellites" in names and "timing" in names
-        for name, w, h in boxes:
-            assert w > 900 and 150 < h < 1400, (name, w, h)
+        for name, w, h in boxes:  # the map at its natural size (it fits the screen), the
+            # time series a bit larger (900 px), type readable in both
+            assert 600 < w <= 900 and 150 < h < 900, (name, w, h)
         traj = {b[0]: b[1:] for b in boxes}["trajectory"]
-        assert traj[1] > 0.5 * traj[0]  # the map is not squeezed into a strip
+        assert 0.6 * traj[0] < traj[1] < 768  # the map is not a strip, and fits the screen
         assert browser.eval("document.documentElement.scrollWidth") <= 1366
         n_rows = browser.eval("document.querySelectorAll('#marks tbody tr').length")
         assert n_rows == len(_cameras(flight["out"]))
