@@ -315,3 +315,34 @@ def test_report_pdf_is_the_same_page_on_a4(flight: dict[str, Any]) -> None:
         if r["photo"]:
             assert r["photo"] in text
     assert "UTC" in text and "GPS week" in text
+
+
+def test_without_chromium_the_html_is_written_and_the_missing_pdf_named(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import numpy as np
+
+    from groundstation.solve.outputs import CameraRow
+    from groundstation.solve.report import ReportInput, write_report
+
+    t0 = 2022 * 604_800 * 10**9 + 217_373 * 10**9
+    inp = ReportInput(
+        flight="f.ubx", engine_name="E", engine_version="1", engine_options={},
+        position_source="p", base_name=None, base_ecef_m=None, base_check="none",
+        base_doubtful=True, epsg=25829, crs_name="ETRS89 / UTM zone 29N", projected=True,
+        lever_arm_m=(0.0, 0.0, 0.3), shutter_delay_ms=0.0, edge="falling", interp="linear",
+        max_gap_s=1.0, marks_total=1, marks_duplicate=0,
+        rows=(CameraRow("IMG_1.JPG", 0, 1, t0, 53.28, -8.98, 90.0, 501100.0, 5903700.0,
+                        0.01, 0.01, 0.02, 1, 0),),
+        track_t_gps_ns=np.array([t0 - 10**9, t0 + 10**9]),
+        track_x_m=np.array([501090.0, 501110.0]), track_y_m=np.array([5903690.0, 5903710.0]),
+        track_quality=np.array([1, 1]),
+    )
+    monkeypatch.setenv("PATH", str(tmp_path / "empty"))  # no chromium on this PATH
+    paths, notes = write_report(inp, tmp_path / "out")
+    assert [p.name for p in paths] == ["report.html"]
+    assert not (tmp_path / "out" / "report.pdf").exists()
+    assert notes == [("report.pdf not written: Chromium is not installed (apt-get install "
+                     "chromium); print report.html from a browser instead")]
+    text = paths[0].read_text()
+    assert "Base coordinates doubtful" in text  # a warning the reviewer sees first
