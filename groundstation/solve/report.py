@@ -113,7 +113,8 @@ class ReportInput:
         radio_gaps, source_outages: link dropouts and source outages recorded by the station.
         station_events: the recording is a station session that records them (else unknown).
         satellites: the rover's raw observations (None when the recording has none).
-        slips_found, slips_repaired: conditioning counts (None when no conditioning ran).
+        slips_found, slips_repaired: cycle slips found and repaired by the conditioning (None
+            when none ran; the pipeline then counts the receiver's loss-of-lock flags).
         lever_residual_m, lever_outlier: lever-arm estimate from an EO file.
         metre_level: the positions are the receiver's own fix.
         notes: the solve's notes.
@@ -427,7 +428,7 @@ def _counts_table(inp: ReportInput) -> str:
         + row("photos", "photos") + row("photos matched to a mark", "photos_matched")
         + row("photos without mark", "photos_unmatched")
         + row("marks without photo (orphans)", "orphan_marks")
-        + f'<tr><th>cycle slips found</th><td data-count="slips_found">{_e(slips_found)}</td>'
+        + f'<tr><th>cycle slips flagged (rover, first band)</th><td data-count="slips_found">{_e(slips_found)}</td>'
         "</tr>"
         + f'<tr><th>slips repaired</th><td data-count="slips_repaired">{_e(slips_rep)}</td>'
         "</tr>"
