@@ -428,8 +428,8 @@ def _counts_table(inp: ReportInput) -> str:
         + row("photos", "photos") + row("photos matched to a mark", "photos_matched")
         + row("photos without mark", "photos_unmatched")
         + row("marks without photo (orphans)", "orphan_marks")
-        + f'<tr><th>cycle slips flagged (rover, first band)</th><td data-count="slips_found">{_e(slips_found)}</td>'
-        "</tr>"
+        + "<tr><th>cycle slips flagged (rover, first band)</th>"
+        f'<td data-count="slips_found">{_e(slips_found)}</td></tr>'
         + f'<tr><th>slips repaired</th><td data-count="slips_repaired">{_e(slips_rep)}</td>'
         "</tr>"
         + "<tr><th>radio dropouts / source outages</th><td>"
