@@ -349,10 +349,16 @@ def sigmas(t_gps_ns: IntArray, sd_enu_m: FloatArray, quality: IntArray) -> str:
             ax.scatter(_dates(t_gps_ns[bad]), np.nanmax(sd_enu_m[bad], axis=1), s=40,
                        facecolors="none", edgecolors="#d73027", linewidths=1.0,
                        label="not fixed")
-        ax.set_yscale("log")
-        ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _pos: f"{v:g}"))
-        ax.yaxis.set_minor_formatter(FuncFormatter(lambda v, _pos: ""))
-        ax.set_ylabel("standard deviation (m)")
+        vals = sd_enu_m[ok]
+        if float(vals.max()) > 20 * max(float(vals.min()), 1e-4):
+            # Fixed (cm) and float/single (dm-m) together: a log axis shows both.
+            ax.set_yscale("log")
+            ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _pos: f"{v:g}"))
+            ax.yaxis.set_minor_formatter(FuncFormatter(lambda v, _pos: ""))
+            ax.set_ylabel("standard deviation (m, log scale)")
+        else:
+            ax.set_ylim(0.0, float(vals.max()) * 1.15)
+            ax.set_ylabel("standard deviation (m)")
         _time_axes(ax, int(t_gps_ns[ok].min()))
         ax.legend(loc="upper left", bbox_to_anchor=(1.0, 1.0), frameon=False)
         return to_svg(fig, "sigmas")

@@ -511,7 +511,7 @@ def _figures(inp: ReportInput) -> list[tuple[str, str, str]]:
         "Standard deviations at the camera positions",
         figures.sigmas(t_rows, sd, qual),
         ("σ east, north and up of every camera position, as given by the engine and carried "
-        "through the interpolation (log scale); red circles: not ambiguity-fixed."),
+        "through the interpolation; red circles: not ambiguity-fixed."),
     ))
     if inp.pair_residual_s.size:
         out.append((
