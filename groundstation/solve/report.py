@@ -332,7 +332,8 @@ pre{background:#f6f6f6;padding:.5em;white-space:pre-wrap}
  table.marks{font-size:7.5pt}table.marks th{position:static}
  h2{break-after:avoid}section.figs h3{break-after:avoid}
  .opts,code{font-size:7.5pt}
- tr{break-inside:avoid}thead{display:table-header-group}}
+ tr{break-inside:avoid}thead{display:table-header-group}
+ section.positions{break-before:page}}
 """
 
 
@@ -554,10 +555,10 @@ def render_html(inp: ReportInput) -> str:
         f"<h2>Counts</h2>{_counts_table(inp)}"
         f"<h2>Warnings</h2>{warn_html}"
         f'<section class="figs"><h2>Figures</h2>{figs}</section>'
-        f"<h2>Camera positions</h2>"
+        f'<section class="positions"><h2>Camera positions</h2>'
         f'<p class="muted">One row per photo (then per mark without photo), as in cameras.csv. '
         f"E/N in EPSG:{inp.epsg}, h {_e(inp.height_datum)}; σ east/north/up; Δt epoch: time "
-        f"from the mark to the nearest solved epoch.</p>{_marks_table(inp)}"
+        f"from the mark to the nearest solved epoch.</p>{_marks_table(inp)}</section>"
         + (f"<h2>Photos without mark</h2><ul>{unmatched}</ul>" if unmatched else "")
         + f"<h2>Notes</h2><ul>{notes}</ul>"
         "</body></html>\n"
