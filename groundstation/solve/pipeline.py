@@ -9,13 +9,12 @@ from __future__ import annotations
 import logging
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 import numpy.typing as npt
 
-from groundstation import gpstime
 from groundstation.errors import ConfigError, InputError
 from groundstation.geodesy import ecef_to_llh, enu_rotation
 from groundstation.records import NavSolution, TimeMark
@@ -166,15 +165,6 @@ def _validate(s: SolveSettings) -> None:
         raise InputError(f"{s.flight}: no such file")
 
 
-def _gaps(t_gps_ns: npt.NDArray[np.int64], max_gap_s: float) -> list[tuple[float, float]]:
-    if t_gps_ns.size < 2:
-        return []
-    dt_s = np.diff(t_gps_ns) / 1e9
-    idx = np.flatnonzero(dt_s > max_gap_s)
-    t0 = t_gps_ns[0]
-    return [(float((t_gps_ns[i] - t0) / 1e9), float(dt_s[i])) for i in idx.tolist()]
-
-
 def solve(settings: SolveSettings, progress: Progress | None = None) -> SolveResult:
     """Run the whole chain and write every output into ``settings.out_dir``.
 
@@ -285,7 +275,7 @@ def solve(settings: SolveSettings, progress: Progress | None = None) -> SolveRes
             cam[use] = _apply_enu(llh[use], opk[use], s.lever_arm_m)
         notes.append(
             "lever arm (camera frame) " + ", ".join(f"{v:.3f}" for v in s.lever_arm_m) + " m "
-            "applied as camera = antenna - M^T L (DOMAIN.md §7)"
+            "applied as camera = antenna - M^T L (L from projection centre to antenna)"
         )
     if any(a == "nadir-track" for a in attitude):
         notes.append(
@@ -337,41 +327,43 @@ def solve(settings: SolveSettings, progress: Progress | None = None) -> SolveRes
     files = outputs.write_all(out, s.out_dir)
     # Report.
     te, tn = proj.forward(traj_llh[:, 0], traj_llh[:, 1])
-    if not proj.projected:
-        te, tn = _local_en(traj_llh)
-    t_rel = (traj.t_gps_ns - traj.t_gps_ns[0]) / 1e9
-    res_s = np.array([p.residual_s for p in match.pairs]) if match else np.zeros(0)
-    res_t = (
-        np.array([(mp.t_gps_ns[p.mark] - traj.t_gps_ns[0]) / 1e9 for p in match.pairs])
-        if match else np.zeros(0)
-    )
-    summary = [
-        ("flight", s.flight.name),
-        ("positions", f"{traj.source} ({len(traj)} epochs, {traj.fixed_fraction:.0%} fixed)"),
-        ("marks", f"{len(marks)} ({mp.positioned} positioned)"),
-        ("photos", f"{len(photo_list)}" + (f", {len(match.pairs)} paired" if match else "")),
-        ("CRS", f"EPSG:{epsg} {proj.name}"),
-        ("span", gpstime.format_gps(int(traj.t_gps_ns[0])) + " .. "
-         + gpstime.format_gps(int(traj.t_gps_ns[-1]))),
-    ]
-    data = report.ReportData(
-        title=f"groundstation solve: {s.flight.name}",
-        summary=summary,
-        track_en_m=np.column_stack([te, tn]),
-        track_quality=traj.quality,
-        track_t_s=t_rel,
-        marks_en_m=cam[:, :2] if proj.projected else np.zeros((0, 2)),
-        gaps=_gaps(traj.t_gps_ns, s.max_gap_s),
-        match_residual_s=res_s,
-        match_t_s=res_t,
+    engine, version, engine_opts = report.engine_of(traj, opts.rtklib_overrides, s.positions)
+    base_check, base_doubtful = report.check_base(s.base, s.base_ecef_m, traj, s.positions)
+    radio_gaps, outages, events_recorded = report.station_events(s.flight)
+    unmatched = tuple(
+        (photo_list[i].name, photo_list[i].error or "no mark within the pairing window")
+        for i in match.unmatched_photos
+    ) if match else ()
+    data = report.ReportInput(
+        flight=s.flight.name, engine_name=engine, engine_version=version,
+        engine_options=engine_opts, position_source=f"{traj.source}: {len(traj)} epochs",
+        base_name=s.base.name if s.base else None,
+        base_ecef_m=s.base_ecef_m or report.pos_header(s.positions).ref_ecef_m,
+        base_check=base_check, base_doubtful=base_doubtful, epsg=epsg, crs_name=proj.name,
+        projected=proj.projected, lever_arm_m=s.lever_arm_m,
+        shutter_delay_ms=s.shutter_delay_ms, edge=s.edge, interp=s.interp, max_gap_s=s.max_gap_s,
+        rows=tuple(rows), marks_total=len(marks),
+        marks_duplicate=len(match.duplicate_marks) if match else 0,
+        track_t_gps_ns=traj.t_gps_ns, track_x_m=te if proj.projected else traj_llh[:, 1],
+        track_y_m=tn if proj.projected else traj_llh[:, 0], track_quality=traj.quality,
+        photos_total=len(photo_list), photos_unmatched=unmatched,
+        orphan_marks=match.orphan_marks if match else (),
+        clock_offset_s=match.offset_s if match else None,
+        pair_window_s=match.tolerance_s if match else None,
+        pair_t_gps_ns=np.array([mp.t_gps_ns[p.mark] for p in match.pairs], dtype=np.int64)
+        if match else np.zeros(0, np.int64),
+        pair_residual_s=np.array([p.residual_s for p in match.pairs]) if match else np.zeros(0),
+        radio_gaps=radio_gaps, source_outages=outages, station_events=events_recorded,
+        satellites=report.satellites_from_recording(s.flight),
         lever_residual_m=lever_est.residual_m if lever_est else np.zeros(0),
         lever_outlier=lever_est.outlier if lever_est else np.zeros(0, bool),
-        notes=notes,
-        reconciliation=recon,
+        metre_level=traj.metre_level, notes=tuple(notes),
     )
-    rp = s.out_dir / "report.html"
-    rp.write_text(report.render(data), encoding="utf-8")
-    files.append(rp)
+    if data.satellites is not None:
+        data = replace(data, slips_found=int(data.satellites.slip.sum()))
+    report_files, report_notes = report.write_report(data, s.out_dir)
+    files.extend(report_files)
+    notes.extend(report_notes)
     if s.exif_copies and s.photos is not None:
         outputs.write_exif_copies(rows, s.photos, s.out_dir / "photos")
         notes.append(f"EXIF GPS tags written to copies in {s.out_dir / 'photos'}")
@@ -379,15 +371,6 @@ def solve(settings: SolveSettings, progress: Progress | None = None) -> SolveRes
         tuple(rows), marks, mp, traj, match, lever_est, tuple(files), epsg, tuple(notes),
         tuple(recon),
     )
-
-
-def _local_en(llh: npt.NDArray[np.float64]) -> tuple[npt.NDArray[np.float64], ...]:
-    from groundstation.geodesy import llh_to_ecef
-
-    xyz = np.array([llh_to_ecef(*p) for p in llh.tolist()])
-    rot = np.array(enu_rotation(float(llh[0, 0]), float(llh[0, 1])))
-    enu = (xyz - xyz[0]) @ rot.T
-    return enu[:, 0], enu[:, 1]
 
 
 def _apply_enu(

@@ -1,169 +1,817 @@
-"""``report.html``: a self-contained page with inline SVG plots of a solve (no scripts, no CDN)."""
+"""The flight report: ``report.html`` (self-contained, printable) and ``report.pdf`` beside it.
+
+The pipeline fills one :class:`ReportInput` (engine, base, CRS, lever arm, the camera rows that
+``cameras.csv`` is written from, the trajectory, link events, satellite observations) and calls
+:func:`write_report`. Everything on the page is derived from that input, so the counts and the
+per-mark table agree with the exports by construction. Figures come from
+:mod:`groundstation.solve.figures` as inline SVG; the page has no scripts and fetches nothing.
+
+One rendering path: the PDF is the same HTML printed by headless Chromium (``--print-to-pdf``),
+so the paper copy is exactly the page. Without Chromium, ``report.pdf`` is not written and the
+solve says so (print ``report.html`` from any browser instead).
+"""
 
 from __future__ import annotations
 
 import html
+import json
+import logging
 import math
+import re
+import shutil
+import subprocess
+import tempfile
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 import numpy.typing as npt
 
-from groundstation.solve.positions import QUALITY_NAMES
+from groundstation import gpstime, jsonio
+from groundstation.errors import GroundstationError
+from groundstation.solve import figures
+from groundstation.solve.figures import QUALITY_COLOURS, Span
+from groundstation.solve.interpolate import FLAG_GAP
+from groundstation.solve.outputs import CameraRow
+from groundstation.solve.positions import (
+    Q_DGPS,
+    Q_FIX,
+    Q_FLOAT,
+    Q_PPP,
+    Q_SBAS,
+    Q_SINGLE,
+    QUALITY_NAMES,
+    Trajectory,
+)
+
+log = logging.getLogger("groundstation.solve")
 
 FloatArray = npt.NDArray[np.float64]
+IntArray = npt.NDArray[np.int64]
+BoolArray = npt.NDArray[np.bool_]
 
-QUALITY_COLOURS = {1: "#1a9850", 2: "#fdae61", 3: "#74add1", 4: "#4575b4", 5: "#d73027",
-                   6: "#8073ac"}
-W, H, PAD = 720, 420, 40
+CHROMIUM_NAMES = ("chromium", "chromium-browser", "google-chrome", "google-chrome-stable")
+"""Executables tried, in order, for printing the PDF."""
+PDF_TIMEOUT_S = 120.0
+BASE_DOUBTFUL_M = 30.0
+"""The given base coordinates are doubtful when this far from the base receiver's own fixes
+(a stand-alone fix is good to a few metres; a wrong base shifts every camera position)."""
+LEVER_ARM_CONVENTION = (
+    "The lever arm L = (x, y, z) is given in the camera frame, from the projection centre to the "
+    "antenna phase centre: x along the image x axis (right), y along the image y axis (up), z "
+    "along the camera axis away from the scene (up for a nadir camera). With the rotation "
+    "M = R(kappa) R(phi) R(omega) from object to image (omega, phi, kappa in the output CRS), "
+    "camera = antenna - M^T L. Example: a nadir camera 0.57 m below the antenna has z = +0.57."
+)
 
 
 @dataclass(frozen=True, slots=True)
-class ReportData:
-    """What the report shows; every array may be empty."""
+class SatelliteObs:
+    """Raw measurements of the rover, one row per satellite and epoch (first band only).
 
-    title: str
-    summary: Sequence[tuple[str, str]]
-    track_en_m: FloatArray  # (n, 2) east, north of every epoch (local or projected)
-    track_quality: npt.NDArray[np.int64]
-    track_t_s: FloatArray  # seconds from the first epoch
-    marks_en_m: FloatArray  # (m, 2) camera positions
-    gaps: Sequence[tuple[float, float]]  # (start s, length s) of data gaps
-    match_residual_s: FloatArray = field(default_factory=lambda: np.zeros(0))
-    match_t_s: FloatArray = field(default_factory=lambda: np.zeros(0))
+    Attributes:
+        sat: satellite names (``G05``, ``R12`` ...).
+        t_gps_ns: epoch time of each row.
+        cno_dbhz: carrier-to-noise density.
+        slip: loss of lock / cycle slip flagged at this epoch (RINEX LLI bit 0).
+        half: half-cycle ambiguity unresolved (LLI bit 1).
+        repaired: slips repaired by the conditioning (None when none ran).
+    """
+
+    sat: tuple[str, ...]
+    t_gps_ns: IntArray
+    cno_dbhz: FloatArray
+    slip: BoolArray
+    half: BoolArray
+    repaired: BoolArray | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class ReportInput:
+    """Everything the report shows; the pipeline fills it.
+
+    Attributes:
+        flight: recording name.
+        engine_name, engine_version, engine_options: the positioning engine and its option set.
+        position_source: where the trajectory came from (engine or imported file).
+        base_name: base recording (None without one).
+        base_ecef_m: base coordinates used (WGS84 ECEF), None when unknown.
+        base_check: how the base coordinates were checked, in words.
+        base_doubtful: the check failed or was impossible in a way a reviewer must know.
+        epsg, crs_name, projected: output CRS; ``height_datum`` names the heights.
+        lever_arm_m: lever arm in the camera frame (None: not applied).
+        shutter_delay_ms, edge, interp, max_gap_s: how marks became camera positions.
+        rows: the camera rows ``cameras.csv`` is written from (photos, then orphan marks).
+        marks_total, marks_duplicate: marks in the flight and duplicates set aside.
+        photos_total: photos found (0 without ``--photos``).
+        photos_unmatched: (photo name, reason) of every photo without a mark.
+        orphan_marks: mark indices without a photo.
+        clock_offset_s, pair_window_s: photo matching (None without photos).
+        pair_t_gps_ns, pair_residual_s: mark time and residual of every pair.
+        track_*: the trajectory in the output CRS.
+        radio_gaps, source_outages: link dropouts and source outages recorded by the station.
+        station_events: the recording is a station session that records them (else unknown).
+        satellites: the rover's raw observations (None when the recording has none).
+        slips_found, slips_repaired: cycle slips found and repaired by the conditioning (None
+            when none ran; the pipeline then counts the receiver's loss-of-lock flags).
+        lever_residual_m, lever_outlier: lever-arm estimate from an EO file.
+        metre_level: the positions are the receiver's own fix.
+        notes: the solve's notes.
+    """
+
+    flight: str
+    engine_name: str
+    engine_version: str
+    engine_options: dict[str, str]
+    position_source: str
+    base_name: str | None
+    base_ecef_m: tuple[float, float, float] | None
+    base_check: str
+    base_doubtful: bool
+    epsg: int
+    crs_name: str
+    projected: bool
+    lever_arm_m: tuple[float, float, float] | None
+    shutter_delay_ms: float
+    edge: str
+    interp: str
+    max_gap_s: float
+    rows: tuple[CameraRow, ...]
+    marks_total: int
+    marks_duplicate: int
+    track_t_gps_ns: IntArray
+    track_x_m: FloatArray
+    track_y_m: FloatArray
+    track_quality: IntArray
+    height_datum: str = "WGS84 ellipsoidal height (no geoid applied)"
+    photos_total: int = 0
+    photos_unmatched: tuple[tuple[str, str], ...] = ()
+    orphan_marks: tuple[int, ...] = ()
+    clock_offset_s: float | None = None
+    pair_window_s: float | None = None
+    pair_t_gps_ns: IntArray = field(default_factory=lambda: np.zeros(0, np.int64))
+    pair_residual_s: FloatArray = field(default_factory=lambda: np.zeros(0))
+    radio_gaps: tuple[Span, ...] = ()
+    source_outages: tuple[Span, ...] = ()
+    station_events: bool = True
+    satellites: SatelliteObs | None = None
+    slips_found: int | None = None
+    slips_repaired: int | None = None
     lever_residual_m: FloatArray = field(default_factory=lambda: np.zeros(0))
-    lever_outlier: npt.NDArray[np.bool_] = field(default_factory=lambda: np.zeros(0, bool))
-    notes: Sequence[str] = ()
-    reconciliation: Sequence[str] = ()
+    lever_outlier: BoolArray = field(default_factory=lambda: np.zeros(0, bool))
+    metre_level: bool = False
+    notes: tuple[str, ...] = ()
 
 
-def _scale(vals: FloatArray, lo_px: float, hi_px: float) -> tuple[float, float]:
-    finite = vals[np.isfinite(vals)]
-    if finite.size == 0:
-        return 0.0, 1.0
-    lo, hi = float(finite.min()), float(finite.max())
-    if hi - lo < 1e-9:
-        lo, hi = lo - 1.0, hi + 1.0
-    k = (hi_px - lo_px) / (hi - lo)
-    return lo, k
+QUALITY_KEYS = {Q_FIX: "fixed", Q_FLOAT: "float", Q_SBAS: "sbas", Q_DGPS: "dgps",
+                Q_SINGLE: "single", Q_PPP: "ppp"}
+"""Count keys of the positioned rows per RTKLIB quality (every positioned row has one)."""
 
 
-def _svg(body: str, title: str) -> str:
-    return (
-        f'<figure><svg xmlns="http://www.w3.org/2000/svg" width="{W}" height="{H}" '
-        f'viewBox="0 0 {W} {H}" role="img" aria-label="{html.escape(title)}">'
-        f'<rect width="{W}" height="{H}" fill="#fff" stroke="#ccc"/>{body}</svg>'
-        f"<figcaption>{html.escape(title)}</figcaption></figure>"
-    )
+# -- time and number formatting ---------------------------------------------------------------
 
 
-def track_svg(d: ReportData) -> str:
-    """Map of the trajectory, coloured by fix status, with the camera positions."""
-    en = d.track_en_m
-    if en.shape[0] < 2:
-        return "<p>No trajectory.</p>"
-    allpts = np.vstack([en, d.marks_en_m]) if d.marks_en_m.size else en
-    ex0, kx = _scale(allpts[:, 0], PAD, W - PAD)
-    ny0, ky = _scale(allpts[:, 1], PAD, H - PAD)
-    k = min(kx, ky)
-
-    def px(e: float, n: float) -> tuple[float, float]:
-        return PAD + (e - ex0) * k, H - PAD - (n - ny0) * k
-
-    parts = []
-    for i in range(1, en.shape[0]):
-        if not (np.all(np.isfinite(en[i - 1])) and np.all(np.isfinite(en[i]))):
-            continue
-        x1, y1 = px(*en[i - 1])
-        x2, y2 = px(*en[i])
-        c = QUALITY_COLOURS.get(int(d.track_quality[i]), "#999")
-        parts.append(f'<line x1="{x1:.1f}" y1="{y1:.1f}" x2="{x2:.1f}" y2="{y2:.1f}" '
-                     f'stroke="{c}" stroke-width="1.5"/>')
-    for e, n in d.marks_en_m.tolist():
-        if math.isfinite(e) and math.isfinite(n):
-            x, y = px(e, n)
-            parts.append(f'<circle cx="{x:.1f}" cy="{y:.1f}" r="2.2" fill="none" stroke="#000"/>')
-    legend = "".join(
-        f'<rect x="{PAD + 80 * i}" y="8" width="10" height="10" fill="{c}"/>'
-        f'<text x="{PAD + 14 + 80 * i}" y="17" font-size="11">{QUALITY_NAMES.get(q, q)}</text>'
-        for i, (q, c) in enumerate(QUALITY_COLOURS.items())
-    )
-    scale_m = 10 ** math.floor(math.log10(max((W - 2 * PAD) / k / 4, 1e-3)))
-    bar = (f'<line x1="{PAD}" y1="{H - 12}" x2="{PAD + scale_m * k:.1f}" y2="{H - 12}" '
-           f'stroke="#000" stroke-width="2"/><text x="{PAD + scale_m * k + 6:.1f}" '
-           f'y="{H - 8}" font-size="11">{scale_m:g} m</text>')
-    return _svg("".join(parts) + legend + bar,
-                "Trajectory coloured by fix status (circles: camera positions)")
+def utc_text(t_gps_ns: int, decimals: int = 3) -> str:
+    """``2018-10-09 12:21:33.123`` (UTC) for a GPS instant; "" for none (< 0)."""
+    if t_gps_ns < 0:
+        return ""
+    unix_ns = gpstime.gps_to_unix_ns(t_gps_ns)
+    sec, frac = divmod(unix_ns, gpstime.NS_PER_S)
+    base = gpstime.gps_to_datetime(t_gps_ns).strftime("%Y-%m-%d %H:%M:%S")
+    return base + (f".{frac // 10 ** (9 - decimals):0{decimals}d}" if decimals else "")
 
 
-def _series_svg(
-    t: FloatArray, v: FloatArray, title: str, unit: str, red: npt.NDArray[np.bool_] | None = None
-) -> str:
+def gps_text(t_gps_ns: int, decimals: int = 3) -> str:
+    """``2022 130893.123`` (GPS week and seconds of week); "" for none."""
+    if t_gps_ns < 0:
+        return ""
+    week, tow_ns = gpstime.week_tow(t_gps_ns)
+    sec, frac = divmod(tow_ns, gpstime.NS_PER_S)
+    return f"{week} {sec}" + (f".{frac // 10 ** (9 - decimals):0{decimals}d}" if decimals else "")
+
+
+def _num(v: float, nd: int) -> str:
+    return f"{v:.{nd}f}" if math.isfinite(v) else ""
+
+
+# -- counts -----------------------------------------------------------------------------------
+
+
+def counts(inp: ReportInput) -> dict[str, int]:
+    """The summary counts, all derived from the rows (so they equal ``cameras.csv``'s)."""
+    rows = inp.rows
+    pos = [r for r in rows if r.positioned]
+    in_radio = 0
+    for r in rows:
+        if r.t_gps_ns >= 0 and any(s.start_gps_ns <= r.t_gps_ns <= s.end_gps_ns
+                                   for s in inp.radio_gaps):
+            in_radio += 1
+    return {
+        "rows": len(rows),
+        **{QUALITY_KEYS[q]: sum(1 for r in pos if r.quality == q) for q in QUALITY_KEYS},
+        "not_positioned": sum(1 for r in rows if not r.positioned),
+        "photos": inp.photos_total,
+        "photos_matched": sum(1 for r in rows if r.photo and r.mark >= 0),
+        "photos_unmatched": sum(1 for r in rows if r.photo and r.mark < 0),
+        "orphan_marks": sum(1 for r in rows if not r.photo and r.mark >= 0),
+        "marks_bridging_gap": sum(1 for r in rows if r.flags & FLAG_GAP),
+        "marks_in_radio_gap": in_radio,
+        "nadir_assumed": sum(1 for r in rows if r.attitude == "nadir-track"),
+    }
+
+
+def nearest_epoch_s(inp: ReportInput) -> FloatArray:
+    """Per row: seconds from its instant to the nearest solved epoch (NaN without instant)."""
+    t = inp.track_t_gps_ns
+    out = np.full(len(inp.rows), np.nan)
     if t.size == 0:
-        return ""
-    t0, kt = _scale(t, PAD, W - PAD)
-    vv = np.append(v, 0.0)
-    v0, kv = _scale(vv, PAD, H - PAD)
-    parts = []
-    y0 = H - PAD - (0.0 - v0) * kv
-    parts.append(f'<line x1="{PAD}" y1="{y0:.1f}" x2="{W - PAD}" y2="{y0:.1f}" stroke="#aaa"/>')
-    for i, (a, b) in enumerate(zip(t.tolist(), v.tolist(), strict=True)):
-        if not (math.isfinite(a) and math.isfinite(b)):
+        return out
+    for i, r in enumerate(inp.rows):
+        if r.t_gps_ns < 0:
             continue
-        c = "#d73027" if red is not None and red[i] else "#225ea8"
-        parts.append(f'<circle cx="{PAD + (a - t0) * kt:.1f}" '
-                     f'cy="{H - PAD - (b - v0) * kv:.1f}" r="2" fill="{c}"/>')
-    lo, hi = float(np.nanmin(vv)), float(np.nanmax(vv))
-    parts.append(f'<text x="4" y="{PAD}" font-size="11">{hi:.3g} {unit}</text>')
-    parts.append(f'<text x="4" y="{H - PAD}" font-size="11">{lo:.3g} {unit}</text>')
-    return _svg("".join(parts), title)
+        j = int(np.searchsorted(t, r.t_gps_ns))
+        cand = [k for k in (j - 1, j) if 0 <= k < t.size]
+        out[i] = min(abs(int(t[k]) - r.t_gps_ns) for k in cand) / 1e9
+    return out
 
 
-def gaps_svg(d: ReportData) -> str:
-    """Timeline of the solution: fix status per epoch and the data gaps."""
-    if d.track_t_s.size < 2:
-        return ""
-    t0, kt = _scale(d.track_t_s, PAD, W - PAD)
-    parts = []
-    for t, q in zip(d.track_t_s.tolist(), d.track_quality.tolist(), strict=True):
-        x = PAD + (t - t0) * kt
-        parts.append(f'<line x1="{x:.1f}" y1="{H / 2 - 30}" x2="{x:.1f}" y2="{H / 2 + 30}" '
-                     f'stroke="{QUALITY_COLOURS.get(int(q), "#999")}"/>')
-    for start, length in d.gaps:
-        x = PAD + (start - t0) * kt
-        wd = max(length * kt, 1.5)
-        parts.append(f'<rect x="{x:.1f}" y="{H / 2 + 40}" width="{wd:.1f}" height="20" '
-                     f'fill="#000"/>')
-    span = float(d.track_t_s[-1] - d.track_t_s[0])
-    parts.append(f'<text x="{PAD}" y="{H - 10}" font-size="11">0 s</text>'
-                 f'<text x="{W - PAD - 40}" y="{H - 10}" font-size="11">{span:.0f} s</text>')
-    return _svg("".join(parts),
-                f"Fix status per epoch (top) and data gaps (black, {len(d.gaps)} gaps)")
+def residual_sigma_s(inp: ReportInput) -> float:
+    """Robust σ (1.4826 MAD) of the photo-to-mark residuals; NaN with fewer than 3 pairs."""
+    r = inp.pair_residual_s
+    if r.size < 3:
+        return math.nan
+    return float(1.4826 * np.median(np.abs(r - np.median(r))))
 
 
-def render(d: ReportData) -> str:
-    """The whole page."""
-    rows = "".join(
-        f"<tr><th>{html.escape(k)}</th><td>{html.escape(v)}</td></tr>" for k, v in d.summary
+# -- warnings ---------------------------------------------------------------------------------
+
+
+def warnings(inp: ReportInput) -> list[str]:
+    """Every condition a reviewer must know before signing off, most serious first."""
+    c = counts(inp)
+    out: list[str] = []
+    if inp.metre_level:
+        out.append("The positions are the receiver's own fix (metre level): not for mapping.")
+    if inp.base_doubtful:
+        out.append(f"Base coordinates doubtful: {inp.base_check}")
+    if c["not_positioned"]:
+        out.append(f"{c['not_positioned']} camera position(s) could not be computed (see the "
+                   "flags column: outside the trajectory, no edge, or a photo without mark).")
+    worse = {k: c[k] for k in QUALITY_KEYS.values() if k != "fixed" and c[k]}
+    if worse:
+        parts = ", ".join(f"{v} {k}" for k, v in worse.items())
+        out.append(f"{sum(worse.values())} camera position(s) are not ambiguity-fixed ({parts}): "
+                   "expect decimetres (float) to metres (dgps, single).")
+    if c["marks_bridging_gap"]:
+        out.append(f"{c['marks_bridging_gap']} camera position(s) are interpolated across a gap "
+                   f"of more than {inp.max_gap_s:g} s between solved epochs.")
+    if c["marks_in_radio_gap"]:
+        out.append(f"{c['marks_in_radio_gap']} mark(s) fall inside radio dropouts recorded by "
+                   "the ground station.")
+    if inp.source_outages:
+        out.append(f"{len(inp.source_outages)} outage(s) of the receiver connection during the "
+                   "session.")
+    if c["photos_unmatched"]:
+        names = ", ".join(n for n, _ in inp.photos_unmatched[:8])
+        extra = len(inp.photos_unmatched) - 8
+        more = f" and {extra} more" if extra > 0 else ""
+        out.append(f"{c['photos_unmatched']} photo(s) without a time mark: {names}{more}.")
+    if c["orphan_marks"]:
+        out.append(f"{c['orphan_marks']} time mark(s) without a photo (camera fired, no image "
+                   "found): check the image count.")
+    if inp.marks_duplicate:
+        out.append(f"{inp.marks_duplicate} duplicate time mark(s) set aside.")
+    if c["nadir_assumed"]:
+        out.append(f"Attitude assumed for {c['nadir_assumed']} camera position(s): nadir camera "
+                   "(omega = phi = 0), kappa from the direction of travel. The lever arm is "
+                   "applied with this assumed attitude.")
+    if inp.lever_arm_m is None and c["rows"]:
+        out.append("No lever arm applied: the positions are those of the antenna, not of the "
+                   "camera's projection centre.")
+    if not inp.engine_version:
+        out.append("The engine version is not recorded for this solution.")
+    return out
+
+
+# -- HTML -------------------------------------------------------------------------------------
+
+_CSS = """
+:root{--fix:#1a9850;--float:#f39c12;--single:#d73027}
+body{font-family:"DejaVu Sans","Liberation Sans",Arial,sans-serif;font-size:14px;color:#111;
+max-width:1080px;margin:1em auto;padding:0 1em;line-height:1.35}
+h1{font-size:1.5em;margin:.2em 0}h2{font-size:1.2em;border-bottom:1px solid #999;margin-top:1.4em}
+h3{font-size:1em;margin:1em 0 .3em}
+table{border-collapse:collapse}
+table.kv th{text-align:left;vertical-align:top;padding:2px 1em 2px 0;font-weight:600;
+white-space:nowrap}
+table.kv td{padding:2px 0}
+.cols{display:flex;gap:2em;flex-wrap:wrap}.cols>div{flex:1 1 320px}
+table.counts td,table.counts th{padding:2px .6em;border-bottom:1px solid #ddd;text-align:right}
+table.counts th{text-align:left;font-weight:normal}
+table.marks{font-size:12px;width:100%}
+table.marks th,table.marks td{padding:1px 5px;border-bottom:1px solid #e3e3e3;white-space:nowrap}
+table.marks th{background:#eee;position:sticky;top:0;text-align:left}
+table.marks td.n{text-align:right;font-variant-numeric:tabular-nums}
+tr.q-float td{background:#fff3df}tr.q-single td,tr.q-none td{background:#fde2e0}
+.q{display:inline-block;width:.8em;height:.8em;border-radius:50%;vertical-align:-1px;
+margin-right:3px}
+ul.warn li{margin:.2em 0}ul.warn{border-left:4px solid #d73027;padding:.3em 1em .3em 1.8em;
+background:#fff6f5}
+p.ok{border-left:4px solid #1a9850;padding:.3em 1em;background:#f3fbf5}
+figure{margin:1em 0;break-inside:avoid}figcaption{font-size:.9em;color:#333;margin-top:.2em}
+svg.fig{width:100%;max-width:900px;height:auto;display:block}
+svg.fig[aria-label=trajectory]{width:auto;max-height:92vh}
+table.counts{width:100%}
+.opts{columns:3 15em;font-size:12px;margin:.3em 0}code,pre{font-size:12px}
+caption{text-align:left}
+pre{background:#f6f6f6;padding:.5em;white-space:pre-wrap}
+.muted{color:#666}
+@page{size:A4;margin:12mm 10mm}
+@media print{body{max-width:none;margin:0;padding:0;font-size:10pt}
+ table.marks{font-size:7.5pt}table.marks th{position:static}
+ h2{break-after:avoid}section.figs h3{break-after:avoid}
+ .opts,code{font-size:7.5pt}
+ tr{break-inside:avoid}thead{display:table-header-group}
+ section.positions{break-before:page}}
+"""
+
+
+def _e(s: object) -> str:
+    return html.escape(str(s))
+
+
+def _kv(rows: Sequence[tuple[str, str]], cls: str = "kv") -> str:
+    body = "".join(f"<tr><th>{_e(k)}</th><td>{v}</td></tr>" for k, v in rows)
+    return f'<table class="{cls}">{body}</table>'
+
+
+def _quality_dot(q: int) -> str:
+    return (f'<span class="q" style="background:{QUALITY_COLOURS.get(q, "#7f7f7f")}"></span>'
+            f"{_e(QUALITY_NAMES.get(q, str(q)))}")
+
+
+def _summary(inp: ReportInput) -> str:
+    t = inp.track_t_gps_ns
+    span = ""
+    if t.size:
+        dur = (int(t[-1]) - int(t[0])) / 1e9
+        span = (f"{_e(utc_text(int(t[0]), 0))} – {_e(utc_text(int(t[-1]), 0))} UTC "
+                f"({dur / 60:.1f} min)<br>GPS week/seconds {_e(gps_text(int(t[0]), 1))} – "
+                f"{_e(gps_text(int(t[-1]), 1))} (GPS − UTC = "
+                f"{gpstime.leap_seconds_at_gps(int(t[0]))} s)")
+    if inp.base_ecef_m is not None:
+        from groundstation.geodesy import ecef_to_llh
+
+        la, lo, h = ecef_to_llh(*inp.base_ecef_m)
+        name = f"{_e(inp.base_name)}<br>" if inp.base_name else ""
+        base = (f"{name}ECEF X {inp.base_ecef_m[0]:.4f}, "
+                f"Y {inp.base_ecef_m[1]:.4f}, Z {inp.base_ecef_m[2]:.4f} m<br>"
+                f"lat {la:.9f}°, lon {lo:.9f}°, h {h:.3f} m (WGS84)<br>"
+                f"checked: {_e(inp.base_check)}")
+    else:
+        base = _e(inp.base_check or "none")
+    opts = ""
+    if inp.engine_options:
+        opts = ('<div class="opts">'
+                + "".join(f"<div><code>{_e(k)} = {_e(v)}</code></div>"
+                          for k, v in inp.engine_options.items()) + "</div>")
+    lever = (", ".join(f"{v:+.3f}" for v in inp.lever_arm_m) + " m (x, y, z)"
+             if inp.lever_arm_m is not None else "not applied")
+    rows = [
+        ("Flight", _e(inp.flight)),
+        ("Span", span or "no epochs"),
+        ("Positions", _e(inp.position_source)),
+        ("Engine", f"{_e(inp.engine_name)} {_e(inp.engine_version or '(version not recorded)')}"
+         + opts),
+        ("Base station", base),
+        ("Output CRS", f"EPSG:{inp.epsg} {_e(inp.crs_name)}"),
+        ("Heights", _e(inp.height_datum)),
+        ("Lever arm", _e(lever) + f'<br><span class="muted">{_e(LEVER_ARM_CONVENTION)}</span>'),
+        ("Shutter", (f"{inp.shutter_delay_ms:g} ms after the {_e(inp.edge)} edge of the camera "
+                    "pulse")),
+        ("Interpolation", f"{_e(inp.interp)}; gaps longer than {inp.max_gap_s:g} s are flagged"),
+    ]
+    if inp.clock_offset_s is not None:
+        rows.append(("Camera clock", (f"GPS − camera {inp.clock_offset_s:+.3f} s; pairing window "
+                     f"±{(inp.pair_window_s or 0) * 1e3:.0f} ms; residual σ "
+                     f"{residual_sigma_s(inp) * 1e3:.1f} ms (robust)")))
+    return _kv(rows)
+
+
+def _counts_table(inp: ReportInput) -> str:
+    c = counts(inp)
+
+    def row(label: str, key: str, value: int | None = None) -> str:
+        v = c[key] if value is None else value
+        return f'<tr><th>{_e(label)}</th><td data-count="{key}">{v}</td></tr>'
+
+    slips_found = "not available" if inp.slips_found is None else str(inp.slips_found)
+    slips_rep = ("no conditioning ran" if inp.slips_repaired is None
+                 else str(inp.slips_repaired))
+    left = (
+        '<table class="counts"><caption><b>Camera positions</b> (rows of cameras.csv)</caption>'
+        + row("rows", "rows")
+        + "".join(row(k, k) for k in QUALITY_KEYS.values()
+                  if c[k] or k in ("fixed", "float", "single"))
+        + row("not positioned", "not_positioned")
+        + row("bridging a gap > " + f"{inp.max_gap_s:g} s", "marks_bridging_gap")
+        + row("inside radio dropouts", "marks_in_radio_gap")
+        + row("attitude assumed (nadir)", "nadir_assumed")
+        + "</table>"
     )
-    notes = "".join(f"<li>{html.escape(n)}</li>" for n in d.notes)
-    recon = html.escape("\n".join(d.reconciliation))
-    plots = [track_svg(d), gaps_svg(d)]
-    if d.match_residual_s.size:
-        plots.append(_series_svg(d.match_t_s, d.match_residual_s,
-                                 "Photo-to-mark residuals after the clock offset", "s"))
-    if d.lever_residual_m.size:
-        plots.append(_series_svg(np.arange(d.lever_residual_m.size, dtype=float),
-                                 d.lever_residual_m,
-                                 "Lever-arm residual per image (red: outlier)", "m",
-                                 d.lever_outlier))
+    right = (
+        '<table class="counts"><caption><b>Photos and marks</b></caption>'
+         f'<tr><th>marks in the flight</th><td data-count="marks_total">{inp.marks_total}</td>'
+        "</tr>"
+         f'<tr><th>duplicate marks set aside</th><td data-count="marks_duplicate">'
+        f"{inp.marks_duplicate}</td></tr>"
+        + row("photos", "photos") + row("photos matched to a mark", "photos_matched")
+        + row("photos without mark", "photos_unmatched")
+        + row("marks without photo (orphans)", "orphan_marks")
+        + "<tr><th>cycle slips flagged (rover, first band)</th>"
+        f'<td data-count="slips_found">{_e(slips_found)}</td></tr>'
+        + f'<tr><th>slips repaired</th><td data-count="slips_repaired">{_e(slips_rep)}</td>'
+        "</tr>"
+        + "<tr><th>radio dropouts / source outages</th><td>"
+        + (f"{len(inp.radio_gaps)} / {len(inp.source_outages)}" if inp.station_events
+           else "not recorded (plain UBX file)") + "</td></tr>"
+        + "</table>"
+    )
+    return f'<div class="cols"><div>{left}</div><div>{right}</div></div>'
+
+
+MARK_COLUMNS = ("photo", "mark", "count", "UTC", "GPS week s", "E (m)", "N (m)", "h (m)",
+                "σE (m)", "σN (m)", "σU (m)", "quality", "Δt epoch (s)", "flags")
+"""Header of the per-mark table (the test reads the table back by these names)."""
+
+
+def _marks_table(inp: ReportInput) -> str:
+    near = nearest_epoch_s(inp)
+    nd = 3 if inp.projected else 9
+    cols = list(MARK_COLUMNS)
+    if not inp.projected:
+        cols[5:7] = ["lon (deg)", "lat (deg)"]
+    head = "".join(f"<th>{_e(c)}</th>" for c in cols)
+    body = []
+    for r, dt_s in zip(inp.rows, near.tolist(), strict=True):
+        q = r.quality if r.positioned else 0
+        cls = {Q_FIX: "q-fix", Q_FLOAT: "q-float", Q_SINGLE: "q-single"}.get(q, "q-none")
+        cells = [
+            _e(r.photo), str(r.mark) if r.mark >= 0 else "",
+            str(r.mark_count) if r.mark >= 0 else "",
+            _e(utc_text(r.t_gps_ns)), _e(gps_text(r.t_gps_ns)),
+            _num(r.x_m, nd), _num(r.y_m, nd), _num(r.h_m, 3),
+            _num(r.sd_e_m, 3), _num(r.sd_n_m, 3), _num(r.sd_u_m, 3),
+        ]
+        tds = "".join(f'<td class="n">{c}</td>' if i > 0 else f"<td>{c}</td>"
+                      for i, c in enumerate(cells))
+        tds += f"<td>{_quality_dot(q)}</td>"
+        tds += f'<td class="n">{_num(dt_s, 3)}</td><td>{_e(r.flag_text)}</td>'
+        body.append(f'<tr class="{cls}">{tds}</tr>')
+    return (f'<table class="marks" id="marks"><thead><tr>{head}</tr></thead>'
+            f"<tbody>{''.join(body)}</tbody></table>")
+
+
+def _figures(inp: ReportInput) -> list[tuple[str, str, str]]:
+    """(title, svg, caption) of every figure."""
+    rows = inp.rows
+    cam_x = np.array([r.x_m for r in rows], dtype=np.float64)
+    cam_y = np.array([r.y_m for r in rows], dtype=np.float64)
+    t_rows = np.array([r.t_gps_ns for r in rows], dtype=np.int64)
+    out = [(
+        "Trajectory",
+        figures.trajectory(inp.track_x_m, inp.track_y_m, inp.track_quality, inp.track_t_gps_ns,
+                           cam_x, cam_y, max_gap_s=inp.max_gap_s,
+                           crs=f"EPSG:{inp.epsg} {inp.crs_name}", projected=inp.projected),
+        ("Antenna trajectory in the output CRS, coloured by solution quality; circles are the "
+        "camera positions (after the lever arm). Equal scale on both axes; north arrow points "
+        "to grid north."),
+    ), (
+        "Quality over time",
+        figures.quality_timeline(inp.track_t_gps_ns, inp.track_quality,
+                                 max_gap_s=inp.max_gap_s, radio_gaps=inp.radio_gaps,
+                                 outages=inp.source_outages, mark_t_gps_ns=t_rows,
+                                 events_recorded=inp.station_events),
+        ("Solution quality per epoch (hatched: no solved epoch for longer than the gap limit), "
+        "radio dropouts and source outages recorded by the ground station, and the camera "
+        "marks. Bottom axis UTC, top axis GPS seconds of week."),
+    )]
+    sats = inp.satellites
+    if sats is not None:
+        out.append((
+            "Satellites",
+            figures.satellites(sats.sat, sats.t_gps_ns, sats.cno_dbhz, sats.slip, sats.half,
+                               sats.repaired),
+            ("Rover satellites over time: colour is C/N0, red ticks are cycle slips (loss of "
+            "lock), orange marks epochs with the half-cycle ambiguity unresolved."),
+        ))
+    sd = np.array([(r.sd_e_m, r.sd_n_m, r.sd_u_m) for r in rows], dtype=np.float64).reshape(-1, 3)
+    qual = np.array([r.quality for r in rows], dtype=np.int64)
+    out.append((
+        "Standard deviations at the camera positions",
+        figures.sigmas(t_rows, sd, qual),
+        ("σ east, north and up of every camera position, as given by the engine and carried "
+        "through the interpolation; red circles: not ambiguity-fixed."),
+    ))
+    if inp.pair_residual_s.size:
+        out.append((
+            "Photo timing residuals",
+            figures.timing_residuals(inp.pair_t_gps_ns, inp.pair_residual_s,
+                                     inp.pair_window_s or math.nan, residual_sigma_s(inp)),
+            ("Time of each mark minus the photo's EXIF time corrected by the camera clock offset. "
+            "Whole-second EXIF times spread over ±500 ms; sub-second times sit near zero."),
+        ))
+    if inp.lever_residual_m.size:
+        out.append((
+            "Lever-arm residuals",
+            figures.lever_residuals(inp.lever_residual_m, inp.lever_outlier),
+            "Lever arm estimated per image from the exterior orientation file, minus the mean.",
+        ))
+    return out
+
+
+def render_html(inp: ReportInput) -> str:
+    """The whole page (self-contained: inline CSS and SVG, no scripts, no links)."""
+    warn = warnings(inp)
+    warn_html = (
+        '<ul class="warn">' + "".join(f"<li>{_e(w)}</li>" for w in warn) + "</ul>" if warn
+        else '<p class="ok">Nothing to report: every camera position is fixed, no gaps.</p>'
+    )
+    figs = "".join(
+        f"<figure><h3>{_e(title)}</h3>{svg}<figcaption>{_e(cap)}</figcaption></figure>"
+        for title, svg, cap in _figures(inp)
+    )
+    unmatched = "".join(f"<li>{_e(n)}: {_e(why)}</li>" for n, why in inp.photos_unmatched)
+    notes = "".join(f"<li>{_e(n)}</li>" for n in inp.notes)
     return (
         "<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>"
-        f"<title>{html.escape(d.title)}</title><style>body{{font-family:sans-serif;"
-        "max-width:760px;margin:1em auto}}th{{text-align:left;padding-right:1em}}"
-        "pre{{background:#f6f6f6;padding:.5em;overflow:auto;max-height:20em}}</style></head>"
-        f"<body><h1>{html.escape(d.title)}</h1><table>{rows}</table>"
-        f"<ul>{notes}</ul>{''.join(plots)}"
-        f"<h2>Photo reconciliation</h2><pre>{recon or 'no photos'}</pre></body></html>\n"
+        "<meta name='viewport' content='width=device-width, initial-scale=1'>"
+        f"<title>Flight report: {_e(inp.flight)}</title><style>{_CSS}</style></head><body>"
+        f"<h1>Flight report: {_e(inp.flight)}</h1>"
+        f'<p class="muted">Camera positions from groundstation solve. Times in UTC and GPS '
+        f"(week, seconds of week).</p>"
+        f"<h2>Summary</h2>{_summary(inp)}"
+        f"<h2>Counts</h2>{_counts_table(inp)}"
+        f"<h2>Warnings</h2>{warn_html}"
+        f'<section class="figs"><h2>Figures</h2>{figs}</section>'
+        f'<section class="positions"><h2>Camera positions</h2>'
+        f'<p class="muted">One row per photo (then per mark without photo), as in cameras.csv. '
+        f"E/N in EPSG:{inp.epsg}, h {_e(inp.height_datum)}; σ east/north/up; Δt epoch: time "
+        f"from the mark to the nearest solved epoch.</p>{_marks_table(inp)}</section>"
+        + (f"<h2>Photos without mark</h2><ul>{unmatched}</ul>" if unmatched else "")
+        + f"<h2>Notes</h2><ul>{notes}</ul>"
+        "</body></html>\n"
     )
+
+
+# -- PDF --------------------------------------------------------------------------------------
+
+
+def find_chromium() -> str | None:
+    """Path of a Chromium (or Chrome) executable, None when none is installed."""
+    for name in CHROMIUM_NAMES:
+        path = shutil.which(name)
+        if path:
+            return path
+    return None
+
+
+def print_pdf(html_path: Path, pdf_path: Path, chromium: str) -> None:
+    """Print a page to PDF with headless Chromium (A4 from the page's ``@page`` rule).
+
+    Raises:
+        RuntimeError: Chromium failed or wrote nothing (message names why).
+    """
+    with tempfile.TemporaryDirectory(prefix="gs-report-") as profile:
+        cmd = [chromium, "--headless", "--no-sandbox", "--disable-gpu", "--no-first-run",
+               "--disable-background-networking", "--disable-component-update",
+               "--disable-sync", f"--user-data-dir={profile}", "--no-pdf-header-footer",
+               f"--print-to-pdf={pdf_path}", html_path.resolve().as_uri()]
+        try:
+            proc = subprocess.run(cmd, capture_output=True, text=True, timeout=PDF_TIMEOUT_S,
+                                  check=False)
+        except subprocess.TimeoutExpired as err:
+            raise RuntimeError(f"Chromium did not finish within {PDF_TIMEOUT_S:g} s") from err
+    if proc.returncode != 0 or not pdf_path.is_file() or pdf_path.stat().st_size == 0:
+        tail = (proc.stderr or "").strip().splitlines()[-1:] or ["no output"]
+        raise RuntimeError(f"Chromium exit {proc.returncode}: {tail[0]}")
+
+
+def write_report(inp: ReportInput, out_dir: Path) -> tuple[list[Path], list[str]]:
+    """Write ``report.html`` and (with Chromium) ``report.pdf``; returns (paths, notes).
+
+    The notes say what is missing (no Chromium, printing failed) so the caller can show them.
+    """
+    out_dir.mkdir(parents=True, exist_ok=True)
+    hp = out_dir / "report.html"
+    hp.write_text(render_html(inp), encoding="utf-8")
+    paths, notes = [hp], []
+    pp = out_dir / "report.pdf"
+    chromium = find_chromium()
+    if chromium is None:
+        notes.append("report.pdf not written: Chromium is not installed (apt-get install "
+                     "chromium); print report.html from a browser instead")
+        return paths, notes
+    try:
+        print_pdf(hp, pp, chromium)
+    except (RuntimeError, OSError) as err:
+        notes.append(f"report.pdf not written: {err}")
+        return paths, notes
+    paths.append(pp)
+    return paths, notes
+
+
+# -- inputs the pipeline does not otherwise read ----------------------------------------------
+
+
+def satellites_from_recording(path: Path) -> SatelliteObs | None:
+    """The rover's raw measurements (RXM-RAWX, else RXM-RAW), first band, as RINEX sees them."""
+    from groundstation.offline import rinex
+    from groundstation.ubx import fastraw
+
+    data = rinex.read_recording(path)
+    index = fastraw.index_frames(data)
+    obs = rinex.obs_from_rawx(fastraw.decode_rawx(data, index))
+    if obs.epoch.size == 0:
+        obs = rinex.obs_from_raw(fastraw.decode_raw(data, index))
+    if obs.epoch.size == 0:
+        return None
+    first = np.char.startswith(obs.code.astype(str), "1")
+    sat = np.char.add(obs.sys.astype(str), np.char.zfill(obs.prn.astype(str), 2))[first]
+    return SatelliteObs(
+        sat=tuple(sat.tolist()),
+        t_gps_ns=obs.t_gps_ns[obs.epoch[first]],
+        cno_dbhz=obs.cno_dbhz[first],
+        slip=(obs.lli[first] & 1) != 0,
+        half=(obs.lli[first] & 2) != 0,
+    )
+
+
+def station_events(path: Path) -> tuple[tuple[Span, ...], tuple[Span, ...], bool]:
+    """Radio dropouts and source outages a ground-station session recorded (MCAP only).
+
+    Returns (dropouts, outages, recorded): ``recorded`` is False for a plain UBX file, which
+    cannot tell.
+
+    Outages carry host times; they are put on GPS time with the least-delayed offset between
+    host clock and the receiver's fixes, as the dashboard does.
+    """
+    from groundstation.storage.mcapio import iter_messages
+    from groundstation.storage.reading import detect_format, session_parts
+
+    if detect_format(path) != "mcap":
+        return (), (), False
+    gaps: list[Span] = []
+    host_outages: list[tuple[int, int]] = []
+    offsets: list[int] = []
+    for part in session_parts(path):
+        for m in iter_messages(part, topics=["/groundstation/event", "/gnss/nav"]):
+            try:
+                d = json.loads(m.data)
+            except ValueError:
+                continue
+            if m.topic == "/gnss/nav":
+                th, wk, tow = d.get("t_host_ns"), d.get("gps_week"), d.get("tow_ns")
+                if isinstance(th, int) and isinstance(wk, int) and isinstance(tow, int):
+                    offsets.append(th - gpstime.gps_ns(wk, tow))
+                continue
+            data = d.get("data") or {}
+            if d.get("kind") == "link.dropout":
+                a, b = data.get("start_t_gps_ns"), data.get("end_t_gps_ns")
+                if isinstance(a, int) and isinstance(b, int):
+                    gaps.append(Span(a, b))
+            elif d.get("kind") == "source.outage":
+                a, b = data.get("start_ns"), data.get("end_ns")
+                if isinstance(a, int) and isinstance(b, int):
+                    host_outages.append((a, b))
+    outages: tuple[Span, ...] = ()
+    if offsets and host_outages:
+        off = min(offsets)
+        outages = tuple(Span(a - off, b - off) for a, b in host_outages)
+    return tuple(gaps), outages, True
+
+
+@dataclass(frozen=True, slots=True)
+class PosHeader:
+    """What an imported RTKLIB ``.pos`` file says about itself."""
+
+    program: str = ""
+    ref_ecef_m: tuple[float, float, float] | None = None
+    lines: tuple[str, ...] = ()
+
+
+def pos_header(path: Path | None) -> PosHeader:
+    """The ``%`` header of a ``.pos`` file (plain or gzip); empty when none or unreadable."""
+    import gzip
+
+    from groundstation.solve.positions import _layout_from_header
+
+    if path is None:
+        return PosHeader()
+    lines: list[str] = []
+    try:
+        opener = gzip.open if path.suffix == ".gz" else open
+        with opener(path, "rt", encoding="ascii", errors="replace") as f:
+            for line in f:
+                if not line.startswith("%"):
+                    break
+                lines.append(line.rstrip("\n"))
+    except OSError:
+        return PosHeader()
+    program = ""
+    for line in lines:
+        body = line.lstrip("%").strip()
+        if body.startswith("program"):
+            program = body.split(":", 1)[-1].strip()
+    return PosHeader(program, _layout_from_header(lines, None).ref_ecef_m, tuple(lines))
+
+
+_ENGINE_INFO_NOTE = "engine options in "
+"""How the engine names its info file (engine, version, full option set) in the notes."""
+
+
+def engine_of(
+    traj: Trajectory, rtklib_overrides: dict[str, str], positions_file: Path | None
+) -> tuple[str, str, dict[str, str]]:
+    """Name, version and options of the engine that made the trajectory.
+
+    A solution our engine made carries its ``engine.json`` (engine, version, every option); an
+    imported ``.pos`` states its program in its header; ``rtklib_overrides`` is kept for callers
+    that imported a solution made with known options.
+    """
+    info_path = next((Path(n.removeprefix(_ENGINE_INFO_NOTE)) for n in traj.notes
+                      if n.startswith(_ENGINE_INFO_NOTE)), None)
+    if info_path is not None:
+        try:
+            info = jsonio.loads(info_path.read_bytes())
+        except (OSError, ValueError):
+            info = None
+        if isinstance(info, dict):
+            opts = {str(k): str(v) for k, v in dict(info.get("options") or {}).items()}
+            return str(info.get("engine", traj.source)), str(info.get("version", "")), opts
+    if traj.metre_level:
+        return "receiver's own fix", "", {}
+    head = pos_header(positions_file)
+    if head.program:
+        name, _, version = head.program.partition(" ")
+        return name, f"{version} (from the header of {traj.source})".strip(), dict(rtklib_overrides)
+    return f"imported solution file ({traj.source})", "", dict(rtklib_overrides)
+
+
+def check_base(
+    base: Path | None,
+    base_ecef_m: tuple[float, float, float] | None,
+    traj: Trajectory,
+    positions_file: Path | None,
+) -> tuple[str, bool]:
+    """How the base coordinates were checked: (text, doubtful).
+
+    Given coordinates are compared with the mean of the base receiver's own fixes in a u-blox
+    base recording; an imported solution's reference position is taken from its header.
+    """
+    if base_ecef_m is None:
+        if traj.metre_level:
+            return "no base (receiver's own fix)", False
+        ref = pos_header(positions_file).ref_ecef_m
+        if ref is not None:
+            return ("reference position from the header of the imported solution; not checked "
+                    "against a base recording"), False
+        return "unknown (the imported solution does not state its base)", True
+    how = "given with --base-xyz"
+    if base is None or detect_recording(base) is None:
+        return f"{how}; not checked (no u-blox base recording)", False
+    from groundstation.solve.pipeline import read_flight
+
+    try:
+        fixes = [n.ecef_m for n in read_flight(base).nav if n.fix_ok and n.ecef_m]
+    except GroundstationError as err:
+        return f"{how}; not checked ({err})", True
+    return compare_base(fixes, base_ecef_m, how)
+
+
+def detect_recording(path: Path) -> str | None:
+    """The recording format of a base file (``mcap``, ``gzip``, ``raw``); None for RINEX."""
+    from groundstation.storage.reading import detect_format
+
+    if path.suffix.lower() in (".obs", ".rnx") or re.search(r"\.\d\d[oO]$", path.name):
+        return None
+    try:
+        return detect_format(path)
+    except GroundstationError:
+        return None
+
+
+def compare_base(
+    base_fixes_ecef_m: Sequence[tuple[float, float, float]],
+    base_ecef_m: tuple[float, float, float],
+    how_given: str,
+) -> tuple[str, bool]:
+    """How the base coordinates compare with the base receiver's own fixes: (text, doubtful)."""
+    if not base_fixes_ecef_m:
+        return f"{how_given}; not checked (the base recording has no receiver fix)", False
+    mean = np.mean(np.asarray(base_fixes_ecef_m, dtype=np.float64), axis=0)
+    d = float(np.linalg.norm(mean - np.asarray(base_ecef_m)))
+    text = (f"{how_given}; {d:.1f} m from the mean of the base receiver's own "
+            f"{len(base_fixes_ecef_m)} fixes (stand-alone, metre level)")
+    return text, d > BASE_DOUBTFUL_M

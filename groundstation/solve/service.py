@@ -403,8 +403,10 @@ class SolverService:
         log.info("%s %s: solved in %.1f s: %s marks, %s positioned, %.0f%% epochs fixed",
                  job.station, job.flight, elapsed, summary["marks"], summary["marks_positioned"],
                  100 * float(summary["fixed_fraction"]))  # type: ignore[arg-type]
+        reports = {p.name: str(p) for p in result.files}
         self._send(job.station, STATUS_OK, job.flight, job.session_id, out_dir=str(s.out_dir),
                    files=files, counts=summary, quality=quality_summary(result), notes=notes,
+                   report=reports.get("report.html"), report_pdf=reports.get("report.pdf"),
                    elapsed_s=round(elapsed, 3))
 
 

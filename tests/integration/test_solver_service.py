@@ -139,6 +139,9 @@ def test_finished_session_is_solved_and_published(
     assert {"cameras.csv", "geo.txt", "reference.csv", "pix4d.csv", "cameras.geojson",
             "report.html"} <= names
     assert all(Path(f).is_file() for f in ok["files"])
+    # The message names the report (and its PDF when Chromium printed one).
+    assert ok["report"] == str(Path(ok["out_dir"]) / "report.html")
+    assert ok["report_pdf"] in (None, str(Path(ok["out_dir"]) / "report.pdf"))
     assert any("lever arm" in n for n in ok["notes"])
     # Solved once, whatever the repeats; nothing for the started state.
     time.sleep(0.5)

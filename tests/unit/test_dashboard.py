@@ -7,6 +7,7 @@ import json
 import threading
 import time
 from collections.abc import Callable, Iterator
+from pathlib import Path
 from typing import Any
 
 import pytest
@@ -249,7 +250,7 @@ def test_hub_discovers_stations_and_catches_up_when_a_daemon_appears() -> None:
     hub.attach(bus)
     try:
         assert set(bus.subs) == {f"groundstation/*/{leaf}"
-                                 for leaf in ("status", "event", "timemark", "session")}
+                                 for leaf in ("status", "event", "timemark", "session", "solution")}
         wait_until(lambda: "groundstation/a/q/timemarks" in bus.queries)
         assert hub.document(None)["station"] == "a"  # listed, nothing heard yet
         bus.alive["groundstation/*/alive"]("groundstation/b/alive", True)
@@ -343,3 +344,27 @@ def test_event_stream_pushes_a_snapshot_on_change(served: tuple[Dashboard, FakeB
     finally:
         conn.close()
         reader.join(timeout=3)
+
+
+def test_latest_report_is_linked_and_served(
+    served: tuple[Dashboard, FakeBus], tmp_path: Path
+) -> None:
+    dash, bus = served
+    out = tmp_path / "solutions" / "st" / "flight1"
+    out.mkdir(parents=True)
+    (out / "report.html").write_text("<!DOCTYPE html><title>r</title>")
+    bus.subs["groundstation/*/status"]("groundstation/st/status", status(10.0))
+    assert _get(dash, "/report?station=st")[0] == 404  # no report announced yet
+    # A failed solve names no report; an ok one does.
+    for body in ({"status": "failed", "reason": "x"},
+                 {"status": "ok", "flight": "/rec/flight1.mcap", "report": str(out / "report.html"),
+                  "report_pdf": None}):
+        bus.subs["groundstation/*/solution"](
+            "groundstation/st/solution", encode("solution", {"station": "st", **body}))
+    code, _, raw = _get(dash, "/api/snapshot?station=st")
+    report = json.loads(raw)["view"]["report"]
+    assert report == {"url": "/report?station=st", "flight": "flight1.mcap", "pdf": False,
+                      "t_host_ns": None}
+    code, ctype, raw = _get(dash, report["url"])
+    assert code == 200 and ctype.startswith("text/html") and raw.startswith(b"<!DOCTYPE html>")
+    assert _get(dash, report["url"] + "&format=pdf")[0] == 404  # no PDF was written

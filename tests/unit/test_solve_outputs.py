@@ -109,17 +109,33 @@ def test_geojson_is_valid_rfc7946(out: outputs.SolveOutput) -> None:
 def test_write_all_and_report(out: outputs.SolveOutput, tmp_path: Path) -> None:
     paths = outputs.write_all(out, tmp_path / "o")
     assert sorted(p.name for p in paths) == sorted(outputs.WRITERS)
-    d = report.ReportData(
-        title="t", summary=[("a", "b")],
-        track_en_m=np.array([[0.0, 0.0], [1.0, 1.0], [2.0, 0.5]]),
-        track_quality=np.array([1, 2, 5]), track_t_s=np.array([0.0, 0.2, 1.6]),
-        marks_en_m=np.array([[0.5, 0.5]]), gaps=[(0.2, 1.4)],
-        match_residual_s=np.array([0.01, -0.02]), match_t_s=np.array([0.1, 1.0]),
+    t = out.trajectory_t_gps_ns
+    inp = report.ReportInput(
+        flight="f.ubx", engine_name="E", engine_version="", engine_options={"a": "<b>"},
+        position_source="p", base_name=None, base_ecef_m=None, base_check="none",
+        base_doubtful=False, epsg=out.epsg, crs_name=out.crs_name, projected=True,
+        lever_arm_m=None, shutter_delay_ms=0.0, edge="falling", interp="linear", max_gap_s=1.0,
+        rows=out.rows, marks_total=3, marks_duplicate=0, track_t_gps_ns=t,
+        track_x_m=np.array([500000.0, 500007.0, 500014.0]),
+        track_y_m=np.array([5538000.0, 5538011.0, 5538022.0]),
+        track_quality=np.array([1, 2, 5]), photos_total=3,
+        photos_unmatched=(("IMG_0003.JPG", "no time"),), pair_t_gps_ns=t[:2],
+        pair_residual_s=np.array([0.01, -0.02]), pair_window_s=0.1,
         lever_residual_m=np.array([0.001, 0.2]), lever_outlier=np.array([False, True]),
-        notes=["<n>"], reconciliation=["x"],
+        notes=("<n>",),
     )
-    html = report.render(d)
-    assert html.count("<svg") == 4 and "&lt;n&gt;" in html and "<script" not in html
+    c = report.counts(inp)
+    assert (c["fixed"], c["float"], c["not_positioned"], c["photos_matched"],
+            c["photos_unmatched"], c["orphan_marks"], c["marks_bridging_gap"]) == (2, 1, 1, 2,
+                                                                                 1, 1, 1)
+    html = report.render_html(inp)
+    # Trajectory, quality, sigmas, timing, lever arm; escaped text; no script, no link.
+    assert html.count("<svg") == 5 and "&lt;n&gt;" in html and "&lt;b&gt;" in html
+    assert "<script" not in html and "http" not in html
+    assert "1 photo(s) without a time mark: IMG_0003.JPG" in html
+    assert "No lever arm applied" in html
+    assert report.utc_text(T) == "2018-10-09 12:22:35.138"
+    assert report.gps_text(T) == "2022 217373.138"
 
 
 def test_output_dir_inside_photos_is_refused(tmp_path: Path) -> None:

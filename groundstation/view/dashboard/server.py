@@ -32,7 +32,7 @@ from groundstation.view.dashboard.state import PPK_READY_MIN, FileInfo, StationV
 
 log = logging.getLogger("groundstation.dashboard")
 
-LEAVES = ("status", "event", "timemark", "session")
+LEAVES = ("status", "event", "timemark", "session", "solution")
 """What the dashboard subscribes to (not ``epoch``/``ubx``: they are heavy and not shown)."""
 HEARTBEAT_S = 1.0
 MIN_PUSH_INTERVAL_S = 0.2
@@ -240,6 +240,14 @@ class Hub:
             live = [s for s, v in self.views.items() if v.status is not None]
             return live[0] if live else next(iter(self.views))
 
+    def report_path(self, station: str | None, pdf: bool) -> Path | None:
+        """The latest report file the solver announced for a station (None if none)."""
+        with self.cond:
+            view = self.views.get(station or self.default_station() or "")
+            msg = view.report if view is not None else None
+        value = msg.get("report_pdf" if pdf else "report") if msg else None
+        return Path(value) if isinstance(value, str) else None
+
     def document(self, station: str | None) -> dict[str, Any]:
         """What one SSE message carries: the station list and the chosen station's view."""
         chosen = station or self.default_station()
@@ -272,6 +280,8 @@ class _Handler(BaseHTTPRequestHandler):
             self._json(hub.document(station))
         elif url.path == "/api/stations":
             self._json(hub.stations())
+        elif url.path == "/report":
+            self._report(station, (query.get("format") or [""])[0] == "pdf")
         elif url.path in ("/", "/index.html"):
             self._static("index.html")
         elif url.path.startswith("/static/"):
@@ -299,6 +309,18 @@ class _Handler(BaseHTTPRequestHandler):
             self._send(HTTPStatus.NOT_FOUND, b"not found\n", "text/plain; charset=utf-8")
             return
         self._send(HTTPStatus.OK, res.read_bytes(), STATIC_TYPES[Path(name).suffix])
+
+    def _report(self, station: str | None, pdf: bool) -> None:
+        """The latest report of a station, when the solver wrote it on this machine. Only the
+        exact file the solver announced is served (named report.html or report.pdf)."""
+        path = self.server.hub.report_path(station, pdf)
+        name = "report.pdf" if pdf else "report.html"
+        if path is None or path.name != name or not path.is_file():
+            self._send(HTTPStatus.NOT_FOUND, b"no report on this machine yet\n",
+                       "text/plain; charset=utf-8")
+            return
+        ctype = "application/pdf" if pdf else "text/html; charset=utf-8"
+        self._send(HTTPStatus.OK, path.read_bytes(), ctype)
 
     def _chunk(self, data: bytes) -> None:
         self.wfile.write(f"{len(data):x}\r\n".encode() + data + b"\r\n")

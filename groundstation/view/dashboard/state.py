@@ -15,6 +15,7 @@ from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
+from urllib.parse import quote
 
 from groundstation import events as kinds
 from groundstation import gpstime
@@ -66,6 +67,7 @@ class StationView:
         status_rx_s: receiving monotonic time of that status.
         alive: liveliness of the daemon (None: never heard of it).
         session: the latest ``session`` payload.
+        report: the latest ``solution`` payload with a report (status ok).
         version: bumped on every change (the server pushes when it moves).
     """
 
@@ -74,6 +76,7 @@ class StationView:
     status_rx_s: float | None = None
     alive: bool | None = None
     session: dict[str, Any] | None = None
+    report: dict[str, Any] | None = None
     version: int = 0
     events: deque[dict[str, Any]] = field(default_factory=lambda: deque(maxlen=EVENTS_KEPT))
     marks: deque[tuple[int, int]] = field(default_factory=lambda: deque(maxlen=MARKS_KEPT))
@@ -114,6 +117,10 @@ class StationView:
             self._on_mark(msg)
         elif kind == "session":
             self.session = msg
+        elif kind == "solution":
+            if msg.get("status") != "ok" or not isinstance(msg.get("report"), str):
+                return False
+            self.report = msg  # the latest solved recording's report
         else:
             return False
         self.version += 1
@@ -297,6 +304,7 @@ class StationView:
             "timeline": self.timeline(gps_now),
             "marks": self._marks_panel(st, gps_now),
             "session": self._session_panel(st, file_info),
+            "report": self._report_panel(),
         }
         return out
 
@@ -316,6 +324,15 @@ class StationView:
         ms["last_age_s"] = (round((gps_now - last_t) / NS, 1)
                             if isinstance(last_t, int) and gps_now is not None else None)
         return ms
+
+    def _report_panel(self) -> dict[str, Any] | None:
+        """The latest report the solver announced (served by the dashboard at ``/report``)."""
+        r = self.report
+        if r is None:
+            return None
+        flight = str(r.get("flight") or "")
+        return {"url": "/report?station=" + quote(self.station), "flight": flight.split("/")[-1],
+                "pdf": bool(r.get("report_pdf")), "t_host_ns": r.get("t_host_ns")}
 
     def _session_panel(
         self, st: dict[str, Any], file_info: Callable[[str], FileInfo]

@@ -329,6 +329,24 @@ function renderSession(s) {
     bytes(s.disk_free_bytes) + " of " + bytes(s.disk_total_bytes), low ? "alarm" : "");
 }
 
+function renderReport(r) {
+  // The latest flight report the solver announced (served by the dashboard at /report).
+  const td = $("sess-report");
+  clear(td);
+  if (!r) { td.textContent = "-"; return; }
+  const link = (href, text) => {
+    const a = document.createElement("a");
+    a.href = href; a.target = "_blank"; a.rel = "noopener"; a.textContent = text;
+    return a;
+  };
+  const a = link(r.url, "latest: " + r.flight);
+  td.appendChild(a);
+  if (r.pdf) {
+    td.appendChild(document.createTextNode(" · "));
+    td.appendChild(link(r.url + "&format=pdf", "PDF"));
+  }
+}
+
 function renderAlerts(alerts) {
   const ul = $("alerts");
   clear(ul);
@@ -376,6 +394,7 @@ function render(doc) {
     renderMarks(view.marks);
     renderLink(view);
     renderSession(view.session);
+    renderReport(view.report);
     renderAlerts(view.alerts);
     renderEvents(view.events);
   }
