@@ -14,7 +14,7 @@ import time
 import tty
 from pathlib import Path
 
-from groundstation.live.fanout import Inbox, InboxClosed, Item
+from groundstation.live.fanout import Inbox, InboxClosed
 from groundstation.records import Event
 
 REPO = Path(__file__).resolve().parents[1]
@@ -113,6 +113,7 @@ class EventCollector:
     ``Overflow.NEVER_DROP``)."""
 
     name = "events"
+    accepts = frozenset((Event,))
 
     def __init__(self) -> None:
         self.items: list[Event] = []
@@ -120,8 +121,7 @@ class EventCollector:
     async def consume(self, inbox: Inbox, publish: object) -> None:
         while True:
             try:
-                item: Item = await inbox.get()
+                items = await inbox.get_all()
             except InboxClosed:
                 return
-            if isinstance(item, Event):
-                self.items.append(item)
+            self.items.extend(i for i in items if isinstance(i, Event))

@@ -32,9 +32,13 @@ from groundstation.records import (
     STATUS_SCHEMA_VERSION,
     Dropout,
     Event,
+    Item,
     LinkStatus,
     MarkStatus,
+    PipelineStatus,
+    RawChunk,
     RawEpoch,
+    Record,
     SatStatus,
     Status,
     SvInfo,
@@ -156,7 +160,7 @@ class Monitor:
 
     # -- input ----------------------------------------------------------------------------
 
-    def observe(self, item: Any, now_ns: int) -> list[Event]:
+    def observe(self, item: Item | Record, now_ns: int) -> list[Event]:
         """Take one pipeline item; return the events it causes."""
         events: list[Event] = []
         if isinstance(item, RawEpoch):
@@ -170,23 +174,20 @@ class Monitor:
                 self._svinfo[s.label] = (s.elev_deg, s.azim_deg, s.used)
         elif isinstance(item, Event):
             self._on_event(item, now_ns, events)
-        elif hasattr(item, "data") and hasattr(item, "t_host_ns") and isinstance(item.data, bytes):
+        elif isinstance(item, RawChunk):
             self.on_bytes(len(item.data), item.t_host_ns)
-        elif hasattr(item, "garbage_bytes") and hasattr(item, "bad_checksum"):
-            # the pipeline's own counters (PipelineStatus)
-            self.damaged = int(item.bad_checksum)
-            self.garbage = int(item.garbage_bytes)
-            frames = int(getattr(item, "frames", self.frames))
-            if frames > self.frames:
+        elif isinstance(item, PipelineStatus):  # the pipeline's own counters
+            self.damaged = item.bad_checksum
+            self.garbage = item.garbage_bytes
+            if item.frames > self.frames:
                 self._frames_progress(now_ns, events)
-            self.frames = frames
-            nmea = int(getattr(item, "nmea_sentences", 0))
+            self.frames = item.frames
+            nmea = item.nmea_sentences
             if self._frameless_since_ns is not None:
                 self._frameless_nmea += max(0, nmea - self.nmea_sentences)
             self.nmea_sentences = nmea
-            connected = getattr(item, "source_connected", None)
-            if isinstance(connected, bool):
-                self.source_connected = connected
+            if item.source_connected is not None:
+                self.source_connected = item.source_connected
         return events
 
     def on_bytes(self, n: int, t_host_ns: int) -> None:

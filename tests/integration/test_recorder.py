@@ -18,7 +18,7 @@ from groundstation.live.daemon import run_daemon
 from groundstation.records import Event, TimeMark
 from groundstation.storage import iter_messages, iter_raw_chunks, read_metadata, read_summary
 from groundstation.storage.mcapio import ReadReport
-from groundstation.storage.recorder import SessionRecorder
+from groundstation.storage.session import SessionRecorder
 from groundstation.ubx.build import build_frame
 from groundstation.ubx.decode import Decoder
 from groundstation.ubx.framer import UbxFramer
@@ -212,7 +212,7 @@ def test_plain_json_matches_to_jsonable() -> None:
     import math
 
     from groundstation.records import RawEpoch, SatObs, to_jsonable
-    from groundstation.storage.recorder import plain_json
+    from groundstation.storage.topics import plain_json
 
     sat = SatObs(0, 5, 1.5, 2e7, -100.25, 44, 7, 2, True, False, locktime_ms=3)
     epoch = RawEpoch(2300, 123_400_000_000, (sat, sat), "RXM-RAW", 99)
