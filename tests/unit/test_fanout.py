@@ -23,7 +23,7 @@ def chunk(i: int) -> RawChunk:
 
 
 def mark(i: int) -> TimeMark:
-    return TimeMark(0, i, i * 10, None, True, False, "gps", True, 5, 2_000 + i)
+    return TimeMark(0, i, i * 10, None, True, False, 1, True, 5, 2_000 + i)
 
 
 async def drain(inbox: Inbox) -> list[Item]:
