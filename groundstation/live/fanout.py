@@ -85,6 +85,8 @@ class Inbox:
         self.accepts: frozenset[type] = frozenset(accepts)
         self._items: deque[Item] = deque()
         self._ready = asyncio.Event()
+        self._batch = max(1, maxsize // 4)  # a lingering sink stops waiting at this many
+        self._batch_ready = asyncio.Event()
         self._closed = False
         self._on_event = on_event
         self._clock = clock
@@ -110,8 +112,11 @@ class Inbox:
         items = self._items
         if len(items) < self.maxsize:  # the common case, kept short: it runs per item per sink
             items.append(item)
-            if len(items) > self.high_water:
-                self.high_water = len(items)
+            n = len(items)
+            if n > self.high_water:
+                self.high_water = n
+            if n >= self._batch:
+                self._batch_ready.set()
             self._ready.set()
             return
         event: Event | None = None
@@ -141,6 +146,7 @@ class Inbox:
         items.append(item)
         self.high_water = max(self.high_water, len(items))
         self._ready.set()
+        self._batch_ready.set()
         if event is not None:  # after the item: the event goes through the fanout (and here)
             self._on_event(event)
 
@@ -148,6 +154,7 @@ class Inbox:
         """No more items; the sink drains what is queued, then :meth:`get` raises."""
         self._closed = True
         self._ready.set()
+        self._batch_ready.set()
 
     async def _wait(self, timeout_s: float | None) -> bool:
         """Wait until an item is queued; False if ``timeout_s`` passed first.
@@ -191,16 +198,31 @@ class Inbox:
         self._taken()
         return item
 
-    async def get_all(self, timeout_s: float | None = None) -> list[Item]:
+    async def get_all(self, timeout_s: float | None = None, *, linger_s: float = 0.0
+                      ) -> list[Item]:
         """Everything queued, oldest first, once there is something; ``[]`` if ``timeout_s``
         passed first. One wake-up per burst instead of one per item: at 115 200 baud a sink
         otherwise wakes for every 64-byte chunk and every record.
+
+        Args:
+            timeout_s: the longest wait for a first item.
+            linger_s: once there is an item, wait up to this long for more (a quarter of the
+                bound, or the inbox closing, ends the wait early, so a flood is not slowed).
+                A sink that can take its items a little late (the recorder, the monitor) wakes
+                a few dozen times a second instead of once per chunk.
 
         Raises:
             InboxClosed: when closed and drained.
         """
         if not await self._wait(timeout_s):
             return []
+        if linger_s > 0 and len(self._items) < self._batch and not self._closed:
+            self._batch_ready.clear()
+            try:
+                async with asyncio.timeout(linger_s):
+                    await self._batch_ready.wait()
+            except TimeoutError:
+                pass  # the usual case on a slow link: take what came meanwhile
         items = list(self._items)
         self._items.clear()
         self.delivered += len(items)

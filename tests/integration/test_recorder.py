@@ -208,16 +208,45 @@ def test_missing_file_source_is_an_error(tmp_path: Path) -> None:
     assert read_summary(mcap) is not None
 
 
-def test_plain_json_matches_to_jsonable() -> None:
+def test_record_body_matches_to_jsonable() -> None:
+    """The recorded JSON of a record is its ``to_jsonable`` form with the type name in front,
+    NaN and infinity as null; also for every record of a real capture."""
     import math
 
-    from groundstation.records import RawEpoch, SatObs, to_jsonable
-    from groundstation.storage.topics import plain_json
+    from streams import flight_stream
+
+    from groundstation.records import PipelineStatus, RawEpoch, SatObs, to_jsonable
+    from groundstation.storage.topics import ROUTES, record_body
+
+    def nulls(v: object) -> object:
+        if isinstance(v, float) and not math.isfinite(v):
+            return None
+        if isinstance(v, list):
+            return [nulls(x) for x in v]
+        if isinstance(v, dict):
+            return {k: nulls(x) for k, x in v.items()}
+        return v
+
+    def expect(record: object) -> object:
+        return nulls({"type": type(record).__name__, **to_jsonable(record)})
 
     sat = SatObs(0, 5, 1.5, 2e7, -100.25, 44, 7, 2, True, False, locktime_ms=3)
     epoch = RawEpoch(2300, 123_400_000_000, (sat, sat), "RXM-RAW", 99)
-    ev = Event("x.y", 1, "m", "info", {"a": [1, 2.5], "b": b"\x01"})
-    for record in (epoch, ev, TimeMark(0, 1, None, 5, False, True, 1, True, 20, 7)):
-        assert plain_json(record) == to_jsonable(record)
+    ev = Event("x.y", 1, "m", "info", {"a": [1, 2.5], "b": b"\x01", "c": {"d": None}})
+    pipe = PipelineStatus(5, "serial:/dev/x", None, 1, 2, 3, 4, 5, 6, 7, {"recorder": 1}, {})
+    for record in (epoch, ev, pipe, TimeMark(0, 1, None, 5, False, True, 1, True, 20, 7)):
+        assert json.loads(record_body(record)) == expect(record)
     nan_sat = SatObs(0, 5, math.nan, math.inf, 0.0, 44, 7, 0, False, False)
-    assert plain_json(nan_sat)["carrier_phase_cyc"] is None
+    nan_epoch = RawEpoch(2300, 0, (nan_sat,), "RXM-RAW", 1)
+    body = json.loads(record_body(nan_epoch))
+    assert body["sats"][0]["carrier_phase_cyc"] is None
+    assert body["sats"][0]["pseudorange_m"] is None
+    assert body == expect(nan_epoch)
+    real = (Path(__file__).resolve().parents[3] / "shared" / "data" / "real" / "tridge__pyUblox"
+            / "data" / "6P-raw-PPP.ubx")  # NAV-*, AID-EPH, RXM-RAW when ../shared is there
+    data = flight_stream(20)[0] + (real.read_bytes() if real.exists() else b"")
+    dec, framer = Decoder(), UbxFramer()
+    records = [r for f in framer.feed(data, 1) if type(r := dec.decode(f)) in ROUTES]
+    assert len(records) > 20
+    for decoded in records:
+        assert json.loads(record_body(decoded)) == expect(decoded)

@@ -92,6 +92,38 @@ def test_get_times_out_with_none_and_close_ends() -> None:
     asyncio.run(main())
 
 
+def test_get_all_lingers_for_more_but_not_past_a_quarter_of_the_bound_or_close() -> None:
+    async def main() -> None:
+        fan = Fanout()
+        box = fan.add_inbox("rec", 8, Overflow.NEVER_DROP, (RawChunk,))
+        loop = asyncio.get_running_loop()
+
+        async def trickle(n: int) -> None:
+            for i in range(n):
+                fan.publish(chunk(i))
+                await asyncio.sleep(0)
+
+        # a trickle: one wake-up takes the burst that came while lingering
+        task = asyncio.create_task(trickle(1))
+        got = await box.get_all(linger_s=0.2)
+        await task
+        assert got == [chunk(0)]  # nothing more came: the linger ran out
+        # a quarter of the bound (2 items) ends the linger at once
+        loop.call_soon(fan.publish, chunk(1))
+        loop.call_soon(fan.publish, chunk(2))
+        t0 = loop.time()
+        got = await box.get_all(linger_s=30.0)
+        assert got == [chunk(1), chunk(2)] and loop.time() - t0 < 30.0
+        # closing ends the linger too, and what is queued is delivered first
+        loop.call_soon(fan.publish, chunk(3))
+        loop.call_soon(fan.close)
+        assert await box.get_all(linger_s=30.0) == [chunk(3)]
+        with pytest.raises(InboxClosed):
+            await box.get_all(linger_s=30.0)
+
+    asyncio.run(main())
+
+
 def test_a_sink_gets_only_the_types_it_accepts() -> None:
     async def main() -> None:
         fan = Fanout()
