@@ -152,7 +152,7 @@ class _Reconnecting:
         await asyncio.sleep(delay)
 
 
-COALESCE_S = 0.02
+COALESCE_S = 0.01
 """After a short read, let the port gather bytes this long before reading again: at 115 200
 baud a USB adapter or a pty delivers a few dozen bytes every few milliseconds, and one read
 (and one pass through the pipeline) per 20 ms instead of per delivery is what keeps the
