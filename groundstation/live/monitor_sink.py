@@ -106,10 +106,6 @@ class MonitorSink:
             self.last_status = status
             publish(status)
 
-    def step(self, item: Item | None, publish: Publish) -> None:
-        """One item (or a clock tick when ``None``) through the monitor."""
-        self.steps([] if item is None else [item], publish)
-
     def steps(self, items: list[Item], publish: Publish) -> None:
         """A burst of items through the monitor, then one clock tick (an empty burst: the
         tick alone). Ticking once per burst rather than per item is what keeps the monitor's
