@@ -87,6 +87,7 @@ class Inbox:
         self._ready = asyncio.Event()
         self._batch = max(1, maxsize // 4)  # a lingering sink stops waiting at this many
         self._batch_ready = asyncio.Event()
+        self._flowing = False  # get_all(linger_s) took items last time
         self._closed = False
         self._on_event = on_event
         self._clock = clock
@@ -208,26 +209,40 @@ class Inbox:
             timeout_s: the longest wait for a first item.
             linger_s: once there is an item, wait up to this long for more (a quarter of the
                 bound, or the inbox closing, ends the wait early, so a flood is not slowed).
-                A sink that can take its items a little late (the recorder, the monitor) wakes
+                While items keep coming, the next call lingers straight away instead of
+                first waiting for one item: one wake-up per ``linger_s`` in steady flow. A
+                sink that can take its items a little late (the recorder, the monitor) wakes
                 a few dozen times a second instead of once per chunk.
 
         Raises:
             InboxClosed: when closed and drained.
         """
-        if not await self._wait(timeout_s):
-            return []
-        if linger_s > 0 and len(self._items) < self._batch and not self._closed:
-            self._batch_ready.clear()
-            try:
-                async with asyncio.timeout(linger_s):
-                    await self._batch_ready.wait()
-            except TimeoutError:
-                pass  # the usual case on a slow link: take what came meanwhile
+        if linger_s > 0 and self._flowing and not self._closed:
+            await self._linger(linger_s)  # the last call took items: more are on their way
+            if not self._items:
+                self._flowing = False
+                return []  # the flow stopped: the sink gets its tick, then waits afresh
+        else:
+            if not await self._wait(timeout_s):
+                return []
+            if linger_s > 0 and not self._closed:
+                await self._linger(linger_s)
+        self._flowing = linger_s > 0
         items = list(self._items)
         self._items.clear()
         self.delivered += len(items)
         self._taken()
         return items
+
+    async def _linger(self, linger_s: float) -> None:
+        if len(self._items) >= self._batch:
+            return
+        self._batch_ready.clear()
+        try:
+            async with asyncio.timeout(linger_s):
+                await self._batch_ready.wait()
+        except TimeoutError:
+            pass  # the usual case on a slow link: take what came meanwhile
 
 
 @runtime_checkable

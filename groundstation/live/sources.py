@@ -225,6 +225,15 @@ class SerialSource:
         """One read as soon as the fd is readable; raises DeviceVanished on loss."""
         loop = asyncio.get_running_loop()
         s = self.settings
+        try:  # after the coalescing pause bytes are usually waiting: no readiness round trip
+            data = os.read(fd, s.read_size_bytes)
+        except BlockingIOError:
+            pass
+        except OSError as err:
+            raise DeviceVanished(f"{os.strerror(err.errno or 0)} (errno {err.errno})") from err
+        else:
+            if data:
+                return data  # (end of file is reported by the path below)
         while True:
             fut: asyncio.Future[bytes] = loop.create_future()
 
