@@ -340,3 +340,37 @@ class Status:
     marks: MarkStatus
     alerts: tuple[str, ...]
     recording: dict[str, Any] = dataclasses.field(default_factory=dict)
+
+
+@dataclass(frozen=True, slots=True)
+class RawChunk:
+    """Bytes exactly as the source delivered them, with the host receive time."""
+
+    data: bytes
+    t_host_ns: int
+
+
+@dataclass(frozen=True, slots=True)
+class PipelineStatus:
+    """The daemon's own counters, published every ``status_interval_s`` (MCAP
+    ``/groundstation/pipeline``); the monitor folds them into its :class:`Status`."""
+
+    t_host_ns: int
+    source: str
+    source_connected: bool | None
+    bytes_in: int
+    chunks: int
+    frames: int
+    garbage_bytes: int
+    bad_checksum: int
+    records: int
+    undecodable: int
+    queued: dict[str, int]
+    dropped: dict[str, int]
+    nmea_sentences: int = 0
+
+
+Item = (RawChunk | RawEpoch | TimeMark | Subframe | Ephemeris | NavSolution | SvInfo | Event
+        | Status | PipelineStatus)
+"""What travels through the live pipeline's fanout: the received bytes, the decoded records, and
+what the stages say about themselves (events, status snapshots, the pipeline's counters)."""

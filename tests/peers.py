@@ -11,7 +11,7 @@ import threading
 import time
 from pathlib import Path
 
-from groundstation.live.fanout import Inbox, InboxClosed, Item
+from groundstation.live.fanout import Inbox, InboxClosed
 from groundstation.records import Event
 from groundstation.sim.ptylink import PtyLink
 
@@ -85,6 +85,7 @@ class EventCollector:
     ``Overflow.NEVER_DROP``)."""
 
     name = "events"
+    accepts = frozenset((Event,))
 
     def __init__(self) -> None:
         self.items: list[Event] = []
@@ -92,8 +93,7 @@ class EventCollector:
     async def consume(self, inbox: Inbox, publish: object) -> None:
         while True:
             try:
-                item: Item = await inbox.get()
+                items = await inbox.get_all()
             except InboxClosed:
                 return
-            if isinstance(item, Event):
-                self.items.append(item)
+            self.items.extend(i for i in items if isinstance(i, Event))

@@ -22,43 +22,26 @@ from typing import Any
 from groundstation import events as kinds
 from groundstation.config import Settings
 from groundstation.errors import GroundstationError
-from groundstation.live.fanout import Fanout, InboxStats, Item, Overflow, RawChunk, Sink, SinkSpec
+from groundstation.live.fanout import Fanout, InboxStats, Overflow, Publish, Sink, SinkSpec
 from groundstation.live.monitor import Monitor
 from groundstation.live.monitor_sink import MonitorSink
 from groundstation.live.publisher import ZenohPublisherSink
-from groundstation.live.recorder import RecorderSink
+from groundstation.live.recorder_sink import RecorderSink
 from groundstation.live.sources import FileSource, Source, make_source
-from groundstation.records import Event, Frame, Status, UndecodedFrame
+from groundstation.records import (
+    Event,
+    Frame,
+    Item,
+    PipelineStatus,
+    RawChunk,
+    UndecodedFrame,
+)
 from groundstation.storage.mcapio import ExactFile
-from groundstation.storage.recorder import FileOpener, SessionRecorder, register_record_topic
+from groundstation.storage.session import FileOpener, SessionRecorder
 from groundstation.ubx.decode import Decoder
 from groundstation.ubx.framer import UbxFramer
 
 log = logging.getLogger("groundstation.daemon")
-
-
-@dataclass(frozen=True, slots=True)
-class PipelineStatus:
-    """The daemon's own counters, published every ``status_interval_s`` on
-    ``/groundstation/pipeline``; the monitor folds them into its Status."""
-
-    t_host_ns: int
-    source: str
-    source_connected: bool | None
-    bytes_in: int
-    chunks: int
-    frames: int
-    garbage_bytes: int
-    bad_checksum: int
-    records: int
-    undecodable: int
-    queued: dict[str, int]
-    dropped: dict[str, int]
-    nmea_sentences: int = 0
-
-
-register_record_topic(PipelineStatus, "/groundstation/pipeline")
-register_record_topic(Status, "/groundstation/status")
 
 
 @dataclass(frozen=True, slots=True)
@@ -183,11 +166,18 @@ class Pipeline:
 
     # -- the synchronous core ---------------------------------------------------------------
 
-    def publish(self, item: Item) -> None:
-        """Hand an item (record, event, status) to every sink."""
-        if isinstance(item, Event):
+    def publish(self, item: Item, origin: str | None = None) -> None:
+        """Hand an item (record, event, status) to every sink that accepts it, except the sink
+        named ``origin`` (the one that produced it)."""
+        if type(item) is Event:
             self.events += 1
-        self.fanout.publish(item)
+        self.fanout.publish(item, origin)
+
+    def _publisher(self, origin: str) -> Publish:
+        def publish(item: Item) -> None:
+            self.publish(item, origin)
+
+        return publish
 
     def ingest(self, chunk: bytes, t_host_ns: int) -> None:
         """One chunk from the source: raw bytes first, then what they decode to."""
@@ -291,7 +281,8 @@ class Pipeline:
 
     async def _run(self, stop: asyncio.Event) -> None:
         inboxes = [
-            (spec, self.fanout.add_inbox(spec.sink.name, spec.maxsize, spec.overflow))
+            (spec, self.fanout.add_inbox(spec.sink.name, spec.maxsize, spec.overflow,
+                                         spec.sink.accepts))
             for spec in self.specs
         ]
         claim = getattr(self.source, "claim", None)
@@ -308,7 +299,8 @@ class Pipeline:
         async with asyncio.TaskGroup() as tg:
             sink_tasks = {
                 spec.sink.name: tg.create_task(
-                    spec.sink.consume(inbox, self.publish), name=f"sink:{spec.sink.name}"
+                    spec.sink.consume(inbox, self._publisher(spec.sink.name)),
+                    name=f"sink:{spec.sink.name}"
                 )
                 for spec, inbox in inboxes
             }

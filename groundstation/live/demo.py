@@ -62,6 +62,7 @@ class ViewSink:
     """Hands status, events and marks to a callback as bus payloads (the terminal view)."""
 
     name = "view"
+    accepts = frozenset((Status, Event, TimeMark))
 
     def __init__(self, on_payload: Callable[[str, bytes], None], station: str) -> None:
         self._on_payload = on_payload

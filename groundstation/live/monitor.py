@@ -32,7 +32,11 @@ from groundstation.live.monitor_sats import Satellites
 from groundstation.records import (
     STATUS_SCHEMA_VERSION,
     Event,
+    Item,
+    PipelineStatus,
+    RawChunk,
     RawEpoch,
+    Record,
     Status,
     SvInfo,
     TimeMark,
@@ -109,7 +113,7 @@ class Monitor:
 
     # -- input ----------------------------------------------------------------------------
 
-    def observe(self, item: Any, now_ns: int) -> list[Event]:
+    def observe(self, item: Item | Record, now_ns: int) -> list[Event]:
         """Take one pipeline item; return the events it causes."""
         events: list[Event] = []
         if isinstance(item, RawEpoch):
@@ -123,16 +127,12 @@ class Monitor:
             self.sats.on_svinfo(item)
         elif isinstance(item, Event):
             self._on_event(item, now_ns, events)
-        elif hasattr(item, "data") and hasattr(item, "t_host_ns") and isinstance(item.data, bytes):
+        elif isinstance(item, RawChunk):
             self.on_bytes(len(item.data), item.t_host_ns)
-        elif hasattr(item, "garbage_bytes") and hasattr(item, "bad_checksum"):
-            # the pipeline's own counters (PipelineStatus)
-            frames = getattr(item, "frames", None)
-            connected = getattr(item, "source_connected", None)
+        elif isinstance(item, PipelineStatus):  # the pipeline's own counters
             self.link.on_counters(
-                int(item.bad_checksum), int(item.garbage_bytes),
-                None if frames is None else int(frames), int(getattr(item, "nmea_sentences", 0)),
-                connected if isinstance(connected, bool) else None, now_ns, events,
+                item.bad_checksum, item.garbage_bytes, item.frames, item.nmea_sentences,
+                item.source_connected, now_ns, events,
             )
         return events
 

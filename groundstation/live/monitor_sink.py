@@ -1,7 +1,9 @@
 """The monitor as a pipeline sink: feeds :class:`Monitor` with items and the wall clock.
 
-It also samples the free space of the recording directory, and publishes the monitor's status
-(1 Hz) and events back into the pipeline, where the recorder and the Zenoh publisher take them.
+It takes the raw chunks (byte counts and times), the records the monitor's rules need, the
+other stages' events and the pipeline's counters (:data:`MONITOR_INPUTS`). It also samples the
+free space of the recording directory, and publishes the monitor's status (1 Hz) and events to
+the other sinks (the recorder and the Zenoh publisher take them); they never come back to it.
 """
 
 from __future__ import annotations
@@ -13,14 +15,29 @@ from collections.abc import Callable
 from pathlib import Path
 
 from groundstation import events as kinds
-from groundstation.live.fanout import Inbox, InboxClosed, Item, RawChunk
+from groundstation.live.fanout import Inbox, InboxClosed, Publish
 from groundstation.live.monitor import Monitor
-from groundstation.records import Event, Status
+from groundstation.records import (
+    Event,
+    Item,
+    PipelineStatus,
+    RawChunk,
+    RawEpoch,
+    Status,
+    SvInfo,
+    TimeMark,
+)
 
 log = logging.getLogger("groundstation.monitor")
 
 TICK_S = 0.1
 DISK_CHECK_S = 5.0
+LINGER_S = 0.05  # bursts of 50 ms, half a tick: the monitor's rules work on 100 ms and longer
+
+MONITOR_INPUTS: frozenset[type] = frozenset(
+    (RawChunk, RawEpoch, TimeMark, SvInfo, Event, PipelineStatus)
+)
+"""What the monitor's rules read; nothing else is routed to it."""
 
 
 class MonitorSink:
@@ -35,6 +52,7 @@ class MonitorSink:
     """
 
     name = "monitor"
+    accepts = MONITOR_INPUTS
 
     def __init__(
         self,
@@ -63,7 +81,7 @@ class MonitorSink:
             return
         self.monitor.set_disk_free(usage.free / 1e6)
 
-    def _now(self, item: Item | None, publish: Callable[[Item], None]) -> int | None:
+    def _now(self, item: Item | None, publish: Publish) -> int | None:
         if not self.data_clock:
             return self._clock()
         t = getattr(item, "t_host_ns", None) if item is not None else None
@@ -78,7 +96,7 @@ class MonitorSink:
         return self._data_now
 
     def _emit(self, status: Status | None, events: list[Event],
-              publish: Callable[[Item], None]) -> None:
+              publish: Publish) -> None:
         for ev in events:
             if ev.kind == kinds.ALERT_RAISED:  # the journal shows what the operator must act on
                 log.warning("alert: %s", ev.message)
@@ -89,28 +107,34 @@ class MonitorSink:
             self.last_status = status
             publish(status)
 
-    def step(self, item: Item | None, publish: Callable[[Item], None]) -> None:
-        """One item (or a clock tick when ``None``) through the monitor."""
-        now = self._now(item, publish)
-        if now is None:
-            return
-        if item is not None and not isinstance(item, Status):
-            if isinstance(item, Event) and item.kind.startswith(kinds.MONITOR_PREFIXES):
-                pass  # our own events coming back through the fanout
-            elif isinstance(item, RawChunk):
+    def steps(self, items: list[Item], publish: Publish) -> None:
+        """A burst of items through the monitor, then one clock tick (an empty burst: the
+        tick alone). Ticking once per burst rather than per item is what keeps the monitor's
+        cost per 115 200-baud chunk low; in replay the ticks between items still happen every
+        100 ms of their time."""
+        now: int | None = None
+        for item in items:
+            now = self._now(item, publish)
+            if now is None:
+                continue
+            if type(item) is RawChunk:
                 self.monitor.on_bytes(len(item.data), item.t_host_ns)
             else:
                 self._emit(None, self.monitor.observe(item, now), publish)
+        if not items:
+            now = self._now(None, publish)
+        if now is None:
+            return
         self._check_disk()
         self._emit(*self.monitor.tick(now), publish)
 
-    async def consume(self, inbox: Inbox, publish: Callable[[Item], None]) -> None:
+    async def consume(self, inbox: Inbox, publish: Publish) -> None:
         while True:
             try:
-                item = await inbox.get(timeout_s=TICK_S)
+                items = await inbox.get_all(timeout_s=TICK_S, linger_s=LINGER_S)
             except InboxClosed:
                 break
-            self.step(item, publish)
+            self.steps(items, publish)
         end = self._data_now if self.data_clock and self._data_now else self._clock()
         final = self.monitor.status(end)
         self.last_status = final

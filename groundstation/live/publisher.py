@@ -72,6 +72,13 @@ class ZenohPublisherSink:
         self._links_zero_since: float | None = None
         self.disconnected = False
 
+    @property
+    def accepts(self) -> frozenset[type]:
+        """Marks, status and events; epochs and raw chunks when configured."""
+        extra = ((RawEpoch,) if self.publish_epochs else ()) + (
+            (RawChunk,) if self.publish_raw else ())
+        return frozenset((TimeMark, Status, Event, *extra))
+
     # -- the bus, opened lazily and re-opened after failures ---------------------------------
 
     async def _connect(self, publish: Callable[[Item], None]) -> None:

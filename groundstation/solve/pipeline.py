@@ -168,6 +168,9 @@ def _validate(s: SolveSettings) -> None:
 def solve(settings: SolveSettings, progress: Progress | None = None) -> SolveResult:
     """Run the whole chain and write every output into ``settings.out_dir``.
 
+    The stages, in order: validate, marks, positions, positions at marks, photos, camera
+    rows (coordinates, attitude, lever arm), output files, report.
+
     Raises:
         ConfigError: inconsistent settings (names the option).
         InputError: unreadable inputs, no marks, no epochs.
@@ -176,10 +179,37 @@ def solve(settings: SolveSettings, progress: Progress | None = None) -> SolveRes
     s = settings
     _validate(s)
     notes: list[str] = []
+    rec, marks = _marks(s, progress)
+    traj = _positions(s, rec, notes, progress)
+    times, mp = _positions_at_marks(s, traj, marks, notes, progress)
+    photo_list, match, recon = _photos(s, times, progress)
+    cams = _cameras(s, marks, mp, traj, photo_list, match, notes)
+    files = outputs.write_all(cams.output(traj, mp, notes), s.out_dir)
+    report_files, report_notes = _report(s, traj, marks, mp, photo_list, match, cams, notes)
+    files.extend(report_files)
+    notes.extend(report_notes)
+    if s.exif_copies and s.photos is not None:
+        outputs.write_exif_copies(cams.rows, s.photos, s.out_dir / "photos")
+        notes.append(f"EXIF GPS tags written to copies in {s.out_dir / 'photos'}")
+    return SolveResult(
+        cams.rows, marks, mp, traj, match, cams.lever, tuple(files), cams.epsg, tuple(notes),
+        tuple(recon),
+    )
+
+
+def _marks(s: SolveSettings, progress: Progress | None) -> tuple[FlightRecords, tuple[Mark, ...]]:
+    """Stage 1: the flight's TIM-TM2 records (and receiver fixes) and the marks they make."""
     rec = read_flight(s.flight, progress)
     marks = tuple(build_marks(rec.timemarks))
     log.info("%s: %d TIM-TM2 records, %d marks", s.flight.name, len(rec.timemarks), len(marks))
-    # Positions.
+    return rec, marks
+
+
+def _positions(
+    s: SolveSettings, rec: FlightRecords, notes: list[str], progress: Progress | None
+) -> positions.Trajectory:
+    """Stage 2: the antenna's trajectory from the chosen position source (a .pos file, RTKLIB
+    against the base, or the receiver's own fix)."""
     src = positions.get_source(s.source_name())
     opts = positions.SourceOptions(
         flight=s.flight, positions=s.positions, base=s.base, base_ecef_m=s.base_ecef_m,
@@ -192,7 +222,14 @@ def solve(settings: SolveSettings, progress: Progress | None = None) -> SolveRes
     notes.extend(traj.notes)
     if traj.metre_level:
         notes.append("positions are the receiver's own fix: metre level, not for mapping")
-    # Positions at marks.
+    return traj
+
+
+def _positions_at_marks(
+    s: SolveSettings, traj: positions.Trajectory, marks: tuple[Mark, ...], notes: list[str],
+    progress: Progress | None,
+) -> tuple[list[int | None], mi.MarkPositions]:
+    """Stage 3: each mark's exposure time (edge and shutter delay) and the antenna there."""
     times = [
         mi.mark_time_ns(m.falling_t_gps_ns, m.rising_t_gps_ns, s.edge, s.shutter_delay_ms)
         for m in marks
@@ -207,41 +244,65 @@ def solve(settings: SolveSettings, progress: Progress | None = None) -> SolveRes
         f"{s.shutter_delay_ms:g} ms, {s.interp} interpolation, "
         f"{int(np.sum((mp.flags & mi.FLAG_GAP) != 0))} in gaps > {s.max_gap_s:g} s"
     )
-    # Photos.
-    photo_list: list[photos.Photo] = []
-    match: photos.MatchResult | None = None
-    recon: list[str] = []
-    if s.photos is not None:
-        photo_list = photos.scan_photos(s.photos)
-        if progress is not None:
-            progress("photos", 0.5)
-        match = photos.match(photos.photo_times(photo_list), times)
-        recon = photos.reconciliation_lines(match, photo_list, times)
-        if progress is not None:
-            progress("photos", 1.0)
-    # Coordinates.
-    mark_llh = np.full((len(marks), 3), np.nan)
-    for i, xyz in enumerate(mp.ecef_m.tolist()):
-        if math.isfinite(xyz[0]):
-            mark_llh[i] = ecef_to_llh(*xyz)
-    traj_llh = np.array([ecef_to_llh(*xyz) for xyz in traj.ecef_m.tolist()])
-    epsg = s.epsg or outputs.utm_epsg(float(traj_llh[0, 0]), float(traj_llh[0, 1]))
-    proj = outputs.Projector(epsg)
-    # Which marks become rows: photos (paired or not), then orphan marks; or every mark.
-    entries: list[tuple[str, int]] = []
-    if match is not None:
-        by_photo = match.mark_of_photo()
-        entries = [(ph.name, by_photo.get(i, -1)) for i, ph in enumerate(photo_list)]
-        entries += [("", k) for k in match.orphan_marks]
-    else:
-        entries = [("", k) for k in range(len(marks))]
-    mk = np.array([k for _, k in entries], dtype=np.int64)
-    has = mk >= 0
-    llh = np.full((len(entries), 3), np.nan)
-    llh[has] = mark_llh[mk[has]]
-    ant_x, ant_y = proj.forward(llh[:, 0], llh[:, 1])
-    ant_h = llh[:, 2]
-    # Attitude per row: EO file by photo name, else nadir with κ along the track.
+    return times, mp
+
+
+def _photos(
+    s: SolveSettings, times: list[int | None], progress: Progress | None
+) -> tuple[list[photos.Photo], photos.MatchResult | None, list[str]]:
+    """Stage 4: the photos, paired with the marks by time (none without ``--photos``)."""
+    if s.photos is None:
+        return [], None, []
+    photo_list = photos.scan_photos(s.photos)
+    if progress is not None:
+        progress("photos", 0.5)
+    match = photos.match(photos.photo_times(photo_list), times)
+    recon = photos.reconciliation_lines(match, photo_list, times)
+    if progress is not None:
+        progress("photos", 1.0)
+    return photo_list, match, recon
+
+
+@dataclass(frozen=True, slots=True)
+class _Cameras:
+    """Stage 5's result: one row per photo (or mark), antenna and camera coordinates."""
+
+    rows: tuple[outputs.CameraRow, ...]
+    epsg: int
+    proj: outputs.Projector
+    traj_llh: npt.NDArray[np.float64]
+    mark_llh: npt.NDArray[np.float64]
+    cam: npt.NDArray[np.float64]
+    lever: leverarm.LeverArmEstimate | None
+
+    def output(
+        self, traj: positions.Trajectory, mp: mi.MarkPositions, notes: list[str]
+    ) -> outputs.SolveOutput:
+        return outputs.SolveOutput(
+            rows=self.rows, epsg=self.epsg, crs_name=self.proj.name,
+            projected=self.proj.projected, trajectory_llh=self.traj_llh,
+            trajectory_quality=traj.quality, trajectory_t_gps_ns=traj.t_gps_ns,
+            mark_llh=self.mark_llh, mark_t_gps_ns=mp.t_gps_ns, notes=tuple(notes),
+        )
+
+
+def _row_entries(
+    n_marks: int, photo_list: list[photos.Photo], match: photos.MatchResult | None
+) -> list[tuple[str, int]]:
+    """Which marks become rows: photos (paired or not), then orphan marks; or every mark."""
+    if match is None:
+        return [("", k) for k in range(n_marks)]
+    by_photo = match.mark_of_photo()
+    entries = [(ph.name, by_photo.get(i, -1)) for i, ph in enumerate(photo_list)]
+    entries += [("", k) for k in match.orphan_marks]
+    return entries
+
+
+def _attitude(
+    s: SolveSettings, entries: list[tuple[str, int]], mk: npt.NDArray[np.int64],
+    ant_x: npt.NDArray[np.float64], ant_y: npt.NDArray[np.float64],
+) -> tuple[npt.NDArray[np.float64], list[str], dict[str, leverarm.ExteriorOrientation]]:
+    """Attitude per row: EO file by photo name, else nadir with kappa along the track."""
     opk = np.full((len(entries), 3), np.nan)
     attitude = ["none"] * len(entries)
     eo_by_name: dict[str, leverarm.ExteriorOrientation] = {}
@@ -254,7 +315,7 @@ def solve(settings: SolveSettings, progress: Progress | None = None) -> SolveRes
                 attitude[i] = "eo"
     # κ from the direction of travel: track order of the positioned marks.
     if any(a == "none" for a in attitude):
-        order = np.argsort(np.where(has, mk, 1 << 40))
+        order = np.argsort(np.where(mk >= 0, mk, 1 << 40))
         ok = order[np.isfinite(ant_x[order])]
         if ok.size:
             kap = leverarm.kappa_from_track_deg(ant_x[ok], ant_y[ok], s.kappa_offset_deg)
@@ -262,8 +323,18 @@ def solve(settings: SolveSettings, progress: Progress | None = None) -> SolveRes
                 if attitude[row] == "none":
                     opk[row] = (0.0, 0.0, kap[j])
                     attitude[row] = "nadir-track"
-    # Lever arm.
-    cam = np.column_stack([ant_x, ant_y, ant_h])
+    return opk, attitude, eo_by_name
+
+
+def _lever_arm(
+    s: SolveSettings, proj: outputs.Projector, epsg: int, llh: npt.NDArray[np.float64],
+    ant: npt.NDArray[np.float64], opk: npt.NDArray[np.float64], attitude: list[str],
+    entries: list[tuple[str, int]], eo_by_name: dict[str, leverarm.ExteriorOrientation],
+    notes: list[str],
+) -> tuple[npt.NDArray[np.float64], leverarm.LeverArmEstimate | None]:
+    """Camera positions from antenna positions (the configured lever arm), and the lever arm
+    estimated from EO images when there are some."""
+    cam = ant.copy()
     lever_est: leverarm.LeverArmEstimate | None = None
     if not proj.projected:
         notes.append(f"EPSG:{epsg} is not projected: lever arm applied in local east/north/up")
@@ -284,20 +355,44 @@ def solve(settings: SolveSettings, progress: Progress | None = None) -> SolveRes
             + (f" + {s.kappa_offset_deg:g} deg" if s.kappa_offset_deg else "")
         )
     if eo_by_name:
-        sel = [i for i, a in enumerate(attitude) if a == "eo" and np.isfinite(ant_x[i])]
+        sel = [i for i, a in enumerate(attitude) if a == "eo" and np.isfinite(ant[i, 0])]
         if len(sel) >= 2 and proj.projected:
             eos = [eo_by_name.get(entries[i][0]) or eo_by_name[Path(entries[i][0]).stem]
                    for i in sel]
             eo_cam = np.array([(e.x_m, e.y_m, e.z_m) for e in eos])
-            ant = np.column_stack([ant_x[sel], ant_y[sel], ant_h[sel]])
-            lever_est = leverarm.estimate_lever_arm(ant, eo_cam, opk[sel])
+            lever_est = leverarm.estimate_lever_arm(ant[sel], eo_cam, opk[sel])
             notes.append(
                 "lever arm from EO images: "
                 + ", ".join(f"{v:.3f}" for v in lever_est.mean_m) + " m, sigma "
                 + ", ".join(f"{v:.3f}" for v in lever_est.sigma_m)
                 + f" m, {lever_est.inliers} images, {int(lever_est.outlier.sum())} outliers"
             )
-    # Rows.
+    return cam, lever_est
+
+
+def _cameras(
+    s: SolveSettings, marks: tuple[Mark, ...], mp: mi.MarkPositions,
+    traj: positions.Trajectory, photo_list: list[photos.Photo],
+    match: photos.MatchResult | None, notes: list[str],
+) -> _Cameras:
+    """Stage 5: the rows, in the output CRS, with attitude and the lever arm applied."""
+    mark_llh = np.full((len(marks), 3), np.nan)
+    for i, xyz in enumerate(mp.ecef_m.tolist()):
+        if math.isfinite(xyz[0]):
+            mark_llh[i] = ecef_to_llh(*xyz)
+    traj_llh = np.array([ecef_to_llh(*xyz) for xyz in traj.ecef_m.tolist()])
+    epsg = s.epsg or outputs.utm_epsg(float(traj_llh[0, 0]), float(traj_llh[0, 1]))
+    proj = outputs.Projector(epsg)
+    entries = _row_entries(len(marks), photo_list, match)
+    mk = np.array([k for _, k in entries], dtype=np.int64)
+    has = mk >= 0
+    llh = np.full((len(entries), 3), np.nan)
+    llh[has] = mark_llh[mk[has]]
+    ant_x, ant_y = proj.forward(llh[:, 0], llh[:, 1])
+    ant_h = llh[:, 2]
+    opk, attitude, eo_by_name = _attitude(s, entries, mk, ant_x, ant_y)
+    cam, lever_est = _lever_arm(s, proj, epsg, llh, np.column_stack([ant_x, ant_y, ant_h]),
+                                opk, attitude, entries, eo_by_name, notes)
     if proj.projected:
         lat, lon = proj.inverse(cam[:, 0], cam[:, 1])
     else:
@@ -318,16 +413,20 @@ def solve(settings: SolveSettings, progress: Progress | None = None) -> SolveRes
             attitude=attitude[i],
             antenna_x_m=float(ant_x[i]), antenna_y_m=float(ant_y[i]), antenna_h_m=float(ant_h[i]),
         ))
-    out = outputs.SolveOutput(
-        rows=tuple(rows), epsg=epsg, crs_name=proj.name, projected=proj.projected,
-        trajectory_llh=traj_llh, trajectory_quality=traj.quality,
-        trajectory_t_gps_ns=traj.t_gps_ns, mark_llh=mark_llh, mark_t_gps_ns=mp.t_gps_ns,
-        notes=tuple(notes),
-    )
-    files = outputs.write_all(out, s.out_dir)
-    # Report.
+    return _Cameras(tuple(rows), epsg, proj, traj_llh, mark_llh, cam, lever_est)
+
+
+def _report(
+    s: SolveSettings, traj: positions.Trajectory, marks: tuple[Mark, ...],
+    mp: mi.MarkPositions, photo_list: list[photos.Photo], match: photos.MatchResult | None,
+    cams: _Cameras, notes: list[str],
+) -> tuple[list[Path], list[str]]:
+    """Stage 7: ``report.html`` and ``report.pdf`` (summary, counts, per-mark table, figures,
+    warnings); returns the files written and notes on what could not be written."""
+    proj, traj_llh = cams.proj, cams.traj_llh
+    rows, epsg, lever_est = cams.rows, cams.epsg, cams.lever
     te, tn = proj.forward(traj_llh[:, 0], traj_llh[:, 1])
-    engine, version, engine_opts = report.engine_of(traj, opts.rtklib_overrides, s.positions)
+    engine, version, engine_opts = report.engine_of(traj, dict(s.rtk_options), s.positions)
     base_check, base_doubtful = report.check_base(s.base, s.base_ecef_m, traj, s.positions)
     radio_gaps, outages, events_recorded = report.station_events(s.flight)
     unmatched = tuple(
@@ -361,16 +460,7 @@ def solve(settings: SolveSettings, progress: Progress | None = None) -> SolveRes
     )
     if data.satellites is not None:
         data = replace(data, slips_found=int(data.satellites.slip.sum()))
-    report_files, report_notes = report.write_report(data, s.out_dir)
-    files.extend(report_files)
-    notes.extend(report_notes)
-    if s.exif_copies and s.photos is not None:
-        outputs.write_exif_copies(rows, s.photos, s.out_dir / "photos")
-        notes.append(f"EXIF GPS tags written to copies in {s.out_dir / 'photos'}")
-    return SolveResult(
-        tuple(rows), marks, mp, traj, match, lever_est, tuple(files), epsg, tuple(notes),
-        tuple(recon),
-    )
+    return report.write_report(data, s.out_dir)
 
 
 def _apply_enu(

@@ -1,4 +1,6 @@
-"""Recordings on disk: MCAP writing and tolerant reading, session files, JSON schemas."""
+"""Recordings on disk: MCAP writing and tolerant reading (``mcapio``), the recording session
+(``session``, with ``naming``, ``rotation``, ``topics``, ``publish_time``, ``location``,
+``backlog``) and the JSON schemas (``schemas``)."""
 
 from groundstation.storage.mcapio import (
     McapMessage,

@@ -16,7 +16,7 @@ from groundstation.offline.inspect import inspect_path
 from groundstation.pacing import Pacer, link_time_ns
 from groundstation.storage import iter_raw_chunks
 from groundstation.storage.reading import Recording, detect_format, iter_chunks, session_parts
-from groundstation.storage.recorder import SessionRecorder
+from groundstation.storage.session import SessionRecorder
 
 JPEG = bytes.fromhex("ffd8ffe000104a46494600010101004800480000ffdb0043") + bytes(range(256)) * 8
 

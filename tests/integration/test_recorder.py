@@ -17,7 +17,7 @@ from groundstation.live.daemon import run_daemon
 from groundstation.records import Event, TimeMark
 from groundstation.storage import iter_messages, iter_raw_chunks, read_metadata, read_summary
 from groundstation.storage.mcapio import ReadReport
-from groundstation.storage.recorder import SessionRecorder
+from groundstation.storage.session import SessionRecorder
 from groundstation.ubx import layouts as L
 from groundstation.ubx.build import build_frame
 from groundstation.ubx.decode import Decoder

@@ -19,7 +19,7 @@ from groundstation.live.daemon import Pipeline
 from groundstation.records import Event
 from groundstation.storage import iter_messages, iter_raw_chunks, read_metadata, read_summary
 from groundstation.storage.mcapio import ExactFile, ReadReport
-from groundstation.storage.recorder import SessionRecorder
+from groundstation.storage.session import SessionRecorder
 from groundstation.ubx.decode import Decoder
 from groundstation.ubx.framer import UbxFramer
 

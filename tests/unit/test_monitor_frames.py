@@ -7,9 +7,8 @@ import pytest
 from groundstation.config import load_settings
 from groundstation.errors import ConfigError
 from groundstation.gpstime import NS_PER_S
-from groundstation.live.daemon import PipelineStatus
 from groundstation.live.monitor import Monitor, MonitorThresholds
-from groundstation.records import Event
+from groundstation.records import Event, PipelineStatus
 
 HOST0 = 1_700_000_000 * NS_PER_S
 

@@ -1,11 +1,13 @@
-"""Session recording: file naming, rotation, channel routing, JSON encoding, the .ubx sidecar,
-and surviving a disk that fills up.
+"""A recording session: MCAP files plus their ``.ubx`` sidecars, and the state machine that
+survives a disk that fills up.
 
-Sans-asyncio: the live recorder sink (``live/recorder.py``) feeds it; tests and tools can drive
-it directly. Raw chunks go to ``/ubx/raw`` byte for byte (``log_time`` = host receive time) and to
-the sidecar; decoded records go to JSON channels routed by their type (:data:`ROUTES`,
-extensible with :func:`register_record_topic`), with ``publish_time`` = GPS time as UNIX ns
-(UTC) where the record knows it.
+Sans-asyncio: the live recorder sink (``live/recorder_sink.py``) feeds it; tests and tools can
+drive it directly. Raw chunks go to ``/ubx/raw`` byte for byte (``log_time`` = host receive time)
+and to the sidecar; decoded records go to the JSON channels of the topic registry
+(``storage/topics.py``), with ``publish_time`` from ``storage/publish_time.py``. File names come
+from ``storage/naming.py``, when to start the next file from ``storage/rotation.py``, the
+LocationFix messages from ``storage/location.py``, and what is held while writing fails from
+``storage/backlog.py``.
 
 Write failures (ENOSPC, EDQUOT, EIO ... any ``OSError``) never escape. The design:
 
@@ -18,12 +20,8 @@ Write failures (ENOSPC, EDQUOT, EIO ... any ``OSError``) never escape. The desig
   it is duplicated later), the sidecar is cut back to the same point in the byte stream. The
   pending messages go back to the front of an in-memory *backlog*, which takes everything that
   arrives from then on, in order. A ``recorder.write_failed`` event says so.
-- The backlog is bounded (``backlog_bytes_max``). Decoded records can be derived again from the
-  raw bytes, so they go first: when the bound is reached, the held records are dropped and
-  further records are not kept; raw chunks are kept until they alone fill the bound, then new
-  chunks are dropped (the hole is at the end of what is held, the earlier bytes stay
-  contiguous). Drops are counted and reported by ``recorder.dropped`` events with the counts
-  and the host-time span of the lost raw bytes (the first at once, then at most every 10 s).
+- The backlog is bounded (``backlog_bytes_max``); what gives way first, and how drops are
+  reported, is :class:`~groundstation.storage.backlog.Backlog`'s.
 - Every ``retry_interval_ns`` a new pair is opened (the next part, as for a rotation, its
   metadata naming the previous file and the failure) and the backlog is written into it in
   slices of about 1 MB, one slice per call of :meth:`SessionRecorder.maybe_flush` (the live
@@ -42,66 +40,24 @@ Write failures (ENOSPC, EDQUOT, EIO ... any ``OSError``) never escape. The desig
 from __future__ import annotations
 
 import contextlib
-import datetime as dt
 import logging
 import time
-from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from groundstation import __version__, gpstime, jsonio
-from groundstation.records import (
-    Ephemeris,
-    Event,
-    NavSolution,
-    RawEpoch,
-    Subframe,
-    SvInfo,
-    TimeMark,
-)
-from groundstation.rules.marks import record_time_ns
-from groundstation.storage.mcapio import (
-    RAW_TOPIC,
-    ChannelSpec,
-    ExactFile,
-    McapFileWriter,
-    WritableFile,
-    json_channel,
-)
-from groundstation.storage.schemas import LOCATION_FIX_SCHEMA, dataclass_schema, union_schema
+from groundstation import __version__, jsonio
+from groundstation.records import Event, NavSolution
+from groundstation.storage.backlog import Backlog, Msg, cost, size_text
+from groundstation.storage.location import LOCATION_CHANNEL, location_fix
+from groundstation.storage.mcapio import ExactFile, McapFileWriter, WritableFile
+from groundstation.storage.naming import candidate_pairs, session_file_stem
+from groundstation.storage.publish_time import PublishClock
+from groundstation.storage.rotation import RotationPolicy
+from groundstation.storage.topics import RAW_CHANNEL, ROUTES
 
 log = logging.getLogger("groundstation.recorder")
-
-RAW_CHANNEL = ChannelSpec(RAW_TOPIC, "ubx")
-LOCATION_CHANNEL = json_channel("/groundstation/location", LOCATION_FIX_SCHEMA)
-HALF_WEEK_NS = gpstime.NS_PER_WEEK // 2
-
-ROUTES: dict[type, ChannelSpec] = {
-    RawEpoch: json_channel("/gnss/epoch", dataclass_schema(RawEpoch)),
-    TimeMark: json_channel("/gnss/timemark", dataclass_schema(TimeMark)),
-    Subframe: json_channel("/gnss/ephemeris", union_schema("NavData", (Subframe, Ephemeris))),
-    Ephemeris: json_channel("/gnss/ephemeris", union_schema("NavData", (Subframe, Ephemeris))),
-    NavSolution: json_channel("/gnss/nav", dataclass_schema(NavSolution)),
-    SvInfo: json_channel("/gnss/svinfo", dataclass_schema(SvInfo)),
-    Event: json_channel("/groundstation/event", dataclass_schema(Event)),
-}
-"""Record type -> the JSON channel it is recorded on. Types not listed are not recorded as JSON
-(frames and undecodable frames are already in ``/ubx/raw``)."""
-
-
-def register_record_topic(cls: type, topic: str, schema: dict[str, Any] | None = None) -> None:
-    """Record instances of ``cls`` (a dataclass) on ``topic`` (e.g. the monitor's Status on
-    ``/groundstation/status``); the schema is derived from the dataclass unless given."""
-    ROUTES[cls] = json_channel(topic, schema if schema is not None else dataclass_schema(cls))
-
-
-def session_file_stem(station: str, start_ns: int) -> str:
-    """``<station>_<YYYYmmddTHHMMSSZ>`` for a UTC start time given as UNIX ns."""
-    when = dt.datetime.fromtimestamp(start_ns / 1e9, tz=dt.UTC)
-    return f"{station}_{when:%Y%m%dT%H%M%SZ}"
-
 
 @dataclass(frozen=True, slots=True)
 class RecorderStats:
@@ -127,24 +83,10 @@ class RecorderStats:
     dropped_records: int = 0
 
 
-_Msg = tuple[ChannelSpec, bytes, int, int]
-"""A message on its way to the MCAP: channel, data, log time, publish time."""
-
 FileOpener = Callable[[Path], WritableFile]
 
 
-def _size(n: float) -> str:
-    return f"{n / 1e6:.1f} MB" if n >= 1e6 else f"{n / 1e3:.0f} kB"
-
-DROP_EVENT_INTERVAL_NS = 10_000_000_000
 DRAIN_SLICE_BYTES = 1_000_000
-HELD_OVERHEAD_BYTES = 150
-"""Memory a held message costs besides its data (tuple, bytes header, times, deque slot), so
-that ``backlog_bytes_max`` bounds the memory actually used."""
-
-
-def _cost(msg: _Msg) -> int:
-    return len(msg[1]) + HELD_OVERHEAD_BYTES
 
 
 class SessionRecorder:
@@ -165,13 +107,8 @@ class SessionRecorder:
         backlog_bytes_max: what may be held in memory while writing fails.
         retry_interval_ns: how often writing is tried again after a failure.
         open_file: creates each file exclusively (the storage layer's fault hook for tests).
-        max_chunks_per_file: start a new file after about this many MCAP chunks. The MCAP
-            writer keeps an index entry per chunk in memory until the file is finished, and a
-            chunk is closed at every flush: 7200 an hour at a 0.5 s flush interval, 4.7 MB an
-            hour as the library's objects, about 1.1 MB packed
-            (:class:`~groundstation.storage.mcapio.PackedChunkIndexes`). Without a bound a
-            daemon running for days would grow for ever; 43 200 chunks is 6 hours at 0.5 s
-            (about 6.5 MB of index at most), longer than a survey session.
+        max_chunks_per_file: start a new file after about this many MCAP chunks (why:
+            :class:`~groundstation.storage.rotation.RotationPolicy`).
     """
 
     def __init__(
@@ -200,14 +137,13 @@ class SessionRecorder:
         self.chunk_size_bytes = chunk_size_bytes
         self.compression = compression
         self.flush_interval_ns = flush_interval_ns
-        self.rotate_size_bytes = rotate_size_bytes
-        self.rotate_duration_ns = rotate_duration_ns
+        self.rotation = RotationPolicy(rotate_size_bytes, rotate_duration_ns, chunk_size_bytes,
+                                       max_chunks_per_file)
         self.sidecar = sidecar
         self._clock = clock
         self.backlog_bytes_max = backlog_bytes_max
         self.retry_interval_ns = retry_interval_ns
         self._open = open_file
-        self.max_chunks_per_file = max_chunks_per_file
         self._file_chunks = 0  # chunks closed by our flushes in the current file
         self._msgs_at_flush = 0
         self.session_id = ""
@@ -217,8 +153,7 @@ class SessionRecorder:
         self._sidecars: list[Path] = []
         self._file_start_ns = 0
         self._last_flush_ns = 0
-        self._week: int | None = None
-        self._tow_ns = 0
+        self._publish_clock = PublishClock()
         self._raw_chunks = 0
         self._raw_bytes = 0
         self._records = 0
@@ -226,21 +161,14 @@ class SessionRecorder:
         self._flushes = 0
         self._closed = False
         # write-failure handling (module docstring)
-        self._pending: list[_Msg] = []
+        self._pending: list[Msg] = []
         self._mcap_good = 0
         self._side_good = 0
         self._failure: OSError | None = None
         self._failures = 0
-        self._backlog: deque[_Msg] = deque()
-        self._backlog_bytes = 0
-        self._records_off = False
-        self._next_retry_ns = 0
-        self._dropped_chunks = 0
-        self._dropped_bytes = 0
-        self._dropped_records = 0
-        self._drop_span: tuple[int, int] | None = None
-        self._last_drop_event_ns: int | None = None
         self._notices: list[Event] = []
+        self._backlog = Backlog(backlog_bytes_max, clock, self._notices)
+        self._next_retry_ns = 0
         self._pair_empty_size = 0  # MCAP size of the current pair before any message
         self._drained_bytes = 0
 
@@ -262,10 +190,7 @@ class SessionRecorder:
         stem = session_file_stem(self.station, now_ns)
         created: list[WritableFile] = []
         try:
-            for n in range(10_000):
-                name = stem if n == 0 else f"{stem}_{n}"
-                path = self.out_dir / f"{name}.mcap"
-                side = self.out_dir / f"{name}.ubx"
+            for path, side in candidate_pairs(self.out_dir, stem):
                 if side.exists() and self.sidecar:
                     continue
                 try:
@@ -274,8 +199,6 @@ class SessionRecorder:
                     continue
                 created.append(mcap_file)
                 break
-            else:  # pragma: no cover - ten thousand files in one second
-                raise FileExistsError(f"no free file name for {stem} in {self.out_dir}")
             # Unbuffered: every received byte is in the OS's hands at once, so a killed
             # daemon's sidecar holds everything it received (the MCAP loses at most one flush
             # interval).
@@ -327,14 +250,9 @@ class SessionRecorder:
         mcap = self._mcap
         if mcap is None:
             return False
-        if self.rotate_size_bytes and mcap.size_bytes >= self.rotate_size_bytes:
-            return True
-        chunks = self._file_chunks + mcap.data_bytes // self.chunk_size_bytes
-        if self.max_chunks_per_file and chunks >= self.max_chunks_per_file:
-            return True
-        return bool(
-            self.rotate_duration_ns and now_ns - self._file_start_ns >= self.rotate_duration_ns
-        )
+        return self.rotation.due(size_bytes=mcap.size_bytes, data_bytes=mcap.data_bytes,
+                                 closed_chunks=self._file_chunks,
+                                 started_ns=self._file_start_ns, now_ns=now_ns)
 
     def _close_file(self) -> None:
         """Finish the current pair (MCAP summary). Raises ``OSError`` if that fails."""
@@ -365,7 +283,7 @@ class SessionRecorder:
         if self._failure is not None:
             log.error(
                 "session %s ends with its recording failing (%s): %d bytes held in memory "
-                "are lost", self.session_id, self._failure, self._backlog_bytes,
+                "are lost", self.session_id, self._failure, self._backlog.bytes,
             )
         log.info(
             "session %s finished: %d raw bytes, %d records, %d file(s)",
@@ -385,24 +303,25 @@ class SessionRecorder:
         spec = ROUTES.get(type(record))
         if spec is None:
             return False
-        publish = self._publish_time_ns(record, log_time_ns)
+        publish = self._publish_clock.publish_time_ns(record, log_time_ns)
         self._records += 1
         if isinstance(record, Event):
             self._events += 1
-        body = jsonio.dumps_with({"type": type(record).__name__}, record)
-        self._write((spec, body, log_time_ns, publish))
-        if isinstance(record, NavSolution) and record.lat_deg is not None:
-            self._write((LOCATION_CHANNEL, jsonio.dumps(self._location_fix(record, publish)),
-                         log_time_ns, publish))
+        self._write((spec, jsonio.dumps_with({"type": type(record).__name__}, record),
+                     log_time_ns, publish))
+        if isinstance(record, NavSolution):
+            fix = location_fix(record, publish, self.station)
+            if fix is not None:
+                self._write((LOCATION_CHANNEL, jsonio.dumps(fix), log_time_ns, publish))
         return True
 
-    def _write(self, msg: _Msg) -> None:
+    def _write(self, msg: Msg) -> None:
         if self._closed:
             raise RuntimeError("recorder is closed")
         if self._mcap is None and self._failure is None:
             raise RuntimeError("recorder is not open")
         if self._failure is not None:
-            self._hold(msg)
+            self._backlog.hold(msg)
             return
         pending = False
         try:
@@ -415,9 +334,9 @@ class SessionRecorder:
         except OSError as err:
             self._fail(err)  # the pending messages go to the backlog, in order
             if not pending:  # the rotation failed
-                self._hold(msg)
+                self._backlog.hold(msg)
 
-    def _put(self, msg: _Msg) -> None:
+    def _put(self, msg: Msg) -> None:
         """Into the current pair (pending until the next successful flush)."""
         assert self._mcap is not None
         self._pending.append(msg)
@@ -456,78 +375,23 @@ class SessionRecorder:
             with contextlib.suppress(OSError):
                 self._ubx.close()
             self._ubx = None
-        for msg in reversed(self._pending):
-            self._backlog.appendleft(msg)
-            self._backlog_bytes += _cost(msg)
+        self._backlog.push_front(self._pending)
         self._pending.clear()
         self._next_retry_ns = now + self.retry_interval_ns
         if not first:
             return
         reason = f"{err.strerror or err}" + (f" (errno {err.errno})" if err.errno else "")
         log.error("cannot write %s: %s; holding data in memory (up to %s), retrying "
-                  "every %g s", path, reason, _size(self.backlog_bytes_max),
+                  "every %g s", path, reason, size_text(self.backlog_bytes_max),
                   self.retry_interval_ns / 1e9)
         self._notices.append(Event(
             "recorder.write_failed", now,
             f"cannot write the recording ({reason}): holding the data in memory (up to "
-            f"{_size(self.backlog_bytes_max)}), retrying every "
+            f"{size_text(self.backlog_bytes_max)}), retrying every "
             f"{self.retry_interval_ns / 1e9:g} s", "error",
             {"error": reason, "errno": err.errno or 0, "file": str(path or ""),
              "backlog_mb": self.backlog_bytes_max / 1e6},
         ))
-
-    def _hold(self, msg: _Msg) -> None:
-        size = _cost(msg)
-        raw = msg[0] is RAW_CHANNEL
-        if not raw and (self._records_off
-                        or self._backlog_bytes + size > self.backlog_bytes_max):
-            self._records_off = True
-            self._dropped_records += 1
-            self._report_drops()
-            return
-        if raw and self._backlog_bytes + size > self.backlog_bytes_max:
-            if not self._records_off:  # records can be derived again from the raw bytes
-                self._records_off = True
-                kept: deque[_Msg] = deque()
-                for m in self._backlog:
-                    if m[0] is RAW_CHANNEL:
-                        kept.append(m)
-                    else:
-                        self._dropped_records += 1
-                        self._backlog_bytes -= _cost(m)
-                self._backlog = kept
-            if self._backlog_bytes + size > self.backlog_bytes_max:
-                self._dropped_chunks += 1
-                self._dropped_bytes += len(msg[1])
-                t = msg[2]
-                span = self._drop_span
-                self._drop_span = (t, t) if span is None else (min(span[0], t), max(span[1], t))
-                self._report_drops()
-                return
-        self._backlog.append(msg)
-        self._backlog_bytes += size
-
-    def _drop_counts(self) -> dict[str, Any]:
-        span = self._drop_span
-        return {
-            "dropped_raw_chunks": self._dropped_chunks,
-            "dropped_raw_bytes": self._dropped_bytes,
-            "dropped_records": self._dropped_records,
-            "dropped_raw_first_ns": span[0] if span else None,
-            "dropped_raw_last_ns": span[1] if span else None,
-        }
-
-    def _report_drops(self, *, force: bool = False) -> None:
-        now = self._clock()
-        last = self._last_drop_event_ns
-        if not force and last is not None and now - last < DROP_EVENT_INTERVAL_NS:
-            return
-        self._last_drop_event_ns = now
-        msg = (f"recording backlog full ({_size(self.backlog_bytes_max)} held): dropped "
-               f"{self._dropped_bytes} raw bytes in {self._dropped_chunks} chunks and "
-               f"{self._dropped_records} decoded records so far")
-        log.error("%s", msg)
-        self._notices.append(Event("recorder.dropped", now, msg, "error", self._drop_counts()))
 
     def _recover(self, now_ns: int, budget_bytes: int | None = DRAIN_SLICE_BYTES) -> None:
         """Write held data again: open a new pair if there is none, then move up to
@@ -548,11 +412,10 @@ class SessionRecorder:
         budget = budget_bytes
         try:
             while self._backlog and (budget is None or budget > 0):
-                msg = self._backlog.popleft()
-                self._backlog_bytes -= _cost(msg)
+                msg = self._backlog.pop()
                 self._drained_bytes += len(msg[1])
                 if budget is not None:
-                    budget -= _cost(msg)
+                    budget -= cost(msg)
                 self._put(msg)
             mcap.flush()
         except OSError as err:
@@ -565,73 +428,31 @@ class SessionRecorder:
             self._next_retry_ns = now_ns  # the next slice at the next call
             return
         held, self._drained_bytes = self._drained_bytes, 0
-        self._records_off = False
+        backlog = self._backlog
+        backlog.records_off = False
         self._failure = None
-        if self._dropped_chunks or self._dropped_records:
-            self._report_drops(force=True)
+        if backlog.dropped_any:
+            backlog.report_drops(force=True)
         text = (f"recording resumed in {mcap.path.name}: {held} bytes held in memory written"
-                + (f"; {self._dropped_bytes} raw bytes and {self._dropped_records} records "
-                   "were dropped" if self._dropped_bytes or self._dropped_records else ""))
+                + (f"; {backlog.dropped_bytes} raw bytes and {backlog.dropped_records} records "
+                   "were dropped" if backlog.dropped_bytes or backlog.dropped_records else ""))
         log.warning("%s", text)
         self._notices.append(Event(
             "recorder.recovered", now_ns, text, "warning",
-            {"file": str(mcap.path), "held_bytes": held, **self._drop_counts()},
+            {"file": str(mcap.path), "held_bytes": held, **backlog.drop_counts()},
         ))
 
     def take_notices(self) -> list[Event]:
         """Events about the recording itself (write failed, dropped, recovered) since the
         last call, for the sink to publish."""
-        out, self._notices = self._notices, []
+        out = list(self._notices)
+        self._notices.clear()  # in place: the backlog appends to this list too
         return out
 
     @property
     def failing(self) -> bool:
         """Writing currently fails and data is being held in memory."""
         return self._failure is not None
-
-    def _gps_unix_ns(self, tow_ns: int, week: int | None) -> int | None:
-        if week is None:
-            if self._week is None:
-                return None
-            week = self._week
-            if tow_ns - self._tow_ns > HALF_WEEK_NS:
-                week -= 1
-            elif self._tow_ns - tow_ns > HALF_WEEK_NS:
-                week += 1
-        return gpstime.gps_to_unix_ns(week * gpstime.NS_PER_WEEK + tow_ns)
-
-    def _publish_time_ns(self, record: Any, log_time_ns: int) -> int:
-        t: int | None = None
-        if isinstance(record, RawEpoch):
-            self._week, self._tow_ns = record.gps_week, record.tow_ns
-            t = gpstime.gps_to_unix_ns(record.t_gps_ns)
-        elif isinstance(record, TimeMark):
-            edge = record_time_ns(record)  # the marks rule (rules/marks.py)
-            t = gpstime.gps_to_unix_ns(edge) if edge is not None else None
-        elif isinstance(record, (NavSolution, SvInfo)):
-            week = record.gps_week if isinstance(record, NavSolution) else None
-            t = self._gps_unix_ns(record.tow_ns, week)
-        return t if t is not None and t >= 0 else log_time_ns
-
-    def _location_fix(self, nav: NavSolution, publish_ns: int) -> dict[str, Any]:
-        cov = [0.0] * 9
-        cov_type = 0
-        if nav.h_acc_m is not None and nav.v_acc_m is not None:
-            cov[0] = cov[4] = nav.h_acc_m**2
-            cov[8] = nav.v_acc_m**2
-            cov_type = 1
-        elif nav.p_acc_m is not None:
-            cov[0] = cov[4] = cov[8] = nav.p_acc_m**2
-            cov_type = 1
-        return {
-            "timestamp": {"sec": publish_ns // 1_000_000_000, "nsec": publish_ns % 1_000_000_000},
-            "frame_id": self.station,
-            "latitude": nav.lat_deg,
-            "longitude": nav.lon_deg,
-            "altitude": nav.height_m if nav.height_m is not None else 0.0,
-            "position_covariance": cov,
-            "position_covariance_type": cov_type,
-        }
 
     # -- flushing -------------------------------------------------------------------------------
 
@@ -673,6 +494,11 @@ class SessionRecorder:
         return False
 
     @property
+    def file_count(self) -> int:
+        """How many MCAP files the session has (cheap: checked after every chunk)."""
+        return len(self._files)
+
+    @property
     def current_file(self) -> Path | None:
         return self._files[-1] if self._files else None
 
@@ -681,6 +507,6 @@ class SessionRecorder:
         return RecorderStats(
             self.session_id, tuple(self._files), tuple(self._sidecars), self._raw_chunks,
             self._raw_bytes, self._records, self._events, self._flushes, self._failures,
-            self._backlog_bytes, self._dropped_chunks, self._dropped_bytes,
-            self._dropped_records,
+            self._backlog.bytes, self._backlog.dropped_chunks, self._backlog.dropped_bytes,
+            self._backlog.dropped_records,
         )
