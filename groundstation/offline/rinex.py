@@ -35,7 +35,9 @@ from groundstation import __version__, gpstime
 from groundstation.errors import InputError
 from groundstation.gnss.ephemeris import BroadcastEphemeris
 from groundstation.offline import marks as marks_mod
+from groundstation.offline import rinexnav_multi
 from groundstation.offline.ephemeris import NavResult, collect_ephemerides
+from groundstation.offline.multinav import MultiNav, collect_multi, receiver_times, today_gps_week
 from groundstation.records import TimeMark
 from groundstation.storage.reading import Recording
 from groundstation.ubx.fastraw import (
@@ -736,12 +738,15 @@ def write_nav(
     version: str = "3.04",
     leap_s: int | None = None,
     nav: NavResult | None = None,
+    multi: MultiNav | None = None,
 ) -> int:
-    """Write a GPS navigation file; returns the number of ephemerides written."""
+    """Write a navigation file (RINEX 3: GPS, GLONASS, Galileo; 2.11: GPS only); returns the
+    number of GPS ephemerides written."""
     v3 = version == "3.04"
     h: list[str] = []
     if v3:
-        h.append(_hl(f"{version:>9s}{'':11s}{'N: GNSS NAV DATA':<20s}{'G: GPS':<20s}",
+        sys_field = rinexnav_multi.header_system(bool(ephemerides), multi)
+        h.append(_hl(f"{version:>9s}{'':11s}{'N: GNSS NAV DATA':<20s}{sys_field:<20s}",
                      "RINEX VERSION / TYPE"))
     else:
         h.append(_hl(f"{version:>9s}{'':11s}{'N: GPS NAV DATA':<20s}", "RINEX VERSION / TYPE"))
@@ -792,6 +797,8 @@ def write_nav(
         for r in rows:
             body.append(ind + "".join(_d19(float(v)) for v in r) + "\n")
         body.append(ind + _d19(float(tx)) + _d19(fit_h) + "\n")
+    if v3:
+        body.extend(rinexnav_multi.records(multi, _d19))
     with path.open("w", encoding="ascii", newline="\n") as f:
         f.write("".join(h))
         f.write("".join(body))
@@ -831,6 +838,10 @@ class RinexResult:
     nav_parity_errors: int
     skipped_systems: tuple[str, ...] = ()
     notes: tuple[str, ...] = field(default_factory=tuple)
+    other_ephemerides: tuple[tuple[str, int], ...] = ()
+    """(system letter, count) of the GLONASS, Galileo ... records in the nav file."""
+    obs_written: bool = True
+    """False for a recording without raw measurements (navigation file only)."""
 
 
 def read_recording(path: Path, progress: ProgressFn | None = None) -> bytes:
@@ -941,7 +952,7 @@ def convert(
     else:
         block, obs = raw, obs_from_raw(raw)
     if obs.t_gps_ns.size == 0:
-        raise InputError(f"{src}: no raw measurements (RXM-RAW / RXM-RAWX) with a GPS week")
+        return _convert_nav_only(src, data, index, out, stem, opt)
     rejected = int(rawx.rejected.size + raw.rejected.size)
     # Leap seconds the receiver declared, by stream position (for UTC-based time marks).
     leap_by_offset: list[tuple[int, int]] = []
@@ -963,6 +974,7 @@ def convert(
     approx = _approx_position(data, index) or (0.0, 0.0, 0.0)
     week_hint = int(obs.t_gps_ns[0] // gpstime.NS_PER_WEEK)
     nav = collect_ephemerides(data, index, week_hint)
+    multi = collect_multi(data, index, receiver_times(data, index), int(obs.t_gps_ns[0]))
     epochs_sorted = np.sort(obs.t_gps_ns).tolist()
     interval = marks_mod.nominal_interval_ns(epochs_sorted)
     comments = (
@@ -982,7 +994,7 @@ def convert(
     nav_path = out / f"{stem}.nav"
     marks_path = out / f"{stem}.marks.csv"
     wr = write_obs(obs_path, obs, events, info, opt.version, interval, progress)
-    n_eph = write_nav(nav_path, nav.ephemerides, opt.version, leap, nav)
+    n_eph = write_nav(nav_path, nav.ephemerides, opt.version, leap, nav, multi)
     written = np.sort(obs.t_gps_ns[_kept_epochs(obs)]).tolist()
     marks_path.write_text(
         marks_mod.marks_csv(mark_list, written, opt.marks, opt.shutter_delay_ns), encoding="ascii"
@@ -1025,6 +1037,59 @@ def convert(
         nav_parity_errors=nav.parity_errors,
         skipped_systems=wr.skipped_systems,
         notes=tuple(notes),
+        other_ephemerides=_other_counts(multi),
+    )
+
+
+def _other_counts(multi: MultiNav) -> tuple[tuple[str, int], ...]:
+    counts = {"R": len(multi.glonass)}
+    for e in multi.kepler:
+        counts[e.system] = counts.get(e.system, 0) + 1
+    return tuple((s, n) for s, n in counts.items() if n)
+
+
+def _convert_nav_only(
+    src: Path, data: bytes, index: FrameIndex, out: Path, stem: str, opt: RinexOptions
+) -> RinexResult:
+    """A recording without raw measurements: the navigation file alone (no obs, no marks).
+
+    Raises:
+        InputError: no navigation data either.
+    """
+    times = receiver_times(data, index)
+    week_hint = (times[0][1] // gpstime.NS_PER_WEEK) if times else today_gps_week()
+    nav = collect_ephemerides(data, index, week_hint)
+    # GLONASS needs the day: a receiver time if any, else the first GPS ephemeris's.
+    first = nav.ephemerides[0] if nav.ephemerides else None
+    approx = (round((first.week * 604_800 + (first.tow_s or first.toe_s)) * 1e9)
+              if first is not None else None)
+    multi = collect_multi(data, index, times, approx)
+    others = _other_counts(multi)
+    if not nav.ephemerides and not others:
+        raise InputError(
+            f"{src}: no raw measurements (RXM-RAW / RXM-RAWX) and no navigation data"
+        )
+    nav_path = out / f"{stem}.nav"
+    leap = gpstime.leap_seconds_at_gps(times[0][1] if times else approx or 0)
+    n_eph = write_nav(nav_path, nav.ephemerides, opt.version, leap, nav, multi)
+    return RinexResult(
+        obs_path=out / f"{stem}.obs",
+        nav_path=nav_path,
+        marks_path=out / f"{stem}.marks.csv",
+        source="none",
+        epochs=0,
+        events=0,
+        marks=0,
+        marks_in_dropout=0,
+        ephemerides=n_eph,
+        dropped_epochs=0,
+        damaged_frames=index.damaged,
+        frames=len(index),
+        rejected_messages=0,
+        nav_parity_errors=nav.parity_errors,
+        notes=("no raw measurements (RXM-RAW / RXM-RAWX): navigation file only",),
+        other_ephemerides=others,
+        obs_written=False,
     )
 
 
