@@ -1020,6 +1020,8 @@ def convert(
         notes.append("no NAV-SOL/NAV-PVT fix: APPROX POSITION XYZ is zero")
     if not nav.ephemerides:
         notes.append("no GPS ephemeris found (RXM-SFRB, RXM-SFRBX, AID-EPH): empty nav file")
+    if opt.version != "3.04" and _other_counts(multi):
+        notes.append("RINEX 2.11 navigation file holds GPS only: GLONASS/Galileo left out")
     return RinexResult(
         obs_path=obs_path,
         nav_path=nav_path,
