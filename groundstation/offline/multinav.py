@@ -1,9 +1,11 @@
-"""GLONASS and Galileo broadcast ephemerides of a recording, from u-blox RXM-SFRBX.
+"""GLONASS, Galileo and BeiDou broadcast ephemerides of a recording, from u-blox RXM-SFRBX.
 
-The receiver-specific part: where RXM-SFRBX keeps a GLONASS string or a Galileo I/NAV page, and
+The receiver-specific part: where RXM-SFRBX keeps a GLONASS string, a Galileo I/NAV page or a
+BeiDou D1 subframe, and
 what the receiver's clock said when the message arrived (GLONASS times are times of day, so the
 day comes from the nearest receiver epoch, NAV-SOL or NAV-TIMEGPS before it). Decoding is
-:mod:`groundstation.gnss.glonass`'s and :mod:`groundstation.gnss.galileo`'s job; the GPS part of
+:mod:`groundstation.gnss.glonass`'s, :mod:`~groundstation.gnss.galileo`'s and
+:mod:`~groundstation.gnss.beidou`'s job; the GPS part of
 the same messages stays in :mod:`groundstation.offline.ephemeris`.
 """
 
@@ -17,15 +19,17 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from groundstation import gpstime
-from groundstation.gnss import galileo, glonass
+from groundstation.gnss import beidou, galileo, glonass
 from groundstation.gnss.kepler import KeplerEphemeris
 from groundstation.ubx.fastraw import FrameIndex
 
 RXM_SFRBX = (0x02, 0x13)
 GNSS_GALILEO = 2
+GNSS_BEIDOU = 3
 GNSS_GLONASS = 6
 _GAL_FNAV_SIG = 3
 _GAL_E6_SIG = 8
+_BDS_CNAV_SIGS = (6, 8)  # B1C and B2a carry B-CNAV1/2, not D1/D2
 
 
 @dataclass(slots=True)
@@ -34,7 +38,8 @@ class MultiNav:
 
     Attributes:
         glonass: new GLONASS ephemerides (a new ``tb`` per slot).
-        kepler: new Galileo ephemerides (new IODnav/toe/toc per satellite).
+        kepler: new Galileo ephemerides (new IODnav/toe/toc per satellite) and BeiDou D1
+            ones (new toe per satellite).
         glonass_strings: GLONASS strings that passed their Hamming check.
         hamming_errors: GLONASS strings that failed it.
         galileo_pages: Galileo E1-B pages looked at.
@@ -106,6 +111,7 @@ def collect_multi(
     result = MultiNav()
     glo = glonass.GlonassAssembler()
     gal = galileo.InavAssembler()
+    bds = beidou.D1Assembler()
     offsets = [o for o, _ in times]
     mv = memoryview(data)
     for i in index.select(RXM_SFRBX).tolist():
@@ -134,6 +140,11 @@ def collect_multi(
             gal_eph = gal.add(sv, galileo.page_from_ublox(words))
             if gal_eph is not None:
                 result.kepler.append(gal_eph)
+        elif (gnss == GNSS_BEIDOU and nwords >= 10 and 1 <= sv <= 63 and not beidou.is_geo(sv)
+              and sig not in _BDS_CNAV_SIGS):
+            bds_eph = bds.add(sv, beidou.subframe_from_ublox(words))
+            if bds_eph is not None:
+                result.kepler.append(bds_eph)
     result.hamming_errors = glo.hamming_errors
     result.crc_errors = gal.crc_errors
     return result

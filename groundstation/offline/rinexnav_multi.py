@@ -1,4 +1,4 @@
-"""RINEX 3.04 navigation records of GLONASS and Galileo/BeiDou ephemerides, and the header
+"""RINEX 3.04 navigation records of GLONASS, Galileo and BeiDou ephemerides, and the header
 system of a navigation file that mixes them with GPS.
 
 The GPS records stay with the navigation writer (:func:`groundstation.offline.rinex.write_nav`),
@@ -8,9 +8,11 @@ system's numbers are printed the same way. Field order is RINEX 3.04's (tables A
 
 from __future__ import annotations
 
+import datetime as dt
 from collections.abc import Callable, Iterable
 
 from groundstation import gpstime
+from groundstation.gnss.beidou import bdt_datetime
 from groundstation.gnss.glonass import GlonassEphemeris
 from groundstation.gnss.kepler import KeplerEphemeris
 from groundstation.offline.multinav import MultiNav
@@ -39,7 +41,10 @@ def header_system(has_gps: bool, multi: MultiNav | None) -> str:
 
 
 def _epoch(label: str, t_ns: int) -> str:
-    d = gpstime.gps_as_datetime(t_ns)
+    return _epoch_dt(label, gpstime.gps_as_datetime(t_ns))
+
+
+def _epoch_dt(label: str, d: dt.datetime) -> str:
     return (f"{label} {d.year:04d} {d.month:02d} {d.day:02d} {d.hour:02d} {d.minute:02d} "
             f"{d.second:02d}")
 
@@ -61,8 +66,12 @@ def glonass_record(e: GlonassEphemeris, f: FieldFormat) -> str:
 
 
 def kepler_record(e: KeplerEphemeris, f: FieldFormat) -> str:
-    """One Galileo or BeiDou record (RINEX 3.04 tables A8 and A14)."""
-    toc_ns = round((e.week * 604_800 + e.toc_s) * gpstime.NS_PER_S)
+    """One Galileo or BeiDou record (RINEX 3.04 tables A8 and A14; BeiDou on BDT)."""
+    label = f"{e.system}{e.prn:02d}"
+    if e.system == "C":
+        head = _epoch_dt(label, bdt_datetime(e.week, e.toc_s))
+    else:
+        head = _epoch(label, round((e.week * 604_800 + e.toc_s) * gpstime.NS_PER_S))
     if e.system == "E":
         row5_last, row6_last, row7_last = 0.0, e.tgd2_s, 0.0
     else:
@@ -76,8 +85,7 @@ def kepler_record(e: KeplerEphemeris, f: FieldFormat) -> str:
         (e.accuracy_m, float(e.health), e.tgd1_s, row6_last),
         (e.tx_s, row7_last),
     )
-    lines = [_epoch(f"{e.system}{e.prn:02d}", toc_ns) + f(e.af0_s) + f(e.af1_s_s)
-             + f(e.af2_s_s2)]
+    lines = [head + f(e.af0_s) + f(e.af1_s_s) + f(e.af2_s_s2)]
     lines += [_INDENT + "".join(f(v) for v in r) for r in rows]
     return "\n".join(lines) + "\n"
 

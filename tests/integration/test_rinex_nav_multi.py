@@ -184,3 +184,47 @@ def test_no_navigation_and_no_measurements_is_a_clear_error(tmp_path: Path) -> N
     empty.write_bytes(b"\xb5\x62\x01\x06\x00\x00\x07\x16" * 3)
     with pytest.raises(InputError, match="no navigation data"):
         rinex.convert(empty, tmp_path)
+
+
+def _pyrtklib5_nav(src: Path, out: Path) -> Path:
+    """RTKLIB-EX's own navigation file of a recording (``convrnx``, as convbin runs it)."""
+    p5 = pytest.importorskip("pyrtklib5")
+    opt = p5.rnxopt_t()
+    opt.rnxver, opt.navsys = 304, 0xFF
+    nav = out / "pyrtklib5.nav"
+    assert p5.convrnx(4, opt, str(src), [str(out / "pyrtklib5.obs"), str(nav)] + [""] * 7) == 1
+    return nav
+
+
+def test_beidou_and_galileo_of_a_recent_receiver_equal_rtklib_ex(
+    shared_data: Path, tmp_path: Path
+) -> None:
+    """gnss_1730 (2025, BeiDou D1 and Galileo I/NAV + F/NAV) has no convbin reference file:
+    RTKLIB-EX itself (pyrtklib5 2.5.0, the engine) converts it here.
+
+    Known differences: 2.5.0 prints the broadcast AODE where 2.5.1 (the convbin of the reference
+    files) and we derive it from toc (row 1, first value), and 2.5.0 drops BeiDou PRNs above 46.
+    We decode Galileo I/NAV, not F/NAV (E5a): compare with RTKLIB's I/NAV records (data source
+    513); ours has two more (E08, E14 at 17:20, orbit equal to RTKLIB's F/NAV records of the
+    same IODnav) which 2.5.0 does not write.
+    """
+    src = shared_data / "real/rtklibexplorer__GNSS_IMU/data/walk_0827/gnss_1730.ubx"
+    ours = nav_records(rinex.convert(src, tmp_path).nav_path)
+    ref = nav_records(_pyrtklib5_nav(src, tmp_path))
+    c_ours = {k: v for k, v in ours.items() if k[0][0] == "C"}
+    c_ref = {k: v for k, v in ref.items() if k[0][0] == "C"}
+    assert sorted(c_ours) == sorted([*c_ref, ("C50", "2025 08 28 17 00 00")])
+    assert len(c_ref) == 7
+    for k, (r,) in c_ref.items():
+        (o,) = c_ours[k]
+        assert o[3] == 85 and r[3] == 1  # AODE: int(61200 / 720) % 240 vs broadcast
+        assert all(math.isclose(a, b, rel_tol=1e-11, abs_tol=1e-20)
+                   for i, (a, b) in enumerate(zip(o, r, strict=True)) if i != 3), k
+    e_ref = {k: [v for v in vs if v[20] == 513] for k, vs in ref.items() if k[0][0] == "E"}
+    e_ref = {k: v for k, v in e_ref.items() if v}
+    e_ours = {k: v for k, v in ours.items() if k[0][0] == "E"}
+    assert len(e_ref) == 5 and set(e_ref) <= set(e_ours) and len(e_ours) == 7
+    for k, (r,) in e_ref.items():
+        (o,) = e_ours[k]
+        assert all(math.isclose(a, b, rel_tol=1e-11, abs_tol=1e-20)
+                   for a, b in zip(o, r, strict=True)), k
