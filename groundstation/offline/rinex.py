@@ -924,6 +924,9 @@ def convert(
 ) -> RinexResult:
     """Convert one recording to ``<stem>.obs``, ``<stem>.nav`` and ``<stem>.marks.csv``.
 
+    A recording with navigation data but no raw measurements gives the ``.nav`` file alone
+    (``RinexResult.obs_written`` is false).
+
     Args:
         input_path: ``.ubx``, ``.ubx.gz``, raw log or MCAP.
         out_dir: output directory (created if missing).
@@ -931,7 +934,7 @@ def convert(
         progress: optional progress callback.
 
     Raises:
-        InputError: unreadable input or no raw measurements in it.
+        InputError: unreadable input, or neither raw measurements nor navigation data in it.
     """
     opt = options or RinexOptions()
     src = Path(input_path)
