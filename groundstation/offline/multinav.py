@@ -61,7 +61,7 @@ def _payload(data: memoryview, index: FrameIndex, i: int) -> bytes:
 
 def receiver_times(data: bytes | memoryview, index: FrameIndex) -> list[tuple[int, int]]:
     """(stream offset, GPS ns) of every message that states the receiver's GPS time with a
-    week: RXM-RAWX, RXM-RAW, NAV-SOL, NAV-TIMEGPS (week 0 = not yet known, skipped)."""
+    valid week: RXM-RAWX, RXM-RAW, NAV-SOL, NAV-TIMEGPS (week 0 or not valid: skipped)."""
     mv = memoryview(data)
     out: list[tuple[int, int]] = []
     wanted = {(0x02, 0x15), (0x02, 0x10), (0x01, 0x06), (0x01, 0x20)}
@@ -82,6 +82,9 @@ def receiver_times(data: bytes | memoryview, index: FrameIndex) -> list[tuple[in
         elif key in ((0x01, 0x06), (0x01, 0x20)) and len(p) >= 12:
             itow, ftow, week = struct.unpack_from("<Iih", p, 0)
             tow_ns = itow * 1_000_000 + ftow
+            # the week is valid only with NAV-SOL flags bit 2 (WKNSET), NAV-TIMEGPS valid bit 1
+            if not p[11] & (0x04 if key == (0x01, 0x06) else 0x02):
+                week = 0
         if week > 0:
             out.append((int(index.start[i]), gpstime.gps_ns(week, tow_ns)))
     return out
