@@ -1075,7 +1075,8 @@ def _convert_nav_only(
             f"{src}: no raw measurements (RXM-RAW / RXM-RAWX) and no navigation data"
         )
     nav_path = out / f"{stem}.nav"
-    leap = gpstime.leap_seconds_at_gps(times[0][1] if times else approx or 0)
+    known = times[0][1] if times else approx
+    leap = gpstime.leap_seconds_at_gps(known) if known is not None else None
     n_eph = write_nav(nav_path, nav.ephemerides, opt.version, leap, nav, multi)
     return RinexResult(
         obs_path=out / f"{stem}.obs",
