@@ -163,12 +163,16 @@ def test_subframe_whose_first_copy_fails_parity_is_used_from_a_later_copy(
     assert a[:27] == b[:27] and a[28:] == b[28:] and a[27] == b[27] + 30
 
 
+@pytest.mark.parametrize(("stem", "gps", "others"), [
+    ("rover-20181009-1221", 15, (("R", 18),)),
+    ("16dBatt_no_interference_coldstart", 9, (("E", 19),)),
+])
 def test_recording_with_navigation_data_only_gives_a_nav_file(
-    shared_data: Path, tmp_path: Path
+    shared_data: Path, tmp_path: Path, stem: str, gps: int, others: tuple[tuple[str, int], ...]
 ) -> None:
-    """Only the RXM-SFRBX frames of the 2018-10-09 rover: GPS and GLONASS records as from the
-    whole recording (the GLONASS day comes from the GPS subframes), and no observation file."""
-    src = shared_data / FILES["rover-20181009-1221"]
+    """Only the RXM-SFRBX frames of a recording: the same records as from the whole recording
+    (the GLONASS day comes from the GPS subframes), and no observation file."""
+    src = shared_data / FILES[stem]
     data = rinex.read_recording(src)
     only = b"".join(data[s : s + n + 8] for s, c, i, n in _frames(data) if (c, i) == (2, 0x13))
     cut = tmp_path / "sfrbx-only.ubx"
@@ -177,8 +181,8 @@ def test_recording_with_navigation_data_only_gives_a_nav_file(
     res = rinex.convert(cut, tmp_path / "cut")
     assert not res.obs_written and res.epochs == 0 and not res.obs_path.exists()
     assert res.nav_path.exists()
-    assert res.ephemerides == full.ephemerides == 15
-    assert res.other_ephemerides == full.other_ephemerides == (("R", 18),)
+    assert res.ephemerides == full.ephemerides == gps
+    assert res.other_ephemerides == full.other_ephemerides == others
     assert nav_records(res.nav_path) == nav_records(full.nav_path)
 
 
