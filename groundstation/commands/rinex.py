@@ -85,9 +85,13 @@ def run(args: argparse.Namespace) -> int:
     finally:
         if prog is not None:
             prog.done()
-    print(f"{res.obs_path}: {res.epochs} epochs ({res.source}), {res.events} event epochs")
-    print(f"{res.nav_path}: {res.ephemerides} GPS ephemerides")
-    print(f"{res.marks_path}: {res.marks} marks, {res.marks_in_dropout} inside a dropout")
+    if res.obs_written:
+        print(f"{res.obs_path}: {res.epochs} epochs ({res.source}), {res.events} event epochs")
+    names = {"R": "GLONASS", "E": "Galileo", "C": "BeiDou"}
+    others = "".join(f", {n} {names.get(s, s)}" for s, n in res.other_ephemerides)
+    print(f"{res.nav_path}: {res.ephemerides} GPS ephemerides{others}")
+    if res.obs_written:
+        print(f"{res.marks_path}: {res.marks} marks, {res.marks_in_dropout} inside a dropout")
     print(
         f"frames: {res.frames} valid, {res.damaged_frames} damaged sync words; "
         f"{res.dropped_epochs} epochs not written (empty or out of order); "

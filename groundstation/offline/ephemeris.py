@@ -108,11 +108,13 @@ def collect_ephemerides(data: bytes | memoryview, index: FrameIndex, week_hint: 
                 continue
             if sid in (1, 2, 3) and (payload[1], (sid, *raw_words[2:])) in seen_raw:
                 continue
-            seen_raw.add((payload[1], (sid, *raw_words[2:])))
             words = ublox_sfrbx_data_words(raw_words)
             if words is None:
                 result.parity_errors += 1
                 continue
+            # Only a copy that passed parity makes later copies duplicates: a bit error in the
+            # TLM or HOW (not part of the key) must not hide the next, clean copy.
+            seen_raw.add((payload[1], (sid, *raw_words[2:])))
             subframes.append((payload[1], words))
             source = "RXM-SFRBX"
         elif key == RXM_SFRB:

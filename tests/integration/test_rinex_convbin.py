@@ -266,12 +266,12 @@ def test_rnx2rtkp_same_single_point_solution(
     c = converted[stem]
     ref_obs, ref_nav = tmp_path / "ref.obs", tmp_path / "ref.nav"
     ref_obs.write_bytes(gzip.decompress(c.ref_obs.read_bytes()))
-    # Ours has GPS ephemerides only (GLONASS strings are not decoded): compare on GPS alone.
+    # Ours has GPS, GLONASS, Galileo and BeiDou ephemerides (not SBAS, QZSS): compare on those.
     head, body = gzip.decompress(c.ref_nav.read_bytes()).decode().split("END OF HEADER")
     keep, lines = False, []
     for ln in body.splitlines(keepends=True)[1:]:
         if ln[:1].isalpha():
-            keep = ln[0] == "G"
+            keep = ln[0] in "GREC"
         if keep:
             lines.append(ln)
     ref_nav.write_text(head + "END OF HEADER" + body.splitlines(keepends=True)[0] + "".join(lines))

@@ -17,6 +17,7 @@ import numpy as np
 from groundstation import gpstime
 from groundstation.errors import InputError
 from groundstation.offline.ephemeris import collect_ephemerides
+from groundstation.offline.multinav import MultiNav, collect_multi, receiver_times, today_gps_week
 from groundstation.offline.rinex.marks_table import marks_csv
 from groundstation.offline.rinex.nav_writer import write_nav
 from groundstation.offline.rinex.obs_writer import HeaderInfo, ProgressFn, kept_epochs, write_obs
@@ -76,6 +77,10 @@ class RinexResult:
     nav_parity_errors: int
     skipped_systems: tuple[str, ...] = ()
     notes: tuple[str, ...] = field(default_factory=tuple)
+    other_ephemerides: tuple[tuple[str, int], ...] = ()
+    """(system letter, count) of the GLONASS, Galileo ... records in the nav file."""
+    obs_written: bool = True
+    """False for a recording without raw measurements (navigation file only)."""
 
 
 def read_recording(path: Path, progress: ProgressFn | None = None) -> bytes:
@@ -188,6 +193,9 @@ def convert(
 ) -> RinexResult:
     """Convert one recording to ``<stem>.obs``, ``<stem>.nav`` and ``<stem>.marks.csv``.
 
+    A recording with navigation data but no raw measurements gives the ``.nav`` file alone
+    (``RinexResult.obs_written`` is false).
+
     Args:
         input_path: ``.ubx``, ``.ubx.gz``, raw log or MCAP.
         out_dir: output directory (created if missing).
@@ -195,7 +203,7 @@ def convert(
         progress: optional progress callback.
 
     Raises:
-        InputError: unreadable input or no raw measurements in it.
+        InputError: unreadable input, or neither raw measurements nor navigation data in it.
     """
     opt = options or RinexOptions()
     src = Path(input_path)
@@ -211,7 +219,7 @@ def convert(
         progress("index", 1.0)
     block, obs, rejected = observations_of(data, index)
     if obs.t_gps_ns.size == 0:
-        raise InputError(f"{src}: no raw measurements (RXM-RAW / RXM-RAWX) with a GPS week")
+        return _convert_nav_only(src, data, index, out, stem, opt)
     leap_by_offset = _leap_by_offset(index, block)
     leap = leap_by_offset[-1][1] if leap_by_offset else gpstime.leap_seconds_at_gps(
         int(obs.t_gps_ns[0]))
@@ -222,6 +230,7 @@ def convert(
     approx = _approx_position(data, index) or (0.0, 0.0, 0.0)
     week_hint = int(obs.t_gps_ns[0] // gpstime.NS_PER_WEEK)
     nav = collect_ephemerides(data, index, week_hint)
+    multi = collect_multi(data, index, receiver_times(data, index), int(obs.t_gps_ns[0]))
     epochs_sorted = np.sort(obs.t_gps_ns).tolist()
     interval = epochs_rule.nominal_interval_ns(epochs_sorted)
     comments = (
@@ -241,7 +250,7 @@ def convert(
     nav_path = out / f"{stem}.nav"
     marks_path = out / f"{stem}.marks.csv"
     wr = write_obs(obs_path, obs, events, info, opt.version, interval, progress)
-    n_eph = write_nav(nav_path, nav.ephemerides, opt.version, leap, nav)
+    n_eph = write_nav(nav_path, nav.ephemerides, opt.version, leap, nav, multi)
     written = np.sort(obs.t_gps_ns[kept_epochs(obs)]).tolist()
     marks_path.write_text(
         marks_csv(mark_list, written, opt.marks, opt.shutter_delay_ns), encoding="ascii"
@@ -267,6 +276,8 @@ def convert(
         notes.append("no NAV-SOL/NAV-PVT fix: APPROX POSITION XYZ is zero")
     if not nav.ephemerides:
         notes.append("no GPS ephemeris found (RXM-SFRB, RXM-SFRBX, AID-EPH): empty nav file")
+    if opt.version != "3.04" and _other_counts(multi):
+        notes.append("RINEX 2.11 navigation file holds GPS only: GLONASS/Galileo left out")
     return RinexResult(
         obs_path=obs_path,
         nav_path=nav_path,
@@ -284,4 +295,58 @@ def convert(
         nav_parity_errors=nav.parity_errors,
         skipped_systems=wr.skipped_systems,
         notes=tuple(notes),
+        other_ephemerides=_other_counts(multi),
+    )
+
+
+def _other_counts(multi: MultiNav) -> tuple[tuple[str, int], ...]:
+    counts = {"R": len(multi.glonass)}
+    for e in multi.kepler:
+        counts[e.system] = counts.get(e.system, 0) + 1
+    return tuple((s, n) for s, n in counts.items() if n)
+
+
+def _convert_nav_only(
+    src: Path, data: bytes, index: FrameIndex, out: Path, stem: str, opt: RinexOptions
+) -> RinexResult:
+    """A recording without raw measurements: the navigation file alone (no obs, no marks).
+
+    Raises:
+        InputError: no navigation data either.
+    """
+    times = receiver_times(data, index)
+    week_hint = (times[0][1] // gpstime.NS_PER_WEEK) if times else today_gps_week()
+    nav = collect_ephemerides(data, index, week_hint)
+    # GLONASS needs the day: a receiver time if any, else the first GPS ephemeris's.
+    first = nav.ephemerides[0] if nav.ephemerides else None
+    approx = (round((first.week * 604_800 + (first.tow_s or first.toe_s)) * 1e9)
+              if first is not None else None)
+    multi = collect_multi(data, index, times, approx)
+    others = _other_counts(multi)
+    if not nav.ephemerides and not others:
+        raise InputError(
+            f"{src}: no raw measurements (RXM-RAW / RXM-RAWX) and no navigation data"
+        )
+    nav_path = out / f"{stem}.nav"
+    known = times[0][1] if times else approx
+    leap = gpstime.leap_seconds_at_gps(known) if known is not None else None
+    n_eph = write_nav(nav_path, nav.ephemerides, opt.version, leap, nav, multi)
+    return RinexResult(
+        obs_path=out / f"{stem}.obs",
+        nav_path=nav_path,
+        marks_path=out / f"{stem}.marks.csv",
+        source="none",
+        epochs=0,
+        events=0,
+        marks=0,
+        marks_in_dropout=0,
+        ephemerides=n_eph,
+        dropped_epochs=0,
+        damaged_frames=index.damaged,
+        frames=len(index),
+        rejected_messages=0,
+        nav_parity_errors=nav.parity_errors,
+        notes=("no raw measurements (RXM-RAW / RXM-RAWX): navigation file only",),
+        other_ephemerides=others,
+        obs_written=False,
     )

@@ -1,4 +1,5 @@
-"""The RINEX 2.11 / 3.04 GPS navigation file from broadcast ephemerides."""
+"""The RINEX 2.11 / 3.04 navigation file from broadcast ephemerides (RINEX 3: GPS, GLONASS,
+Galileo, BeiDou; 2.11: GPS only)."""
 
 from __future__ import annotations
 
@@ -8,6 +9,8 @@ from pathlib import Path
 from groundstation import __version__, gpstime
 from groundstation.gnss.ephemeris import BroadcastEphemeris
 from groundstation.offline.ephemeris import NavResult
+from groundstation.offline.multinav import MultiNav
+from groundstation.offline.rinex import nav_multi
 from groundstation.offline.rinex.format import d19, hl, utc_now
 
 # IS-GPS-200 nominal URA (m) per index, as RINEX writers give it.
@@ -21,12 +24,15 @@ def write_nav(
     version: str = "3.04",
     leap_s: int | None = None,
     nav: NavResult | None = None,
+    multi: MultiNav | None = None,
 ) -> int:
-    """Write a GPS navigation file; returns the number of ephemerides written."""
+    """Write a navigation file (RINEX 3: GPS, GLONASS, Galileo, BeiDou; 2.11: GPS only);
+    returns the number of GPS ephemerides written."""
     v3 = version == "3.04"
     h: list[str] = []
     if v3:
-        h.append(hl(f"{version:>9s}{'':11s}{'N: GNSS NAV DATA':<20s}{'G: GPS':<20s}",
+        sys_field = nav_multi.header_system(bool(ephemerides), multi)
+        h.append(hl(f"{version:>9s}{'':11s}{'N: GNSS NAV DATA':<20s}{sys_field:<20s}",
                      "RINEX VERSION / TYPE"))
     else:
         h.append(hl(f"{version:>9s}{'':11s}{'N: GPS NAV DATA':<20s}", "RINEX VERSION / TYPE"))
@@ -77,6 +83,8 @@ def write_nav(
         for r in rows:
             body.append(ind + "".join(d19(float(v)) for v in r) + "\n")
         body.append(ind + d19(float(tx)) + d19(fit_h) + "\n")
+    if v3:
+        body.extend(nav_multi.records(multi, d19))
     with path.open("w", encoding="ascii", newline="\n") as f:
         f.write("".join(h))
         f.write("".join(body))

@@ -164,7 +164,7 @@ def _to_rinex(path: Path, work: Path, progress: Progress | None) -> tuple[Path, 
             progress(f"rinex {path.name}: {stage}", frac)
 
     res = rinex.convert(path, work, rinex.RinexOptions(version="3.04"), prog)
-    return res.obs_path, [res.nav_path] if res.ephemerides else []
+    return res.obs_path, [res.nav_path] if res.ephemerides or res.other_ephemerides else []
 
 
 def run_engine(

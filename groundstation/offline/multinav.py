@@ -1,0 +1,153 @@
+"""GLONASS, Galileo and BeiDou broadcast ephemerides of a recording, from u-blox RXM-SFRBX.
+
+The receiver-specific part: where RXM-SFRBX keeps a GLONASS string, a Galileo I/NAV page or a
+BeiDou D1 subframe, and
+what the receiver's clock said when the message arrived (GLONASS times are times of day, so the
+day comes from the nearest receiver epoch, NAV-SOL or NAV-TIMEGPS before it). Decoding is
+:mod:`groundstation.gnss.glonass`'s, :mod:`~groundstation.gnss.galileo`'s and
+:mod:`~groundstation.gnss.beidou`'s job; the GPS part of
+the same messages stays in :mod:`groundstation.offline.ephemeris`.
+"""
+
+from __future__ import annotations
+
+import bisect
+import datetime as dt
+import struct
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from groundstation import gpstime
+from groundstation.gnss import beidou, galileo, glonass
+from groundstation.gnss.kepler import KeplerEphemeris
+from groundstation.ubx.fastraw import FrameIndex
+
+RXM_SFRBX = (0x02, 0x13)
+GNSS_GALILEO = 2
+GNSS_BEIDOU = 3
+GNSS_GLONASS = 6
+_GAL_FNAV_SIG = 3
+_GAL_E6_SIG = 8
+_BDS_CNAV_SIGS = (6, 8)  # B1C and B2a carry B-CNAV1/2, not D1/D2
+
+
+@dataclass(slots=True)
+class MultiNav:
+    """GLONASS and Galileo ephemerides of a recording, in the order they were completed.
+
+    Attributes:
+        glonass: new GLONASS ephemerides (a new ``tb`` per slot).
+        kepler: new Galileo ephemerides (new IODnav/toe/toc per satellite) and BeiDou D1
+            ones (new toe per satellite).
+        glonass_strings: GLONASS strings that passed their Hamming check.
+        hamming_errors: GLONASS strings that failed it.
+        galileo_pages: Galileo E1-B pages looked at.
+        crc_errors: Galileo pages whose CRC failed.
+    """
+
+    glonass: list[glonass.GlonassEphemeris] = field(default_factory=list)
+    kepler: list[KeplerEphemeris] = field(default_factory=list)
+    glonass_strings: int = 0
+    hamming_errors: int = 0
+    galileo_pages: int = 0
+    crc_errors: int = 0
+
+
+def _payload(data: memoryview, index: FrameIndex, i: int) -> bytes:
+    s = int(index.start[i]) + 6
+    return bytes(data[s : s + int(index.length[i])])
+
+
+def receiver_times(data: bytes | memoryview, index: FrameIndex) -> list[tuple[int, int]]:
+    """(stream offset, GPS ns) of every message that states the receiver's GPS time with a
+    valid week: RXM-RAWX, RXM-RAW, NAV-SOL, NAV-TIMEGPS (week 0 or not valid: skipped)."""
+    mv = memoryview(data)
+    out: list[tuple[int, int]] = []
+    wanted = {(0x02, 0x15), (0x02, 0x10), (0x01, 0x06), (0x01, 0x20)}
+    cls, ids = index.cls, index.id
+    sel = np.zeros(len(index), dtype=bool)
+    for c, m in wanted:
+        sel |= (cls == c) & (ids == m)
+    for i in np.flatnonzero(sel).tolist():
+        key = (int(cls[i]), int(ids[i]))
+        p = _payload(mv, index, i)
+        week, tow_ns = 0, 0
+        if key == (0x02, 0x15) and len(p) >= 16:
+            tow_s, week = struct.unpack_from("<dH", p, 0)
+            tow_ns = round(tow_s * 1e9)
+        elif key == (0x02, 0x10) and len(p) >= 8:
+            itow, week = struct.unpack_from("<ih", p, 0)
+            tow_ns = itow * 1_000_000
+        elif key in ((0x01, 0x06), (0x01, 0x20)) and len(p) >= 12:
+            itow, ftow, week = struct.unpack_from("<Iih", p, 0)
+            tow_ns = itow * 1_000_000 + ftow
+            # the week is valid only with NAV-SOL flags bit 2 (WKNSET), NAV-TIMEGPS valid bit 1
+            if not p[11] & (0x04 if key == (0x01, 0x06) else 0x02):
+                week = 0
+        if week > 0:
+            out.append((int(index.start[i]), gpstime.gps_ns(week, tow_ns)))
+    return out
+
+
+def today_gps_week() -> int:
+    """The GPS week of the computer's clock (resolves broadcast weeks when nothing else can)."""
+    return gpstime.week_tow(gpstime.datetime_to_gps_ns(dt.datetime.now(dt.UTC)))[0]
+
+
+def collect_multi(
+    data: bytes | memoryview,
+    index: FrameIndex,
+    times: list[tuple[int, int]],
+    fallback_gps_ns: int | None = None,
+) -> MultiNav:
+    """Every new GLONASS and Galileo (I/NAV) ephemeris in a recording, in stream order.
+
+    Args:
+        data: the recording.
+        index: its frame index.
+        times: (stream offset, GPS ns) of the receiver's time statements, in stream order
+            (:func:`receiver_times`, possibly completed from GPS subframes).
+        fallback_gps_ns: a time near the data for GLONASS strings that arrive when no receiver
+            time is known at all.
+    """
+    result = MultiNav()
+    glo = glonass.GlonassAssembler()
+    gal = galileo.InavAssembler()
+    bds = beidou.D1Assembler()
+    offsets = [o for o, _ in times]
+    mv = memoryview(data)
+    for i in index.select(RXM_SFRBX).tolist():
+        p = _payload(mv, index, i)
+        if len(p) < 8:
+            continue
+        gnss, sv, sig, freq, nwords = p[0], p[1], p[2], p[3], p[4]
+        if len(p) < 8 + 4 * nwords:
+            continue
+        words = struct.unpack_from(f"<{nwords}I", p, 8)
+        if gnss == GNSS_GLONASS and nwords >= 4 and 1 <= sv <= 27:
+            j = bisect.bisect_right(offsets, int(index.start[i])) - 1
+            approx = times[j][1] if j >= 0 else times[0][1] if times else fallback_gps_ns
+            if approx is None:
+                continue
+            string, frame_id = glonass.string_from_ublox(words)
+            before = glo.hamming_errors
+            eph = glo.add(sv, string, frame_id, freq - 7, approx)
+            if glo.hamming_errors == before:
+                result.glonass_strings += 1
+            if eph is not None:
+                result.glonass.append(eph)
+        elif (gnss == GNSS_GALILEO and nwords >= 8 and 1 <= sv <= 36
+              and sig not in (_GAL_FNAV_SIG, _GAL_E6_SIG)):
+            result.galileo_pages += 1
+            gal_eph = gal.add(sv, galileo.page_from_ublox(words))
+            if gal_eph is not None:
+                result.kepler.append(gal_eph)
+        elif (gnss == GNSS_BEIDOU and nwords >= 10 and 1 <= sv <= 63 and not beidou.is_geo(sv)
+              and sig not in _BDS_CNAV_SIGS):
+            bds_eph = bds.add(sv, beidou.subframe_from_ublox(words))
+            if bds_eph is not None:
+                result.kepler.append(bds_eph)
+    result.hamming_errors = glo.hamming_errors
+    result.crc_errors = gal.crc_errors
+    return result
