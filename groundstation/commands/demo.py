@@ -9,7 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from groundstation.commands.simulate import parse_speed
-from groundstation.config import DEFAULT_ENDPOINT
+from groundstation.config import DEFAULT_ENDPOINT, check_station
 from groundstation.errors import ConfigError
 from groundstation.view.summary import status_lines
 
@@ -37,6 +37,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from groundstation.live.demo import DemoOptions, run_demo
 
+    check_station(args.station, "--station")
     if args.flight < 60:
         raise ConfigError("flight", "must be at least 60 s (static, take-off, lines, landing)")
     if args.duration < 0:

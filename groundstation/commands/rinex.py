@@ -5,10 +5,12 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+from pathlib import Path
 
-from groundstation.errors import ConfigError, GroundstationError
+from groundstation.errors import ConfigError
 from groundstation.offline import rinex
 from groundstation.offline.marks import MARK_EDGES
+from groundstation.outpaths import check_output_dir
 from groundstation.storage.reading import Recording
 
 NAME = "rinex"
@@ -73,12 +75,15 @@ def run(args: argparse.Namespace) -> int:
         shutter_delay_ns=round(args.shutter_delay_ms * 1e6),
         marker=args.marker,
     )
+    recording = Recording(args.input)  # a missing, non-regular or unreadable input: one line
+    stem = Path(args.input).name
+    for suffix in (".gz", ".ubx", ".mcap", ".log"):  # rinex.convert's names
+        stem = stem.removesuffix(suffix)
+    check_output_dir(Path(args.out_dir), recording.parts, key="--out-dir",
+                     writes=(f"{stem}.obs", f"{stem}.nav", f"{stem}.marks.csv"))
     show = args.progress == "always"
     if args.progress == "auto":
-        try:
-            show = Recording(args.input).size_bytes >= PROGRESS_MIN_BYTES
-        except GroundstationError:
-            show = False
+        show = recording.size_bytes >= PROGRESS_MIN_BYTES
     prog = _Progress() if show else None
     try:
         res = rinex.convert(args.input, args.out_dir, opts, prog)

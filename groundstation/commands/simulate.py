@@ -10,6 +10,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 from groundstation.errors import ConfigError
+from groundstation.outpaths import check_output_file
 from groundstation.pacing import paced
 from groundstation.sim.faults import FaultConfig
 from groundstation.sim.ptylink import PtyLink
@@ -33,6 +34,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--faults", default="none", metavar="none|default|FILE")
     parser.add_argument("--truth", metavar="FILE", help="write the truth JSON here")
+    parser.add_argument("--force", action="store_true",
+                        help="replace existing output files (never a recording)")
 
 
 def parse_speed(value: str | None, live: bool) -> float | None:
@@ -74,8 +77,14 @@ def _serve_tcp(port: int, chunks: Iterator[tuple[int, bytes]]) -> None:
 def run(args: argparse.Namespace) -> int:
     if args.duration <= 0:
         raise ConfigError("duration", "must be positive")
-    faults = FaultConfig.load(args.faults)
     live = bool(args.pty or args.tcp)
+    outs = [("--out", None if live else (args.out or "sim_rover.ubx")),
+            ("--base-out", args.base_out), ("--truth", args.truth)]
+    given = [(opt, Path(v)) for opt, v in outs if v]
+    for i, (opt, path) in enumerate(given):
+        others = [p for _, p in given[:i]]  # two options naming one file
+        check_output_file(path, others, key=opt, force=args.force)
+    faults = FaultConfig.load(args.faults)
     speed = parse_speed(args.speed, live)
     started = time.monotonic()
     result = simulate(SimConfig(duration_s=args.duration, seed=args.seed, faults=faults,

@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from groundstation import gpstime, jsonio
+from groundstation import gpstime, jsonio, outpaths
 from groundstation.errors import ConfigError, InputError
 from groundstation.solve.interpolate import flag_names
 from groundstation.solve.positions import QUALITY_NAMES
@@ -308,17 +308,18 @@ def write_all(out: SolveOutput, directory: Path) -> list[Path]:
     return paths
 
 
-def check_output_dir(out_dir: Path, inputs: Sequence[Path]) -> None:
-    """Refuse an output directory that is (or is inside) an input directory of photos.
+OUTPUT_NAMES: tuple[str, ...] = (*WRITERS, "report.html", "rtklib/", "photos/")
+"""What ``solve`` writes into its output directory (:mod:`groundstation.outpaths`)."""
+
+
+def check_output_dir(out_dir: Path, inputs: Sequence[Path | None]) -> None:
+    """Refuse an output directory that is or is inside an input directory, or where solve's
+    outputs would replace an input or a recording (:func:`groundstation.outpaths.check_output_dir`).
 
     Raises:
-        ConfigError: ``--out`` points at or into an input directory.
+        ConfigError: naming ``--out``.
     """
-    o = out_dir.resolve()
-    for d in inputs:
-        r = d.resolve()
-        if o == r or r in o.parents:
-            raise ConfigError("--out", f"{out_dir} is inside the input directory {d}")
+    outpaths.check_output_dir(out_dir, inputs, key="--out", writes=OUTPUT_NAMES)
 
 
 def write_exif_copies(

@@ -118,9 +118,7 @@ def _station_solve(base: StationSolve, values: Mapping[str, Any], prefix: str) -
 
 def _service_settings(resolved: Resolved) -> ServiceSettings:
     top = resolved.values[""]
-    station = top.get("station", "*")
-    if not station or any(c in station for c in "/?#$") or station == "**":
-        raise ConfigError("station", f"{station!r} is not a station name or '*'")
+    station = top.get("station", "*")  # checked by the resolver (config.STATION_OR_ALL)
     keys = {k: v for k, v in top.items() if k in SOLVER_STATION_KEYS}
     from_file = {k: v for k, v in keys.items() if resolved.origin.get(("", k)) == "file"}
     later = {k: v for k, v in keys.items() if k not in from_file}
