@@ -1,7 +1,8 @@
 """Photos to time marks: EXIF capture times, burst spreading, clock offset, one-to-one pairing.
 
 The matching core (:func:`match`) is sans-I/O: it takes photo times on the camera clock and mark
-times in GPS seconds. EXIF reading and writing (the ``exif`` library) live here too, at the edge:
+times in GPS seconds. EXIF reading (a bounded parser of its own: a crafted photo must not hang
+the solver) and writing (the ``exif`` library) live here too, at the edge:
 :func:`read_photo`, :func:`scan_photos`, :func:`write_gps_copy`, :func:`make_jpeg`.
 """
 
@@ -13,6 +14,7 @@ import re
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 import numpy.typing as npt
@@ -112,45 +114,156 @@ def _unix_ns(naive: dt.datetime) -> int:
     return int(naive.replace(tzinfo=dt.UTC).timestamp()) * gpstime.NS_PER_S
 
 
-def read_photo(path: str | Path) -> Photo:
-    """The EXIF capture time of one JPEG (never raises for bad photos: see ``Photo.error``)."""
-    from exif import Image  # the one module that owns the exif library
+EXIF_READ_BYTES = 1 << 18
+"""At most this much of a photo is read for its EXIF (the APP1 segment is at most 64 KiB and
+comes before the image data)."""
+EXIF_TIME_BUDGET_S = 0.5
+"""Parsing one photo's EXIF stops after this long (a crafted file is skipped, never a hang)."""
+EXIF_MAX_IFDS = 16
+EXIF_MAX_ENTRIES = 2000
 
+_TAG_DATETIME, _TAG_EXIF_IFD, _TAG_GPS_IFD = 0x0132, 0x8769, 0x8825
+_TAG_ORIGINAL, _TAG_OFFSET_ORIGINAL, _TAG_SUBSEC_ORIGINAL = 0x9003, 0x9011, 0x9291
+_TAG_INTEROP_IFD = 0xA005
+
+
+class ExifError(ValueError):
+    """A photo's EXIF block cannot be used (damaged, looping, over budget)."""
+
+
+def _exif_block(head: bytes) -> bytes | None:
+    """The TIFF data of a JPEG's ``Exif`` APP1 segment (``None``: the JPEG has none).
+
+    Raises:
+        ExifError: not a JPEG, or a segment runs past the data.
+    """
+    if head[:2] != b"\xff\xd8":
+        raise ExifError("not a JPEG")
+    i = 2
+    while i + 4 <= len(head):
+        if head[i] != 0xFF:
+            raise ExifError(f"damaged JPEG segment at byte {i}")
+        marker = head[i + 1]
+        if marker in (0xD9, 0xDA):  # end of image, start of scan: no EXIF after this
+            return None
+        if marker == 0xFF or 0xD0 <= marker <= 0xD7 or marker == 0x01:
+            i += 1 if marker == 0xFF else 2  # fill byte or standalone marker
+            continue
+        length = int.from_bytes(head[i + 2 : i + 4], "big")
+        if length < 2:
+            raise ExifError(f"damaged JPEG segment length at byte {i}")
+        body = head[i + 4 : i + 2 + length]
+        if marker == 0xE1 and body.startswith(b"Exif\x00\x00"):
+            if len(body) < length - 2:
+                raise ExifError("EXIF segment cut short")
+            return body[6:]
+        i += 2 + length
+    return None
+
+
+def _exif_tags(tiff: bytes, deadline: float) -> dict[int, str]:
+    """The ASCII tags of IFD0 and the Exif IFD, with every IFD pointer checked: in bounds,
+    visited once (a looping chain is an error), at most :data:`EXIF_MAX_IFDS` IFDs.
+
+    Raises:
+        ExifError: damaged, looping or over the time budget.
+    """
+    import time
+
+    if len(tiff) < 8 or tiff[:4] not in (b"II*\x00", b"MM\x00*"):
+        raise ExifError("bad TIFF header in EXIF")
+    order: Literal["little", "big"] = "little" if tiff[:2] == b"II" else "big"
+
+    def u(off: int, n: int) -> int:
+        if off < 0 or off + n > len(tiff):
+            raise ExifError(f"EXIF offset {off} outside the {len(tiff)}-byte block")
+        return int.from_bytes(tiff[off : off + n], order)
+
+    tags: dict[int, str] = {}
+    seen: set[int] = set()
+    todo: list[tuple[int, bool]] = [(u(4, 4), True)]  # (offset, follow the next-IFD chain)
+    while todo:
+        off, chain = todo.pop()
+        if off == 0:
+            continue
+        if off in seen:
+            raise ExifError(f"looping EXIF IFD chain (offset {off} visited twice)")
+        if len(seen) >= EXIF_MAX_IFDS:
+            raise ExifError(f"more than {EXIF_MAX_IFDS} EXIF IFDs")
+        if time.monotonic() > deadline:
+            raise ExifError(f"EXIF parsing over its {EXIF_TIME_BUDGET_S} s budget")
+        seen.add(off)
+        count = u(off, 2)
+        if count > EXIF_MAX_ENTRIES:
+            raise ExifError(f"EXIF IFD with {count} entries")
+        for k in range(count):
+            e = off + 2 + 12 * k
+            tag, kind, n = u(e, 2), u(e + 2, 2), u(e + 4, 4)
+            if tag in (_TAG_EXIF_IFD, _TAG_GPS_IFD, _TAG_INTEROP_IFD):
+                todo.append((u(e + 8, 4), False))
+            elif kind == 2 and tag in (_TAG_DATETIME, _TAG_ORIGINAL, _TAG_OFFSET_ORIGINAL,
+                                       _TAG_SUBSEC_ORIGINAL):
+                start = e + 8 if n <= 4 else u(e + 8, 4)
+                if n > 256 or start + n > len(tiff):
+                    raise ExifError(f"EXIF tag 0x{tag:04x} runs outside the block")
+                tags.setdefault(tag, tiff[start : start + n].split(b"\x00")[0]
+                                .decode("ascii", "replace"))
+        if chain:
+            todo.append((u(off + 2 + 12 * count, 4), True))
+    return tags
+
+
+def read_exif_times(path: Path) -> dict[int, str]:
+    """The capture-time tags of one JPEG, read within a size and time budget.
+
+    Raises:
+        OSError: the file cannot be read.
+        ExifError: no usable EXIF block (damaged, looping, over budget).
+    """
+    import time
+
+    with path.open("rb") as f:
+        head = f.read(EXIF_READ_BYTES)
+    tiff = _exif_block(head)
+    if tiff is None:
+        return {}
+    return _exif_tags(tiff, time.monotonic() + EXIF_TIME_BUDGET_S)
+
+
+def read_photo(path: str | Path) -> Photo:
+    """The EXIF capture time of one JPEG (never raises for bad photos: see ``Photo.error``).
+
+    The EXIF block is parsed here, within a budget (:data:`EXIF_READ_BYTES`,
+    :data:`EXIF_TIME_BUDGET_S`, every IFD visited once): a damaged or crafted photo (a looping
+    IFD chain) is skipped with its reason, never a hang.
+    """
     p = Path(path)
     try:
-        img = Image(p.read_bytes())
+        tags = read_exif_times(p)
     except OSError as err:
-        return Photo(p.name, str(p), 0, error=f"cannot read: {err}")
-    except Exception as err:  # the exif library raises plain exceptions on odd files
+        return Photo(p.name, str(p), 0, error=f"cannot read: {err.strerror or err}")
+    except ExifError as err:
         return Photo(p.name, str(p), 0, error=f"no readable EXIF: {err}")
-    if not img.has_exif:
+    if not tags:
         return Photo(p.name, str(p), 0, error="no EXIF")
     tag = "DateTimeOriginal"
-    text = _get(img, "datetime_original")
+    text = tags.get(_TAG_ORIGINAL, "")
     if not text:
-        tag, text = "DateTime", _get(img, "datetime")
+        tag, text = "DateTime", tags.get(_TAG_DATETIME, "")
     if not text:
         return Photo(p.name, str(p), 0, error="no DateTimeOriginal")
     try:
         second = _unix_ns(parse_exif_datetime(text))
     except ValueError:
         return Photo(p.name, str(p), 0, error=f"bad {tag} {text!r}")
-    sub = _get(img, "subsec_time_original")
-    off = _get(img, "offset_time_original")
+    sub = tags.get(_TAG_SUBSEC_ORIGINAL, "")
+    off = tags.get(_TAG_OFFSET_ORIGINAL, "")
     return Photo(
         p.name, str(p), second,
         parse_subsec(sub) if sub else None,
         parse_utc_offset(off) if off else None,
         tag,
     )
-
-
-def _get(img: object, attr: str) -> str:
-    try:
-        value = img.get(attr)  # type: ignore[attr-defined]
-    except Exception:  # a damaged tag must not cost the whole photo
-        return ""
-    return str(value) if value is not None else ""
 
 
 def scan_photos(directory: str | Path) -> list[Photo]:
@@ -484,6 +597,9 @@ def reconciliation_lines(
         f"{len(result.unmatched_photos)} photos without mark, {len(result.orphan_marks)} marks "
         f"without photo, {len(result.duplicate_marks)} duplicate marks dropped"),
     ]
+    skipped = sum(1 for ph in photos if not ph.usable)
+    if skipped:
+        lines.append(f"photos skipped (no usable EXIF time): {skipped}")
     for i in result.unmatched_photos:
         ph = photos[i]
         why = ph.error or "no mark within the window"
