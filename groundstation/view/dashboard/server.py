@@ -47,6 +47,52 @@ STATIC_TYPES = {
 }
 
 
+SECURITY_HEADERS = (
+    ("Content-Security-Policy",
+     ("default-src 'none'; script-src 'self'; style-src 'self'; img-src 'self' data:; "
+      "connect-src 'self'; base-uri 'none'; form-action 'none'; frame-ancestors 'none'")),
+    ("X-Content-Type-Options", "nosniff"),
+    ("X-Frame-Options", "DENY"),
+    ("Referrer-Policy", "no-referrer"),
+)
+"""Sent with every response: the page runs only its own script and style, cannot be framed,
+and no type is sniffed (``docs/security.md``)."""
+
+
+def allowed_hosts(bind: str) -> frozenset[str]:
+    """Host names the server answers to: its bind address, the loopback names and this
+    machine's names. Any IP literal is accepted too (a DNS-rebinding attack needs a name that
+    the attacker's DNS resolves to us; a literal address names the server directly)."""
+    import socket
+
+    # gethostname only: getfqdn would ask DNS, which may hang without a network
+    names = {bind.lower().strip("[]"), "localhost", "127.0.0.1", "::1",
+             socket.gethostname().lower()}
+    return frozenset(n for n in names if n)
+
+
+def host_ok(header: str | None, hosts: frozenset[str], port: int) -> bool:
+    """Whether a request's ``Host`` header names this server (name and port)."""
+    import ipaddress
+
+    if not header:
+        return False
+    try:
+        parts = urlsplit("//" + header.strip())
+        host, got_port = (parts.hostname or "").lower(), parts.port
+    except ValueError:  # a malformed port
+        return False
+    if got_port is not None and got_port != port:
+        return False
+    if host in hosts:
+        return True
+    try:
+        ipaddress.ip_address(host)
+    except ValueError:
+        return False
+    return True
+
+
 class BusLike(Protocol):
     """The part of :class:`groundstation.bus.Bus` the hub uses (a fake in unit tests)."""
 
@@ -261,7 +307,18 @@ class _Handler(BaseHTTPRequestHandler):
     def log_message(self, format: str, *args: Any) -> None:  # noqa: A002 (stdlib signature)
         log.debug("%s " + format, self.address_string(), *args)
 
+    def end_headers(self) -> None:
+        for name, value in SECURITY_HEADERS:
+            self.send_header(name, value)
+        super().end_headers()
+
     def do_GET(self) -> None:
+        if not host_ok(self.headers.get("Host"), self.server.hosts, self.server.server_port):
+            log.warning("refused a request for Host %r from %s (DNS rebinding?)",
+                        self.headers.get("Host"), self.address_string())
+            self._send(HTTPStatus.MISDIRECTED_REQUEST, b"unknown host\n",
+                       "text/plain; charset=utf-8")
+            return
         url = urlsplit(self.path)
         query = parse_qs(url.query)
         station = (query.get("station") or [""])[0] or None
@@ -340,6 +397,7 @@ class DashboardHTTPServer(ThreadingHTTPServer):
 
     def __init__(self, address: tuple[str, int], hub: Hub) -> None:
         self.hub = hub
+        self.hosts = allowed_hosts(address[0])
         super().__init__(address, _Handler)
 
     @property
