@@ -88,7 +88,8 @@ def solver(tmp_path: Path, flight: dict[str, Any],
     xyz = ", ".join(f"{v:.4f}" for v in flight["truth"]["base"]["ecef_m"])
     conf = tmp_path / "solver.toml"
     conf.write_text(
-        f'out_root = "{tmp_path / "solutions"}"\ninterp = "smoother"\n\n'
+        f'out_root = "{tmp_path / "solutions"}"\ninterp = "smoother"\n'
+        f'recording_roots = ["{flight["mcap"].parent}", "{tmp_path / "flights"}"]\n\n'
         f'[zenoh]\nconnect = ["{endpoint}"]\nlisten = []\n\n'
         f'[stations.alpha]\nbase = "{{dir}}/{{stem}}_base.ubx"\nbase_xyz = [{xyz}]\n'
         f'photos = "{tmp_path / "photos"}/{{station}}"\nlever_arm = [0.16, -0.03, 0.57]\n'

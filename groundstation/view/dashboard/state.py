@@ -16,8 +16,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from groundstation import gpstime
-from groundstation.bus import decode
+from groundstation import gpstime, messages
 
 STALE_AFTER_S = 3.0
 """No status for longer than this and the station is shown as stale."""
@@ -29,6 +28,10 @@ EVENTS_KEPT = 40
 DROPOUTS_KEPT = 1000
 MARKS_KEPT = 3000
 """Up to 5 marks a second over the timeline span."""
+LEAF_KINDS = {"status": "status", "q/status": "status", "event": "event",
+              "timemark": "timemark", "q/timemarks": "timemark", "session": "session"}
+"""Key leaf -> the message kind it must carry."""
+NOT_SHOWN = frozenset({"ubx", "epoch", "alive", "solution"})
 _SESSION_TIME = re.compile(r"(\d{8}T\d{6}Z)$")
 
 NS = gpstime.NS_PER_S
@@ -95,15 +98,26 @@ class StationView:
     host_minus_gps_ns: int | None = None
     _offsets: deque[int] = field(default_factory=lambda: deque(maxlen=20))
     _session_id: str | None = None
+    rejected: int = 0
+    """Payloads dropped as bad (:mod:`groundstation.messages`): counted, shown, never fatal."""
+    last_rejection: str = ""
 
     # -- folding ---------------------------------------------------------------------------
 
     def on_payload(self, key_expr: str, payload: bytes, now_s: float) -> bool:
-        """Fold one bus payload; True if it changed the view."""
-        try:
-            msg = decode(payload)
-        except ValueError:
+        """Fold one bus payload; True if it changed the view (a bad one is counted in
+        :attr:`rejected`, which changes the view too)."""
+        leaf = key_expr.split("/", 2)[-1]
+        if leaf in NOT_SHOWN:
             return False
+        expected = LEAF_KINDS.get(leaf)  # None (a key the hub does not subscribe): any kind
+        try:
+            msg = messages.parse(payload, expected)
+        except messages.BadMessage as err:
+            self.rejected += 1
+            self.last_rejection = f"{leaf}: {err}"[:200]
+            self.version += 1
+            return True
         kind = msg.get("type")
         if kind == "status":
             self._on_status(msg, now_s)
@@ -282,6 +296,8 @@ class StationView:
             "stale": self.stale(now_s),
             "status_age_s": self.status_age_s(now_s),
             "alive": self.alive,
+            "rejected": self.rejected,
+            "last_rejection": self.last_rejection,
             "session_id": st.get("session_id"),
             "t_host_ns": st.get("t_host_ns"),
             "link": link,
