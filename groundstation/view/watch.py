@@ -52,6 +52,7 @@ class WatchState:
     session: dict[str, Any] | None = None
     alive: bool | None = None
     received: int = 0
+    instances: set[str] = field(default_factory=set)
     rejected: int = 0
     """Payloads dropped: not a valid message (:mod:`groundstation.messages`), or a status the
     screen cannot show."""
@@ -99,9 +100,15 @@ class WatchState:
             return  # already had it (queryable and subscription overlap)
         self.marks.append(msg)
 
-    def on_alive(self, _key: str, alive: bool) -> None:
+    def on_alive(self, key_expr: str, alive: bool) -> None:
+        """A daemon's token ``.../alive/<id>``: more than one alive is a station conflict."""
+        instance = key_expr.split("/alive", 1)[-1].lstrip("/")
         with self.lock:
-            self.alive = alive
+            if alive:
+                self.instances.add(instance)
+            else:
+                self.instances.discard(instance)
+            self.alive = bool(self.instances)
 
     def stale(self, now_s: float | None = None) -> bool:
         now_s = time.monotonic() if now_s is None else now_s
@@ -165,12 +172,16 @@ def render(state: WatchState, now_s: float | None = None) -> RenderableType:
         session = state.session
         alive = state.alive
         rejected, why = state.rejected, state.last_rejection
+        daemons = len(state.instances)
     title = Text(f"groundstation watch · station {state.station}", style="bold")
     if st is None:
         msg = "waiting for status on " + key(state.station, "status")
         body: RenderableType = Text(msg, style="yellow")
     else:
         body = _status_body(st, marks, events, session, alive, stale=stale)
+    if daemons > 1:
+        body = Group(Text(f" station_conflict: {daemons} daemons publish as station "
+                          f"{state.station!r} ", style="bold white on red"), body)
     if rejected:
         body = Group(body, Text(f"{rejected} bad messages dropped (last: {why})",
                                 style="bold yellow"))
@@ -277,7 +288,7 @@ def connect(
 
     bus = open_bus(settings)
     bus.subscribe(key(station, "**"), state.on_payload)
-    bus.subscribe_liveliness(key(station, "alive"), state.on_alive)
+    bus.subscribe_liveliness(key(station, "alive/**"), state.on_alive)
     for k, payload in bus.get(key(station, "q/timemarks"), timeout_s=2.0):
         state.on_payload(k, payload)
     for k, payload in bus.get(key(station, "q/status"), timeout_s=2.0):

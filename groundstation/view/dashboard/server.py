@@ -27,7 +27,7 @@ from urllib.parse import parse_qs, urlsplit
 
 from groundstation import jsonio
 from groundstation.bus import KEY_ROOT, key, open_bus
-from groundstation.config import CLIENT_ZENOH, ZenohSettings
+from groundstation.config import CLIENT_ZENOH, STATION_NAME, ZenohSettings
 from groundstation.view.dashboard.state import PPK_READY_MIN, FileInfo, StationView
 
 log = logging.getLogger("groundstation.dashboard")
@@ -39,6 +39,9 @@ MIN_PUSH_INTERVAL_S = 0.2
 SSE_RETRY_MS = 1000
 CATCH_UP_TIMEOUT_S = 2.0
 FILE_INFO_TTL_S = 2.0
+MAX_STATIONS = 256
+OVERFLOW_STATION = "_more"
+"""Where payloads of stations beyond :data:`MAX_STATIONS` are counted."""
 STATIC_TYPES = {
     ".html": "text/html; charset=utf-8",
     ".js": "text/javascript; charset=utf-8",
@@ -110,7 +113,7 @@ class BusLike(Protocol):
 def station_of(key_expr: str) -> str | None:
     """``groundstation/<station>/...`` -> ``<station>``."""
     parts = key_expr.split("/")
-    if len(parts) < 3 or parts[0] != KEY_ROOT or not parts[1]:
+    if len(parts) < 3 or parts[0] != KEY_ROOT or not STATION_NAME.fullmatch(parts[1]):
         return None
     return parts[1]
 
@@ -203,12 +206,16 @@ class Hub:
         self._worker.start()
         for leaf in LEAVES:
             bus.subscribe(key("*", leaf), self.on_payload)
-        bus.subscribe_liveliness(key("*", "alive"), self.on_alive)
+        bus.subscribe_liveliness(key("*", "alive/**"), self.on_alive)
         for station in list(self.views):
             self._catch_up.put(station)
 
     def _view(self, station: str) -> StationView:
         view = self.views.get(station)
+        if view is None and len(self.views) >= MAX_STATIONS:
+            # a flood of invented names must not grow the hub: fold them into one view
+            station = OVERFLOW_STATION
+            view = self.views.get(station)
         if view is None:
             log.info("station %s discovered", station)
             view = self.views[station] = StationView(station)
@@ -233,12 +240,14 @@ class Hub:
             self._catch_up.put(station)
 
     def on_alive(self, key_expr: str, alive: bool) -> None:
-        """A daemon's liveliness token appeared (daemon started) or went away."""
+        """A daemon's liveliness token (``.../alive/<id>``) appeared (daemon started) or went
+        away."""
         station = station_of(key_expr)
         if station is None:
             return
+        instance = key_expr.split("/alive", 1)[-1].lstrip("/")
         with self.cond:
-            self._view(station).on_alive(alive)
+            self._view(station).on_alive(alive, instance)
             self._changed()
         log.info("station %s %s", station, "alive" if alive else "gone")
         if alive:

@@ -98,6 +98,8 @@ class StationView:
     host_minus_gps_ns: int | None = None
     _offsets: deque[int] = field(default_factory=lambda: deque(maxlen=20))
     _session_id: str | None = None
+    instances: set[str] = field(default_factory=set)
+    """Liveliness ids of the daemons alive for this station (more than one: a conflict)."""
     rejected: int = 0
     """Payloads dropped as bad (:mod:`groundstation.messages`): counted, shown, never fatal."""
     last_rejection: str = ""
@@ -132,10 +134,23 @@ class StationView:
         self.version += 1
         return True
 
-    def on_alive(self, alive: bool) -> None:
-        """The daemon's liveliness token appeared or went away."""
-        self.alive = alive
+    def on_alive(self, alive: bool, instance: str = "") -> None:
+        """A daemon's liveliness token (``alive/<instance>``) appeared or went away; two at
+        once are two daemons claiming this station (a ``station_conflict`` alert)."""
+        if alive:
+            self.instances.add(instance)
+        else:
+            self.instances.discard(instance)
+        self.alive = bool(self.instances)
         self.version += 1
+
+    def conflict_alert(self) -> str | None:
+        """The dashboard's own alert when more than one daemon claims the station."""
+        n = len(self.instances)
+        if n < 2:
+            return None
+        return (f"station_conflict: {n} daemons publish as station {self.station!r}; "
+                "what is shown mixes them")
 
     def _reset_session(self, session_id: str) -> None:
         """A new daemon session: what belonged to the previous one goes."""
@@ -307,13 +322,20 @@ class StationView:
                 "ready": st.get("ppk_ready"), "tracked": st.get("tracked"),
                 "min": ppk_ready_min, "half_cycle_fraction": st.get("half_cycle_fraction"),
             },
-            "alerts": list(st.get("alerts") or []),
+            "alerts": self._alerts(st),
             "events": list(self.events)[-15:][::-1],
             "timeline": self.timeline(gps_now),
             "marks": self._marks_panel(st, gps_now),
             "session": self._session_panel(st, file_info),
         }
         return out
+
+    def _alerts(self, st: dict[str, Any]) -> list[str]:
+        alerts = [str(a) for a in st.get("alerts") or []]
+        own = self.conflict_alert()
+        if own is not None and not any(a.startswith("station_conflict") for a in alerts):
+            alerts.insert(0, own)
+        return alerts
 
     def _marks_panel(self, st: dict[str, Any], gps_now: int | None) -> dict[str, Any]:
         ms = dict(st.get("marks") or {})
