@@ -1,9 +1,9 @@
 """Command-line entry point: parses arguments, sets up logging, dispatches to a subcommand.
 
-Exit statuses (every command): 0 success; 1 a runtime failure (an input that cannot be used,
-a device or disk that fails, an output that would replace an input); 2 bad input or
-configuration (a bad option, key, variable, station name or configuration file; the message
-names it); 130 interrupted. Every failure is one line on stderr, never a traceback (``-vv``
+Exit statuses (every command, README "Commands"): 0 success; 1 a runtime failure (a device,
+the disk or Zenoh failing); 2 bad input or configuration (a bad option, key, variable, station
+name or configuration file, the message naming it; an input file that cannot be used; an output
+that would replace an input or a recording); 130 interrupted. Every failure is one line on stderr, never a traceback (``-vv``
 adds the traceback of an unexpected one to the log).
 """
 
@@ -17,7 +17,7 @@ from collections.abc import Sequence
 
 from groundstation import __version__
 from groundstation.commands import COMMANDS, HELP
-from groundstation.errors import ConfigError, GroundstationError
+from groundstation.errors import ConfigError, GroundstationError, InputError
 
 EXIT_OK = 0
 EXIT_FAILURE = 1
@@ -29,8 +29,8 @@ def build_parser(argv: Sequence[str]) -> argparse.ArgumentParser:
         prog="groundstation",
         description="Ground station and post-flight solver for UAV photogrammetry "
         "with a u-blox L1 receiver over a radio link.",
-        epilog="exit status: 0 ok, 1 runtime failure, 2 bad input or configuration "
-        "(the message names the option, key or variable), 130 interrupted",
+        epilog="exit status: 0 ok, 1 runtime failure (device, disk, Zenoh), 2 bad input or "
+        "configuration (the message names the option, key, variable or file), 130 interrupted",
     )
     parser.add_argument("--version", action="version", version=f"groundstation {__version__}")
     parser.add_argument(
@@ -94,6 +94,8 @@ def failure(err: BaseException) -> tuple[int, str]:
     err = _leaf(err)
     if isinstance(err, ConfigError):
         return EXIT_CONFIG, str(err)
+    if isinstance(err, InputError):
+        return EXIT_CONFIG, f"error: {err}"
     if isinstance(err, GroundstationError):
         return EXIT_FAILURE, f"error: {err}"
     if isinstance(err, OSError):  # a file or device the command could not use
