@@ -3,8 +3,8 @@
 Exit statuses (every command, README "Commands"): 0 success; 1 a runtime failure (a device,
 the disk or Zenoh failing); 2 bad input or configuration (a bad option, key, variable, station
 name or configuration file, the message naming it; an input file that cannot be used; an output
-that would replace an input or a recording); 130 interrupted. Every failure is one line on stderr, never a traceback (``-vv``
-adds the traceback of an unexpected one to the log).
+that would replace an input or a recording); 130 interrupted. Every failure is one line on
+stderr, never a traceback (``-vv`` adds the traceback of an unexpected one to the log).
 """
 
 from __future__ import annotations
