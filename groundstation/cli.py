@@ -14,6 +14,7 @@ import importlib
 import logging
 import sys
 from collections.abc import Sequence
+from typing import NoReturn
 
 from groundstation import __version__
 from groundstation.commands import COMMANDS, HELP
@@ -24,8 +25,17 @@ EXIT_FAILURE = 1
 EXIT_CONFIG = 2
 
 
+class OneLineParser(argparse.ArgumentParser):
+    """An argument parser whose errors are one line (exit status 2), like every other
+    failure; ``--help`` still prints the usage."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(EXIT_CONFIG, f"{self.prog}: error: {' '.join(message.split())} "
+                               "(see --help)\n")
+
+
 def build_parser(argv: Sequence[str]) -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = OneLineParser(
         prog="groundstation",
         description="Ground station and post-flight solver for UAV photogrammetry "
         "with a u-blox L1 receiver over a radio link.",

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import sys
 import time
 from pathlib import Path
@@ -47,6 +48,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
+def _make_dir(out: Path) -> bool:
+    """Create the output directory (after every check); True if it did not exist.
+
+    Raises:
+        ConfigError: it cannot be created (``/proc/x``, no permission, a file on the way).
+    """
+    if out.is_dir():
+        return False
+    try:
+        out.mkdir(parents=True)
+    except OSError as err:
+        raise ConfigError("--out-dir", f"cannot create {out}: {err.strerror or err}") from err
+    return True
+
+
 class _Progress:
     """One updating stderr line: stage and percentage, at most every 0.2 s."""
 
@@ -84,9 +100,16 @@ def run(args: argparse.Namespace) -> int:
     show = args.progress == "always"
     if args.progress == "auto":
         show = recording.size_bytes >= PROGRESS_MIN_BYTES
+    out = Path(args.out_dir)
+    created = _make_dir(out)
     prog = _Progress() if show else None
     try:
         res = rinex.convert(args.input, args.out_dir, opts, prog)
+    except BaseException:
+        if created:  # nothing of a failed run is left behind
+            with contextlib.suppress(OSError):
+                out.rmdir()  # only if empty
+        raise
     finally:
         if prog is not None:
             prog.done()
