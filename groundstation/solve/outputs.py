@@ -155,8 +155,9 @@ def text_cell(text: str) -> str:
     """A text field (a photo name) for a CSV export: a leading formula character is
     neutralised with an apostrophe (the OWASP rule) and line breaks become spaces, so a photo
     named ``=HYPERLINK(...)`` stays text in a spreadsheet. Numbers are never passed here."""
-    text = text.replace("\r", " ").replace("\n", " ")
-    return "'" + text if text.startswith(FORMULA_PREFIXES) else text
+    if text.startswith(FORMULA_PREFIXES):
+        text = "'" + text
+    return text.replace("\r", " ").replace("\n", " ")
 
 
 def _comment(text: str) -> str:
