@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from poison import POISON
 from test_dashboard import FakeBus, event, mark, status
 from test_solve_outputs import out  # noqa: F401 (the fixture)
 
@@ -32,22 +33,6 @@ from groundstation.view.watch import WatchState, _draw, render
 
 XYZ = (4_000_000.0, 600_000.0, 4_900_000.0)
 
-POISON: list[tuple[str, bytes]] = [
-    ("groundstation/st/timemark",
-     b'{"schema":1,"type":"timemark","index":7,"count":7,"falling_t_gps_ns":1e25}'),
-    ("groundstation/st/timemark",
-     b'{"schema":1,"type":"timemark","index":8,"falling_t_gps_ns":10000000000000000000000000}'),
-    ("groundstation/st/event",
-     b'{"schema":1,"type":"event","kind":"x","t_host_ns":1e30,"message":"m","data":{}}'),
-    ("groundstation/st/event", b'{"schema":1,"type":"event","kind":3,"t_host_ns":0}'),
-    ("groundstation/st/status", b'{"schema":1,"type":"status","link":"fast","sats":7}'),
-    ("groundstation/st/status", b'{"schema":1,"type":"status","link":{"epoch_interval_s":-1}}'),
-    ("groundstation/st/status", b'{"schema":1,"type":"timemark","index":1}'),  # wrong key
-    ("groundstation/st/session", b'{"schema":1,"type":"session","files":[1,2]}'),
-    ("groundstation/st/status", b"\xff\xfe not json"),
-    ("groundstation/st/status", b"[1,2,3]"),
-    ("groundstation/st/status", b'{"type":"status","a":' * 40 + b"1" + b"}" * 40),
-]
 
 
 def test_messages_accept_what_the_daemon_sends_and_refuse_poison() -> None:
