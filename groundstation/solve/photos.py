@@ -595,11 +595,9 @@ def reconciliation_lines(
         f"residual sigma {result.residual_sigma_s:.3f} s"),
         (f"photos {len(photos)}, marks {len(mark_t_gps_ns)}: {len(result.pairs)} paired, "
         f"{len(result.unmatched_photos)} photos without mark, {len(result.orphan_marks)} marks "
-        f"without photo, {len(result.duplicate_marks)} duplicate marks dropped"),
+        f"without photo, {len(result.duplicate_marks)} duplicate marks dropped"
+        + _skipped(photos)),
     ]
-    skipped = sum(1 for ph in photos if not ph.usable)
-    if skipped:
-        lines.append(f"photos skipped (no usable EXIF time): {skipped}")
     for i in result.unmatched_photos:
         ph = photos[i]
         why = ph.error or "no mark within the window"
@@ -610,6 +608,11 @@ def reconciliation_lines(
         t = mark_t_gps_ns[i]
         lines.append(f"  mark without photo: #{i} at {gpstime.format_gps(t) if t else '?'}")
     return lines
+
+
+def _skipped(photos: Sequence[Photo]) -> str:
+    n = sum(1 for ph in photos if not ph.usable)
+    return f", {n} photos skipped (no usable EXIF time)" if n else ""
 
 
 def _hms(seconds: float) -> str:

@@ -9,14 +9,13 @@ skipped; CSV exports neutralise formulas; the dashboard answers only its own Hos
 from __future__ import annotations
 
 import http.client
-import struct
 import threading
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import pytest
-from poison import POISON
+from poison import POISON, looping_exif_jpeg
 from test_dashboard import FakeBus, event, mark, status
 from test_solve_outputs import out  # noqa: F401 (the fixture)
 
@@ -210,19 +209,6 @@ def test_station_names_inside_the_alphabet_pass() -> None:
         assert check_station(name) == name
 
 
-def looping_exif_jpeg(size: int = 215) -> bytes:
-    """A JPEG whose EXIF IFD0 names itself as the next IFD (the ``exif`` library loops for
-    ever on it, growing memory); padded with a comment segment to ``size`` bytes."""
-    text = b"2024:01:02 03:04:05\x00"
-    ifd = (struct.pack("<H", 1) + struct.pack("<HHII", 0x0132, 2, len(text), 26)
-           + struct.pack("<I", 8))  # next IFD: itself
-    tiff = b"II*\x00" + struct.pack("<I", 8) + ifd + text
-    app1 = b"Exif\x00\x00" + tiff
-    head = b"\xff\xd8" + b"\xff\xe1" + struct.pack(">H", len(app1) + 2) + app1
-    pad = size - len(head) - 2 - 4
-    return head + b"\xff\xfe" + struct.pack(">H", pad + 2) + b"\x00" * pad + b"\xff\xd9"
-
-
 def test_looping_exif_photo_is_skipped_and_counted(tmp_path: Path) -> None:
     import datetime as dt
 
@@ -235,7 +221,7 @@ def test_looping_exif_photo_is_skipped_and_counted(tmp_path: Path) -> None:
     assert "looping EXIF IFD" in by_name["loop.jpg"].error
     assert by_name["ok.jpg"].usable
     match = photos.match(photos.photo_times(found), [])
-    assert any("photos skipped (no usable EXIF time): 1" in ln
+    assert any("1 photos skipped (no usable EXIF time)" in ln
                for ln in photos.reconciliation_lines(match, found, []))
 
 
