@@ -498,16 +498,19 @@ class SolverService:
         try:
             if not job.flight.is_file():
                 raise GroundstationError(f"{job.flight}: recording not found")
-            if s.base is not None and not s.base.is_file():
-                raise GroundstationError(f"{s.base}: base recording not found")
             digest = content_hash(job.flight)
             with self._lock:
-                first = self._hashes.setdefault(digest, job.flight)
-            if first != job.flight:
+                first = self._hashes.get(digest)
+                if first is None:
+                    self._hashes[digest] = job.flight
+            if first is not None:  # the same bytes, whatever the name or session
+                digest = ""  # not ours to forget
                 self.skipped += 1
                 self._send(job.station, STATUS_SKIPPED, job.flight, job.session_id,
                            reason=f"already solved: same content as {first}")
                 return
+            if s.base is not None and not s.base.is_file():
+                raise GroundstationError(f"{s.base}: base recording not found")
             result = self._solver(s)
         except Exception as err:  # any failure is reported; the service goes on
             self.failed += 1
