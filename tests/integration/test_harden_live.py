@@ -20,6 +20,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+import pytest
 from peers import REPO, Daemon, Pty, free_port
 from poison import POISON
 from streams import epoch_with_mark
@@ -235,6 +236,56 @@ def test_poison_on_the_bus_is_counted_by_the_dashboard_and_watch(tmp_path: Path)
         assert view["rejected"] >= len(POISON)
         jsonio.dumps(doc)
     finally:
+        stop.set()
+        talker.join(timeout=5)
+        dash.close()
+        pub.close()
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not Path("/usr/bin/chromium").exists(),
+                    reason="headless Chromium not installed (apt-get install chromium)")
+def test_poison_does_not_break_the_page_in_chromium(tmp_path: Path) -> None:
+    from test_dashboard_chromium import Chromium, wait_for
+
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    pub: Bus = open_bus(ZenohSettings(listen=(endpoint,), connect=()))
+    dash = Dashboard(DashboardSettings(stations=("p",), port=0,
+                                       bus=ZenohSettings(listen=(), connect=(endpoint,))))
+    dash.start()
+    stop = threading.Event()
+
+    def talk() -> None:
+        while not stop.is_set():
+            pub.put(key("p", "status"), _full_status(time.time_ns()))
+            for k, payload in POISON:
+                pub.put(k.replace("/st/", "/p/"), payload)
+            time.sleep(0.3)
+
+    talker = threading.Thread(target=talk, daemon=True)
+    talker.start()
+    browser = Chromium()
+    try:
+        port = dash.http.server_address[1]
+        browser.send("Page.navigate", {"url": f"http://127.0.0.1:{port}/?station=p"})
+        wait_for("page live", lambda: browser.eval("document.body?.dataset.state") == "live", 15)
+        wait_for("bad messages shown", lambda: "bad messages dropped" in (browser.eval(
+            "document.getElementById('rejected').textContent") or ""), 10)
+        # the page's own guard: a document with an event at 1e30 ns and nonsense satellites
+        browser.eval("render(Object.assign({}, gsDashboard.doc, {view: Object.assign({}, "
+                     "gsDashboard.doc.view, {events: [{t_host_ns: 1e30, kind: 'x', "
+                     "message: 'm'}], sats: 'bogus'})}))")
+        assert browser.eval("gsDashboard.renderErrors") >= 1
+        assert "--:--:--" in browser.eval("document.getElementById('events').textContent")
+        n = browser.eval("gsDashboard.updates")
+        wait_for("next snapshot drawn", lambda: browser.eval("gsDashboard.updates") > n, 5)
+        wait_for("sky drawn again", lambda: browser.eval(
+            "document.querySelectorAll('#sky .sat-group').length") == 1, 5)
+        assert browser.eval("document.body.dataset.state") == "live"
+        assert browser.console_errors() == [], browser.console_errors()
+        browser.screenshot(tmp_path / "poisoned.png")
+    finally:
+        browser.close()
         stop.set()
         talker.join(timeout=5)
         dash.close()
