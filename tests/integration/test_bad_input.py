@@ -37,11 +37,15 @@ class Case:
     status: int
     says: str
     env: dict[str, str] = field(default_factory=dict)
+    logs: bool = False
+    """The command fails only after it started working: its progress and log lines come
+    first, the error line is the last one and the only one that says ``groundstation``."""
 
 
-def c(id_: str, argv: str | tuple[str, ...], status: int, says: str, **env: str) -> Case:
+def c(id_: str, argv: str | tuple[str, ...], status: int, says: str, *, logs: bool = False,
+      **env: str) -> Case:
     args = tuple(argv.split()) if isinstance(argv, str) else argv
-    return Case(id_, args, status, says, env)
+    return Case(id_, args, status, says, env, logs)
 
 
 RUN = "run --file good.ubx --no-zenoh --out-dir rec"
@@ -146,6 +150,10 @@ CASES: list[Case] = [
     c("solve-flight-corrupt-gzip", "solve corrupt.ubx.gz --positions x.pos --out o", 2,
       "corrupt gzip"),
     c("solve-positions-fifo", "solve good.ubx --positions fifo --out o", 2, "not a regular"),
+    c("solve-positions-corrupt-gzip", "solve good.ubx --positions corrupt.pos.gz --out o", 2,
+      "damaged gzip", logs=True),
+    c("solve-eo-fifo", "solve good.ubx --positions x.pos --eo fifo --out o", 2,
+      "not a regular file"),
     c("solve-positions-missing", "solve good.ubx --positions nope.pos --out o", 2,
       "no such file"),
     c("solve-photos-file", "solve good.ubx --positions x.pos --photos good.ubx --out o", 2,
@@ -198,6 +206,7 @@ def _workspace(root: Path) -> None:
     bad = b"\x1f\x8b\x08\x00\x00\x00\x00\x00\x00\x03" + b"\xff" * 64
     (root / "corrupt.ubx.gz").write_bytes(bad)
     (root / "corrupt.mcap").write_bytes(bad)
+    (root / "corrupt.pos.gz").write_bytes(bad)
     os.mkfifo(root / "fifo")
     (root / "fifo-link.ubx").symlink_to(root / "fifo")
     (root / "adir").mkdir()
@@ -263,6 +272,9 @@ def test_bad_input(case: Case, workspace: Path) -> None:
     lines = [ln for ln in proc.stderr.splitlines() if ln.strip()]
     assert "Traceback" not in proc.stderr, proc.stderr
     assert "internal error" not in proc.stderr, proc.stderr
+    if case.logs:
+        assert [ln for ln in lines if ln.startswith("groundstation")] == lines[-1:], lines
+        lines = lines[-1:]
     assert len(lines) == 1, proc.stderr
     assert case.says in lines[0], lines[0]
     assert proc.returncode == case.status, proc.stderr
