@@ -24,6 +24,7 @@ import contextlib
 import logging
 import os
 import random
+import stat
 import time
 from collections.abc import AsyncIterator, Callable
 from typing import Protocol
@@ -34,7 +35,7 @@ from groundstation.config import (
     SourceSettings,
     TcpSourceSettings,
 )
-from groundstation.errors import SourceError
+from groundstation.errors import ConfigError, SourceError
 from groundstation.pacing import LINK_BYTES_PER_S, Pacer, link_time_ns
 from groundstation.records import Event
 from groundstation.serialport import Port, PortInUse, open_port
@@ -175,9 +176,18 @@ class SerialSource:
 
         Raises:
             SourceError: another process holds the port.
+            ConfigError: the path exists but is not a character device (a file, a FIFO or a
+                directory named by mistake; exit status 2).
         """
         if self._claimed is not None or not os.path.exists(self.settings.port):
             return
+        mode = os.stat(self.settings.port).st_mode
+        if not stat.S_ISCHR(mode):
+            what = ("a directory" if stat.S_ISDIR(mode) else "a FIFO" if stat.S_ISFIFO(mode)
+                    else "a regular file (use --file for a recording)" if stat.S_ISREG(mode)
+                    else "not a device")
+            raise ConfigError("source.port", f"{self.settings.port} is {what}, not a serial "
+                                             "device")
         try:
             self._claimed = self._open()
         except PortInUse as err:

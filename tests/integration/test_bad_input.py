@@ -116,6 +116,9 @@ CASES: list[Case] = [
     c("run-env-baud", RUN, 2, "source.baud", GROUNDSTATION_SOURCE_BAUD="12"),
     c("run-env-config-dir", RUN, 2, "is a directory", GROUNDSTATION_CONFIG="adir"),
     c("run-env-config-fifo", RUN, 2, "not a regular file", GROUNDSTATION_CONFIG="fifo"),
+    c("run-port-fifo", "run --port fifo --no-zenoh --out-dir rec", 2, "is a FIFO"),
+    c("run-port-dir", "run --port adir --no-zenoh --out-dir rec", 2, "is a directory"),
+    c("run-port-file", "run --port good.ubx --no-zenoh --out-dir rec", 2, "use --file"),
     c("run-no-source", "run --no-zenoh --out-dir rec", 2, "no source configured"),
     # -- simulate -----------------------------------------------------------------------------
     c("simulate-out-exists", "simulate --out notes.txt --duration 5", 2, "without --force"),
