@@ -7,6 +7,13 @@ Zenoh callbacks only parse, decide and enqueue; every outcome is published on
 ``groundstation/<station>/solution`` (``docs/zenoh.md``). Nothing a session brings (a missing
 file, a failing engine) stops the service.
 
+Nothing a session message says is trusted: it is parsed and range-checked
+(:mod:`groundstation.messages`), its station name checked, and at most
+``max_sessions_per_min`` are handled (bursts of :data:`SESSION_BURST`; the rest are dropped
+unanswered). A recording is solved only if it lies inside ``recording_roots`` (:func:`confine`:
+``..`` refused, symbolic links resolved; the refusal never says whether the file exists), its
+outputs only under ``out_root/<station>/``, and only once by content (:func:`content_hash`).
+
 Configuration (``config/solver.toml``): top-level keys are the defaults for every station,
 ``[stations.<name>]`` overrides them per station and ``[zenoh]`` says how to join the bus. Paths
 may use ``{dir}`` (the recording's directory), ``{stem}`` (its name without suffix) and
