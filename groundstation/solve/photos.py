@@ -14,7 +14,7 @@ import re
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal
+from typing import BinaryIO, Literal
 
 import numpy as np
 import numpy.typing as npt
@@ -114,9 +114,9 @@ def _unix_ns(naive: dt.datetime) -> int:
     return int(naive.replace(tzinfo=dt.UTC).timestamp()) * gpstime.NS_PER_S
 
 
-EXIF_READ_BYTES = 1 << 18
-"""At most this much of a photo is read for its EXIF (the APP1 segment is at most 64 KiB and
-comes before the image data)."""
+EXIF_MAX_SEGMENTS = 64
+"""JPEG segments looked at for the EXIF block before giving up (it normally comes first); only
+their 4-byte headers are read, and the EXIF body itself (at most 64 KiB)."""
 EXIF_TIME_BUDGET_S = 0.5
 """Parsing one photo's EXIF stops after this long (a crafted file is skipped, never a hang)."""
 EXIF_MAX_IFDS = 16
@@ -131,34 +131,42 @@ class ExifError(ValueError):
     """A photo's EXIF block cannot be used (damaged, looping, over budget)."""
 
 
-def _exif_block(head: bytes) -> bytes | None:
-    """The TIFF data of a JPEG's ``Exif`` APP1 segment (``None``: the JPEG has none).
+def _exif_block(f: BinaryIO) -> bytes | None:
+    """The TIFF data of a JPEG's ``Exif`` APP1 segment (``None``: the JPEG has none), found by
+    walking the segment headers (seeking over their bodies).
 
     Raises:
-        ExifError: not a JPEG, or a segment runs past the data.
+        ExifError: not a JPEG, a damaged segment, or no EXIF within the first
+            :data:`EXIF_MAX_SEGMENTS` segments.
     """
-    if head[:2] != b"\xff\xd8":
+    if f.read(2) != b"\xff\xd8":
         raise ExifError("not a JPEG")
-    i = 2
-    while i + 4 <= len(head):
-        if head[i] != 0xFF:
-            raise ExifError(f"damaged JPEG segment at byte {i}")
-        marker = head[i + 1]
+    for _ in range(EXIF_MAX_SEGMENTS):
+        head = f.read(2)
+        while head[:1] == b"\xff" and head[1:2] == b"\xff":  # fill bytes
+            head = head[1:] + f.read(1)
+        if len(head) < 2:
+            return None  # ends before any image data: no EXIF
+        if head[0] != 0xFF:
+            raise ExifError(f"damaged JPEG segment at byte {f.tell() - 2}")
+        marker = head[1]
         if marker in (0xD9, 0xDA):  # end of image, start of scan: no EXIF after this
             return None
-        if marker == 0xFF or 0xD0 <= marker <= 0xD7 or marker == 0x01:
-            i += 1 if marker == 0xFF else 2  # fill byte or standalone marker
+        if 0xD0 <= marker <= 0xD7 or marker == 0x01:  # standalone markers
             continue
-        length = int.from_bytes(head[i + 2 : i + 4], "big")
-        if length < 2:
-            raise ExifError(f"damaged JPEG segment length at byte {i}")
-        body = head[i + 4 : i + 2 + length]
-        if marker == 0xE1 and body.startswith(b"Exif\x00\x00"):
+        raw = f.read(2)
+        length = int.from_bytes(raw, "big")
+        if len(raw) < 2 or length < 2:
+            raise ExifError(f"damaged JPEG segment length at byte {f.tell() - 2}")
+        if marker == 0xE1:
+            body = f.read(length - 2)
             if len(body) < length - 2:
                 raise ExifError("EXIF segment cut short")
-            return body[6:]
-        i += 2 + length
-    return None
+            if body.startswith(b"Exif\x00\x00"):
+                return body[6:]
+            continue
+        f.seek(length - 2, 1)
+    raise ExifError(f"no EXIF within the first {EXIF_MAX_SEGMENTS} JPEG segments")
 
 
 def _exif_tags(tiff: bytes, deadline: float) -> dict[int, str]:
@@ -223,8 +231,7 @@ def read_exif_times(path: Path) -> dict[int, str]:
     import time
 
     with path.open("rb") as f:
-        head = f.read(EXIF_READ_BYTES)
-    tiff = _exif_block(head)
+        tiff = _exif_block(f)
     if tiff is None:
         return {}
     return _exif_tags(tiff, time.monotonic() + EXIF_TIME_BUDGET_S)
@@ -233,8 +240,8 @@ def read_exif_times(path: Path) -> dict[int, str]:
 def read_photo(path: str | Path) -> Photo:
     """The EXIF capture time of one JPEG (never raises for bad photos: see ``Photo.error``).
 
-    The EXIF block is parsed here, within a budget (:data:`EXIF_READ_BYTES`,
-    :data:`EXIF_TIME_BUDGET_S`, every IFD visited once): a damaged or crafted photo (a looping
+    The EXIF block is parsed here, within a budget (:data:`EXIF_MAX_SEGMENTS` segment headers,
+    the EXIF body of at most 64 KiB, :data:`EXIF_TIME_BUDGET_S`, every IFD visited once): a damaged or crafted photo (a looping
     IFD chain) is skipped with its reason, never a hang.
     """
     p = Path(path)
