@@ -241,8 +241,8 @@ def read_photo(path: str | Path) -> Photo:
     """The EXIF capture time of one JPEG (never raises for bad photos: see ``Photo.error``).
 
     The EXIF block is parsed here, within a budget (:data:`EXIF_MAX_SEGMENTS` segment headers,
-    the EXIF body of at most 64 KiB, :data:`EXIF_TIME_BUDGET_S`, every IFD visited once): a damaged or crafted photo (a looping
-    IFD chain) is skipped with its reason, never a hang.
+    the EXIF body of at most 64 KiB, :data:`EXIF_TIME_BUDGET_S`, every IFD visited once): a
+    damaged or crafted photo (a looping IFD chain) is skipped with its reason, never a hang.
     """
     p = Path(path)
     try:
