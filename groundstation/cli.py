@@ -1,4 +1,11 @@
-"""Command-line entry point: parses arguments, sets up logging, dispatches to a subcommand."""
+"""Command-line entry point: parses arguments, sets up logging, dispatches to a subcommand.
+
+Exit statuses (every command, README "Commands"): 0 success; 1 a runtime failure (a device,
+the disk or Zenoh failing); 2 bad input or configuration (a bad option, key, variable, station
+name or configuration file, the message naming it; an input file that cannot be used; an output
+that would replace an input or a recording); 130 interrupted. Every failure is one line on
+stderr, never a traceback (``-vv`` adds the traceback of an unexpected one to the log).
+"""
 
 from __future__ import annotations
 
@@ -7,21 +14,33 @@ import importlib
 import logging
 import sys
 from collections.abc import Sequence
+from typing import NoReturn
 
 from groundstation import __version__
 from groundstation.commands import COMMANDS, HELP
-from groundstation.errors import ConfigError, GroundstationError
+from groundstation.errors import ConfigError, GroundstationError, InputError
 
 EXIT_OK = 0
 EXIT_FAILURE = 1
 EXIT_CONFIG = 2
 
 
+class OneLineParser(argparse.ArgumentParser):
+    """An argument parser whose errors are one line (exit status 2), like every other
+    failure; ``--help`` still prints the usage."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(EXIT_CONFIG, f"{self.prog}: error: {' '.join(message.split())} "
+                               "(see --help)\n")
+
+
 def build_parser(argv: Sequence[str]) -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = OneLineParser(
         prog="groundstation",
         description="Ground station and post-flight solver for UAV photogrammetry "
         "with a u-blox L1 receiver over a radio link.",
+        epilog="exit status: 0 ok, 1 runtime failure (device, disk, Zenoh), 2 bad input or "
+        "configuration (the message names the option, key, variable or file), 130 interrupted",
     )
     parser.add_argument("--version", action="version", version=f"groundstation {__version__}")
     parser.add_argument(
@@ -59,19 +78,44 @@ def main(argv: Sequence[str] | None = None) -> int:
     module = importlib.import_module(COMMANDS[args.command])
     try:
         return int(module.run(args))
-    except ConfigError as err:
-        print(f"groundstation {args.command}: {err}", file=sys.stderr)
-        return EXIT_CONFIG
-    except GroundstationError as err:
-        print(f"groundstation {args.command}: error: {err}", file=sys.stderr)
-        return EXIT_FAILURE
     except BrokenPipeError:  # output piped into head & co.
         sys.stderr.close()
         return EXIT_OK
     except KeyboardInterrupt:
         print(f"groundstation {args.command}: interrupted", file=sys.stderr)
         return 130
+    except Exception as err:
+        status, line = failure(err)
+        if status == EXIT_FAILURE and line.startswith("internal error"):
+            logging.getLogger("groundstation").debug("unexpected failure", exc_info=True)
+        print(f"groundstation {args.command}: {' '.join(line.splitlines())}", file=sys.stderr)
+        return status
 
+
+def _leaf(err: BaseException) -> BaseException:
+    """The first exception inside (nested) exception groups (a task group's failure)."""
+    while isinstance(err, BaseExceptionGroup) and err.exceptions:
+        err = err.exceptions[0]
+    return err
+
+
+def failure(err: BaseException) -> tuple[int, str]:
+    """The exit status and the one line that report ``err`` (the module docstring's rules)."""
+    err = _leaf(err)
+    if isinstance(err, ConfigError):
+        return EXIT_CONFIG, str(err)
+    if isinstance(err, InputError):
+        return EXIT_CONFIG, f"error: {err}"
+    if isinstance(err, GroundstationError):
+        return EXIT_FAILURE, f"error: {err}"
+    if isinstance(err, OSError):  # a file or device the command could not use
+        where = f": {err.filename}" if err.filename else ""
+        return EXIT_FAILURE, f"error: {err.strerror or err}{where}"
+    if isinstance(err, MemoryError):
+        return EXIT_FAILURE, "error: out of memory"
+    text = " ".join(str(err).split())  # one line
+    return EXIT_FAILURE, (f"internal error: {type(err).__name__}: {text} "
+                          "(run with -vv for the traceback)")
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -217,7 +217,8 @@ class Key:
 
     Attributes:
         kind: ``str``, ``int``, ``float``, ``bool``, ``path``, ``strlist``, ``endpoints``
-            (Zenoh endpoints), ``triple`` (three numbers ``X,Y,Z``) or ``epsg`` (a code).
+            (Zenoh endpoints), ``station`` / ``stations`` / ``station_or_all`` (station names,
+            :data:`STATION_NAME`), ``triple`` (three numbers ``X,Y,Z``) or ``epsg`` (a code).
         lo: smallest value (numbers; for ``int``/``float`` only).
         hi: largest value.
         lo_open: ``lo`` itself is not allowed (``> lo`` rather than ``>= lo``).
@@ -251,6 +252,8 @@ def _num(kind: str, lo: float | None = None, hi: float | None = None, *,
 
 
 STR, BOOL, PATH, STRLIST = Key("str"), Key("bool"), Key("path"), Key("strlist")
+STATION, STATIONS, STATION_OR_ALL = Key("station"), Key("stations"), Key("station_or_all")
+"""A station name (:func:`check_station`), a list of them, or one name or ``*`` (the solver)."""
 ENDPOINTS, TRIPLE, EPSG = Key("endpoints"), Key("triple"), Key("epsg")
 DURATION = _num("float", 0.0, 10 * 365 * 86_400.0)
 """How long to run: 0 = until stopped."""
@@ -274,7 +277,7 @@ Schema = Mapping[str, Mapping[str, Key]]
 
 DAEMON_SCHEMA: Schema = {
     "": {
-        "station": STR,
+        "station": STATION,
         "receiver": STR,
         "duration_s": DURATION,
         # at least 20 Hz: a smaller interval livelocks the daemon (issue 17)
@@ -344,18 +347,20 @@ SOLVER_STATION_KEYS: dict[str, Key] = {
 """What may differ per station in the solver (top-level defaults, ``[stations.<name>]``)."""
 
 SOLVER_SCHEMA: Schema = {
-    "": {"station": STR, "queue_size": _num("int", 1, 10_000), **SOLVER_STATION_KEYS},
+    "": {"station": STATION_OR_ALL, "queue_size": _num("int", 1, 10_000),
+         "recording_roots": STRLIST, "max_sessions_per_min": _num("float", above=0.0, hi=1e4),
+         **SOLVER_STATION_KEYS},
     "zenoh": ZENOH_KEYS,
 }
 
 WATCH_SCHEMA: Schema = {
-    "": {"station": STR, "duration_s": _num("float", 0.0, 10 * 365 * 86_400.0)},
+    "": {"station": STATION, "duration_s": _num("float", 0.0, 10 * 365 * 86_400.0)},
     "zenoh": ZENOH_KEYS,
 }
 
 DASHBOARD_SCHEMA: Schema = {
     "": {
-        "stations": STRLIST,
+        "stations": STATIONS,
         "bind": STR,
         "port": _num("int", 0, 65535),
         "ppk_min": _num("int", 0, 1000),
@@ -430,6 +435,33 @@ def _endpoint(value: str) -> str:
     return value
 
 
+STATION_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}")
+"""The one station alphabet: a letter or digit, then letters, digits, ``_ . -``; at most 64.
+
+A station names files (``<station>_<time>.mcap``, ``<out_root>/<station>/``) and Zenoh keys
+(``groundstation/<station>/...``), so nothing that is a path separator, ``..``, a Zenoh wildcard
+or special character (``* ** $ # ?``), a space or a control character may appear in it."""
+
+
+def check_station(name: object, key: str = "station") -> str:
+    """``name`` if it is a valid station name.
+
+    Raises:
+        ConfigError: naming ``key``, with the rule.
+    """
+    try:
+        return _station_text(name)
+    except ValueError as err:
+        raise ConfigError(key, str(err)) from err
+
+
+def _station_text(value: Any) -> str:
+    if not isinstance(value, str) or not STATION_NAME.fullmatch(value):
+        raise ValueError(f"{value!r} is not a station name (1-64 characters: letters, digits, "
+                         "'_', '.', '-'; starting with a letter or digit)")
+    return value
+
+
 def _number_text(value: Any, *, from_text: bool) -> Any:
     if isinstance(value, bool) or (isinstance(value, str) and not from_text):
         raise ValueError(f"expected a number, got {value!r}")
@@ -462,15 +494,21 @@ def _parse(spec: Key, value: Any, *, from_text: bool) -> Any:
         if not isinstance(value, str):
             raise ValueError(f"expected a string, got {value!r}")
         return value
+    if kind == "station":
+        return _station_text(value)
+    if kind == "station_or_all":
+        return value if value == "*" else _station_text(value)
     if kind == "path":
         if not isinstance(value, (str, Path)) or not str(value):
             raise ValueError(f"expected a path, got {value!r}")
         return Path(value).expanduser()
-    if kind in ("strlist", "endpoints"):
+    if kind in ("strlist", "endpoints", "stations"):
         if isinstance(value, str):  # environment: comma-separated; a file may give one string
             value = [v.strip() for v in value.split(",") if v.strip()]
         if not isinstance(value, (list, tuple)) or not all(isinstance(v, str) for v in value):
             raise ValueError(f"expected a list of strings, got {value!r}")
+        if kind == "stations":
+            return tuple(_station_text(v) for v in value)
         return tuple(_endpoint(v) for v in value) if kind == "endpoints" else tuple(value)
     if kind == "triple":
         if isinstance(value, str):
@@ -608,6 +646,7 @@ def _merge(scope: Scope, out: Resolved, layer: Mapping[str, Any], *, origin: str
                 raise ConfigError(k, f"must be a table of [{k}.<name>] tables ({origin})")
             allowed = scope.tables[k]
             for name, table in value.items():
+                check_station(name, f"{k}.{name}")
                 if not isinstance(table, Mapping):
                     raise ConfigError(f"{k}.{name}", f"must be a table ({origin})")
                 got = out.tables.setdefault(k, {}).setdefault(str(name), {})
@@ -739,10 +778,6 @@ def build_settings(merged: dict[str, dict[str, Any]]) -> Settings:
     several keys: the source, the station name)."""
     top = merged[""]
     source = _build_source(merged["source"])
-    if "station" in top and not str(top["station"]).strip():
-        raise ConfigError("station", "must not be empty")
-    if "station" in top and any(c in top["station"] for c in "/\\ \t"):
-        raise ConfigError("station", f"no slashes or spaces (it names files): {top['station']!r}")
     return Settings(
         source=source,
         recorder=RecorderSettings(**merged["recorder"]),

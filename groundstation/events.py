@@ -49,6 +49,9 @@ ZENOH_CONNECTED: Final = "zenoh.connected"
 ZENOH_DISCONNECTED: Final = "zenoh.disconnected"
 ZENOH_AVAILABLE: Final = "zenoh.available"
 ZENOH_UNAVAILABLE: Final = "zenoh.unavailable"
+# -- stations on the bus -------------------------------------------------------------------
+STATION_CONFLICT: Final = "station.conflict"
+STATION_CONFLICT_ENDED: Final = "station.conflict_ended"
 # -- the pipeline's sinks -------------------------------------------------------------------
 FANOUT_DROPPED: Final = "fanout.dropped"
 BEHIND_SUFFIX: Final = ".behind"
@@ -97,6 +100,8 @@ CATALOGUE: Final[dict[str, Kind]] = {
         Kind(ZENOH_DISCONNECTED, "warning", "no Zenoh peer or router connected"),
         Kind(ZENOH_AVAILABLE, "info", "the Zenoh session is open again"),
         Kind(ZENOH_UNAVAILABLE, "warning", "the Zenoh session cannot be opened"),
+        Kind(STATION_CONFLICT, "error", "another daemon publishes as the same station"),
+        Kind(STATION_CONFLICT_ENDED, "info", "no other daemon publishes as this station any more"),
         Kind(FANOUT_DROPPED, "warning", "a slow sink lost items"),
     )
 }

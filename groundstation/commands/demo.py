@@ -9,7 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from groundstation.commands.simulate import add_profile_arguments, parse_speed
-from groundstation.config import DEFAULT_ENDPOINT
+from groundstation.config import DEFAULT_ENDPOINT, check_station
 from groundstation.errors import ConfigError
 from groundstation.view.summary import status_lines
 
@@ -40,6 +40,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from groundstation.live.demo import DemoOptions, run_demo
 
+    check_station(args.station, "--station")
     if args.flight is None:
         args.flight = 3000.0 if args.profile == "seed" else 300.0
     if args.flight < 60:

@@ -23,9 +23,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from groundstation.config import check_station
     from groundstation.errors import InputError
     from groundstation.live.replay import run_replay
 
+    check_station(args.station, "--station")
     if not args.input.exists():
         raise InputError(f"{args.input}: no such file")
     zenoh: dict[str, Any] = {"enabled": not args.no_zenoh, **zenoh_layer(args)}

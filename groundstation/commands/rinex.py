@@ -3,11 +3,14 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import sys
 import time
+from pathlib import Path
 
-from groundstation.errors import ConfigError, GroundstationError
+from groundstation.errors import ConfigError
 from groundstation.offline import rinex
+from groundstation.outpaths import check_output_dir
 from groundstation.rules.marks import MARK_EDGES
 from groundstation.storage.reading import Recording
 
@@ -45,6 +48,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
+def _make_dir(out: Path) -> bool:
+    """Create the output directory (after every check); True if it did not exist.
+
+    Raises:
+        ConfigError: it cannot be created (``/proc/x``, no permission, a file on the way).
+    """
+    if out.is_dir():
+        return False
+    try:
+        out.mkdir(parents=True)
+    except OSError as err:
+        raise ConfigError("--out-dir", f"cannot create {out}: {err.strerror or err}") from err
+    return True
+
+
 class _Progress:
     """One updating stderr line: stage and percentage, at most every 0.2 s."""
 
@@ -73,15 +91,25 @@ def run(args: argparse.Namespace) -> int:
         shutter_delay_ns=round(args.shutter_delay_ms * 1e6),
         marker=args.marker,
     )
+    recording = Recording(args.input)  # a missing, non-regular or unreadable input: one line
+    stem = Path(args.input).name
+    for suffix in (".gz", ".ubx", ".mcap", ".log"):  # rinex.convert's names
+        stem = stem.removesuffix(suffix)
+    check_output_dir(Path(args.out_dir), recording.parts, key="--out-dir",
+                     writes=(f"{stem}.obs", f"{stem}.nav", f"{stem}.marks.csv"))
     show = args.progress == "always"
     if args.progress == "auto":
-        try:
-            show = Recording(args.input).size_bytes >= PROGRESS_MIN_BYTES
-        except GroundstationError:
-            show = False
+        show = recording.size_bytes >= PROGRESS_MIN_BYTES
+    out = Path(args.out_dir)
+    created = _make_dir(out)
     prog = _Progress() if show else None
     try:
         res = rinex.convert(args.input, args.out_dir, opts, prog)
+    except BaseException:
+        if created:  # nothing of a failed run is left behind
+            with contextlib.suppress(OSError):
+                out.rmdir()  # only if empty
+        raise
     finally:
         if prog is not None:
             prog.done()

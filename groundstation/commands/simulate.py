@@ -10,6 +10,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 from groundstation.errors import ConfigError
+from groundstation.outpaths import check_output_file
 from groundstation.pacing import paced
 from groundstation.sim.faults import FaultConfig
 from groundstation.sim.profiles import DEFAULT_DURATION_S, DEFAULT_FAULTS, PROFILES, sim_config
@@ -36,6 +37,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="link and mark faults (default: none; seed profile: seed)")
     add_profile_arguments(parser)
     parser.add_argument("--truth", metavar="FILE", help="write the truth JSON here")
+    parser.add_argument("--force", action="store_true",
+                        help="replace existing output files (never a recording)")
 
 
 def add_profile_arguments(parser: argparse.ArgumentParser) -> None:
@@ -88,8 +91,14 @@ def run(args: argparse.Namespace) -> int:
         args.duration = DEFAULT_DURATION_S[args.profile]
     if args.duration <= 0:
         raise ConfigError("duration", "must be positive")
-    faults = FaultConfig.load(args.faults or DEFAULT_FAULTS[args.profile])
     live = bool(args.pty or args.tcp)
+    outs = [("--out", None if live else (args.out or "sim_rover.ubx")),
+            ("--base-out", args.base_out), ("--truth", args.truth)]
+    given = [(opt, Path(v)) for opt, v in outs if v]
+    for i, (opt, path) in enumerate(given):
+        others = [p for _, p in given[:i]]  # two options naming one file
+        check_output_file(path, others, key=opt, force=args.force)
+    faults = FaultConfig.load(args.faults or DEFAULT_FAULTS[args.profile])
     speed = parse_speed(args.speed, live)
     started = time.monotonic()
     result = simulate(sim_config(args.profile, duration_s=args.duration, seed=args.seed,

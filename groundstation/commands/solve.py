@@ -77,7 +77,8 @@ def settings_from_args(args: argparse.Namespace) -> SolveSettings:
     max_gap = _option("--max-gap", "max_gap_s", args.max_gap)
     for opt, val in (("--positions", args.positions), ("--base", args.base), ("--eo", args.eo)):
         if val is not None and not Path(val).is_file():
-            raise ConfigError(opt, f"{val}: no such file")
+            what = "no such file" if not Path(val).exists() else "not a regular file"
+            raise ConfigError(opt, f"{val}: {what}")
     if args.photos is not None and not Path(args.photos).is_dir():
         raise ConfigError("--photos", f"{args.photos}: not a directory")
     if args.rtk_conf is not None and not Path(args.rtk_conf).is_file():

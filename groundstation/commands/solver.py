@@ -25,6 +25,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--photos", metavar="DIR", help="photo directory (same placeholders)")
     parser.add_argument("--out-root", metavar="DIR",
                         help="solutions go to DIR/<station>/<recording> (default: solutions)")
+    parser.add_argument("--recording-root", dest="recording_roots", action="append",
+                        metavar="DIR", help="only recordings under DIR are solved (repeatable; "
+                        "default: recordings, the daemon's default out_dir)")
     parser.add_argument("--lever-arm", metavar="X,Y,Z", help="lever arm, camera frame, metres")
     parser.add_argument("--interp", help="linear, spline or smoother (default smoother)")
     parser.add_argument("--epsg", help="output CRS (default: the WGS84 UTM zone)")
@@ -36,7 +39,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def overrides_from_args(args: argparse.Namespace) -> dict[str, Any]:
     """The command line as a layer with the configuration file's key names."""
     return layer(args, {opt: opt for opt in (
-        "station", "base", "base_xyz", "photos", "out_root", "lever_arm", "interp", "epsg")})
+        "station", "base", "base_xyz", "photos", "out_root", "lever_arm", "interp", "epsg",
+        "recording_roots")})
 
 
 def run(args: argparse.Namespace) -> int:
@@ -58,5 +62,6 @@ def run(args: argparse.Namespace) -> int:
           file=sys.stderr, flush=True)
     service = run_service(settings, stop)
     print(f"solver: stopped: {service.solved} solved, {service.failed} failed, "
-          f"{service.skipped} not solved", flush=True)
+          f"{service.skipped} not solved, {service.refused} refused, {service.rejected} "
+          "messages dropped", flush=True)
     return 0

@@ -10,12 +10,22 @@ are still answered by ``q/timemarks`` (``tests/integration/test_zenoh_faults.py`
 ``connect`` endpoints are configured, the sink checks every second that some peer or router is
 connected; none for ``LINK_GRACE_S`` raises ``zenoh.disconnected`` (the monitor's
 ``zenoh_disconnected`` alert), and the first connection after that ``zenoh.connected``.
+
+One station, one daemon: each daemon's liveliness token is ``groundstation/<station>/alive/<id>``
+(a random id per process) and it watches ``groundstation/<station>/alive/**``. Another token
+there means a second daemon claims the station: both raise the ``station.conflict`` event and
+carry a ``station_conflict: ...`` alert in every status while it lasts (``station.conflict_ended``
+after). Neither stops recording: a peer on the bus must not be able to silence a station by
+claiming its name; the operator sees the alert in every view and renames one of them.
 """
 
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 import logging
+import secrets
+import threading
 import time
 from collections.abc import Callable
 from typing import Any
@@ -71,6 +81,41 @@ class ZenohPublisherSink:
         self._next_link_check = 0.0
         self._links_zero_since: float | None = None
         self.disconnected = False
+        self.instance = secrets.token_hex(6)
+        """This daemon's id in its liveliness token (``alive/<instance>``)."""
+        self._others: set[str] = set()
+        self._others_lock = threading.Lock()
+        self.conflict: tuple[str, ...] = ()
+        """The other daemons' ids claiming this station, as last reported."""
+
+    def _on_token(self, key_expr: str, alive: bool) -> None:
+        """A liveliness token under this station's ``alive`` (on a Zenoh thread)."""
+        rest = key_expr.split("/alive", 1)[-1].lstrip("/")
+        if rest == self.instance:
+            return
+        with self._others_lock:
+            if alive:
+                self._others.add(rest or "(unnamed)")
+            else:
+                self._others.discard(rest or "(unnamed)")
+
+    def _check_conflict(self, publish: Callable[[Item], None]) -> None:
+        with self._others_lock:
+            others = tuple(sorted(self._others))
+        if others == self.conflict:
+            return
+        was, self.conflict = self.conflict, others
+        st = self.station
+        if others:
+            msg = (f"another daemon publishes as station {st!r} ({len(others)} other): "
+                   "every view mixes the two; rename one (station = ...)")
+            log.error("%s", msg)
+            publish(Event(kinds.STATION_CONFLICT, self._clock(), msg, "error",
+                          {"others": list(others), "instance": self.instance}))
+        elif was:
+            publish(Event(kinds.STATION_CONFLICT_ENDED, self._clock(),
+                          f"no other daemon publishes as station {st!r} any more", "info",
+                          {"instance": self.instance}))
 
     @property
     def accepts(self) -> frozenset[type]:
@@ -102,7 +147,8 @@ class ZenohPublisherSink:
         bus.queryable(
             key(st, "q/status"), lambda: [self.latest_status] if self.latest_status else []
         )
-        bus.liveliness_token(key(st, "alive"))
+        bus.liveliness_token(key(st, f"alive/{self.instance}"))
+        bus.subscribe_liveliness(key(st, "alive/**"), self._on_token)
         if self._unavailable_reported:
             self._unavailable_reported = False
             publish(Event(kinds.ZENOH_AVAILABLE, self._clock(), "Zenoh session open again", "info"))
@@ -170,6 +216,10 @@ class ZenohPublisherSink:
             self.marks.append(payload)
             self._put("timemark", payload)
         elif isinstance(item, Status):
+            if self.conflict:
+                alert = (f"station_conflict: {len(self.conflict)} other daemon(s) publish as "
+                         f"station {st!r}")
+                item = dataclasses.replace(item, alerts=(*item.alerts, alert))
             self.latest_status = encode("status", item)
             self._put("status", self.latest_status)
         elif isinstance(item, Event):
@@ -199,6 +249,7 @@ class ZenohPublisherSink:
                 if item is not None:
                     self.handle(item)
                 self._check_links(publish)
+                self._check_conflict(publish)
         finally:
             self.session["state"] = "finished"
             self.session["marks"] = len(self.marks)

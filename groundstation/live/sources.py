@@ -3,7 +3,11 @@
 A device source never ends because its device went away: it reports the loss as an event,
 reconnects with jittered exponential backoff and, once back, reports the outage with its start,
 end and duration. A serial device that vanishes (EIO, ENODEV, end of file on the tty, the device
-node removed) is noticed within ``stall_check_s``.
+node removed) is noticed within ``stall_check_s``. So is a device path re-pointed to another
+device while the old one stays open (a udev symlink such as ``/dev/radio`` moved to a new
+adapter): the path's device and inode are compared with the open descriptor's every
+``stall_check_s`` (at most every :data:`REPOINT_CHECK_S` while data flows), and on a
+difference the source reopens the path.
 
 A serial port is opened exclusively (``flock``, :func:`groundstation.serialport.open_port`), so two
 daemons never read the same radio (each would get a random half of the bytes). A port another
@@ -20,6 +24,7 @@ import contextlib
 import logging
 import os
 import random
+import stat
 import time
 from collections.abc import AsyncIterator, Callable
 from typing import Protocol
@@ -31,13 +36,16 @@ from groundstation.config import (
     SourceSettings,
     TcpSourceSettings,
 )
-from groundstation.errors import SourceError
+from groundstation.errors import ConfigError, SourceError
 from groundstation.pacing import LINK_BYTES_PER_S, Pacer, link_time_ns
 from groundstation.records import Event
 from groundstation.serialport import Port, PortInUse, open_port
 from groundstation.storage.reading import Recording
 
 EventSink = Callable[[Event], None]
+REPOINT_CHECK_S = 1.0
+"""While bytes flow, how often the serial source checks that its path still names the open
+device (a quiet line is checked every ``stall_check_s``)."""
 
 
 class Source(Protocol):
@@ -176,15 +184,36 @@ class SerialSource:
 
         Raises:
             SourceError: another process holds the port.
+            ConfigError: the path exists but is not a character device (a file, a FIFO or a
+                directory named by mistake; exit status 2).
         """
         if self._claimed is not None or not os.path.exists(self.settings.port):
             return
+        mode = os.stat(self.settings.port).st_mode
+        if not stat.S_ISCHR(mode):
+            what = ("a directory" if stat.S_ISDIR(mode) else "a FIFO" if stat.S_ISFIFO(mode)
+                    else "a regular file (use --file for a recording)" if stat.S_ISREG(mode)
+                    else "not a device")
+            raise ConfigError("source.port", f"{self.settings.port} is {what}, not a serial "
+                                             "device")
         try:
             self._claimed = self._open()
         except PortInUse as err:
             raise SourceError(f"refusing to start: {err}") from err
         except OSError as err:
             self._log.debug("claim of %s: %s (retried by the source)", self.settings.port, err)
+
+    def _check_same_device(self, fd: int) -> None:
+        """Raise DeviceVanished when the port's path now names another device than ``fd``
+        (a missing path is left to the callers: the node-removed rule)."""
+        try:
+            now = os.stat(self.settings.port)
+        except OSError:
+            return
+        held = os.fstat(fd)
+        if (now.st_rdev, now.st_ino, now.st_dev) != (held.st_rdev, held.st_ino, held.st_dev):
+            raise DeviceVanished(f"{self.settings.port} now names another device "
+                                 f"(rdev {now.st_rdev:#x}, was {held.st_rdev:#x}): reopening")
 
     async def _read(self, fd: int) -> bytes:
         """One read as soon as the fd is readable; raises DeviceVanished on loss."""
@@ -217,9 +246,11 @@ class SerialSource:
                 async with asyncio.timeout(s.stall_check_s):
                     data = await fut
             except TimeoutError:
-                # Quiet line: fine, unless the device node is gone (USB unplugged).
+                # Quiet line: fine, unless the device node is gone (USB unplugged) or the
+                # path now names another device.
                 if not os.path.exists(s.port):
                     raise DeviceVanished(f"{s.port} no longer exists") from None
+                self._check_same_device(fd)
                 continue
             except OSError as err:
                 raise DeviceVanished(f"{os.strerror(err.errno or 0)} (errno {err.errno})") \
@@ -248,9 +279,13 @@ class SerialSource:
             self.state.up()
             try:
                 fd = port.fileno()
+                next_check = time.monotonic() + REPOINT_CHECK_S
                 while True:
                     data = await self._read(fd)
                     yield data, self._clock()
+                    if time.monotonic() >= next_check:
+                        next_check = time.monotonic() + REPOINT_CHECK_S
+                        self._check_same_device(fd)
                     if len(data) < s.read_size_bytes:
                         await asyncio.sleep(COALESCE_S)
             except DeviceVanished as err:
@@ -349,6 +384,15 @@ class FileSource:
         self.speed = speed
         self.bytes_read = 0
         self.chunks_out = 0
+
+    def claim(self) -> None:
+        """Check the recording before any file is created (missing, a directory, a FIFO or a
+        device such as ``/dev/zero`` is refused: one line, exit status 2).
+
+        Raises:
+            InputError: the file cannot be used.
+        """
+        Recording(self.settings.path)
 
     async def chunks(self) -> AsyncIterator[tuple[bytes, int]]:
         s = self.settings

@@ -13,6 +13,7 @@ which RXM-RAW epochs and which TIM-TM2 counts did not arrive intact.
 from __future__ import annotations
 
 import json
+import math
 import tomllib
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
@@ -97,9 +98,11 @@ class FaultConfig:
         if spec == "seed":
             return cls.seed()
         path = Path(spec)
+        if path.exists() and not path.is_file():  # a FIFO or a device would block
+            raise ConfigError("faults", f"{spec} is not a regular file")
         try:
             text = path.read_text(encoding="utf-8")
-        except OSError as err:
+        except (OSError, UnicodeDecodeError) as err:
             raise ConfigError("faults", f"cannot read {spec}: {err}") from err
         try:
             data: dict[str, Any] = (
@@ -107,13 +110,23 @@ class FaultConfig:
             )
         except (ValueError, tomllib.TOMLDecodeError) as err:
             raise ConfigError("faults", f"{spec}: {err}") from err
-        data = data.get("faults", data)
+        data = data.get("faults", data) if isinstance(data, dict) else data
+        if not isinstance(data, dict):
+            raise ConfigError("faults", f"{spec}: expected a table of fault settings")
         known = {f.name for f in fields(cls)}
         unknown = set(data) - known
         if unknown:
             raise ConfigError(f"faults.{sorted(unknown)[0]}", "unknown fault setting")
         try:
-            return cls(**{k: float(v) for k, v in data.items()})
+            values = {k: float(v) for k, v in data.items()}
+        except (TypeError, ValueError) as err:
+            raise ConfigError("faults", f"{spec}: {err}") from err
+        bad = sorted(k for k, v in values.items() if not math.isfinite(v) or v < 0)
+        if bad:
+            raise ConfigError(f"faults.{bad[0]}", f"must be a finite number >= 0, got "
+                                                  f"{data[bad[0]]!r}")
+        try:
+            return cls(**values)
         except (TypeError, ValueError) as err:
             raise ConfigError("faults", f"{spec}: {err}") from err
 

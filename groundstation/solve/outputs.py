@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from groundstation import gpstime, jsonio
+from groundstation import gpstime, jsonio, outpaths
 from groundstation.errors import ConfigError, InputError
 from groundstation.solve.interpolate import flag_names
 from groundstation.solve.positions import QUALITY_NAMES
@@ -147,12 +147,30 @@ CAMERAS_COLUMNS = (
 """Columns of ``cameras.csv``; x/y are in the output EPSG, h is WGS84 ellipsoidal."""
 
 
+FORMULA_PREFIXES = ("=", "+", "-", "@", "\t", "\r")
+"""A spreadsheet reads a cell starting with one of these as a formula (CSV injection)."""
+
+
+def text_cell(text: str) -> str:
+    """A text field (a photo name) for a CSV export: a leading formula character is
+    neutralised with an apostrophe (the OWASP rule) and line breaks become spaces, so a photo
+    named ``=HYPERLINK(...)`` stays text in a spreadsheet. Numbers are never passed here."""
+    if text.startswith(FORMULA_PREFIXES):
+        text = "'" + text
+    return text.replace("\r", " ").replace("\n", " ")
+
+
+def _comment(text: str) -> str:
+    """One comment line's text (a line break would start a data row)."""
+    return " ".join(text.splitlines())
+
+
 def cameras_csv(out: SolveOutput) -> str:
     """``cameras.csv``: one row per photo (and per orphan mark), every field the solver knows."""
     buf = io.StringIO()
     buf.write(f"# crs EPSG:{out.epsg} ({out.crs_name}); h = WGS84 ellipsoidal height\n")
     for note in out.notes:
-        buf.write(f"# {note}\n")
+        buf.write(f"# {_comment(note)}\n")
     w = csv.writer(buf, lineterminator="\n")
     w.writerow(CAMERAS_COLUMNS)
     nd_xy = 3 if out.projected else 9
@@ -162,7 +180,7 @@ def cameras_csv(out: SolveOutput) -> str:
             wk, tow_ns = gpstime.week_tow(r.t_gps_ns)
             week, tow = str(wk), f"{tow_ns // 10**9}.{tow_ns % 10**9:09d}"
         w.writerow([
-            r.photo, r.mark if r.mark >= 0 else "", r.mark_count if r.mark >= 0 else "",
+            text_cell(r.photo), r.mark if r.mark >= 0 else "", r.mark_count if r.mark >= 0 else "",
             week, tow, _utc(r.t_gps_ns),
             _f(r.x_m, nd_xy), _f(r.y_m, nd_xy), _f(r.h_m, 3),
             _f(r.lat_deg, 9), _f(r.lon_deg, 9),
@@ -182,11 +200,16 @@ def geo_txt(out: SolveOutput) -> str:
     """OpenDroneMap ``geo.txt``: ``EPSG:N`` then ``image x y z yaw pitch roll horz vert``.
 
     Angles are written as 0 (ODM uses them only for radiometric calibration and accepts 0 when
-    unknown); horizontal accuracy is the larger of σ east and north.
+    unknown); horizontal accuracy is the larger of σ east and north. ODM splits a line on
+    whitespace, so a photo whose name holds any cannot be listed: it is named in a ``#`` comment
+    line (which ODM skips) instead, and keeps its row in the CSV exports.
     """
     lines = [f"EPSG:{out.epsg}"]
     nd = 3 if out.projected else 9
     for r in _photo_rows(out):
+        if not r.photo or any(c.isspace() for c in r.photo) or r.photo.startswith("#"):
+            lines.append(f"# not listed (whitespace or '#' in the name): {r.photo!r}")
+            continue
         horz = max(r.sd_e_m, r.sd_n_m)
         lines.append(
             f"{r.photo} {r.x_m:.{nd}f} {r.y_m:.{nd}f} {r.h_m:.3f} 0 0 0 "
@@ -204,13 +227,13 @@ REFERENCE_COLUMNS = (
 def reference_csv(out: SolveOutput) -> str:
     """Metashape "Import Reference" CSV (comma, header row, ``#`` comment with the CRS)."""
     buf = io.StringIO()
-    buf.write(f"# EPSG:{out.epsg} {out.crs_name}; z = WGS84 ellipsoidal height\n")
+    buf.write(f"# EPSG:{out.epsg} {_comment(out.crs_name)}; z = WGS84 ellipsoidal height\n")
     w = csv.writer(buf, lineterminator="\n")
     w.writerow(REFERENCE_COLUMNS)
     nd = 3 if out.projected else 9
     for r in _photo_rows(out):
         w.writerow([
-            r.photo, _f(r.x_m, nd), _f(r.y_m, nd), _f(r.h_m, 3),
+            text_cell(r.photo), _f(r.x_m, nd), _f(r.y_m, nd), _f(r.h_m, 3),
             _f(r.sd_e_m, 3), _f(r.sd_n_m, 3), _f(r.sd_u_m, 3),
             _f(r.omega_deg, 4), _f(r.phi_deg, 4), _f(r.kappa_deg, 4),
         ])
@@ -228,7 +251,7 @@ def pix4d_csv(out: SolveOutput) -> str:
     nd = 3 if out.projected else 9
     for r in _photo_rows(out):
         w.writerow([
-            r.photo, _f(r.y_m, nd), _f(r.x_m, nd), _f(r.h_m, 3),
+            text_cell(r.photo), _f(r.y_m, nd), _f(r.x_m, nd), _f(r.h_m, 3),
             _f(max(r.sd_e_m, r.sd_n_m), 3), _f(r.sd_u_m, 3),
         ])
     return buf.getvalue()
@@ -308,17 +331,18 @@ def write_all(out: SolveOutput, directory: Path) -> list[Path]:
     return paths
 
 
-def check_output_dir(out_dir: Path, inputs: Sequence[Path]) -> None:
-    """Refuse an output directory that is (or is inside) an input directory of photos.
+OUTPUT_NAMES: tuple[str, ...] = (*WRITERS, "report.html", "rtklib/", "photos/")
+"""What ``solve`` writes into its output directory (:mod:`groundstation.outpaths`)."""
+
+
+def check_output_dir(out_dir: Path, inputs: Sequence[Path | None]) -> None:
+    """Refuse an output directory that is or is inside an input directory, or where solve's
+    outputs would replace an input or a recording (:func:`groundstation.outpaths.check_output_dir`).
 
     Raises:
-        ConfigError: ``--out`` points at or into an input directory.
+        ConfigError: naming ``--out``.
     """
-    o = out_dir.resolve()
-    for d in inputs:
-        r = d.resolve()
-        if o == r or r in o.parents:
-            raise ConfigError("--out", f"{out_dir} is inside the input directory {d}")
+    outpaths.check_output_dir(out_dir, inputs, key="--out", writes=OUTPUT_NAMES)
 
 
 def write_exif_copies(

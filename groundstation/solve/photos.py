@@ -1,7 +1,8 @@
 """Photos to time marks: EXIF capture times, burst spreading, clock offset, one-to-one pairing.
 
 The matching core (:func:`match`) is sans-I/O: it takes photo times on the camera clock and mark
-times in GPS seconds. EXIF reading and writing (the ``exif`` library) live here too, at the edge:
+times in GPS seconds. EXIF reading (a bounded parser of its own: a crafted photo must not hang
+the solver) and writing (the ``exif`` library) live here too, at the edge:
 :func:`read_photo`, :func:`scan_photos`, :func:`write_gps_copy`, :func:`make_jpeg`.
 """
 
@@ -13,6 +14,7 @@ import re
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import BinaryIO, Literal
 
 import numpy as np
 import numpy.typing as npt
@@ -112,45 +114,163 @@ def _unix_ns(naive: dt.datetime) -> int:
     return int(naive.replace(tzinfo=dt.UTC).timestamp()) * gpstime.NS_PER_S
 
 
-def read_photo(path: str | Path) -> Photo:
-    """The EXIF capture time of one JPEG (never raises for bad photos: see ``Photo.error``)."""
-    from exif import Image  # the one module that owns the exif library
+EXIF_MAX_SEGMENTS = 64
+"""JPEG segments looked at for the EXIF block before giving up (it normally comes first); only
+their 4-byte headers are read, and the EXIF body itself (at most 64 KiB)."""
+EXIF_TIME_BUDGET_S = 0.5
+"""Parsing one photo's EXIF stops after this long (a crafted file is skipped, never a hang)."""
+EXIF_MAX_IFDS = 16
+EXIF_MAX_ENTRIES = 2000
 
+_TAG_DATETIME, _TAG_EXIF_IFD, _TAG_GPS_IFD = 0x0132, 0x8769, 0x8825
+_TAG_ORIGINAL, _TAG_OFFSET_ORIGINAL, _TAG_SUBSEC_ORIGINAL = 0x9003, 0x9011, 0x9291
+_TAG_INTEROP_IFD = 0xA005
+
+
+class ExifError(ValueError):
+    """A photo's EXIF block cannot be used (damaged, looping, over budget)."""
+
+
+def _exif_block(f: BinaryIO) -> bytes | None:
+    """The TIFF data of a JPEG's ``Exif`` APP1 segment (``None``: the JPEG has none), found by
+    walking the segment headers (seeking over their bodies).
+
+    Raises:
+        ExifError: not a JPEG, a damaged segment, or no EXIF within the first
+            :data:`EXIF_MAX_SEGMENTS` segments.
+    """
+    if f.read(2) != b"\xff\xd8":
+        raise ExifError("not a JPEG")
+    for _ in range(EXIF_MAX_SEGMENTS):
+        head = f.read(2)
+        while head[:1] == b"\xff" and head[1:2] == b"\xff":  # fill bytes
+            head = head[1:] + f.read(1)
+        if len(head) < 2:
+            return None  # ends before any image data: no EXIF
+        if head[0] != 0xFF:
+            raise ExifError(f"damaged JPEG segment at byte {f.tell() - 2}")
+        marker = head[1]
+        if marker in (0xD9, 0xDA):  # end of image, start of scan: no EXIF after this
+            return None
+        if 0xD0 <= marker <= 0xD7 or marker == 0x01:  # standalone markers
+            continue
+        raw = f.read(2)
+        length = int.from_bytes(raw, "big")
+        if len(raw) < 2 or length < 2:
+            raise ExifError(f"damaged JPEG segment length at byte {f.tell() - 2}")
+        if marker == 0xE1:
+            body = f.read(length - 2)
+            if len(body) < length - 2:
+                raise ExifError("EXIF segment cut short")
+            if body.startswith(b"Exif\x00\x00"):
+                return body[6:]
+            continue
+        f.seek(length - 2, 1)
+    raise ExifError(f"no EXIF within the first {EXIF_MAX_SEGMENTS} JPEG segments")
+
+
+def _exif_tags(tiff: bytes, deadline: float) -> dict[int, str]:
+    """The ASCII tags of IFD0 and the Exif IFD, with every IFD pointer checked: in bounds,
+    visited once (a looping chain is an error), at most :data:`EXIF_MAX_IFDS` IFDs.
+
+    Raises:
+        ExifError: damaged, looping or over the time budget.
+    """
+    import time
+
+    if len(tiff) < 8 or tiff[:4] not in (b"II*\x00", b"MM\x00*"):
+        raise ExifError("bad TIFF header in EXIF")
+    order: Literal["little", "big"] = "little" if tiff[:2] == b"II" else "big"
+
+    def u(off: int, n: int) -> int:
+        if off < 0 or off + n > len(tiff):
+            raise ExifError(f"EXIF offset {off} outside the {len(tiff)}-byte block")
+        return int.from_bytes(tiff[off : off + n], order)
+
+    tags: dict[int, str] = {}
+    seen: set[int] = set()
+    todo: list[tuple[int, bool]] = [(u(4, 4), True)]  # (offset, follow the next-IFD chain)
+    while todo:
+        off, chain = todo.pop()
+        if off == 0:
+            continue
+        if off in seen:
+            raise ExifError(f"looping EXIF IFD chain (offset {off} visited twice)")
+        if len(seen) >= EXIF_MAX_IFDS:
+            raise ExifError(f"more than {EXIF_MAX_IFDS} EXIF IFDs")
+        if time.monotonic() > deadline:
+            raise ExifError(f"EXIF parsing over its {EXIF_TIME_BUDGET_S} s budget")
+        seen.add(off)
+        count = u(off, 2)
+        if count > EXIF_MAX_ENTRIES:
+            raise ExifError(f"EXIF IFD with {count} entries")
+        for k in range(count):
+            e = off + 2 + 12 * k
+            tag, kind, n = u(e, 2), u(e + 2, 2), u(e + 4, 4)
+            if tag in (_TAG_EXIF_IFD, _TAG_GPS_IFD, _TAG_INTEROP_IFD):
+                todo.append((u(e + 8, 4), False))
+            elif kind == 2 and tag in (_TAG_DATETIME, _TAG_ORIGINAL, _TAG_OFFSET_ORIGINAL,
+                                       _TAG_SUBSEC_ORIGINAL):
+                start = e + 8 if n <= 4 else u(e + 8, 4)
+                if n > 256 or start + n > len(tiff):
+                    raise ExifError(f"EXIF tag 0x{tag:04x} runs outside the block")
+                tags.setdefault(tag, tiff[start : start + n].split(b"\x00")[0]
+                                .decode("ascii", "replace"))
+        if chain:
+            todo.append((u(off + 2 + 12 * count, 4), True))
+    return tags
+
+
+def read_exif_times(path: Path) -> dict[int, str]:
+    """The capture-time tags of one JPEG, read within a size and time budget.
+
+    Raises:
+        OSError: the file cannot be read.
+        ExifError: no usable EXIF block (damaged, looping, over budget).
+    """
+    import time
+
+    with path.open("rb") as f:
+        tiff = _exif_block(f)
+    if tiff is None:
+        return {}
+    return _exif_tags(tiff, time.monotonic() + EXIF_TIME_BUDGET_S)
+
+
+def read_photo(path: str | Path) -> Photo:
+    """The EXIF capture time of one JPEG (never raises for bad photos: see ``Photo.error``).
+
+    The EXIF block is parsed here, within a budget (:data:`EXIF_MAX_SEGMENTS` segment headers,
+    the EXIF body of at most 64 KiB, :data:`EXIF_TIME_BUDGET_S`, every IFD visited once): a
+    damaged or crafted photo (a looping IFD chain) is skipped with its reason, never a hang.
+    """
     p = Path(path)
     try:
-        img = Image(p.read_bytes())
+        tags = read_exif_times(p)
     except OSError as err:
-        return Photo(p.name, str(p), 0, error=f"cannot read: {err}")
-    except Exception as err:  # the exif library raises plain exceptions on odd files
+        return Photo(p.name, str(p), 0, error=f"cannot read: {err.strerror or err}")
+    except ExifError as err:
         return Photo(p.name, str(p), 0, error=f"no readable EXIF: {err}")
-    if not img.has_exif:
+    if not tags:
         return Photo(p.name, str(p), 0, error="no EXIF")
     tag = "DateTimeOriginal"
-    text = _get(img, "datetime_original")
+    text = tags.get(_TAG_ORIGINAL, "")
     if not text:
-        tag, text = "DateTime", _get(img, "datetime")
+        tag, text = "DateTime", tags.get(_TAG_DATETIME, "")
     if not text:
         return Photo(p.name, str(p), 0, error="no DateTimeOriginal")
     try:
         second = _unix_ns(parse_exif_datetime(text))
     except ValueError:
         return Photo(p.name, str(p), 0, error=f"bad {tag} {text!r}")
-    sub = _get(img, "subsec_time_original")
-    off = _get(img, "offset_time_original")
+    sub = tags.get(_TAG_SUBSEC_ORIGINAL, "")
+    off = tags.get(_TAG_OFFSET_ORIGINAL, "")
     return Photo(
         p.name, str(p), second,
         parse_subsec(sub) if sub else None,
         parse_utc_offset(off) if off else None,
         tag,
     )
-
-
-def _get(img: object, attr: str) -> str:
-    try:
-        value = img.get(attr)  # type: ignore[attr-defined]
-    except Exception:  # a damaged tag must not cost the whole photo
-        return ""
-    return str(value) if value is not None else ""
 
 
 def scan_photos(directory: str | Path) -> list[Photo]:
@@ -482,7 +602,8 @@ def reconciliation_lines(
         f"residual sigma {result.residual_sigma_s:.3f} s"),
         (f"photos {len(photos)}, marks {len(mark_t_gps_ns)}: {len(result.pairs)} paired, "
         f"{len(result.unmatched_photos)} photos without mark, {len(result.orphan_marks)} marks "
-        f"without photo, {len(result.duplicate_marks)} duplicate marks dropped"),
+        f"without photo, {len(result.duplicate_marks)} duplicate marks dropped"
+        + _skipped(photos)),
     ]
     for i in result.unmatched_photos:
         ph = photos[i]
@@ -494,6 +615,11 @@ def reconciliation_lines(
         t = mark_t_gps_ns[i]
         lines.append(f"  mark without photo: #{i} at {gpstime.format_gps(t) if t else '?'}")
     return lines
+
+
+def _skipped(photos: Sequence[Photo]) -> str:
+    n = sum(1 for ph in photos if not ph.usable)
+    return f", {n} photos skipped (no usable EXIF time)" if n else ""
 
 
 def _hms(seconds: float) -> str:

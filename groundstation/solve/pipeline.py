@@ -159,8 +159,8 @@ def _validate(s: SolveSettings) -> None:
         raise ConfigError("--base-xyz", "the base's known coordinates are required with --base")
     if s.photos is not None and not s.photos.is_dir():
         raise ConfigError("--photos", f"{s.photos} is not a directory")
-    if s.photos is not None:
-        outputs.check_output_dir(s.out_dir, [s.photos])
+    # never write over an input or a recording (groundstation.outpaths)
+    outputs.check_output_dir(s.out_dir, [s.photos, s.flight, s.positions, s.base, s.eo])
     if not s.flight.exists():
         raise InputError(f"{s.flight}: no such file")
 

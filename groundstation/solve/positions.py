@@ -10,6 +10,7 @@ import gzip
 import logging
 import math
 import re
+import zlib
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -343,7 +344,7 @@ def read_pos(path: str | Path, ref_ecef_m: tuple[float, float, float] | None = N
         raise InputError(f"{p}: no such file") from err
     except OSError as err:
         raise InputError(f"{p}: cannot read: {err}") from err
-    except (EOFError, gzip.BadGzipFile) as err:
+    except (EOFError, gzip.BadGzipFile, zlib.error) as err:
         raise InputError(f"{p}: damaged gzip: {err}") from err
     return parse_pos(data.decode("ascii", "replace"), source=p.name, ref_ecef_m=ref_ecef_m)
 

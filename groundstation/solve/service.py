@@ -7,6 +7,13 @@ Zenoh callbacks only parse, decide and enqueue; every outcome is published on
 ``groundstation/<station>/solution`` (``docs/zenoh.md``). Nothing a session brings (a missing
 file, a failing engine) stops the service.
 
+Nothing a session message says is trusted: it is parsed and range-checked
+(:mod:`groundstation.messages`), its station name checked, and at most
+``max_sessions_per_min`` are handled (bursts of :data:`SESSION_BURST`; the rest are dropped
+unanswered). A recording is solved only if it lies inside ``recording_roots`` (:func:`confine`:
+``..`` refused, symbolic links resolved; the refusal never says whether the file exists), its
+outputs only under ``out_root/<station>/``, and only once by content (:func:`content_hash`).
+
 Configuration (``config/solver.toml``): top-level keys are the defaults for every station,
 ``[stations.<name>]`` overrides them per station and ``[zenoh]`` says how to join the bus. Paths
 may use ``{dir}`` (the recording's directory), ``{stem}`` (its name without suffix) and
@@ -29,6 +36,7 @@ from typing import Any
 
 import numpy as np
 
+from groundstation import messages
 from groundstation.config import (
     CLIENT_ZENOH,
     SOLVER,
@@ -37,6 +45,7 @@ from groundstation.config import (
     Resolved,
     ZenohSettings,
     check_environment,
+    check_station,
     env_layer,
     merge_layers,
     resolve,
@@ -53,6 +62,10 @@ QUEUE_SIZE = 16
 """Sessions waiting for the worker; beyond this a session is refused with a failed solution."""
 
 STATUS_SOLVING, STATUS_OK, STATUS_FAILED, STATUS_SKIPPED = "solving", "ok", "failed", "skipped"
+STATUS_REFUSED = "refused"
+MAX_SESSIONS_PER_MIN = 60.0
+SESSION_BURST = 20
+RECORDING_SUFFIXES = (".mcap", ".ubx", ".ubx.gz", ".gz", ".log")
 
 Publish = Callable[[str, dict[str, Any]], None]
 """``publish(station, body)``: send one ``solution`` message for a station."""
@@ -85,6 +98,10 @@ class ServiceSettings:
         default: settings for stations without a ``[stations.<name>]`` table.
         stations: per-station settings (defaults already merged in).
         queue_size: sessions that may wait for the worker.
+        recording_roots: the only directories whose recordings are solved (resolved; a
+            session naming a file elsewhere is refused).
+        max_sessions_per_min: session messages handled per minute (burst
+            :data:`SESSION_BURST`); more are dropped and counted.
     """
 
     bus: ZenohSettings = CLIENT_ZENOH
@@ -92,6 +109,8 @@ class ServiceSettings:
     default: StationSolve = field(default_factory=StationSolve)
     stations: Mapping[str, StationSolve] = field(default_factory=dict)
     queue_size: int = QUEUE_SIZE
+    recording_roots: tuple[Path, ...] = (Path("recordings"),)
+    max_sessions_per_min: float = MAX_SESSIONS_PER_MIN
 
     def for_station(self, station: str) -> StationSolve:
         """The settings that apply to ``station``."""
@@ -118,9 +137,7 @@ def _station_solve(base: StationSolve, values: Mapping[str, Any], prefix: str) -
 
 def _service_settings(resolved: Resolved) -> ServiceSettings:
     top = resolved.values[""]
-    station = top.get("station", "*")
-    if not station or any(c in station for c in "/?#$") or station == "**":
-        raise ConfigError("station", f"{station!r} is not a station name or '*'")
+    station = top.get("station", "*")  # checked by the resolver (config.STATION_OR_ALL)
     keys = {k: v for k, v in top.items() if k in SOLVER_STATION_KEYS}
     from_file = {k: v for k, v in keys.items() if resolved.origin.get(("", k)) == "file"}
     later = {k: v for k, v in keys.items() if k not in from_file}
@@ -133,8 +150,12 @@ def _service_settings(resolved: Resolved) -> ServiceSettings:
         stations[name] = _station_solve(merged, later, f"stations.{name}.")
     if "mode" in resolved.values["zenoh"] and resolved.values["zenoh"]["mode"] == "router":
         raise ConfigError("zenoh.mode", "the solver joins as peer or client")
+    roots = tuple(Path(r).expanduser() for r in top.get("recording_roots", ("recordings",)))
+    if not roots:
+        raise ConfigError("recording_roots", "at least one directory")
     return ServiceSettings(zenoh_settings(resolved.values["zenoh"]), station, default, stations,
-                           top.get("queue_size", QUEUE_SIZE))
+                           top.get("queue_size", QUEUE_SIZE), roots,
+                           top.get("max_sessions_per_min", MAX_SESSIONS_PER_MIN))
 
 
 def build_service_settings(
@@ -217,19 +238,64 @@ def _free_dir(root: Path) -> Path:
     return root.with_name(f"{root.name}-{n}")
 
 
-def plan(station: str, session: Mapping[str, Any], conf: StationSolve) -> list[Job | Skip]:
+@dataclass(frozen=True, slots=True)
+class Refusal:
+    """A recording the session names that the service will not touch (outside the roots)."""
+
+    station: str
+    session_id: str
+    flight: Path
+    reason: str
+
+
+def confine(flight: Path, roots: tuple[Path, ...]) -> tuple[Path | None, str]:
+    """The recording's resolved path if it lies inside one of ``roots``, else why not.
+
+    The check never says whether the file exists (a refusal must not probe the disk for the
+    sender): ``..`` anywhere is refused as written; otherwise the path is resolved (symbolic
+    links followed, relative to the working directory) and must be inside a resolved root.
+    """
+    if ".." in flight.parts:
+        return None, "'..' in the recording path"
+    if not flight.name.endswith(RECORDING_SUFFIXES):
+        return None, "not a recording name (.mcap, .ubx, .ubx.gz, .log)"
+    real = flight.resolve()
+    for root in roots:
+        r = root.resolve()
+        if real != r and r in real.parents:
+            return real, ""
+    return None, "outside the configured recording_roots"
+
+
+def plan(station: str, session: Mapping[str, Any], conf: StationSolve,
+         roots: tuple[Path, ...] | None = None) -> list[Job | Skip | Refusal]:
     """What to do with one ``session`` message: nothing unless it is ``finished``; then a job
-    per recording when a base is configured, else a :class:`Skip` that says why."""
+    per recording when a base is configured and the recording lies inside ``roots``
+    (:func:`confine`; ``None``: not checked), else a :class:`Skip` or :class:`Refusal` that
+    says why."""
     if session.get("state") != "finished":
         return []
     sid = str(session.get("session_id") or "")
     files = [Path(str(f)) for f in session.get("files") or [] if f]
-    out: list[Job | Skip] = []
-    for flight in files:
+    out: list[Job | Skip | Refusal] = []
+    for given in files:
         if conf.base is None or conf.base_ecef_m is None:
-            out.append(Skip(station, sid, flight,
+            out.append(Skip(station, sid, given,
                             f"no base configured for station {station!r} (--base FILE "
                             f"--base-xyz X,Y,Z, or base and base_xyz in [stations.{station}])"))
+            continue
+        flight = given
+        if roots is not None:
+            real, why = confine(given, roots)
+            if real is None:
+                out.append(Refusal(station, sid, given, f"refused: {why}"))
+                continue
+            flight = real
+        out_dir = conf.out_root / station / flight.stem
+        root = conf.out_root.resolve()
+        if root not in out_dir.resolve().parents:  # a symbolic link under out_root leading out
+            out.append(Refusal(station, sid, given, "refused: the output directory would lie "
+                                                    "outside out_root"))
             continue
         notes: list[str] = []
         photos: Path | None = None
@@ -240,7 +306,7 @@ def plan(station: str, session: Mapping[str, Any], conf: StationSolve) -> list[J
                 photos = None
         settings = SolveSettings(
             flight=flight,
-            out_dir=conf.out_root / station / flight.stem,
+            out_dir=out_dir,
             base=_expand(conf.base, flight, station),
             base_ecef_m=conf.base_ecef_m,
             photos=photos,
@@ -288,6 +354,17 @@ def quality_summary(result: SolveResult) -> dict[str, Any]:
 # -- the worker ------------------------------------------------------------------------------
 
 
+def content_hash(path: Path, chunk_bytes: int = 1 << 20) -> str:
+    """SHA-256 of a file, streamed (a recording is solved once whatever its name)."""
+    import hashlib
+
+    h = hashlib.sha256()
+    with path.open("rb") as f:
+        while block := f.read(chunk_bytes):
+            h.update(block)
+    return h.hexdigest()
+
+
 class SolverService:
     """Turns session messages into solves and solution messages (no Zenoh in here).
 
@@ -309,10 +386,29 @@ class SolverService:
         self._clock_ns = clock_ns
         self._queue: queue.Queue[Job | None] = queue.Queue(maxsize=settings.queue_size)
         self._seen: set[tuple[str, str, str]] = set()
+        self._hashes: dict[str, Path] = {}
+        """Content hash of every recording solved (or being solved) -> its path."""
         self._lock = threading.Lock()
+        self._tokens = float(SESSION_BURST)
+        self._tokens_at = time.monotonic()
         self.solved = 0
         self.failed = 0
         self.skipped = 0
+        self.refused = 0
+        self.rejected = 0
+        """Session messages dropped: malformed, a bad station name, or over the rate limit."""
+
+    def _admit(self) -> bool:
+        """Token bucket: ``max_sessions_per_min``, bursts of :data:`SESSION_BURST`."""
+        now = time.monotonic()
+        with self._lock:
+            rate = self.settings.max_sessions_per_min / 60.0
+            self._tokens = min(SESSION_BURST, self._tokens + (now - self._tokens_at) * rate)
+            self._tokens_at = now
+            if self._tokens < 1.0:
+                return False
+            self._tokens -= 1.0
+            return True
 
     def _send(self, station: str, status: str, flight: Path | None, session_id: str,
               **body: Any) -> None:
@@ -324,10 +420,30 @@ class SolverService:
         except Exception:  # a broken bus must not stop the worker
             log.exception("could not publish the %s solution of %s", status, station)
 
+    def drop(self, station: str, why: str) -> None:
+        """Count and log (sparingly) a session message that is not handled."""
+        with self._lock:
+            self.rejected += 1
+            n = self.rejected
+        if n <= 10 or n % 100 == 0:  # a flood must not flood the log too
+            log.warning("session message for %r dropped (%d so far): %s", station[:80], n, why)
+
     def on_session(self, station: str, session: Mapping[str, Any]) -> None:
-        """Handle one ``session`` message of ``station``."""
+        """Handle one ``session`` message of ``station``: checked (station name, message
+        fields, rate), then planned; nothing outside the recording roots is read."""
         try:
-            actions = plan(station, session, self.settings.for_station(station))
+            check_station(station)
+            messages.check({"type": "session", **session}, "session")
+        except (ConfigError, messages.BadMessage) as err:
+            self.drop(station, str(err))
+            return
+        if not self._admit():
+            self.drop(station, "over the rate limit "
+                                f"({self.settings.max_sessions_per_min:g} per minute)")
+            return
+        try:
+            actions = plan(station, session, self.settings.for_station(station),
+                           self.settings.recording_roots)
         except GroundstationError as err:
             self.failed += 1
             self._send(station, STATUS_FAILED, None, str(session.get("session_id") or ""),
@@ -344,6 +460,12 @@ class SolverService:
                 self.skipped += 1
                 log.info("%s %s: not solved: %s", act.station, act.flight, act.reason)
                 self._send(act.station, STATUS_SKIPPED, act.flight, act.session_id,
+                           reason=act.reason)
+                continue
+            if isinstance(act, Refusal):
+                self.refused += 1
+                log.warning("%s %s: %s", act.station, act.flight, act.reason)
+                self._send(act.station, STATUS_REFUSED, act.flight, act.session_id,
                            reason=act.reason)
                 continue
             try:
@@ -379,14 +501,29 @@ class SolverService:
         self._send(job.station, STATUS_SOLVING, job.flight, job.session_id,
                    out_dir=str(s.out_dir))
         t0 = time.monotonic()
+        digest = ""
         try:
             if not job.flight.is_file():
                 raise GroundstationError(f"{job.flight}: recording not found")
+            digest = content_hash(job.flight)
+            with self._lock:
+                first = self._hashes.get(digest)
+                if first is None:
+                    self._hashes[digest] = job.flight
+            if first is not None:  # the same bytes, whatever the name or session
+                digest = ""  # not ours to forget
+                self.skipped += 1
+                self._send(job.station, STATUS_SKIPPED, job.flight, job.session_id,
+                           reason=f"already solved: same content as {first}")
+                return
             if s.base is not None and not s.base.is_file():
                 raise GroundstationError(f"{s.base}: base recording not found")
             result = self._solver(s)
         except Exception as err:  # any failure is reported; the service goes on
             self.failed += 1
+            with self._lock:  # a failed recording may be solved again (a base added ...)
+                if digest and self._hashes.get(digest) == job.flight:
+                    del self._hashes[digest]
             if not isinstance(err, GroundstationError):
                 log.exception("%s %s: solve crashed", job.station, job.flight)
             else:
@@ -425,7 +562,7 @@ def run_service(
     Raises:
         GroundstationError: the Zenoh session cannot be opened.
     """
-    from groundstation.bus import decode, encode, key, open_bus
+    from groundstation.bus import encode, key, open_bus
 
     bus = open_bus(settings.bus)
     try:
@@ -439,9 +576,9 @@ def run_service(
             if len(parts) != 3:
                 return
             try:
-                msg = decode(payload)
-            except ValueError as err:
-                log.warning("%s: not a JSON session message: %s", key_expr, err)
+                msg = messages.parse(payload, "session")
+            except messages.BadMessage as err:
+                service.drop(parts[1], f"{key_expr}: {err}")
                 return
             service.on_session(parts[1], msg)
 

@@ -32,6 +32,8 @@ from __future__ import annotations
 
 import gzip
 import logging
+import stat
+import zlib
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -53,15 +55,15 @@ def detect_format(path: Path) -> Format:
     """``mcap``, ``gzip`` or ``raw``, from the file's first bytes (the name may lie).
 
     Raises:
-        InputError: the file is missing or cannot be read.
+        InputError: the file is missing, not a regular file (a directory, a FIFO or a device
+            such as ``/dev/zero``, which would block or never end) or cannot be read.
     """
+    check_regular(path)
     try:
         with path.open("rb") as f:
             head = f.read(len(MCAP_MAGIC))
     except FileNotFoundError as err:
         raise InputError(f"{path}: no such file") from err
-    except IsADirectoryError as err:
-        raise InputError(f"{path}: is a directory, not a recording") from err
     except OSError as err:
         raise InputError(f"{path}: cannot read: {err.strerror or err}") from err
     if head.startswith(MCAP_MAGIC):
@@ -69,6 +71,25 @@ def detect_format(path: Path) -> Format:
     if head.startswith(GZIP_MAGIC):
         return "gzip"
     return "raw"
+
+
+def check_regular(path: Path) -> None:
+    """Refuse anything but a regular file (symbolic links followed) as an input.
+
+    Raises:
+        InputError: missing, a directory, a FIFO, a socket or a device.
+    """
+    try:
+        mode = path.stat().st_mode
+    except FileNotFoundError as err:
+        raise InputError(f"{path}: no such file") from err
+    except OSError as err:
+        raise InputError(f"{path}: cannot read: {err.strerror or err}") from err
+    if stat.S_ISREG(mode):
+        return
+    what = ("a directory" if stat.S_ISDIR(mode) else "a FIFO" if stat.S_ISFIFO(mode)
+            else "a device" if stat.S_ISCHR(mode) or stat.S_ISBLK(mode) else "not a file")
+    raise InputError(f"{path}: is {what}, not a recording (regular files only)")
 
 
 @dataclass(frozen=True, slots=True)
@@ -225,8 +246,9 @@ class Recording:
         reception times) and chunks are ``chunk_bytes`` long.
 
         Raises:
-            InputError: a part cannot be opened or read (a torn gzip ends quietly instead,
-                like an unfinished MCAP, after what it holds).
+            InputError: a part cannot be opened or read, or its compressed data is corrupt
+                (a torn gzip ends quietly instead, like an unfinished MCAP, after what it
+                holds).
         """
         self._done_bytes = 0
         for part in self.parts:
@@ -253,6 +275,11 @@ class Recording:
                 else:
                     while chunk := f.read(chunk_bytes):
                         yield chunk, 0
+        except gzip.BadGzipFile as err:
+            raise InputError(f"{part}: corrupt gzip data: {err}") from err
+        except zlib.error as err:
+            raise InputError(f"{part}: corrupt gzip data (after {self.bytes_read} compressed "
+                             f"bytes): {err}") from err
         except OSError as err:
             raise InputError(f"{part}: read failed: {err.strerror or err}") from err
         finally:

@@ -19,8 +19,8 @@ from rich.panel import Panel
 from rich.table import Table
 from rich.text import Text
 
-from groundstation import gpstime
-from groundstation.bus import Bus, decode, key
+from groundstation import gpstime, messages
+from groundstation.bus import Bus, key
 from groundstation.config import ZenohSettings
 
 STALE_AFTER_S = 3.0
@@ -35,6 +35,11 @@ STATE_STYLE = {
 }
 
 
+SHOWN = {"status": "status", "q/status": "status", "timemark": "timemark",
+         "q/timemarks": "timemark", "event": "event", "session": "session"}
+"""Key leaf -> the message kind it carries, for what this view shows."""
+
+
 @dataclass
 class WatchState:
     """What the view knows, updated from bus payloads (thread-safe through ``lock``)."""
@@ -47,17 +52,38 @@ class WatchState:
     session: dict[str, Any] | None = None
     alive: bool | None = None
     received: int = 0
+    instances: set[str] = field(default_factory=set)
+    rejected: int = 0
+    """Payloads dropped: not a valid message (:mod:`groundstation.messages`), or a status the
+    screen cannot show."""
+    last_rejection: str = ""
     lock: threading.Lock = field(default_factory=threading.Lock)
 
+    def _reject(self, key_expr: str, why: str) -> None:
+        with self.lock:
+            self.rejected += 1
+            self.last_rejection = f"{key_expr}: {why}"[:200]
+
     def on_payload(self, key_expr: str, payload: bytes, now_s: float | None = None) -> None:
+        """Fold one payload; a bad one is counted in :attr:`rejected` and dropped."""
+        expected = SHOWN.get(key_expr.split("/", 2)[-1])
+        if expected is None:
+            return  # epochs, raw UBX, solutions: not shown here
         try:
-            msg = decode(payload)
-        except ValueError:
+            msg = messages.parse(payload, expected)
+        except messages.BadMessage as err:
+            self._reject(key_expr, str(err))
             return
+        kind = msg.get("type")
+        if kind == "status":
+            try:  # a status the screen cannot draw would stop the view at its next refresh
+                _draw(_status_body(msg, [], [], None, None, stale=False))
+            except Exception as err:
+                self._reject(key_expr, f"status not drawable: {type(err).__name__}: {err}")
+                return
         now_s = time.monotonic() if now_s is None else now_s
         with self.lock:
             self.received += 1
-            kind = msg.get("type")
             if kind == "status":
                 self.status = msg
                 self.status_rx_s = now_s
@@ -74,9 +100,15 @@ class WatchState:
             return  # already had it (queryable and subscription overlap)
         self.marks.append(msg)
 
-    def on_alive(self, _key: str, alive: bool) -> None:
+    def on_alive(self, key_expr: str, alive: bool) -> None:
+        """A daemon's token ``.../alive/<id>``: more than one alive is a station conflict."""
+        instance = key_expr.split("/alive", 1)[-1].lstrip("/")
         with self.lock:
-            self.alive = alive
+            if alive:
+                self.instances.add(instance)
+            else:
+                self.instances.discard(instance)
+            self.alive = bool(self.instances)
 
     def stale(self, now_s: float | None = None) -> bool:
         now_s = time.monotonic() if now_s is None else now_s
@@ -123,6 +155,13 @@ def timeline(link: dict[str, Any], cols: int = TIMELINE_COLS, span_s: int = TIME
     return text
 
 
+def _draw(renderable: RenderableType) -> None:
+    """Render off screen (a trial: rich builds lazily, so a bad value fails only here)."""
+    import io
+
+    Console(file=io.StringIO(), width=120, color_system=None).print(renderable)
+
+
 def render(state: WatchState, now_s: float | None = None) -> RenderableType:
     """The whole screen for the current state."""
     with state.lock:
@@ -132,10 +171,30 @@ def render(state: WatchState, now_s: float | None = None) -> RenderableType:
         events = list(state.events)
         session = state.session
         alive = state.alive
+        rejected, why = state.rejected, state.last_rejection
+        daemons = len(state.instances)
     title = Text(f"groundstation watch · station {state.station}", style="bold")
     if st is None:
         msg = "waiting for status on " + key(state.station, "status")
-        return Panel(Text(msg, style="yellow"), title=title)
+        body: RenderableType = Text(msg, style="yellow")
+    else:
+        body = _status_body(st, marks, events, session, alive, stale=stale)
+    if daemons > 1:
+        body = Group(Text(f" station_conflict: {daemons} daemons publish as station "
+                          f"{state.station!r} ", style="bold white on red"), body)
+    if rejected:
+        body = Group(body, Text(f"{rejected} bad messages dropped (last: {why})",
+                                style="bold yellow"))
+    if st is None:
+        return Panel(body, title=title)
+    alerts = st.get("alerts") or []
+    return Panel(body, title=title, border_style="red" if stale or alerts else "green")
+
+
+def _status_body(st: dict[str, Any], marks: list[dict[str, Any]],
+                 events: list[dict[str, Any]], session: dict[str, Any] | None,
+                 alive: bool | None, *, stale: bool) -> RenderableType:
+    """The screen below the title for one status."""
     link = st["link"]
     head = Text()
     if stale:
@@ -214,12 +273,11 @@ def render(state: WatchState, now_s: float | None = None) -> RenderableType:
         when = time.strftime("%H:%M:%S", time.localtime(e.get("t_host_ns", 0) / 1e9))
         ev_text.append(f"{when} {e.get('kind', '?'):<22} {e.get('message', '')}\n",
                        style="yellow" if e.get("severity") == "warning" else "")
-    body = Group(
+    return Group(
         head, link_line, Text("last 5 min ") + timeline(link), Text(""), ppk, sats, Text(""),
         mark_line, Text(""), Text("ALERTS", style="bold"), alert_text,
         Text("EVENTS", style="bold"), ev_text,
     )
-    return Panel(body, title=title, border_style="red" if stale or alerts else "green")
 
 
 def connect(
@@ -230,7 +288,7 @@ def connect(
 
     bus = open_bus(settings)
     bus.subscribe(key(station, "**"), state.on_payload)
-    bus.subscribe_liveliness(key(station, "alive"), state.on_alive)
+    bus.subscribe_liveliness(key(station, "alive/**"), state.on_alive)
     for k, payload in bus.get(key(station, "q/timemarks"), timeout_s=2.0):
         state.on_payload(k, payload)
     for k, payload in bus.get(key(station, "q/status"), timeout_s=2.0):

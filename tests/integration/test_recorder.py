@@ -206,6 +206,5 @@ def test_missing_file_source_is_an_error(tmp_path: Path) -> None:
                         recorder=RecorderSettings(out_dir=tmp_path / "out"))
     with pytest.raises(InputError):
         asyncio.run(run_daemon(settings))
-    # the session file that was opened is finished, not left torn
-    (mcap,) = (tmp_path / "out").glob("*.mcap")
-    assert read_summary(mcap) is not None
+    # refused before any file is created (FileSource.claim)
+    assert not list((tmp_path / "out").glob("*.mcap"))

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import re
+import shutil
 import subprocess
 import sys
 import threading
@@ -82,7 +83,8 @@ def solver(tmp_path: Path, flight: dict[str, Any],
     xyz = ", ".join(f"{v:.4f}" for v in flight["truth"]["base"]["ecef_m"])
     conf = tmp_path / "solver.toml"
     conf.write_text(
-        f'out_root = "{tmp_path / "solutions"}"\ninterp = "smoother"\n\n'
+        f'out_root = "{tmp_path / "solutions"}"\ninterp = "smoother"\n'
+        f'recording_roots = ["{flight["mcap"].parent}", "{tmp_path / "flights"}"]\n\n'
         f'[zenoh]\nconnect = ["{endpoint}"]\nlisten = []\n\n'
         f'[stations.alpha]\nbase = "{{dir}}/{{stem}}_base.ubx"\nbase_xyz = [{xyz}]\n'
         f'photos = "{tmp_path / "photos"}/{{station}}"\nlever_arm = [0.16, -0.03, 0.57]\n'
@@ -183,3 +185,44 @@ def test_bad_config_exits_2_naming_the_key(tmp_path: Path, text: str, key_name: 
     )
     assert proc.returncode == 2, proc.stderr
     assert f"configuration error: {key_name}:" in proc.stderr
+
+
+def test_crafted_sessions_are_refused_and_a_recording_is_solved_once(
+    solver: tuple[Bus, Solutions, Daemon, Path], flight: dict[str, Any]
+) -> None:
+    bus, sols, d, tmp = solver
+    elsewhere = tmp / "elsewhere"
+    elsewhere.mkdir()
+    outside = elsewhere / flight["mcap"].name
+    shutil.copy(flight["mcap"], outside)
+    before = sorted(p.name for p in elsewhere.iterdir())
+    session(bus, "alpha", "c1", ["/etc/shadow"])
+    session(bus, "alpha", "c2", [str(outside)])
+    session(bus, "alpha", "c3", [str(flight["mcap"].parent / ".." / "x" / "a.mcap")])
+    for sid in ("c1", "c2", "c3"):
+        refused = sols.wait(sid, "refused", timeout_s=10)
+        assert refused["reason"].startswith("refused:"), refused
+        assert "exist" not in refused["reason"] and "found" not in refused["reason"]
+    # a station named ".." (or a wildcard) is dropped without an answer
+    bus.put("groundstation/../session", encode("session", {
+        "state": "finished", "files": [str(flight["mcap"])], "session_id": "c4"}))
+    # the same recording three times, and a copy of its bytes under another name in a root
+    copy = tmp / "flights" / "copy_of_flight.mcap"
+    copy.parent.mkdir(exist_ok=True)
+    shutil.copy(flight["mcap"], copy)
+    for sid in ("r1", "r1", "r2"):
+        session(bus, "alpha", sid, [str(flight["mcap"])])
+    sols.wait("r1", "ok", timeout_s=120)
+    session(bus, "alpha", "r3", [str(copy)])
+    skipped = sols.wait("r3", "skipped", timeout_s=30)
+    assert "already solved" in skipped["reason"]
+    time.sleep(1.0)
+    assert not sols.of("c4")
+    assert [m["status"] for _, _, m in sols.of("r1")] == ["solving", "ok"]
+    assert [m["status"] for _, _, m in sols.of("r2")] in (["solving", "skipped"], [])
+    # nothing written outside out_root, nothing added next to the refused recording
+    assert sorted(p.name for p in elsewhere.iterdir()) == before
+    assert sorted(p.name for p in (tmp / "solutions").iterdir()) == ["alpha"]
+    rc, out = d.stop()
+    assert rc == 0
+    assert "1 solved" in out and "3 refused" in out and "messages dropped" in out

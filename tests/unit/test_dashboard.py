@@ -253,7 +253,7 @@ def test_hub_discovers_stations_and_catches_up_when_a_daemon_appears() -> None:
                                  for leaf in ("status", "event", "timemark", "session", "solution")}
         wait_until(lambda: "groundstation/a/q/timemarks" in bus.queries)
         assert hub.document(None)["station"] == "a"  # listed, nothing heard yet
-        bus.alive["groundstation/*/alive"]("groundstation/b/alive", True)
+        bus.alive["groundstation/*/alive/**"]("groundstation/b/alive/1a2b", True)
         wait_until(lambda: hub.views["b"].status is not None)
         names = [s["name"] for s in hub.stations()]
         assert names == ["a", "b"]
@@ -263,7 +263,7 @@ def test_hub_discovers_stations_and_catches_up_when_a_daemon_appears() -> None:
         bus.subs["groundstation/*/status"]("groundstation/a/status", status(20.0))
         assert hub.document("a")["view"]["has_status"]
         assert hub.document("zz")["view"] is None
-        bus.alive["groundstation/*/alive"]("groundstation/b/alive", False)
+        bus.alive["groundstation/*/alive/**"]("groundstation/b/alive/1a2b", False)
         assert hub.document("b")["view"]["alive"] is False
         asked = bus.queries.count("groundstation/b/q/timemarks")
         bus.subs["groundstation/*/status"]("groundstation/b/status",

@@ -71,6 +71,6 @@ def test_cli_text_summary(tmp_path: Path) -> None:
 
 def test_cli_missing_file_is_a_clear_error(tmp_path: Path) -> None:
     res = run_cli("inspect", str(tmp_path / "nope.ubx"))
-    assert res.returncode == 1
+    assert res.returncode == 2  # bad input (README: exit statuses)
     assert "no such file" in res.stderr
     assert "Traceback" not in res.stderr

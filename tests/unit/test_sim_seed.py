@@ -402,8 +402,9 @@ def test_cli_simulates_the_seed_profile_and_rejects_a_bad_severity(tmp_path: Pat
                           text=True, timeout=120, check=False, env=_env())
     assert proc.returncode == 0, proc.stderr
     assert '"profile":{"name":"seed","severity":2.0}' in (tmp_path / "t.json").read_text()
-    bad = [*cmd, "--severity", "-1"]
-    default_with_severity = [*cmd[:4], "--severity", "2", "--out", "r.ubx"]
+    fresh = [*cmd[:4], "--profile", "seed", "--duration", "300", "--out", "other.ubx"]
+    bad = [*fresh, "--severity", "-1"]
+    default_with_severity = [*cmd[:4], "--severity", "2", "--out", "other.ubx"]
     for argv in (bad, default_with_severity):
         proc = subprocess.run(argv, cwd=tmp_path, capture_output=True, text=True, timeout=60,
                               check=False, env=_env())

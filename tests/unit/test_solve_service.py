@@ -96,11 +96,11 @@ def test_worker_dedups_bounds_its_queue_and_survives_failures(tmp_path: Path) ->
     settings = sv.ServiceSettings(
         default=sv.StationSolve(base=str(tmp_path / "base.ubx"), base_ecef_m=XYZ,
                                 out_root=tmp_path / "out"),
-        queue_size=1,
+        queue_size=1, recording_roots=(tmp_path,),
     )
     (tmp_path / "base.ubx").write_bytes(b"")
     for name in ("a.mcap", "b.mcap", "c.mcap"):
-        (tmp_path / name).write_bytes(b"")
+        (tmp_path / name).write_bytes(name.encode())
     fake = FakeSolver()
     service = sv.SolverService(settings, lambda st, body: sent.append((st, body)), solver=fake)
     stop = threading.Event()

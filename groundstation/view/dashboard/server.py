@@ -27,7 +27,7 @@ from urllib.parse import parse_qs, urlsplit
 
 from groundstation import jsonio
 from groundstation.bus import KEY_ROOT, key, open_bus
-from groundstation.config import CLIENT_ZENOH, ZenohSettings
+from groundstation.config import CLIENT_ZENOH, STATION_NAME, ZenohSettings
 from groundstation.view.dashboard.state import PPK_READY_MIN, FileInfo, StationView
 
 log = logging.getLogger("groundstation.dashboard")
@@ -39,12 +39,61 @@ MIN_PUSH_INTERVAL_S = 0.2
 SSE_RETRY_MS = 1000
 CATCH_UP_TIMEOUT_S = 2.0
 FILE_INFO_TTL_S = 2.0
+MAX_STATIONS = 256
+OVERFLOW_STATION = "_more"
+"""Where payloads of stations beyond :data:`MAX_STATIONS` are counted."""
 STATIC_TYPES = {
     ".html": "text/html; charset=utf-8",
     ".js": "text/javascript; charset=utf-8",
     ".css": "text/css; charset=utf-8",
     ".svg": "image/svg+xml",
 }
+
+
+SECURITY_HEADERS = (
+    ("Content-Security-Policy",
+     ("default-src 'none'; script-src 'self'; style-src 'self'; img-src 'self' data:; "
+      "connect-src 'self'; base-uri 'none'; form-action 'none'; frame-ancestors 'none'")),
+    ("X-Content-Type-Options", "nosniff"),
+    ("X-Frame-Options", "DENY"),
+    ("Referrer-Policy", "no-referrer"),
+)
+"""Sent with every response: the page runs only its own script and style, cannot be framed,
+and no type is sniffed (``docs/security.md``)."""
+
+
+def allowed_hosts(bind: str) -> frozenset[str]:
+    """Host names the server answers to: its bind address, the loopback names and this
+    machine's names. Any IP literal is accepted too (a DNS-rebinding attack needs a name that
+    the attacker's DNS resolves to us; a literal address names the server directly)."""
+    import socket
+
+    # gethostname only: getfqdn would ask DNS, which may hang without a network
+    names = {bind.lower().strip("[]"), "localhost", "127.0.0.1", "::1",
+             socket.gethostname().lower()}
+    return frozenset(n for n in names if n)
+
+
+def host_ok(header: str | None, hosts: frozenset[str], port: int) -> bool:
+    """Whether a request's ``Host`` header names this server (name and port)."""
+    import ipaddress
+
+    if not header:
+        return False
+    try:
+        parts = urlsplit("//" + header.strip())
+        host, got_port = (parts.hostname or "").lower(), parts.port
+    except ValueError:  # a malformed port
+        return False
+    if got_port is not None and got_port != port:
+        return False
+    if host in hosts:
+        return True
+    try:
+        ipaddress.ip_address(host)
+    except ValueError:
+        return False
+    return True
 
 
 class BusLike(Protocol):
@@ -64,7 +113,7 @@ class BusLike(Protocol):
 def station_of(key_expr: str) -> str | None:
     """``groundstation/<station>/...`` -> ``<station>``."""
     parts = key_expr.split("/")
-    if len(parts) < 3 or parts[0] != KEY_ROOT or not parts[1]:
+    if len(parts) < 3 or parts[0] != KEY_ROOT or not STATION_NAME.fullmatch(parts[1]):
         return None
     return parts[1]
 
@@ -157,12 +206,16 @@ class Hub:
         self._worker.start()
         for leaf in LEAVES:
             bus.subscribe(key("*", leaf), self.on_payload)
-        bus.subscribe_liveliness(key("*", "alive"), self.on_alive)
+        bus.subscribe_liveliness(key("*", "alive/**"), self.on_alive)
         for station in list(self.views):
             self._catch_up.put(station)
 
     def _view(self, station: str) -> StationView:
         view = self.views.get(station)
+        if view is None and len(self.views) >= MAX_STATIONS:
+            # a flood of invented names must not grow the hub: fold them into one view
+            station = OVERFLOW_STATION
+            view = self.views.get(station)
         if view is None:
             log.info("station %s discovered", station)
             view = self.views[station] = StationView(station)
@@ -187,12 +240,14 @@ class Hub:
             self._catch_up.put(station)
 
     def on_alive(self, key_expr: str, alive: bool) -> None:
-        """A daemon's liveliness token appeared (daemon started) or went away."""
+        """A daemon's liveliness token (``.../alive/<id>``) appeared (daemon started) or went
+        away."""
         station = station_of(key_expr)
         if station is None:
             return
+        instance = key_expr.split("/alive", 1)[-1].lstrip("/")
         with self.cond:
-            self._view(station).on_alive(alive)
+            self._view(station).on_alive(alive, instance)
             self._changed()
         log.info("station %s %s", station, "alive" if alive else "gone")
         if alive:
@@ -269,7 +324,18 @@ class _Handler(BaseHTTPRequestHandler):
     def log_message(self, format: str, *args: Any) -> None:  # noqa: A002 (stdlib signature)
         log.debug("%s " + format, self.address_string(), *args)
 
+    def end_headers(self) -> None:
+        for name, value in SECURITY_HEADERS:
+            self.send_header(name, value)
+        super().end_headers()
+
     def do_GET(self) -> None:
+        if not host_ok(self.headers.get("Host"), self.server.hosts, self.server.server_port):
+            log.warning("refused a request for Host %r from %s (DNS rebinding?)",
+                        self.headers.get("Host"), self.address_string())
+            self._send(HTTPStatus.MISDIRECTED_REQUEST, b"unknown host\n",
+                       "text/plain; charset=utf-8")
+            return
         url = urlsplit(self.path)
         query = parse_qs(url.query)
         station = (query.get("station") or [""])[0] or None
@@ -362,6 +428,7 @@ class DashboardHTTPServer(ThreadingHTTPServer):
 
     def __init__(self, address: tuple[str, int], hub: Hub) -> None:
         self.hub = hub
+        self.hosts = allowed_hosts(address[0])
         super().__init__(address, _Handler)
 
     @property

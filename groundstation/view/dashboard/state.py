@@ -18,8 +18,7 @@ from typing import Any
 from urllib.parse import quote
 
 from groundstation import events as kinds
-from groundstation import gpstime
-from groundstation.bus import decode
+from groundstation import gpstime, messages
 
 STALE_AFTER_S = 3.0
 """No status for longer than this and the station is shown as stale."""
@@ -31,6 +30,10 @@ EVENTS_KEPT = 40
 DROPOUTS_KEPT = 1000
 MARKS_KEPT = 3000
 """Up to 5 marks a second over the timeline span."""
+LEAF_KINDS = {"status": "status", "q/status": "status", "event": "event",
+              "timemark": "timemark", "q/timemarks": "timemark", "session": "session"}
+"""Key leaf -> the message kind it must carry."""
+NOT_SHOWN = frozenset({"ubx", "epoch", "alive"})
 _SESSION_TIME = re.compile(r"(\d{8}T\d{6}Z)$")
 
 NS = gpstime.NS_PER_S
@@ -99,15 +102,28 @@ class StationView:
     host_minus_gps_ns: int | None = None
     _offsets: deque[int] = field(default_factory=lambda: deque(maxlen=20))
     _session_id: str | None = None
+    instances: set[str] = field(default_factory=set)
+    """Liveliness ids of the daemons alive for this station (more than one: a conflict)."""
+    rejected: int = 0
+    """Payloads dropped as bad (:mod:`groundstation.messages`): counted, shown, never fatal."""
+    last_rejection: str = ""
 
     # -- folding ---------------------------------------------------------------------------
 
     def on_payload(self, key_expr: str, payload: bytes, now_s: float) -> bool:
-        """Fold one bus payload; True if it changed the view."""
-        try:
-            msg = decode(payload)
-        except ValueError:
+        """Fold one bus payload; True if it changed the view (a bad one is counted in
+        :attr:`rejected`, which changes the view too)."""
+        leaf = key_expr.split("/", 2)[-1]
+        if leaf in NOT_SHOWN:
             return False
+        expected = LEAF_KINDS.get(leaf)  # None (a key the hub does not subscribe): any kind
+        try:
+            msg = messages.parse(payload, expected)
+        except messages.BadMessage as err:
+            self.rejected += 1
+            self.last_rejection = f"{leaf}: {err}"[:200]
+            self.version += 1
+            return True
         kind = msg.get("type")
         if kind == "status":
             self._on_status(msg, now_s)
@@ -126,10 +142,23 @@ class StationView:
         self.version += 1
         return True
 
-    def on_alive(self, alive: bool) -> None:
-        """The daemon's liveliness token appeared or went away."""
-        self.alive = alive
+    def on_alive(self, alive: bool, instance: str = "") -> None:
+        """A daemon's liveliness token (``alive/<instance>``) appeared or went away; two at
+        once are two daemons claiming this station (a ``station_conflict`` alert)."""
+        if alive:
+            self.instances.add(instance)
+        else:
+            self.instances.discard(instance)
+        self.alive = bool(self.instances)
         self.version += 1
+
+    def conflict_alert(self) -> str | None:
+        """The dashboard's own alert when more than one daemon claims the station."""
+        n = len(self.instances)
+        if n < 2:
+            return None
+        return (f"station_conflict: {n} daemons publish as station {self.station!r}; "
+                "what is shown mixes them")
 
     def _reset_session(self, session_id: str) -> None:
         """A new daemon session: what belonged to the previous one goes."""
@@ -290,6 +319,8 @@ class StationView:
             "stale": self.stale(now_s),
             "status_age_s": self.status_age_s(now_s),
             "alive": self.alive,
+            "rejected": self.rejected,
+            "last_rejection": self.last_rejection,
             "session_id": st.get("session_id"),
             "t_host_ns": st.get("t_host_ns"),
             "link": link,
@@ -299,7 +330,7 @@ class StationView:
                 "ready": st.get("ppk_ready"), "tracked": st.get("tracked"),
                 "min": ppk_ready_min, "half_cycle_fraction": st.get("half_cycle_fraction"),
             },
-            "alerts": list(st.get("alerts") or []),
+            "alerts": self._alerts(st),
             "events": list(self.events)[-15:][::-1],
             "timeline": self.timeline(gps_now),
             "marks": self._marks_panel(st, gps_now),
@@ -307,6 +338,13 @@ class StationView:
             "report": self._report_panel(),
         }
         return out
+
+    def _alerts(self, st: dict[str, Any]) -> list[str]:
+        alerts = [str(a) for a in st.get("alerts") or []]
+        own = self.conflict_alert()
+        if own is not None and not any(a.startswith("station_conflict") for a in alerts):
+            alerts.insert(0, own)
+        return alerts
 
     def _marks_panel(self, st: dict[str, Any], gps_now: int | None) -> dict[str, Any]:
         ms = dict(st.get("marks") or {})

@@ -6,7 +6,9 @@ const SVG_NS = "http://www.w3.org/2000/svg";
 const STATE_TEXT = { clean: "clean", half_cycle: "½ cycle", slipped: "slipped", code_only: "code only" };
 
 // Test hook and debugging aid: what the page received and drew.
-const gs = (window.gsDashboard = { updates: 0, doc: null, rxAt: 0, errors: [], source: null });
+const gs = (window.gsDashboard = {
+  updates: 0, doc: null, rxAt: 0, errors: [], source: null, renderErrors: 0, badDocs: 0,
+});
 
 function $(id) { return document.getElementById(id); }
 
@@ -47,6 +49,24 @@ function duration(s) {
   return (h ? h + ":" : "") + String(m).padStart(h ? 2 : 1, "0") + ":" + String(sec).padStart(2, "0");
 }
 
+// A time in ns as HH:MM:SS UTC; "--:--:--" for anything a Date cannot hold (the server
+// checks ranges, this is the page's own guard).
+function hms(ns) {
+  const ms = Number(ns) / 1e6;
+  const d = new Date(ms);
+  return Number.isFinite(ms) && !Number.isNaN(d.getTime())
+    ? d.toISOString().substring(11, 19) : "--:--:--";
+}
+
+// One panel drawn; a failure is counted and the other panels still draw.
+function panel(name, fn, arg) {
+  try { fn(arg); } catch (err) {
+    gs.renderErrors += 1;
+    gs.errors.push(name + ": " + String((err && err.message) || err));
+    if (gs.errors.length > 50) gs.errors.shift();
+  }
+}
+
 function clear(node) { while (node.firstChild) node.removeChild(node.firstChild); }
 
 // -- connection --------------------------------------------------------------------------
@@ -63,11 +83,16 @@ function connect() {
   gs.source = source;
   source.addEventListener("snapshot", (ev) => {
     let doc;
-    try { doc = JSON.parse(ev.data); } catch (err) { gs.errors.push(String(err)); return; }
+    try { doc = JSON.parse(ev.data); } catch (err) {
+      gs.badDocs += 1; gs.errors.push(String(err)); return;
+    }
+    if (!doc || typeof doc !== "object" || !Array.isArray(doc.stations)) {
+      gs.badDocs += 1; gs.errors.push("snapshot without a station list"); return;
+    }
     gs.doc = doc;
     gs.rxAt = performance.now();
     gs.updates += 1;
-    try { render(doc); } catch (err) { gs.errors.push(String(err && err.stack || err)); throw err; }
+    render(doc);
   });
   // EventSource reconnects by itself (the server asks for 1 s); the badge says meanwhile.
   source.onerror = () => { refreshBadge(); };
@@ -374,7 +399,7 @@ function renderEvents(events) {
     li.className = e.severity || "info";
     const t = document.createElement("span");
     t.className = "t";
-    t.textContent = new Date((e.t_host_ns || 0) / 1e6).toISOString().substring(11, 19);
+    t.textContent = hms(e.t_host_ns || 0);
     li.appendChild(t);
     li.appendChild(document.createTextNode(e.message || e.kind || ""));
     li.title = e.kind || "";
@@ -384,21 +409,30 @@ function renderEvents(events) {
 
 // -- the whole page ----------------------------------------------------------------------
 
+function renderRejected(view) {
+  const n = (view && view.rejected) || 0;
+  const bad = n + gs.renderErrors;
+  const node = $("rejected");
+  node.textContent = bad ? bad + " bad messages dropped" : "";
+  node.title = (view && view.last_rejection) || gs.errors[gs.errors.length - 1] || "";
+}
+
 function render(doc) {
-  renderStations(doc);
+  panel("stations", renderStations, doc);
   const view = doc.view;
   if (view) {
-    renderSky(view.sats);
-    renderCno(view.sats);
-    renderPpk(view.ppk);
-    renderMarks(view.marks);
-    renderLink(view);
-    renderSession(view.session);
-    renderReport(view.report);
-    renderAlerts(view.alerts);
-    renderEvents(view.events);
+    panel("sky", renderSky, view.sats);
+    panel("cno", renderCno, view.sats);
+    panel("ppk", renderPpk, view.ppk);
+    panel("marks", renderMarks, view.marks);
+    panel("link", renderLink, view);
+    panel("session", renderSession, view.session);
+    panel("report", renderReport, view.report);
+    panel("alerts", renderAlerts, view.alerts);
+    panel("events", renderEvents, view.events);
   }
-  refreshBadge();
+  panel("rejected", renderRejected, view);
+  panel("badge", refreshBadge);
 }
 
 window.setInterval(refreshBadge, 500);
