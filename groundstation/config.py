@@ -818,7 +818,16 @@ def _checked_zenoh(settings: ZenohSettings) -> ZenohSettings:
     if (settings.tls_certificate is None) != (settings.tls_private_key is None):
         missing = "tls_private_key" if settings.tls_private_key is None else "tls_certificate"
         raise ConfigError(f"zenoh.{missing}", "tls_certificate and tls_private_key go together")
+    for name in ("tls_ca", "tls_certificate", "tls_private_key"):
+        _readable_file(f"zenoh.{name}", getattr(settings, name))
     return settings
+
+
+def _readable_file(name: str, path: Path | None) -> None:
+    """A certificate or key must be a readable file (Zenoh's own message would be a Rust
+    error at connection time)."""
+    if path is not None and not (path.is_file() and os.access(path, os.R_OK)):
+        raise ConfigError(name, f"not a readable file: {path}")
 
 
 def zenoh_settings(values: Mapping[str, Any], base: ZenohSettings = CLIENT_ZENOH) -> ZenohSettings:
@@ -901,6 +910,8 @@ def build_router_settings(resolved: Resolved) -> RouterSettings:
         raise ConfigError("tls.certificate", "required by the tls/ listen endpoints")
     if tls.mtls and tls.certificate is not None and tls.ca is None:
         raise ConfigError("tls.ca", "mutual TLS (tls.mtls) needs the CA clients chain to")
+    for name in ("ca", "certificate", "private_key"):
+        _readable_file(f"tls.{name}", getattr(tls, name))
     stations: dict[str, tuple[str, ...]] = {}
     for name, table in resolved.tables.get("stations", {}).items():
         if not name or any(c in name for c in "/\\ \t*$#?"):
