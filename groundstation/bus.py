@@ -174,6 +174,7 @@ class Bus:
     def _watch(self) -> None:
         """While joined: when the meeting point goes, take over its endpoint or join anew."""
         lost_since: float | None = None
+        warned = False
         while not self._closed.wait(_CHECK_S):
             if not self.joined:
                 continue
@@ -188,10 +189,12 @@ class Bus:
                 return
             try:
                 self._reopen()
-                lost_since = None
+                lost_since, warned = None, False
             except Exception as err:  # nobody listens and we cannot either: try again
-                log.warning("Zenoh: cannot take over %s yet: %s",
-                            ", ".join(self.settings.listen), error_text(err))
+                if not warned:  # once per outage: it is retried every second or so
+                    warned = True
+                    log.warning("Zenoh: cannot take over %s yet (retrying): %s",
+                                ", ".join(self.settings.listen), error_text(err))
 
     def _reopen(self) -> None:
         with self._lock:

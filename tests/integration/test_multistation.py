@@ -142,3 +142,49 @@ def test_daemons_with_the_same_settings_are_all_visible_and_survive_the_first(
     finally:
         for p in procs:
             p.stop()
+
+
+def test_a_joined_bus_takes_over_and_declares_again() -> None:
+    from groundstation.bus import open_bus
+    from groundstation.config import ZenohSettings
+
+    settings = ZenohSettings(listen=(f"tcp/127.0.0.1:{free_port()}",))
+    first, second = open_bus(settings), open_bus(settings)
+    viewer = open_bus(ZenohSettings(mode="client", listen=(), connect=settings.listen))
+    seen: list[tuple[str, bool]] = []
+    try:
+        assert not first.joined and second.joined
+        second.liveliness_token("groundstation/base/alive")
+        second.queryable("groundstation/base/q/status", lambda: [b"{}"])
+        viewer.subscribe_liveliness("groundstation/*/alive", lambda k, up: seen.append((k, up)))
+        eventually(lambda: ("groundstation/base/alive", True) in seen)
+        first.close()
+        eventually(lambda: not second.joined)  # it listens now
+        eventually(lambda: seen[-1] == ("groundstation/base/alive", True)
+                   and ("groundstation/base/alive", False) in seen)
+        eventually(lambda: viewer.get("groundstation/base/q/status", 1.0)
+                   == [("groundstation/base/q/status", b"{}")])
+    finally:
+        for b in (viewer, second, first):
+            b.close()
+
+
+def test_an_endpoint_held_by_another_program_is_one_clear_line() -> None:
+    import socket
+
+    from groundstation.bus import open_bus
+    from groundstation.config import ZenohSettings
+    from groundstation.errors import GroundstationError
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        s.listen()  # accepts, never speaks Zenoh
+        endpoint = f"tcp/127.0.0.1:{s.getsockname()[1]}"
+        try:
+            open_bus(ZenohSettings(listen=(endpoint,)))
+        except GroundstationError as err:
+            text = str(err)
+        else:
+            raise AssertionError("joined a port that is not Zenoh")
+    assert "is taken and joining it failed" in text
+    assert "\n" not in text and ".rs:" not in text, text
