@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import shutil
 import signal
 import socket
 import statistics
@@ -89,6 +90,7 @@ def main() -> int:
         with lock:
             (alive.add if up else alive.discard)(k.split("/")[1])
 
+    ok = False
     try:
         router = start(tmp / "router", "router", "--listen", endpoint)
         procs.append(router)
@@ -158,7 +160,8 @@ def main() -> int:
               f"router CPU {pct['router']:.1f}%; daemon CPU mean {statistics.mean(d):.1f}% "
               f"(max {max(d):.1f}%) of one core")
         bus.close()
-        return 0 if lost == 0 else 1
+        ok = lost == 0
+        return 0 if ok else 1
     finally:
         for p in reversed(procs):
             if p.poll() is None:
@@ -168,6 +171,10 @@ def main() -> int:
                 p.wait(timeout=20)
             except subprocess.TimeoutExpired:
                 p.kill()
+        if ok:
+            shutil.rmtree(tmp, ignore_errors=True)
+        else:
+            print(f"logs and recordings kept in {tmp}", file=sys.stderr)
 
 
 if __name__ == "__main__":
