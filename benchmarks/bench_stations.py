@@ -9,9 +9,11 @@ listens on a free loopback port; the daemons are all given that endpoint as thei
 endpoint, the default settings' shape, find it taken and join the router (``groundstation.bus``).
 This process subscribes to every station's time marks through the router.
 
-The simulated flights (``simulate --duration``) stand a minute on the ground, climb, then fly
-survey lines with an exposure every 2 m at 2 m/s: the measurement starts when every station's
-first mark has arrived.
+The simulated flights (``simulate --duration`` of ``--seconds`` + 300 s) stand on the ground for
+the first quarter or more of their span, climb, fly four 100 m survey lines with an exposure
+every 2 m (the marks, about five minutes of them), and land. The measurement starts when every
+station's first mark has arrived and lasts ``--seconds``: with the default 600 s it holds every
+flight's marks and, all along, every station's 5 Hz epochs, status and events.
 
 - marks lost: at the end every daemon is asked for all its marks (``q/timemarks``); a mark it
   holds that this subscriber never received live is lost (0 expected).
