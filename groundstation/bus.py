@@ -4,6 +4,13 @@ A session is opened from :class:`~groundstation.config.ZenohSettings` (the one Z
 type) and listens exactly where it says: an empty ``listen`` list opens no listener (Zenoh's own
 default would be every interface, ``tcp/[::]:0``).
 
+Several daemons on one machine share the default settings (``docs/zenoh.md``, "Several
+stations on one machine"): a peer whose ``listen`` endpoint is already taken joins it as a
+client instead (the first daemon up is the meeting point and routes for the others and for the
+views); when the meeting point goes away, a joined session notices within a second, waits a
+random moment (so that not every daemon tries at once), takes the endpoint over by listening
+on it, or joins whoever took it first, and declares again everything it had declared.
+
 Key space (DESIGN.md): ``groundstation/<station>/{status,timemark,event,epoch,ubx,session,
 q/timemarks,q/status,alive,solution}``. Payloads are UTF-8 JSON objects carrying ``schema``
 (:data:`~groundstation.records.STATUS_SCHEMA_VERSION`) and ``type``; ``docs/zenoh.md`` lists
@@ -13,7 +20,12 @@ every key and field.
 from __future__ import annotations
 
 import logging
+import random
+import re
+import threading
+import time
 from collections.abc import Callable, Iterable
+from dataclasses import replace
 from typing import Any
 
 import zenoh
@@ -25,6 +37,13 @@ from groundstation.records import STATUS_SCHEMA_VERSION
 log = logging.getLogger("groundstation.zenoh")
 
 KEY_ROOT = "groundstation"
+
+TAKEOVER_GRACE_S = 0.5
+"""A joined session with no link for this long has lost its meeting point."""
+TAKEOVER_JITTER_S = 1.0
+"""Up to this long (random) before trying to take the endpoint over: the joined daemons do not
+all try at the same instant, so one wins and the others join it at once."""
+_CHECK_S = 0.2
 
 
 def key(station: str, leaf: str) -> str:
@@ -50,31 +69,187 @@ def decode(payload: bytes) -> dict[str, Any]:
     return out
 
 
-def _config(settings: ZenohSettings) -> Any:
+_RUST_WHERE = re.compile(r"\s+at /\S+\.rs:\d+\.?")
+
+
+def error_text(err: BaseException) -> str:
+    """Zenoh's error message on one line, without the Rust source locations it carries."""
+    return " ".join(_RUST_WHERE.sub("", str(err)).split()).strip(" .[]") or type(err).__name__
+
+
+def _address_in_use(err: BaseException) -> bool:
+    text = str(err)
+    return "Address already in use" in text or "os error 98" in text
+
+
+def _tls_json(settings: ZenohSettings) -> dict[str, Any]:
+    """Zenoh's ``transport/link/tls`` table for these settings (empty: no TLS)."""
+    tls: dict[str, Any] = {}
+    if settings.tls_ca:
+        tls["root_ca_certificate"] = str(settings.tls_ca)
+    if settings.tls_certificate:
+        # one certificate for both sides: a peer may listen on and connect to tls/ endpoints
+        tls.update(connect_certificate=str(settings.tls_certificate),
+                   connect_private_key=str(settings.tls_private_key),
+                   listen_certificate=str(settings.tls_certificate),
+                   listen_private_key=str(settings.tls_private_key),
+                   enable_mtls=True)
+    return tls
+
+
+def zenoh_config(settings: ZenohSettings, extra: dict[str, Any] | None = None) -> Any:
+    """A ``zenoh.Config`` for these settings; ``extra`` maps more config paths to JSON values
+    (the router's access control)."""
     conf = zenoh.Config()
     conf.insert_json5("mode", jsonio.dumps(settings.mode).decode())
     conf.insert_json5("scouting/multicast/enabled", "true" if settings.scouting else "false")
     # Always set, even empty: left out, Zenoh listens on tcp/[::]:0 (every interface).
     conf.insert_json5("listen/endpoints", jsonio.dumps(list(settings.listen)).decode())
     conf.insert_json5("connect/endpoints", jsonio.dumps(list(settings.connect)).decode())
+    tls = _tls_json(settings)
+    if tls:
+        conf.insert_json5("transport/link/tls", jsonio.dumps(tls).decode())
+    for path, value in (extra or {}).items():
+        conf.insert_json5(path, jsonio.dumps(value).decode())
     return conf
 
 
+def open_session(settings: ZenohSettings, extra: dict[str, Any] | None = None) -> Any:
+    """A raw Zenoh session (the router keeps one open and declares nothing)."""
+    return zenoh.open(zenoh_config(settings, extra))
+
+
 class Bus:
-    """An open Zenoh session with the few operations groundstation uses."""
+    """An open Zenoh session with the few operations groundstation uses.
+
+    Attributes:
+        joined: the session joined another process's listener instead of listening itself
+            (that process is the meeting point; see the module docstring).
+    """
 
     def __init__(self, settings: ZenohSettings) -> None:
         self.settings = settings
-        self._session: Any = zenoh.open(_config(settings))
+        self._lock = threading.Lock()
+        self._declare: list[Callable[[Any], Any]] = []  # to declare again on a new session
         self._declared: list[Any] = []
+        self._publishers: dict[str, Any] = {}
+        self._closed = threading.Event()
+        self.joined = False
+        self._session: Any = self._open()
+        self._watcher: threading.Thread | None = None
+        if self.joined:
+            self._start_watcher()
+
+    # -- opening, joining, taking over -------------------------------------------------------
+
+    def _open(self) -> Any:
+        """Listen where the settings say; a peer whose endpoint is taken joins it instead."""
+        try:
+            session = zenoh.open(zenoh_config(self.settings))
+            self.joined = False
+            return session
+        except Exception as err:
+            if not (self.settings.mode == "peer" and self.settings.listen
+                    and _address_in_use(err)):
+                raise
+        joining = replace(self.settings, mode="client", listen=(),
+                          connect=self.settings.listen + self.settings.connect)
+        try:
+            session = zenoh.open(zenoh_config(joining))
+        except Exception as err:
+            raise RuntimeError(
+                f"{', '.join(self.settings.listen)} is taken and joining it failed "
+                f"(is it another program?): {error_text(err)}") from err
+        self.joined = True
+        log.info("Zenoh: %s is taken: joined it (another daemon is the meeting point)",
+                 ", ".join(self.settings.listen))
+        return session
+
+    def _start_watcher(self) -> None:
+        if self._watcher is None:
+            self._watcher = threading.Thread(target=self._watch, name="zenoh-takeover",
+                                             daemon=True)
+            self._watcher.start()
+
+    def _watch(self) -> None:
+        """While joined: when the meeting point goes, take over its endpoint or join anew."""
+        lost_since: float | None = None
+        warned = False
+        while not self._closed.wait(_CHECK_S):
+            if not self.joined:
+                continue
+            if self.connections() > 0:
+                lost_since = None
+                continue
+            now = time.monotonic()
+            lost_since = lost_since or now
+            if now - lost_since < TAKEOVER_GRACE_S:
+                continue
+            if self._closed.wait(random.uniform(0.0, TAKEOVER_JITTER_S)):
+                return
+            try:
+                self._reopen()
+                lost_since, warned = None, False
+            except Exception as err:  # nobody listens and we cannot either: try again
+                if not warned:  # once per outage: it is retried every second or so
+                    warned = True
+                    log.warning("Zenoh: cannot take over %s yet (retrying): %s",
+                                ", ".join(self.settings.listen), error_text(err))
+
+    def _reopen(self) -> None:
+        with self._lock:
+            old, self._session = self._session, None
+            self._publishers.clear()
+            self._declared.clear()
+        if old is not None:
+            try:
+                old.close()
+            except Exception:
+                log.debug("closing the old session failed", exc_info=True)
+        session = self._open()
+        with self._lock:
+            if self._closed.is_set():
+                session.close()
+                return
+            self._session = session
+            for declare in self._declare:
+                try:
+                    declare(session)
+                except Exception:
+                    log.exception("declaring again on the new session failed")
+        if not self.joined:
+            log.info("Zenoh: the meeting point went away: took over %s",
+                     ", ".join(self.settings.listen))
+
+    def _add(self, declare: Callable[[Any], Any]) -> None:
+        with self._lock:
+            self._declare.append(declare)
+            if self._session is not None:
+                declare(self._session)
+
+    # -- operations -----------------------------------------------------------------------
 
     def put(self, key_expr: str, payload: bytes) -> None:
-        self._session.put(key_expr, payload)
+        """Put; while a lost meeting point is being replaced the payload reaches nobody anyway
+        and is dropped."""
+        with self._lock:
+            if self._session is not None:
+                self._session.put(key_expr, payload)
 
     def publisher(self, key_expr: str) -> Callable[[bytes], None]:
-        pub = self._session.declare_publisher(key_expr)
-        self._declared.append(pub)
-        put: Callable[[bytes], None] = pub.put
+        def declare(session: Any) -> None:
+            pub = session.declare_publisher(key_expr)
+            self._declared.append(pub)
+            self._publishers[key_expr] = pub
+
+        self._add(declare)
+
+        def put(payload: bytes) -> None:
+            with self._lock:
+                pub = self._publishers.get(key_expr)
+                if pub is not None:
+                    pub.put(payload)
+
         return put
 
     def queryable(self, key_expr: str, answer: Callable[[], Iterable[bytes]]) -> None:
@@ -87,10 +262,10 @@ class Bus:
             except Exception:  # a failing reply must not kill Zenoh's thread
                 log.exception("queryable %s failed", key_expr)
 
-        self._declared.append(self._session.declare_queryable(key_expr, handler))
+        self._add(lambda s: self._declared.append(s.declare_queryable(key_expr, handler)))
 
     def liveliness_token(self, key_expr: str) -> None:
-        self._declared.append(self._session.liveliness().declare_token(key_expr))
+        self._add(lambda s: self._declared.append(s.liveliness().declare_token(key_expr)))
 
     def subscribe(self, key_expr: str, callback: Callable[[str, bytes], None]) -> None:
         """``callback(key, payload)`` runs on a Zenoh thread: hand data over thread-safely."""
@@ -101,7 +276,7 @@ class Bus:
             except Exception:
                 log.exception("subscriber callback for %s failed", key_expr)
 
-        self._declared.append(self._session.declare_subscriber(key_expr, handler))
+        self._add(lambda s: self._declared.append(s.declare_subscriber(key_expr, handler)))
 
     def subscribe_liveliness(self, key_expr: str, callback: Callable[[str, bool], None]) -> None:
         """``callback(key, alive)`` when a liveliness token appears or disappears."""
@@ -110,14 +285,17 @@ class Bus:
             alive = str(sample.kind).upper().endswith("PUT")
             callback(str(sample.key_expr), alive)
 
-        sub = self._session.liveliness().declare_subscriber(key_expr, handler, history=True)
-        self._declared.append(sub)
+        self._add(lambda s: self._declared.append(
+            s.liveliness().declare_subscriber(key_expr, handler, history=True)))
 
     def get(self, selector: str, timeout_s: float = 2.0) -> list[tuple[str, bytes]]:
         """Query: every successful reply as (key, payload), in order and unconsolidated (a
         queryable may answer several times on one key, as ``q/timemarks`` does)."""
+        session = self._session
+        if session is None:
+            return []
         out = []
-        replies = self._session.get(
+        replies = session.get(
             selector, timeout=timeout_s,
             consolidation=zenoh.QueryConsolidation(zenoh.ConsolidationMode.NONE),
         )
@@ -129,20 +307,31 @@ class Bus:
 
     def connections(self) -> int:
         """How many Zenoh peers and routers this session is connected to right now."""
-        info = self._session.info
+        session = self._session
+        if session is None:
+            return 0
+        info = session.info
         return len(list(info.peers_zid())) + len(list(info.routers_zid()))
 
     def close(self) -> None:
-        for d in reversed(self._declared):
+        self._closed.set()
+        if self._watcher is not None:
+            self._watcher.join(timeout=5)
+        with self._lock:
+            session, self._session = self._session, None
+            declared = list(self._declared)
+            self._declared.clear()
+            self._publishers.clear()
+        for d in reversed(declared):
             try:
                 d.undeclare()
             except Exception:  # already gone with the session
                 log.debug("undeclare failed", exc_info=True)
-        self._declared.clear()
-        try:
-            self._session.close()
-        except Exception:
-            log.debug("session close failed", exc_info=True)
+        if session is not None:
+            try:
+                session.close()
+            except Exception:
+                log.debug("session close failed", exc_info=True)
 
 
 def open_bus(settings: ZenohSettings) -> Bus:
@@ -154,4 +343,4 @@ def open_bus(settings: ZenohSettings) -> Bus:
     except Exception as err:  # zenoh raises its own ZError
         raise GroundstationError(f"cannot open Zenoh session ({settings.mode}, listen "
                                  f"{list(settings.listen)}, connect {list(settings.connect)}): "
-                                 f"{err}") from err
+                                 f"{error_text(err)}") from err

@@ -15,6 +15,10 @@ exit status 2. The scopes:
   ``GROUNDSTATION_SOLVER_ZENOH_<KEY>``, file ``GROUNDSTATION_SOLVER_CONFIG``; per-station
   ``[stations.<name>]`` tables come from the file only (``solve/service.py`` builds them).
 - :data:`WATCH` and :data:`DASHBOARD`: ``GROUNDSTATION_WATCH_*``, ``GROUNDSTATION_DASHBOARD_*``.
+- :data:`ROUTER` (``router``): ``GROUNDSTATION_ROUTER_<KEY>``, ``GROUNDSTATION_ROUTER_TLS_<KEY>``,
+  ``GROUNDSTATION_ROUTER_ACCESS_<KEY>``, file ``GROUNDSTATION_ROUTER_CONFIG``; per-station
+  ``[stations.<name>]`` tables from the file only; :func:`load_router_settings` gives
+  :class:`RouterSettings`.
 
 Every ``GROUNDSTATION_*`` variable must name a setting of some scope: a misspelt variable is an
 error, whichever command reads the environment. The Zenoh endpoint default,
@@ -153,6 +157,11 @@ class ZenohSettings:
         scouting: multicast scouting.
         publish_epochs: the daemon also puts every raw epoch on ``.../epoch``.
         publish_raw: the daemon also puts every raw chunk on ``.../ubx``.
+        tls_ca: the CA certificate (PEM) that ``tls/`` endpoints are checked against.
+        tls_certificate: this process's certificate (PEM, X.509 v3) for mutual TLS: presented
+            to a router that asks for one (``docs/security.md``); its common name is who the
+            router's access control sees.
+        tls_private_key: the certificate's private key (PEM).
     """
 
     enabled: bool = True
@@ -162,6 +171,9 @@ class ZenohSettings:
     scouting: bool = False
     publish_epochs: bool = False
     publish_raw: bool = False
+    tls_ca: Path | None = None
+    tls_certificate: Path | None = None
+    tls_private_key: Path | None = None
 
 
 CLIENT_ZENOH = ZenohSettings(listen=(), connect=(DEFAULT_ENDPOINT,))
@@ -270,6 +282,9 @@ ZENOH_KEYS: dict[str, Key] = {
     "listen": ENDPOINTS,
     "connect": ENDPOINTS,
     "scouting": BOOL,
+    "tls_ca": PATH,
+    "tls_certificate": PATH,
+    "tls_private_key": PATH,
 }
 """The ``[zenoh]`` table every scope shares (the daemon adds its publishing switches)."""
 
@@ -406,7 +421,19 @@ SOLVER = Scope("solver", SOLVER_SCHEMA, ENV_PREFIX + "SOLVER_",
                tables={"stations": SOLVER_STATION_KEYS})
 WATCH = Scope("watch", WATCH_SCHEMA, ENV_PREFIX + "WATCH_")
 DASHBOARD = Scope("dashboard", DASHBOARD_SCHEMA, ENV_PREFIX + "DASHBOARD_")
-SCOPES: tuple[Scope, ...] = (DAEMON, SOLVER, WATCH, DASHBOARD)
+
+ROUTER_STATION_KEYS: dict[str, Key] = {"cert_common_names": STRLIST}
+"""A ``[stations.<name>]`` table of the router: the certificate common names that speak for
+the station (default: the station's name)."""
+
+ROUTER_SCHEMA: Schema = {
+    "": {"listen": ENDPOINTS, "connect": ENDPOINTS, "scouting": BOOL, "duration_s": DURATION},
+    "tls": {"ca": PATH, "certificate": PATH, "private_key": PATH, "mtls": BOOL},
+    "access": {"enabled": BOOL, "local": BOOL, "solvers": STRLIST, "viewers": STRLIST},
+}
+ROUTER = Scope("router", ROUTER_SCHEMA, ENV_PREFIX + "ROUTER_",
+               tables={"stations": ROUTER_STATION_KEYS})
+SCOPES: tuple[Scope, ...] = (DAEMON, SOLVER, WATCH, DASHBOARD, ROUTER)
 
 
 def known_variables() -> frozenset[str]:
@@ -783,7 +810,7 @@ def build_settings(merged: dict[str, dict[str, Any]]) -> Settings:
         recorder=RecorderSettings(**merged["recorder"]),
         queues=QueueSettings(**merged["queues"]),
         framer=FramerSettings(**merged["framer"]),
-        zenoh=ZenohSettings(**merged["zenoh"]),
+        zenoh=_checked_zenoh(ZenohSettings(**merged["zenoh"])),
         monitor=MonitorSettings(**merged["monitor"]),
         **top,
     )
@@ -821,6 +848,128 @@ def load_settings(
     return build_settings(resolved.values)
 
 
+def _checked_zenoh(settings: ZenohSettings) -> ZenohSettings:
+    """Checks that span several ``[zenoh]`` keys (a certificate needs its key)."""
+    if (settings.tls_certificate is None) != (settings.tls_private_key is None):
+        missing = "tls_private_key" if settings.tls_private_key is None else "tls_certificate"
+        raise ConfigError(f"zenoh.{missing}", "tls_certificate and tls_private_key go together")
+    for name in ("tls_ca", "tls_certificate", "tls_private_key"):
+        _readable_file(f"zenoh.{name}", getattr(settings, name))
+    return settings
+
+
+def _readable_file(name: str, path: Path | None) -> None:
+    """A certificate or key must be a readable file (Zenoh's own message would be a Rust
+    error at connection time)."""
+    if path is not None and not (path.is_file() and os.access(path, os.R_OK)):
+        raise ConfigError(name, f"not a readable file: {path}")
+
+
 def zenoh_settings(values: Mapping[str, Any], base: ZenohSettings = CLIENT_ZENOH) -> ZenohSettings:
     """A resolved ``[zenoh]`` section over ``base`` (a client's defaults unless given)."""
-    return replace(base, **values)
+    return _checked_zenoh(replace(base, **values))
+
+
+# -- the router's settings -----------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class RouterTls:
+    """The router's TLS side: its certificate for ``tls/`` listeners, the CA it trusts.
+
+    Attributes:
+        ca: the CA certificate (PEM) clients' certificates must chain to (mutual TLS).
+        certificate: the router's certificate (PEM, X.509 v3, its name in subjectAltName).
+        private_key: its private key (PEM).
+        mtls: ask every ``tls/`` client for a certificate from ``ca`` (refuse those without).
+    """
+
+    ca: Path | None = None
+    certificate: Path | None = None
+    private_key: Path | None = None
+    mtls: bool = True
+
+
+@dataclass(frozen=True, slots=True)
+class RouterAccess:
+    """Access control by certificate common name (``docs/security.md``).
+
+    Attributes:
+        enabled: deny everything not allowed below (off: Zenoh allows everything).
+        local: plain TCP over loopback (the daemons and views on this machine) may do
+            anything under ``groundstation/**``.
+        solvers: common names that read every station and write only ``.../solution``.
+        viewers: common names that only read (a remote dashboard).
+        stations: station name -> the common names that write ``groundstation/<name>/**``.
+    """
+
+    enabled: bool = False
+    local: bool = True
+    solvers: tuple[str, ...] = ()
+    viewers: tuple[str, ...] = ()
+    stations: Mapping[str, tuple[str, ...]] = field(default_factory=dict)
+
+
+@dataclass(frozen=True, slots=True)
+class RouterSettings:
+    """``groundstation router``: a Zenoh router in this process.
+
+    Attributes:
+        listen: endpoints to listen on; the default is the daemons' meeting point, so that
+            daemons started after the router join it.
+        connect: other routers to connect to.
+        scouting: multicast scouting.
+        duration_s: stop after this long (0: until stopped).
+        tls: certificates for ``tls/`` endpoints.
+        access: access control.
+    """
+
+    listen: tuple[str, ...] = (DEFAULT_ENDPOINT,)
+    connect: tuple[str, ...] = ()
+    scouting: bool = False
+    duration_s: float = 0.0
+    tls: RouterTls = RouterTls()
+    access: RouterAccess = RouterAccess()
+
+
+def build_router_settings(resolved: Resolved) -> RouterSettings:
+    """:class:`RouterSettings` from the router scope's resolved values (checks across keys)."""
+    top, tls_values, access_values = (resolved.values[""], resolved.values["tls"],
+                                      resolved.values["access"])
+    tls = RouterTls(**tls_values)
+    if (tls.certificate is None) != (tls.private_key is None):
+        missing = "private_key" if tls.private_key is None else "certificate"
+        raise ConfigError(f"tls.{missing}", "tls.certificate and tls.private_key go together")
+    listen = top.get("listen", (DEFAULT_ENDPOINT,))
+    if any(e.startswith(("tls/", "quic/")) for e in listen) and tls.certificate is None:
+        raise ConfigError("tls.certificate", "required by the tls/ listen endpoints")
+    if tls.mtls and tls.certificate is not None and tls.ca is None:
+        raise ConfigError("tls.ca", "mutual TLS (tls.mtls) needs the CA clients chain to")
+    for name in ("ca", "certificate", "private_key"):
+        _readable_file(f"tls.{name}", getattr(tls, name))
+    stations: dict[str, tuple[str, ...]] = {}
+    for name, table in resolved.tables.get("stations", {}).items():
+        if not name or any(c in name for c in "/\\ \t*$#?"):
+            raise ConfigError(f"stations.{name}", "a station name: no slashes, spaces or "
+                                                  "wildcards")
+        stations[name] = tuple(table.get("cert_common_names", (name,)))
+    access = RouterAccess(**access_values, stations=stations)
+    if access.enabled and not (access.local or access.solvers or access.viewers or stations):
+        raise ConfigError("access.enabled", "nobody is allowed anything: add [stations.<name>] "
+                                            "tables, access.solvers or access.local = true")
+    return RouterSettings(tls=tls, access=access, **top)
+
+
+def load_router_settings(
+    config_file: Path | None = None,
+    *,
+    environ: Mapping[str, str] | None = None,
+    overrides: Mapping[str, Any] | None = None,
+) -> RouterSettings:
+    """Resolve the router's settings: defaults < TOML file < environment < ``overrides``.
+
+    Raises:
+        ConfigError: naming the offending key.
+    """
+    return build_router_settings(resolve(ROUTER, config_file, environ=environ,
+                                         overrides=overrides))

@@ -19,6 +19,7 @@ COMMANDS: dict[str, str] = {
     "replay": "groundstation.commands.replay",
     "solve": "groundstation.commands.solve",
     "solver": "groundstation.commands.solver",
+    "router": "groundstation.commands.router",
 }
 """Subcommand name -> module implementing it."""
 
@@ -34,4 +35,5 @@ HELP: dict[str, str] = {
     "replay": "MCAP/.ubx through the live pipeline (to Zenoh), at xN or max speed",
     "solve": "post-flight: positions -> marks -> photos -> lever arm -> outputs",
     "solver": "the solver service (listens on Zenoh, solves when a session ends)",
+    "router": "a Zenoh router: TLS, mutual TLS, access control per station (from TOML)",
 }
