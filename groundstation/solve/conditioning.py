@@ -73,6 +73,16 @@ STEP_S = 0.3
 """Consecutive epochs closer than this leave no room for a slip the receiver did not flag."""
 WINDOW = 10
 """Epochs of phase on each side of a gap fitted to measure a jump."""
+ROUGH_SHORT_CYC = 0.25
+"""Over a short span the Doppler alone tells a half-cycle jump [cycles]."""
+ROUGH_PER_S_CYC = 0.1
+"""... and that tolerance grows with the span (the Doppler's integral misses accelerations)."""
+ROUGH_CHECK_S = 2.0
+"""Up to this span the Doppler's jump must agree with the geometric one."""
+ROUGH_TOLERANCES_CYC = (0.25, 0.5, 1.0, 3.0)
+"""Tolerances tried, tightest first, to pick the satellites the fit starts from."""
+DETERMINE_CYC = 0.15
+"""A jump is a multiple of half a cycle only this close (whatever its standard deviation)."""
 GROSS_CYC = 3.0
 """A residual this far from the median cannot belong to a satellite without a jump."""
 
@@ -101,8 +111,9 @@ class ConditioningReport:
     """Per satellite counts and the list of repairs (for the report and tests)."""
 
     satellites: dict[str, SatReport] = field(default_factory=dict)
-    repairs: list[tuple[int, str, float, bool]] = field(default_factory=list)
-    """(epoch time GPS ns, satellite, jump in cycles, hidden) of every repaired jump."""
+    repairs: list[tuple[int, int, str, float, bool]] = field(default_factory=list)
+    """(time GPS ns of the satellite's previous epoch, of this epoch, satellite, jump in
+    cycles, whether the receiver had not flagged it) of every repaired jump."""
     flags: list[tuple[int, str]] = field(default_factory=list)
     """(epoch time GPS ns, satellite) of every flagged loss."""
     applied: bool = False
@@ -242,7 +253,7 @@ def _jumps(
 
 
 def _fit(
-    r: FloatArray, sig: FloatArray, u: FloatArray, rough: FloatArray,
+    r: FloatArray, sig: FloatArray, u: FloatArray, rough: FloatArray, dt_s: float,
 ) -> tuple[FloatArray, npt.NDArray[np.bool_], float]:
     """The error all satellites share, per satellite; which satellites have no jump; the
     fit's normalised rms.
@@ -250,11 +261,18 @@ def _fit(
     Args:
         r: jump + common error per satellite (cycles); ``sig`` its standard deviation.
         u: line of sight per satellite.
-        rough: phase change minus the Doppler's integral per satellite: a big jump stands out
-            in it whatever the receiver did, so it is left out before the fit starts.
+        rough: phase change minus the Doppler's integral per satellite: a jump stands out in
+            it whatever the receiver did (over a short span even half a cycle), so it is left
+            out before the fit starts; otherwise the line-of-sight fit can bend to take a half
+            cycle in and push good satellites out.
+        dt_s: span of the difference.
     """
     n = r.size
-    clean = np.abs(rough - np.median(rough)) < GROSS_CYC
+    need = max(MIN_REFERENCE_SATS, int(np.ceil(0.6 * n)))
+    for tol in ROUGH_TOLERANCES_CYC:  # the tightest start that keeps enough satellites
+        clean = np.abs(rough - np.median(rough)) < tol
+        if int(clean.sum()) >= need:
+            break
     full = True
     wgt = 1.0 / sig
     while True:
@@ -274,7 +292,11 @@ def _fit(
         worst = int(np.argmax(np.where(clean, np.abs(z), -1.0)))
         if abs(z[worst]) < K_SIGMA or k <= 2:
             chi = float(np.sqrt(np.sum(z[clean] ** 2) / max(dof, 1))) if dof > 0 else np.inf
-            return model, clean, chi
+            back = ~clean & (np.abs(z) < K_SIGMA)
+            if not back.any():
+                return model, clean, chi
+            clean |= back  # consistent after all: a worse satellite had bent the fit
+            continue
         clean[worst] = False
 
 
@@ -361,18 +383,19 @@ def condition(
             if group.size == 0:
                 continue
             ref = np.flatnonzero(present[e] & present[p])
-            need = MIN_REFERENCE_SATS
             ref = ref[~np.isnan(geo.clk_m[e, ref]) & ~np.isnan(geo.clk_m[p, ref])]
             got = _jumps(cp, geo, p, e, ref, scale) if ref.size else None
+            rough = (cp[e, ref] - cp[p, ref]) + 0.5 * (do[e, ref] + do[p, ref]) * dt
             if got is None:
-                r, sig, u = np.zeros(0), np.ones(0), np.zeros((0, 3))
-                model, clean, chi = r, np.zeros(0, dtype=bool), np.inf
+                r, sig = np.zeros(ref.size), np.full(ref.size, np.inf)
+                model, clean, chi = r, np.zeros(ref.size, dtype=bool), np.inf
             else:
                 r, sig, u = got
-                dt = float(t_s[e] - t_s[p])
-                rough = (cp[e, ref] - cp[p, ref]) + 0.5 * (do[e, ref] + do[p, ref]) * dt
-                model, clean, chi = _fit(r, sig, u, rough)
+                model, clean, chi = _fit(r, sig, u, rough, dt)
+            need = max(MIN_REFERENCE_SATS, int(np.ceil(0.6 * ref.size)))
             good = chi < MAX_CHI and int(clean.sum()) >= need
+            # over a short span the Doppler must tell the same jump (a second opinion)
+            rj = rough - float(np.median(rough[clean])) if clean.any() else rough
             pos = {int(s): i for i, s in enumerate(ref.tolist())}
             for j in group.tolist():
                 i = pos.get(j)
@@ -380,7 +403,10 @@ def condition(
                     _bridge(e, p, j, np.inf, np.inf, False, lli, out_lli, corr, lock_start,
                             resolved, out_cp, rep, names[j], t_ns)
                     continue
-                _bridge(e, p, j, float(r[i] - model[i]), float(sig[i]), good, lli, out_lli,
+                w = float(r[i] - model[i])
+                agree = (dt > ROUGH_CHECK_S
+                         or abs(float(rj[i]) - w) < ROUGH_SHORT_CYC + ROUGH_PER_S_CYC * dt)
+                _bridge(e, p, j, w, float(sig[i]), good and agree, lli, out_lli,
                         corr, lock_start, resolved, out_cp, rep, names[j], t_ns)
         out_cp[e, sats] = cp[e, sats] + corr[sats]
         # bit 1 on the output: only where the ambiguity still carries the half cycle
@@ -415,7 +441,8 @@ def _bridge(
         sr.receiver_slips += 1
     half = round(2.0 * w) / 2.0
     noise = K_SIGMA * sig
-    determined = good and sig < MAX_JUMP_SIGMA_CYC and abs(w - half) < noise
+    determined = (good and sig < MAX_JUMP_SIGMA_CYC
+                  and abs(w - half) < min(noise, DETERMINE_CYC))
     if determined and not resolved[j] and half_cleared and not flagged and abs(half) in (0, 0.5):
         # The half cycle resolved: the lock so far was off by this jump (0 or half a cycle).
         # Put it on the earlier part instead, so the whole lock is one resolved ambiguity.
@@ -433,7 +460,7 @@ def _bridge(
             sr.hidden_found += 1
         corr[j] -= half
         sr.repaired += 1
-        rep.repairs.append((int(t_ns[e]), name, half, not flagged))
+        rep.repairs.append((int(t_ns[p]), int(t_ns[e]), name, half, not flagged))
         return
     if not flagged:
         sr.hidden_found += int(abs(w) >= noise)
