@@ -1,4 +1,4 @@
-"""PPK engines x datasets: fixed share, wrong fixes, camera centres, agreement, wall time (issue 13).
+"""PPK engines x datasets: fixed share, wrong fixes, camera centres, agreement, wall time.
 
 Run: python benchmarks/bench_ppk.py [--seed-s 1200] [--seeds 1,2,3] [--severities 0.5,1,2]
      python benchmarks/bench_ppk.py --hour [--repeat 2]
