@@ -1,41 +1,45 @@
 """Carrier-phase conditioning of a rover's RXM-RAW observations before the PPK engine runs.
 
-What this module owns: finding cycle slips the receiver could not flag, repairing the slips
+What this module owns: finding the cycle slips the receiver could not flag, repairing the slips
 whose size the other satellites determine, and resolving RXM-RAW half cycles, so that demo5
 keeps each satellite's ambiguity through a loss of lock instead of starting it again.
 
-Why: RXM-RAW carries no lock time, only the LLI of each measurement. A slip's LLI travels in
-the epoch after the slip; when a radio gap swallows that epoch the slip is invisible
-(DOMAIN.md). And every LLI bit 0 or change of bit 1 makes demo5 reset that satellite's
-ambiguity (``rtkpos.c`` ``detslp_ll``); in the field report's flight that was several
-satellites every few seconds, so no fix survived.
+Why: RXM-RAW carries no lock time, only each measurement's LLI. A slip's LLI travels in the
+epoch after the slip; when a radio gap swallows that epoch the slip is invisible (DOMAIN.md).
+And every LLI bit 0 or change of bit 1 makes demo5 reset that satellite's ambiguity
+(``rtkpos.c`` ``detslp_ll``); in the field report's flight that was several satellites every
+few seconds, so no fix survived.
 
 How, for each received epoch ``e`` and each satellite seen at an earlier epoch ``p`` (its
-previous appearance, at most :data:`MAX_BRIDGE_S` before):
+previous appearance, at most :data:`MAX_BRIDGE_S` before) where a gap, an LLI bit 0 or a change
+of bit 1 leaves room for a jump (otherwise the receiver would have flagged it):
 
-1. the phase change across ``(p, e)`` minus the change the Doppler predicts (trapezoid),
-   ``r_s`` in cycles. For a satellite without a slip this is the receiver's own error of the
-   prediction: a clock term common to all satellites plus the part of its motion the
-   Doppler integral missed, ``u_s · δr`` (``u_s`` the line of sight);
-2. ``r = b + u · δr`` fitted over the satellites seen at both epochs, dropping the worst
-   one at a time until every kept residual is within :data:`CLEAN_CYC` (between-satellite
-   differences in effect: the receiver clock and most of the motion go);
-3. per satellite, the left-over ``w_s`` is its jump. ``|w_s| <`` :data:`CLEAN_CYC`: continuity
-   (a receiver LLI bit 0 there is cleared); a multiple of half a cycle within
-   :data:`ROUND_CYC` with a good fit: repaired (the jump is taken out of every later phase);
-   otherwise: flagged (LLI bit 0 set, the engine starts the ambiguity again).
+1. per satellite, the phase change from ``p`` to ``e`` minus the change of its geometric range
+   and clock (broadcast orbit, the receiver's single-point position at ``p``): what is left is
+   its jump plus ``-u · Δr / λ`` (the receiver's move along the line of sight ``u``) plus a
+   clock term common to all satellites;
+2. ``Δr`` and the clock term fitted over the satellites seen at both epochs, weighted by their
+   C/N0; the fit starts from the satellites the Doppler alone finds without a jump (phase change
+   minus the Doppler's trapezoid integral, tightest tolerance that keeps 60 % of them), drops
+   the worst one at a time and re-admits any that fit after all. These are between-satellite
+   differences in effect: the receiver clock and the motion go, only the jumps remain;
+3. the left-over ``w`` of each satellite is its jump. Within :data:`K_SIGMA` standard
+   deviations of 0: continuity (a receiver LLI bit 0 there is cleared); within
+   :data:`DETERMINE_CYC` of a multiple of half a cycle, with a good fit and (up to
+   :data:`ROUGH_CHECK_S`) the Doppler agreeing: repaired, the jump is taken out of every later
+   phase; otherwise: flagged, LLI bit 0 set, the engine starts that ambiguity again.
 
-Half cycles (LLI bit 1): a satellite whose ambiguity continues through a repaired loss keeps
-the phase it had before, already free of the half cycle, so bit 1 is cleared. A satellite
-that had to start again keeps bit 1 until the receiver clears it; the jump made there (0 or
-half a cycle, :func:`condition` measures it like any other) is then put on the earlier part
-of that lock instead, and bit 1 is cleared back to the start: the whole lock is one resolved
-ambiguity. demo5 keeps bit-1 phases out of ambiguity resolution on any input (``ddidx``),
-but a change of bit 1 resets the ambiguity; after conditioning no flagged phase remains that
-was not also a reset.
+Half cycles (LLI bit 1): a satellite whose ambiguity continues through a repaired loss keeps the
+phase it had before, already free of the half cycle, so bit 1 is cleared. A satellite that had
+to start again keeps bit 1 until the receiver clears it; the jump made there (0 or half a cycle,
+measured like any other) is then put on the earlier part of that lock instead, and bit 1 is
+cleared back to its start: the whole lock is one resolved ambiguity. demo5 keeps the phases that
+still carry bit 1 out of ambiguity resolution on any input, RINEX included (``ddidx``: a
+satellite with ``slip & LLI_HALFC`` is not fixed), and resets the ambiguity when bit 1 changes
+(``detslp_ll``); after conditioning, bit 1 is left only where it is still unresolved.
 
-Only GPS phases of RXM-RAW recordings are conditioned (RXM-RAWX has lock times and its
-decoder already marks every slip; SBAS has no orbit in our navigation files).
+Only GPS phases of RXM-RAW recordings are conditioned (RXM-RAWX has lock times and its decoder
+already marks every slip; SBAS has no orbit in our navigation files).
 """
 
 from __future__ import annotations
@@ -55,8 +59,6 @@ FloatArray = npt.NDArray[np.float64]
 
 PHASE_SIGMA_45_CYC = 0.0105
 """Carrier-phase noise at 45 dBHz (2 mm; it grows as 10^((45 - C/N0) / 20))."""
-DOPPLER_SIGMA_45_HZ = 0.05
-"""Doppler noise at 45 dBHz."""
 K_SIGMA = 4.0
 """A residual within this many of its standard deviations is noise."""
 MAX_JUMP_SIGMA_CYC = 0.06
@@ -67,12 +69,9 @@ MIN_REFERENCE_SATS = 5
 """Satellites without a jump needed to determine another's jump across a gap."""
 MAX_BRIDGE_S = 4.0
 """Longest span a satellite's phase is carried across (radio gaps are at most 3 s)."""
-SHORT_S = 0.5
-"""Up to this span the Doppler integral is exact enough that only the clock term is fitted."""
-STEP_S = 0.3
-"""Consecutive epochs closer than this leave no room for a slip the receiver did not flag."""
-WINDOW = 10
-"""Epochs of phase on each side of a gap fitted to measure a jump."""
+STEP_INTERVALS = 1.5
+"""Epochs closer than this many nominal intervals are consecutive: no room for a slip the
+receiver did not flag."""
 ROUGH_SHORT_CYC = 0.25
 """Over a short span the Doppler alone tells a half-cycle jump [cycles]."""
 ROUGH_PER_S_CYC = 0.1
@@ -83,8 +82,6 @@ ROUGH_TOLERANCES_CYC = (0.25, 0.5, 1.0, 3.0)
 """Tolerances tried, tightest first, to pick the satellites the fit starts from."""
 DETERMINE_CYC = 0.15
 """A jump is a multiple of half a cycle only this close (whatever its standard deviation)."""
-GROSS_CYC = 3.0
-"""A residual this far from the median cannot belong to a satellite without a jump."""
 
 
 @dataclass(slots=True)
@@ -210,28 +207,6 @@ class _Geometry:
         return out
 
 
-def _run(
-    lli: npt.NDArray[np.int64], present: npt.NDArray[np.bool_], t_s: FloatArray, j: int,
-    start: int, step: int,
-) -> list[int]:
-    """Epochs of satellite ``j``'s phase from ``start`` on (``step`` -1 back, +1 on) that
-    are continuous by the receiver's word: no gap, no LLI bit 0, no change of bit 1."""
-    out = [start]
-    q = start
-    n = t_s.size
-    while len(out) < WINDOW:
-        nq = q + step
-        if nq < 0 or nq >= n or not present[nq, j]:
-            break
-        later = max(q, nq)
-        if (abs(t_s[nq] - t_s[q]) > STEP_S or lli[later, j] & LLI_SLIP
-                or (lli[q, j] ^ lli[nq, j]) & LLI_HALF_CYCLE):
-            break
-        out.append(nq)
-        q = nq
-    return out
-
-
 def _jumps(
     cp: FloatArray, geo: _Geometry, p: int, e: int, ref: npt.NDArray[np.int64],
     scale: FloatArray,
@@ -327,6 +302,7 @@ def condition(
     rank[order] = np.arange(n_ep)
     t_ns = obs.t_gps_ns[order]
     t_s = (t_ns - t_ns[0]) / 1e9
+    step_s = STEP_INTERVALS * float(np.median(np.diff(t_s))) if t_s.size > 1 else 0.0
     ep = rank[obs.epoch[rows]]
     sj = np.array([col[p] for p in obs.prn[rows].tolist()], dtype=np.int64)
     cp = np.full((n_ep, n_sv), np.nan)
@@ -378,7 +354,7 @@ def condition(
             group = sats[~fresh][prev[~fresh] == p]
             dt = float(t_s[e] - t_s[p])
             event = (lli[e, group] & LLI_SLIP) | ((lli[e, group] ^ lli[p, group]) & LLI_HALF_CYCLE)
-            if dt <= STEP_S:
+            if dt <= step_s:
                 group = group[event != 0]
             if group.size == 0:
                 continue
