@@ -237,6 +237,14 @@ def run_engine(
             + (", ".join(f"{k.replace('_', ' ')} {v}" for k, v in tot.items())
                if cond_report.applied else cond_report.note)
         )
+        per_sat = [
+            f"{name} {s.hidden_found}/{s.repaired}/{s.flagged}"
+            for name, s in sorted(cond_report.satellites.items())
+            if s.hidden_found or s.repaired or s.flagged
+        ]
+        if per_sat:
+            notes.append("phase conditioning per satellite (hidden found/repaired/flagged): "
+                         + ", ".join(per_sat))
     elif condition:
         notes.append("phase conditioning: not applied (rover given as RINEX)")
     info = {
