@@ -63,7 +63,7 @@ K_SIGMA = 4.0
 """A residual within this many of its standard deviations is noise."""
 MAX_JUMP_SIGMA_CYC = 0.06
 """A jump measured less well than this is not determined (half cycles must stay apart)."""
-MAX_CHI = 2.0
+MAX_CHI = 3.0
 """A fit whose normalised rms exceeds this determines no jump."""
 MIN_REFERENCE_SATS = 5
 """Satellites without a jump needed to determine another's jump across a gap."""
@@ -94,6 +94,8 @@ class SatReport:
         repaired: slips bridged: jump measured and removed, or flagged slip without a jump.
         flagged: losses we could not bridge (LLI bit 0 kept or set: the engine resets).
         half_resolved: half-cycle periods cleared (phase resolved back to the lock start).
+        kept_by_doppler: gaps bridged on the Doppler alone (no receiver flag, no jump in the
+            Doppler's integral) where the satellites' geometry gave no usable fit.
     """
 
     receiver_slips: int = 0
@@ -101,6 +103,7 @@ class SatReport:
     repaired: int = 0
     flagged: int = 0
     half_resolved: int = 0
+    kept_by_doppler: int = 0
 
 
 @dataclass(slots=True)
@@ -117,7 +120,8 @@ class ConditioningReport:
     note: str = ""
 
     def totals(self) -> dict[str, int]:
-        keys = ("receiver_slips", "hidden_found", "repaired", "flagged", "half_resolved")
+        keys = ("receiver_slips", "hidden_found", "repaired", "flagged", "half_resolved",
+                "kept_by_doppler")
         return {k: sum(getattr(s, k) for s in self.satellites.values()) for k in keys}
 
     def as_dict(self) -> dict[str, object]:
@@ -130,7 +134,7 @@ class ConditioningReport:
                 k: {
                     "receiver_slips": s.receiver_slips, "hidden_found": s.hidden_found,
                     "repaired": s.repaired, "flagged": s.flagged,
-                    "half_resolved": s.half_resolved,
+                    "half_resolved": s.half_resolved, "kept_by_doppler": s.kept_by_doppler,
                 }
                 for k, s in sorted(self.satellites.items())
             },
@@ -380,8 +384,15 @@ def condition(
                             resolved, out_cp, rep, names[j], t_ns)
                     continue
                 w = float(r[i] - model[i])
-                agree = (dt > ROUGH_CHECK_S
-                         or abs(float(rj[i]) - w) < ROUGH_SHORT_CYC + ROUGH_PER_S_CYC * dt)
+                tol = ROUGH_SHORT_CYC + ROUGH_PER_S_CYC * dt
+                agree = dt > ROUGH_CHECK_S or abs(float(rj[i]) - w) < tol
+                if (not good and dt <= ROUGH_CHECK_S and not lli[e, j] & LLI_SLIP
+                        and not (lli[e, j] ^ lli[p, j]) & LLI_HALF_CYCLE
+                        and abs(float(rj[i])) < tol):
+                    # The geometric fit failed, but the receiver saw no loss and the Doppler
+                    # sees no jump: keep the phase rather than reset every satellite at once.
+                    rep.satellites[names[j]].kept_by_doppler += 1
+                    continue
                 _bridge(e, p, j, w, float(sig[i]), good and agree, lli, out_lli,
                         corr, lock_start, resolved, out_cp, rep, names[j], t_ns)
         out_cp[e, sats] = cp[e, sats] + corr[sats]
