@@ -232,7 +232,8 @@ def _jumps(
 
 
 def _fit(
-    r: FloatArray, sig: FloatArray, u: FloatArray, rough: FloatArray, dt_s: float,
+    r: FloatArray, sig: FloatArray, u: FloatArray, rough: FloatArray,
+    quiet: npt.NDArray[np.bool_],
 ) -> tuple[FloatArray, npt.NDArray[np.bool_], float]:
     """The error all satellites share, per satellite; which satellites have no jump; the
     fit's normalised rms.
@@ -244,17 +245,26 @@ def _fit(
             it whatever the receiver did (over a short span even half a cycle), so it is left
             out before the fit starts; otherwise the line-of-sight fit can bend to take a half
             cycle in and push good satellites out.
-        dt_s: span of the difference.
+        quiet: satellites the receiver reported nothing for (no LLI bit 0, no change of bit
+            1). The fit starts from these only: when half the satellites clear their half
+            cycle in the same epoch (all of them acquired together), the jumping ones must not
+            become the reference.
+
+    Returns:
+        (model, clean, chi); chi is infinite when fewer than :data:`MIN_REFERENCE_SATS`
+        quiet satellites agree.
     """
     n = r.size
-    need = max(MIN_REFERENCE_SATS, int(np.ceil(0.6 * n)))
+    if int(quiet.sum()) < MIN_REFERENCE_SATS:
+        return np.zeros(n), np.zeros(n, dtype=bool), np.inf
+    med = float(np.median(rough[quiet]))
     for tol in ROUGH_TOLERANCES_CYC:  # the tightest start that keeps enough satellites
-        clean = np.abs(rough - np.median(rough)) < tol
-        if int(clean.sum()) >= need:
+        clean = quiet & (np.abs(rough - med) < tol)
+        if int(clean.sum()) >= max(MIN_REFERENCE_SATS, int(np.ceil(0.6 * quiet.sum()))):
             break
     full = True
     wgt = 1.0 / sig
-    while True:
+    for _ in range(3 * n + 3):
         k = int(clean.sum())
         if k == 0:
             return np.zeros(n), clean, np.inf
@@ -277,6 +287,7 @@ def _fit(
             clean |= back  # consistent after all: a worse satellite had bent the fit
             continue
         clean[worst] = False
+    return np.zeros(n), np.zeros(n, dtype=bool), np.inf
 
 
 def condition(
@@ -371,8 +382,10 @@ def condition(
                 model, clean, chi = r, np.zeros(ref.size, dtype=bool), np.inf
             else:
                 r, sig, u = got
-                model, clean, chi = _fit(r, sig, u, rough, dt)
-            need = max(MIN_REFERENCE_SATS, int(np.ceil(0.6 * ref.size)))
+                quiet = ((lli[e, ref] & LLI_SLIP) == 0) & (
+                    ((lli[e, ref] ^ lli[p, ref]) & LLI_HALF_CYCLE) == 0)
+                model, clean, chi = _fit(r, sig, u, rough, quiet)
+            need = max(MIN_REFERENCE_SATS, int(np.ceil(0.5 * ref.size)))
             good = chi < MAX_CHI and int(clean.sum()) >= need
             # over a short span the Doppler must tell the same jump (a second opinion)
             rj = rough - float(np.median(rough[clean])) if clean.any() else rough
