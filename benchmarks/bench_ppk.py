@@ -1,6 +1,7 @@
 """PPK engines x datasets: fixed share, wrong fixes, camera centres, agreement, wall time.
 
 Run: python benchmarks/bench_ppk.py [--seed-s 1200] [--seeds 1,2,3] [--severities 0.5,1,2]
+         [--only KEY] [--ours-opt KEY=VALUE ...]
      python benchmarks/bench_ppk.py --hour [--repeat 2]
 
 Engines (rows per dataset):
@@ -268,16 +269,18 @@ def evaluate(ds: Dataset, label: str, engine_name: str, cond: bool, interp: str,
     return row
 
 
-def _overrides(label: str, ds: Dataset) -> dict[str, str]:
+def _overrides(label: str, ds: Dataset, ours: dict[str, str]) -> dict[str, str]:
     if label == "b34":
         return {}
+    out = dict(ours) if label == "ours" else {}
     if ds.name.startswith("MatRTKLIB"):
-        return {"pos1-navsys": "1"}  # L1 GPS, as b34 (the file's Galileo: no nav for it here)
-    return {}
+        out["pos1-navsys"] = "1"  # GPS, as b34 (the file's Galileo has no nav here)
+    return out
 
 
 def table(args: argparse.Namespace) -> None:
     engines = [e for e in ENGINES if e[1] != "rnx2rtkp" or shutil.which("rnx2rtkp")]
+    ours_opts = eo.parse_assignments(args.ours_opt, "--ours-opt")
     with tempfile.TemporaryDirectory(prefix="bench-ppk-") as tmp:
         work = Path(tmp)
         makers: list[tuple[str, Any]] = [
@@ -302,7 +305,7 @@ def table(args: argparse.Namespace) -> None:
             for label, name, cond, interp in engines:
                 try:
                     r = evaluate(ds, label, name, cond, interp, work / key / label,
-                                 _overrides(label, ds))
+                                 _overrides(label, ds, ours_opts))
                 except Exception as err:  # one failing engine must not end the table
                     print(f"| {ds.name} | {label} | failed: {err} | | | | | |", flush=True)
                     continue
@@ -343,6 +346,8 @@ def main() -> None:
     ap.add_argument("--seeds", default="1,2,3")
     ap.add_argument("--severities", default="0.5,1,2")
     ap.add_argument("--only", default="", help="only datasets whose key contains this")
+    ap.add_argument("--ours-opt", action="append", default=[], metavar="KEY=VALUE",
+                    help="an engine option for the 'ours' rows only (repeatable)")
     ap.add_argument("--hour", action="store_true")
     ap.add_argument("--repeat", type=int, default=2)
     args = ap.parse_args()
