@@ -9,6 +9,7 @@ from __future__ import annotations
 import bisect
 import logging
 import math
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -16,6 +17,7 @@ import numpy as np
 
 from groundstation import gpstime
 from groundstation.errors import InputError
+from groundstation.gnss.ephemeris import BroadcastEphemeris
 from groundstation.offline.ephemeris import collect_ephemerides
 from groundstation.offline.multinav import MultiNav, collect_multi, receiver_times, today_gps_week
 from groundstation.offline.rinex.marks_table import marks_csv
@@ -185,11 +187,17 @@ def time_marks_of(data: bytes, index: FrameIndex, block: RawBlock) -> list[TimeM
     return _time_marks(data, index, _leap_by_offset(index, block))
 
 
+ObsHook = Callable[[ObsSet, Sequence[BroadcastEphemeris], tuple[float, float, float]], ObsSet]
+"""A change made to the observations before they are written (the solver's phase conditioning):
+(observations, GPS ephemerides, approximate position) -> observations."""
+
+
 def convert(
     input_path: str | Path,
     out_dir: str | Path,
     options: RinexOptions | None = None,
     progress: ProgressFn | None = None,
+    obs_hook: ObsHook | None = None,
 ) -> RinexResult:
     """Convert one recording to ``<stem>.obs``, ``<stem>.nav`` and ``<stem>.marks.csv``.
 
@@ -201,6 +209,7 @@ def convert(
         out_dir: output directory (created if missing).
         options: version, mark edge, shutter delay, marker name.
         progress: optional progress callback.
+        obs_hook: applied to the observations before they are written.
 
     Raises:
         InputError: unreadable input, or neither raw measurements nor navigation data in it.
@@ -231,6 +240,8 @@ def convert(
     week_hint = int(obs.t_gps_ns[0] // gpstime.NS_PER_WEEK)
     nav = collect_ephemerides(data, index, week_hint)
     multi = collect_multi(data, index, receiver_times(data, index), int(obs.t_gps_ns[0]))
+    if obs_hook is not None:
+        obs = obs_hook(obs, nav.ephemerides, approx)
     epochs_sorted = np.sort(obs.t_gps_ns).tolist()
     interval = epochs_rule.nominal_interval_ns(epochs_sorted)
     comments = (

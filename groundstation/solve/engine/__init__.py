@@ -12,19 +12,25 @@ from __future__ import annotations
 import logging
 import re
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import ClassVar, Protocol
+from typing import TYPE_CHECKING, ClassVar, Protocol
 
 from groundstation import jsonio
 from groundstation.errors import ConfigError, GroundstationError
+from groundstation.gnss.ephemeris import BroadcastEphemeris
 from groundstation.solve.engine import options as eo
 
 log = logging.getLogger("groundstation.solve")
 
 Progress = Callable[[str, float], None]
 DEFAULT_ENGINE = "demo5"
+
+
+if TYPE_CHECKING:
+    from groundstation.offline.rinex.convert import ObsHook as rinex_hook
+    from groundstation.offline.rinex.observations import ObsSet
 
 
 class ToolMissingError(GroundstationError):
@@ -58,6 +64,8 @@ class EngineRun:
     options: dict[str, str]
     wall_s: float
     notes: tuple[str, ...] = field(default_factory=tuple)
+    conditioning: dict[str, object] | None = None
+    """What the phase conditioning did to the rover (None when it did not run)."""
 
 
 class Engine(Protocol):
@@ -148,8 +156,11 @@ def _same(table: eo.OptionTable, key: str, a: str, b: str) -> bool:
     return norm(a) == norm(b)
 
 
-def _to_rinex(path: Path, work: Path, progress: Progress | None) -> tuple[Path, list[Path]]:
-    """(obs, [nav]) for a RINEX observation file or a recording converted by our RINEX writer."""
+def _to_rinex(
+    path: Path, work: Path, progress: Progress | None, hook: rinex_hook | None = None,
+) -> tuple[Path, list[Path]]:
+    """(obs, [nav]) for a RINEX observation file or a recording converted by our RINEX writer
+    (``hook`` changes the observations before they are written)."""
     name = path.name.lower()
     if re.search(r"\.(obs|rnx|\d\do)(\.gz)?$", name):
         navs = [
@@ -163,7 +174,7 @@ def _to_rinex(path: Path, work: Path, progress: Progress | None) -> tuple[Path, 
         if progress is not None:
             progress(f"rinex {path.name}: {stage}", frac)
 
-    res = rinex.convert(path, work, rinex.RinexOptions(version="3.04"), prog)
+    res = rinex.convert(path, work, rinex.RinexOptions(version="3.04"), prog, hook)
     return res.obs_path, [res.nav_path] if res.ephemerides or res.other_ephemerides else []
 
 
@@ -178,8 +189,13 @@ def run_engine(
     overrides: Mapping[str, str] | None = None,
     progress: Progress | None = None,
     timeout_s: float = 3600.0,
+    condition: bool = True,
 ) -> EngineRun:
     """Convert rover and base to RINEX if needed, run the engine, record how.
+
+    With ``condition`` the rover's carrier phase is conditioned on the way to RINEX
+    (:mod:`groundstation.solve.conditioning`: hidden slips found, slips repaired or flagged,
+    half cycles resolved); what it did goes into ``engine.json`` and the run's notes.
 
     Raises:
         ConfigError: unknown engine, option key or value.
@@ -189,7 +205,18 @@ def run_engine(
     engine = get_engine(engine_name)
     opts, notes = resolve_options(engine, base_ecef_m, conf, overrides)
     work_dir.mkdir(parents=True, exist_ok=True)
-    rover_obs, rover_nav = _to_rinex(rover, work_dir / "rover", progress)
+    from groundstation.solve import conditioning
+
+    cond_report: conditioning.ConditioningReport | None = None
+
+    def hook(obs: ObsSet, ephs: Sequence[BroadcastEphemeris],
+             approx: tuple[float, float, float]) -> ObsSet:
+        nonlocal cond_report
+        out, cond_report = conditioning.condition(obs, ephs, approx)
+        return out
+
+    rover_obs, rover_nav = _to_rinex(rover, work_dir / "rover", progress,
+                                     hook if condition else None)
     base_obs, base_nav = _to_rinex(base, work_dir / "base", progress)
     nav = tuple(rover_nav + base_nav)
     if not nav:
@@ -202,6 +229,24 @@ def run_engine(
     wall = time.perf_counter() - t0
     if progress is not None:
         progress(engine.name, 1.0)
+    cond = cond_report.as_dict() if cond_report is not None else None
+    if cond_report is not None:
+        tot = cond_report.totals()
+        notes.append(
+            "phase conditioning: "
+            + (", ".join(f"{k.replace('_', ' ')} {v}" for k, v in tot.items())
+               if cond_report.applied else cond_report.note)
+        )
+        per_sat = [
+            f"{name} {s.hidden_found}/{s.repaired}/{s.flagged}"
+            for name, s in sorted(cond_report.satellites.items())
+            if s.hidden_found or s.repaired or s.flagged
+        ]
+        if per_sat:
+            notes.append("phase conditioning per satellite (hidden found/repaired/flagged): "
+                         + ", ".join(per_sat))
+    elif condition:
+        notes.append("phase conditioning: not applied (rover given as RINEX)")
     info = {
         "engine": run.engine,
         "version": run.version,
@@ -210,12 +255,13 @@ def run_engine(
         "wall_s": round(wall, 3),
         "options": run.options,
         "notes": [*notes, *run.notes],
+        "conditioning": cond,
     }
     run.info_path.write_bytes(jsonio.dumps(info, indent=1) + b"\n")
     _stamp_header(run.pos_path, run.engine, run.version, run.options)
     return EngineRun(
         run.engine, run.version, run.pos_path, run.info_path, run.options, wall,
-        (*notes, *run.notes),
+        (*notes, *run.notes), cond,
     )
 
 

@@ -1,0 +1,146 @@
+"""Phase conditioning on a simulated seed flight (the field report's failed flight), against truth.
+
+The simulator's truth records every slip: when, by how much (whole and half cycles), and whether
+its LLI reached the ground or was swallowed by a radio gap. The flight goes through our RINEX
+writer with the conditioning as its observation hook, exactly as the solver runs it; then
+through demo5.
+"""
+
+from __future__ import annotations
+
+from collections import defaultdict
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from groundstation.gnss.ephemeris import BroadcastEphemeris
+from groundstation.offline import rinex
+from groundstation.offline.rinex.observations import ObsSet
+from groundstation.sim.profiles import sim_config
+from groundstation.sim.stream import SimResult, simulate
+from groundstation.solve import conditioning, engine
+from groundstation.solve.positions import Q_FIX, read_pos
+
+FLIGHT_S = 1200.0  # 6 min static, 8 min flight, 6 min static: short seed flights vary a lot
+SEED = 1
+L1_WAVELENGTH_M = 0.1903
+
+
+@dataclass
+class Conditioned:
+    sim: SimResult
+    work: Path
+    before: list[ObsSet] = field(default_factory=list)
+    report: list[conditioning.ConditioningReport] = field(default_factory=list)
+
+    @property
+    def truth(self) -> dict[str, Any]:
+        return self.sim.truth
+
+
+@pytest.fixture(scope="module")
+def flight(tmp_path_factory: pytest.TempPathFactory) -> Conditioned:
+    work = tmp_path_factory.mktemp("cond")
+    sim = simulate(sim_config("seed", duration_s=FLIGHT_S, seed=SEED, severity=1.0))
+    (work / "rover.ubx").write_bytes(sim.rover_bytes)
+    (work / "base.ubx").write_bytes(sim.base_bytes)
+    out = Conditioned(sim, work)
+
+    def hook(obs: ObsSet, ephs: list[BroadcastEphemeris] | Any,
+             approx: tuple[float, float, float]) -> ObsSet:
+        out.before.append(obs)
+        new, rep = conditioning.condition(obs, ephs, approx)
+        out.report.append(rep)
+        return new
+
+    rinex.convert(work / "rover.ubx", work / "rinex", obs_hook=hook)
+    return out
+
+
+def _true_jumps(truth: dict[str, Any]) -> dict[int, list[tuple[int, float]]]:
+    """Per satellite: (epoch time, phase jump there in cycles) of every loss and resolution."""
+    jumps: dict[int, list[tuple[int, float]]] = defaultdict(list)
+    for e in truth["receivers"]["rover"]["lock_events"]:
+        if e["jump_cyc"] is not None:
+            jumps[e["sv"]].append((int(e["t_rx_ns"]), float(e["jump_cyc"])))
+        if e["resolve_t_rx_ns"] is not None:
+            jumps[e["sv"]].append((int(e["resolve_t_rx_ns"]), float(e["resolve_jump_cyc"])))
+    return jumps
+
+
+def test_every_repair_takes_out_the_true_jump(flight: Conditioned) -> None:
+    rep = flight.report[0]
+    assert rep.applied and rep.repairs
+    jumps = _true_jumps(flight.truth)
+    for t_prev, t, sat, jump, _hidden in rep.repairs:
+        true = sum(j for tj, j in jumps[int(sat[1:])] if t_prev < tj <= t)
+        assert jump == true, (t, sat, jump, true)
+
+
+def test_slips_hidden_in_radio_gaps_are_found_and_mostly_repaired(flight: Conditioned) -> None:
+    rep = flight.report[0]
+    obs = flight.before[0]
+    times = np.sort(obs.t_gps_ns)
+    seen: dict[int, set[int]] = defaultdict(set)  # satellite -> epochs (ns) with its phase
+    for t, sv, cp in zip(obs.t_gps_ns[obs.epoch].tolist(), obs.prn.tolist(),
+                         obs.cp_cyc.tolist(), strict=True):
+        if cp != 0.0:
+            seen[sv].add(t)
+    repaired = {(t, s) for _, t, s, _, _ in rep.repairs}
+    flagged = set(rep.flags)
+    jumps = _true_jumps(flight.truth)
+    hidden = [e for e in flight.truth["receivers"]["rover"]["lock_events"]
+              if e["kind"] == "slip" and not e["visible"]]
+    assert len(hidden) > 10, "the flight must hide slips in radio gaps"
+    n_fixed = n_flagged = n_checked = n_none = 0
+    for e in hidden:
+        k = int(np.searchsorted(times, e["t_rx_ns"]))
+        if k >= times.size or int(times[k]) not in seen[e["sv"]]:
+            continue  # the satellite did not come back after the gap
+        n_checked += 1
+        key = (int(times[k]), f"G{e['sv']:02d}")
+        n_fixed += key in repaired
+        n_flagged += key in flagged
+        if key not in repaired and key not in flagged:
+            prev = max(t for t in seen[e["sv"]] if t < times[k])
+            # a loss of lock that left the phase where it was: continuity is right
+            assert sum(j for tj, j in jumps[e["sv"]] if prev < tj <= times[k]) == 0.0, e
+            n_none += 1
+    # Nothing is missed: each hidden slip is either repaired (by its true jump, see above), or
+    # the satellite starts again, or the phase did not move. Most are repaired.
+    assert n_fixed + n_flagged + n_none == n_checked
+    assert n_fixed >= 0.6 * n_checked, (n_fixed, n_flagged, n_checked)
+    tot = rep.totals()
+    assert tot["hidden_found"] >= n_fixed and tot["repaired"] > tot["flagged"] / 2
+
+
+@pytest.mark.slow
+def test_demo5_fixes_the_seed_flight_once_conditioned(flight: Conditioned) -> None:
+    truth = flight.truth
+    base = tuple(float(v) for v in truth["base"]["ecef_m"])
+    run = engine.run_engine("demo5", flight.work / "rover.ubx", flight.work / "base.ubx",
+                            (base[0], base[1], base[2]), flight.work / "demo5")
+    assert run.conditioning is not None and run.conditioning["applied"]
+    assert any(n.startswith("phase conditioning:") for n in run.notes)
+    info = run.info_path.read_text()
+    assert '"conditioning"' in info and '"hidden_found"' in info
+    traj = read_pos(run.pos_path)
+    tr = truth["trajectory"]
+    t0 = int(tr["t_gps_ns"][0])
+    tt = (np.asarray(tr["t_gps_ns"], dtype=np.int64) - t0) / 1e9
+    q = (traj.t_gps_ns - t0) / 1e9
+    ref = np.stack([np.interp(q, tt, np.asarray(tr[c])) for c in ("x_m", "y_m", "z_m")], axis=1)
+    err = np.linalg.norm(traj.ecef_m - ref, axis=1)
+    ph = truth["phases"]
+    in_flight = (traj.t_gps_ns >= ph["takeoff_gps_ns"]) & (traj.t_gps_ns < ph["landing_gps_ns"])
+    fixed = traj.quality == Q_FIX
+    assert in_flight.sum() > 1500
+    assert np.mean(fixed[in_flight]) >= 0.90
+    # No fix on a wrong integer (that is a whole wavelength off). A few fixed epochs come out
+    # 10-17 cm off where the simulator's broadcast-model ionosphere steps (Klobuchar's
+    # |x| < 1.57 cut) at the rover a moment before the base: bounded here, counted in RESULTS.
+    assert float(np.max(err[fixed])) < L1_WAVELENGTH_M
+    assert np.mean(err[fixed] > 0.10) < 0.005
