@@ -10,25 +10,6 @@ from groundstation.ubx import layouts as L
 WEEK = 2300
 TOW0_MS = 345_600_000
 
-REAL_UBX_FILES = (
-    "tomojitakasu__RTKLIB/test/data/rcvraw/ubx_20080526.ubx",
-    "tridge__pyUblox/data/6P-raw-PPP.ubx",
-    "tridge__pyUblox/data/6P-raw-PPP-2.ubx",
-    "gpsd__gpsd-mirror/test/daemon/ublox-aek-4t.log",
-    "gpsd__gpsd-mirror/test/daemon/ublox-lea-4t.log",
-    "gpsd__gpsd-mirror/test/daemon/ublox-neo-m8t.log",
-    "gpsd__gpsd-mirror/test/daemon/ublox-zed-f9p_hpg1.11.log",
-    "jdesbonnet__GNSS_RTK_data/20181004/rover-20181004-1237.ubx.gz",
-    "jdesbonnet__GNSS_RTK_data/20181004/base-20181004-1236.ubx.gz",
-    "jdesbonnet__GNSS_RTK_data/20181004/rover-20181004-1532.ubx.gz",
-    "jdesbonnet__GNSS_RTK_data/20181004/base-20181004-1452.ubx.gz",
-    "jdesbonnet__GNSS_RTK_data/20181009/rover-20181009-1221.ubx.gz",
-    "jdesbonnet__GNSS_RTK_data/20181009/base-20181009-1220.ubx.gz",
-    "jdesbonnet__GNSS_RTK_data/20181104/rover-20181104-1634.ubx.gz",
-    "nav-solutions__data/UBX/16dBatt_no_interference_coldstart.ubx.gz",
-    "rtklibexplorer__GNSS_IMU/data/walk_0827/gnss_1730.ubx",
-)
-"""Every UBX recording under ``../shared/data/real`` (relative to it)."""
 
 
 def rxm_raw(week: int, tow_ms: int, sats: list[tuple[int, int]]) -> bytes:

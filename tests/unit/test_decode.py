@@ -10,7 +10,8 @@ from typing import Any
 
 import pytest
 from pyubx2 import UBXMessage, UBXReader
-from streams import REAL_UBX_FILES, WEEK, rxm_raw, t_gps_ns, tim_tm2
+from real_files import REAL_UBX_FILES
+from streams import WEEK, rxm_raw, t_gps_ns, tim_tm2
 
 from groundstation.errors import DecodeError
 from groundstation.records import Frame, RawEpoch, SatObs, TimeMark, UndecodedFrame

@@ -9,7 +9,8 @@ from pathlib import Path
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from streams import REAL_UBX_FILES, flight_stream, garbage, rxm_raw, tim_tm2
+from real_files import REAL_UBX_FILES
+from streams import flight_stream, garbage, rxm_raw, tim_tm2
 
 from groundstation.records import Frame
 from groundstation.storage.reading import iter_chunks
