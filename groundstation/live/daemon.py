@@ -323,7 +323,12 @@ class Pipeline:
             stop_task.cancel()
             status_task.cancel()
             self.publish(self.status())
-            # 2. the other sinks drain and finish, 3. the recorder last
+            # 2. the monitor drains first, while every sink still takes what it publishes last
+            #    (closing it together with the others lost the events of the final burst),
+            # 3. the other sinks drain and finish, 4. the recorder last
+            if self.monitor is not None and self.monitor.name in sink_tasks:
+                self.fanout.close([self.monitor.name])
+                await asyncio.wait({sink_tasks[self.monitor.name]})
             others = [n for n in sink_tasks if self.recorder is None or n != self.recorder.name]
             self.fanout.close(others)
             if others:
