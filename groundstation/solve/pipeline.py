@@ -458,7 +458,10 @@ def _report(
         lever_outlier=lever_est.outlier if lever_est else np.zeros(0, bool),
         metre_level=traj.metre_level, notes=tuple(notes),
     )
-    if data.satellites is not None:
+    cond = report.conditioning_of(traj)
+    if cond is not None:  # the receiver's flags plus the slips hidden in radio gaps
+        data = replace(data, slips_found=cond[0], slips_repaired=cond[1])
+    elif data.satellites is not None:
         data = replace(data, slips_found=int(data.satellites.slip.sum()))
     return report.write_report(data, s.out_dir)
 

@@ -24,6 +24,7 @@ import tempfile
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -429,9 +430,13 @@ def _counts_table(inp: ReportInput) -> str:
         + row("photos", "photos") + row("photos matched to a mark", "photos_matched")
         + row("photos without mark", "photos_unmatched")
         + row("marks without photo (orphans)", "orphan_marks")
-        + "<tr><th>cycle slips flagged (rover, first band)</th>"
+        + "<tr><th>cycle slips "
+        + ("found (receiver flags + hidden in radio gaps)" if inp.slips_repaired is not None
+           else "flagged (rover, first band)") + "</th>"
         f'<td data-count="slips_found">{_e(slips_found)}</td></tr>'
-        + f'<tr><th>slips repaired</th><td data-count="slips_repaired">{_e(slips_rep)}</td>'
+        + "<tr><th>" + ("phase jumps repaired (slips and resolved half cycles)"
+                        if inp.slips_repaired is not None else "slips repaired") + "</th>"
+        + f'<td data-count="slips_repaired">{_e(slips_rep)}</td>'
         "</tr>"
         + "<tr><th>radio dropouts / source outages</th><td>"
         + (f"{len(inp.radio_gaps)} / {len(inp.source_outages)}" if inp.station_events
@@ -731,6 +736,31 @@ _ENGINE_INFO_NOTE = "engine options in "
 """How the engine names its info file (engine, version, full option set) in the notes."""
 
 
+def _engine_info(traj: Trajectory) -> dict[str, Any] | None:
+    """The ``engine.json`` of the engine run that made the trajectory, if any."""
+    info_path = next((Path(n.removeprefix(_ENGINE_INFO_NOTE)) for n in traj.notes
+                      if n.startswith(_ENGINE_INFO_NOTE)), None)
+    if info_path is None:
+        return None
+    try:
+        info = jsonio.loads(info_path.read_bytes())
+    except (OSError, ValueError):
+        return None
+    return info if isinstance(info, dict) else None
+
+
+def conditioning_of(traj: Trajectory) -> tuple[int, int, int] | None:
+    """(slips found, repaired, flagged) by the phase conditioning before the engine; None when
+    it did not run (an imported solution, a RINEX or RXM-RAWX rover)."""
+    info = _engine_info(traj)
+    cond = info.get("conditioning") if info else None
+    if not isinstance(cond, dict) or not cond.get("applied"):
+        return None
+    tot = cond.get("totals") or {}
+    found = int(tot.get("receiver_slips", 0)) + int(tot.get("hidden_found", 0))
+    return found, int(tot.get("repaired", 0)), int(tot.get("flagged", 0))
+
+
 def engine_of(
     traj: Trajectory, rtklib_overrides: dict[str, str], positions_file: Path | None
 ) -> tuple[str, str, dict[str, str]]:
@@ -740,16 +770,10 @@ def engine_of(
     imported ``.pos`` states its program in its header; ``rtklib_overrides`` is kept for callers
     that imported a solution made with known options.
     """
-    info_path = next((Path(n.removeprefix(_ENGINE_INFO_NOTE)) for n in traj.notes
-                      if n.startswith(_ENGINE_INFO_NOTE)), None)
-    if info_path is not None:
-        try:
-            info = jsonio.loads(info_path.read_bytes())
-        except (OSError, ValueError):
-            info = None
-        if isinstance(info, dict):
-            opts = {str(k): str(v) for k, v in dict(info.get("options") or {}).items()}
-            return str(info.get("engine", traj.source)), str(info.get("version", "")), opts
+    info = _engine_info(traj)
+    if info is not None:
+        opts = {str(k): str(v) for k, v in dict(info.get("options") or {}).items()}
+        return str(info.get("engine", traj.source)), str(info.get("version", "")), opts
     if traj.metre_level:
         return "receiver's own fix", "", {}
     head = pos_header(positions_file)
