@@ -17,7 +17,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("path", help="recording: .ubx, .ubx.gz, raw log or .mcap")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     parser.add_argument(
-        "--max-payload", type=int, default=8192, help="longest UBX payload accepted (bytes)"
+        "--max-payload", type=int, default=8192, metavar="BYTES", help="longest UBX payload accepted (bytes)"
     )
 
 
