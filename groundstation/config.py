@@ -252,6 +252,10 @@ def _num(kind: str, lo: float | None = None, hi: float | None = None, *,
 
 STR, BOOL, PATH, STRLIST = Key("str"), Key("bool"), Key("path"), Key("strlist")
 ENDPOINTS, TRIPLE, EPSG = Key("endpoints"), Key("triple"), Key("epsg")
+ECEF = Key("ecef")
+"""A point near the Earth's surface in ECEF metres (catches lat,lon,h given instead)."""
+ECEF_NORM_M = (6_300_000.0, 6_400_000.0)
+"""|X,Y,Z| of a ground point: between the polar radius less 56 km and the equator plus 22 km."""
 DURATION = _num("float", 0.0, 10 * 365 * 86_400.0)
 """How long to run: 0 = until stopped."""
 SECONDS = _num("float", above=0, hi=86_400.0)
@@ -331,7 +335,7 @@ DAEMON_SCHEMA: Schema = {
 
 SOLVER_STATION_KEYS: dict[str, Key] = {
     "base": STR,
-    "base_xyz": TRIPLE,
+    "base_xyz": ECEF,
     "photos": STR,
     "out_root": PATH,
     "lever_arm": TRIPLE,
@@ -472,6 +476,15 @@ def _parse(spec: Key, value: Any, *, from_text: bool) -> Any:
         if not isinstance(value, (list, tuple)) or not all(isinstance(v, str) for v in value):
             raise ValueError(f"expected a list of strings, got {value!r}")
         return tuple(_endpoint(v) for v in value) if kind == "endpoints" else tuple(value)
+    if kind == "ecef":
+        xyz = _parse(TRIPLE, value, from_text=from_text)
+        norm = math.sqrt(sum(v * v for v in xyz))
+        if not ECEF_NORM_M[0] <= norm <= ECEF_NORM_M[1]:
+            hint = (" (this looks like latitude,longitude,height: give ECEF X,Y,Z in metres)"
+                    if abs(xyz[0]) <= 90 and abs(xyz[1]) <= 360 else "")
+            raise ValueError(f"{value!r} is {norm / 1000:,.1f} km from the Earth's centre, not "
+                             f"on its surface: expected ECEF metres X,Y,Z{hint}")
+        return xyz
     if kind == "triple":
         if isinstance(value, str):
             value = [v for v in value.replace(" ", "").split(",") if v]

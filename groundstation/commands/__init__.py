@@ -52,8 +52,8 @@ EXAMPLES: dict[str, str] = {
     "demo": "groundstation demo\n"
             "groundstation demo --flight 300 --speed max --photos photos/ --no-view",
     "replay": "groundstation replay flights/rover_20250101T120000Z.mcap --speed 4",
-    "solve": "groundstation solve flight.mcap --base base.ubx --base-xyz 4201000.1,180000.2,4779000.3 "
-             "--photos photos/ --out-dir solution/\n"
+    "solve": "groundstation solve flight.mcap --base base.ubx "
+             "--base-xyz 4201000.1,180000.2,4779000.3 --photos photos/ --out-dir solution/\n"
              "groundstation solve flight.mcap --positions flight.pos --out-dir solution/",
     "solver": "groundstation solver --config config/solver.toml",
 }

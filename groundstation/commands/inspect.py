@@ -6,7 +6,7 @@ import argparse
 import sys
 
 from groundstation import gpstime, jsonio
-from groundstation.offline.inspect import Summary, inspect_path
+from groundstation.offline.inspect import Summary, inspect_path, require_ubx_frames
 
 NAME = "inspect"
 HELP = "summary of a recording: span, epochs, gaps, marks, satellites"
@@ -17,11 +17,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("path", help="recording: .ubx, .ubx.gz, raw log or .mcap")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     parser.add_argument(
-        "--max-payload", type=int, default=8192, metavar="BYTES", help="longest UBX payload accepted (bytes)"
+        "--max-payload", type=int, default=8192, metavar="BYTES",
+        help="longest UBX payload accepted",
     )
 
 
 def run(args: argparse.Namespace) -> int:
+    # No UBX frame at all: an error (exit 1), not an all-zero report that reads like a result.
+    require_ubx_frames(args.path, max_payload=args.max_payload)
     summary = inspect_path(args.path, max_payload=args.max_payload)
     if args.json:
         sys.stdout.write(jsonio.dumps(summary.as_json(), indent=2).decode())

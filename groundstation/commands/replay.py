@@ -25,9 +25,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from groundstation.errors import InputError
     from groundstation.live.replay import run_replay
+    from groundstation.offline.inspect import require_ubx_frames
 
     if not args.input.exists():
         raise InputError(f"{args.input}: no such file")
+    require_ubx_frames(args.input)
     zenoh: dict[str, Any] = {"enabled": not args.no_zenoh, **zenoh_layer(args)}
     speed = parse_speed(args.speed, live=False)
     summary, pipeline = asyncio.run(

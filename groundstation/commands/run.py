@@ -87,6 +87,10 @@ def _print_summary(summary: RunSummary) -> None:
 
 def run(args: argparse.Namespace) -> int:
     settings = load_settings(args.config, overrides=overrides_from_args(args))
+    if settings.source.kind == "file":
+        from groundstation.offline.inspect import require_ubx_frames
+
+        require_ubx_frames(settings.source.path)
 
     def on_file(path: Path) -> None:
         print(f"recording to {path}", flush=True)

@@ -28,10 +28,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--base-xyz", metavar="X,Y,Z",
                         help="known base position, ECEF metres (not lat,lon,h)")
     parser.add_argument(
-        "--source", choices=("pos", "rtklib", "receiver"), help="position source: pos, rtklib or receiver (default from the options)"
+        "--source", metavar="{pos,rtklib,receiver}",
+        help="position source (default: pos with --positions, rtklib with --base)",
     )
     parser.add_argument(
-        "--engine", default=ppk.DEFAULT_ENGINE, choices=tuple(ppk.ENGINES),
+        "--engine", default=ppk.DEFAULT_ENGINE, metavar="{" + ",".join(ppk.ENGINES) + "}",
         help=f"PPK engine with --base (default {ppk.DEFAULT_ENGINE})",
     )
     parser.add_argument(
@@ -39,15 +40,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="engine option (RTKLIB key, e.g. pos2-arthres=3); repeatable; checked against "
         "the engine's option table",
     )
-    parser.add_argument("--rtk-conf", metavar="FILE", help="RTKLIB options file (.conf) applied over the defaults")
+    parser.add_argument("--rtk-conf", metavar="FILE",
+                        help="RTKLIB options file (.conf) applied over the defaults")
     parser.add_argument("--photos", metavar="DIR", help="directory of the flight's JPEGs")
     parser.add_argument("--lever-arm", metavar="X,Y,Z",
                         help="lever arm in the camera frame, metres (default 0,0,0)")
-    parser.add_argument("--eo", metavar="FILE", help="exterior orientations: name, X, Y, Z, omega, phi, kappa")
+    parser.add_argument("--eo", metavar="FILE",
+                        help="exterior orientations: name, X, Y, Z, omega, phi, kappa")
     parser.add_argument("--epsg", metavar="CODE", help="output CRS (default: the WGS84 UTM zone)")
-    parser.add_argument("--interp", default="linear", choices=("linear", "spline", "smoother"),
+    parser.add_argument("--interp", default="linear", metavar="{linear,spline,smoother}",
                         help="interpolation between epochs")
-    parser.add_argument("--edge", default="falling", choices=("falling", "rising", "mid"),
+    parser.add_argument("--edge", default="falling", metavar="{falling,rising,mid}",
                         help="which edge of the hot-shoe pulse is the exposure")
     parser.add_argument("--shutter-delay-ms", default="0", metavar="MS",
                         help="added to the mark time")
@@ -152,6 +155,12 @@ def run(args: argparse.Namespace) -> int:
     finally:
         progress.done()
     sys.stdout.write(format_result(result))
+    positioned = sum(1 for row in result.rows if row.mark >= 0 and row.x_m == row.x_m)
+    if positioned == 0:  # the exports exist (for diagnosis) but hold no camera position
+        print(f"groundstation solve: error: no camera position computed ({len(result.marks)} "
+              f"marks, 0 positioned): the exports in {settings.out_dir} are empty",
+              file=sys.stderr)
+        return 1
     return 0
 
 

@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from groundstation import gpstime
+from groundstation.errors import InputError
 from groundstation.records import Frame, RawEpoch, TimeMark, UndecodedFrame
 from groundstation.rules.epochs import Gap, find_gaps, nominal_interval_ns
 from groundstation.rules.marks import track_marks
@@ -187,3 +188,43 @@ def inspect_path(path: str | Path, max_payload: int = DEFAULT_MAX_PAYLOAD) -> Su
     for frame in framer.flush(last_t):
         insp.add(frame)
     return insp.summary(framer.stats, path=str(p), fmt=recording.format)
+
+
+FILE_SIGNATURES: tuple[tuple[bytes, str], ...] = (
+    (b"\xff\xd8\xff", "a JPEG image"),
+    (b"\x89PNG", "a PNG image"),
+    (b"%PDF", "a PDF document"),
+    (b"PK\x03\x04", "a ZIP archive"),
+)
+"""Leading bytes of files users hand over by mistake (a photo instead of the flight)."""
+
+
+def require_ubx_frames(path: str | Path, max_payload: int = DEFAULT_MAX_PAYLOAD) -> None:
+    """Raise unless the recording holds at least one valid UBX frame.
+
+    Reads only as far as the first frame, so a real recording costs one chunk. The one check
+    behind ``inspect``, ``replay`` and ``run --file``: a JPEG or an empty file gives an error
+    ("no UBX frames in this file", exit 1) instead of an all-zero report.
+
+    Raises:
+        InputError: missing, unreadable, or no UBX frame in the whole file.
+    """
+    p = Path(path)
+    recording = Recording(p)
+    framer = UbxFramer(max_payload)
+    last_t = 0
+    head = b""
+    for chunk, t_host_ns in recording.chunks():
+        if not head:
+            head = chunk[:8]
+        last_t = t_host_ns
+        if any(True for _ in framer.feed(chunk, t_host_ns)):
+            return
+    if any(True for _ in framer.flush(last_t)):
+        return
+    size = recording.size_bytes
+    what = next((name for magic, name in FILE_SIGNATURES if head.startswith(magic)), None)
+    detail = "empty file" if size == 0 else (
+        f"{size:,} bytes, {what}" if what else f"{size:,} bytes"
+    )
+    raise InputError(f"{p}: no UBX frames in this file ({detail})")

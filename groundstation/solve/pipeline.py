@@ -161,6 +161,9 @@ def _validate(s: SolveSettings) -> None:
         raise ConfigError("--photos", f"{s.photos} is not a directory")
     if s.photos is not None:
         outputs.check_output_dir(s.out_dir, [s.photos])
+        # Before any work: a folder without JPEGs would only give "offset +0.00 s" later.
+        if not any(p.suffix.lower() in photos.JPEG_SUFFIXES for p in s.photos.iterdir()):
+            raise ConfigError("--photos", f"{s.photos}: no JPEG files (.jpg, .jpeg) in it")
     if not s.flight.exists():
         raise InputError(f"{s.flight}: no such file")
 
@@ -178,6 +181,9 @@ def solve(settings: SolveSettings, progress: Progress | None = None) -> SolveRes
     notes: list[str] = []
     rec = read_flight(s.flight, progress)
     marks = tuple(build_marks(rec.timemarks))
+    if not marks and s.photos is None:
+        raise InputError(f"{s.flight}: no camera marks (TIM-TM2) in this flight: nothing to "
+                         "position (is the hot-shoe cable on EXTINT0 and TIM-TM2 enabled?)")
     log.info("%s: %d TIM-TM2 records, %d marks", s.flight.name, len(rec.timemarks), len(marks))
     # Positions.
     src = positions.get_source(s.source_name())
@@ -329,6 +335,9 @@ def solve(settings: SolveSettings, progress: Progress | None = None) -> SolveRes
     te, tn = proj.forward(traj_llh[:, 0], traj_llh[:, 1])
     engine, version, engine_opts = report.engine_of(traj, opts.rtklib_overrides, s.positions)
     base_check, base_doubtful = report.check_base(s.base, s.base_ecef_m, traj, s.positions)
+    if base_doubtful:
+        notes.append(f"WARNING base coordinates: {base_check}")
+        log.warning("base coordinates doubtful: %s", base_check)
     radio_gaps, outages, events_recorded = report.station_events(s.flight)
     unmatched = tuple(
         (photo_list[i].name, photo_list[i].error or "no mark within the pairing window")
