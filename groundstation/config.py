@@ -181,7 +181,7 @@ class MonitorSettings:
     no_data_s: float = 3.0
     disk_free_min_mb: float = 500.0
     elevation_mask_deg: float = 15.0
-    marks_missed_hold_s: float = 30.0
+    marks_missed_hold_s: float = 0.0
     no_frames_s: float = 5.0
 
 
@@ -327,7 +327,7 @@ DAEMON_SCHEMA: Schema = {
         "no_data_s": SECONDS,
         "disk_free_min_mb": _num("float", 0.0, 1e9),
         "elevation_mask_deg": _num("float", 0.0, 90.0),
-        "marks_missed_hold_s": SECONDS,
+        "marks_missed_hold_s": _num("float", 0.0, 86_400.0),
         "no_frames_s": SECONDS,
     },
 }
