@@ -98,4 +98,14 @@ def run(args: argparse.Namespace) -> int:
     summary = asyncio.run(run_daemon(settings, handle_signals=True, on_file=on_file))
     _print_summary(summary)
     sys.stdout.flush()
+    if summary.bytes_in == 0:
+        # Not "0 outages" and exit 0: a session that received nothing is a failure to say.
+        src = settings.source
+        where = {"serial": lambda: f"serial port {getattr(src, 'port', '?')}",
+                 "tcp": lambda: f"TCP {getattr(src, 'host', '?')}:{getattr(src, 'port', '?')}",
+                 "file": lambda: f"file {getattr(src, 'path', '?')}"}[src.kind]()
+        print(f"groundstation run: error: no data received from the {where} in "
+              f"{summary.duration_s:.0f} s (see the source lines above: wrong device, cable, "
+              "baud rate or server?)", file=sys.stderr)
+        return 1
     return 0
