@@ -241,7 +241,7 @@ class Link:
         silent_s = (now_ns - last) / 1e9
         if silent_s >= th.no_data_s:
             since = ("since the start: nothing received yet" if self.last_byte_ns is None
-                     else f"{th.no_data_s:g} s or more")
+                     else f"for {th.no_data_s:g} s or more")
             self.alerts.raise_(kinds.ALERT_NO_DATA, f"no data from the source {since}",
                                now_ns, events)
             alert = self.alerts.active[kinds.ALERT_NO_DATA]

@@ -311,3 +311,50 @@ def test_dashboard_in_headless_chromium(
         print(f"screenshots in {tmp_path}")
     dashboard.stop(signal.SIGTERM)
     assert dashboard.proc.returncode == 0, dashboard.stderr
+
+
+@pytest.mark.parametrize(("width", "height"), [(1366, 768), (1024, 600)])
+def test_alerts_visible_on_small_screens(
+    tmp_path: Path, pty: Pty, daemons: list[Daemon], width: int, height: int,
+) -> None:
+    """A dropout long enough for alerts, with every panel drawn: the ALERTS panel lies inside
+    the viewport at 1366x768 and 1024x600. Screenshots go to $UX_SHOTS (default the tmp dir)."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    daemon = Daemon("--port", str(pty.link), "--station", STATION,
+                    "--out-dir", str(tmp_path / "out"), "--zenoh-listen", endpoint)
+    daemons.append(daemon)
+    http_port = free_port()
+    dashboard = Daemon("--port", str(http_port), "--connect", endpoint, "--station", STATION,
+                       command="dashboard")
+    daemons.append(dashboard)
+    daemon.wait_for("publishing on Zenoh")
+    feeder = Feeder(pty)
+    feeder.start()
+    dashboard.wait_for("dashboard on http://")
+    shots = Path(os.environ.get("UX_SHOTS") or tmp_path)
+    shots.mkdir(parents=True, exist_ok=True)
+    browser = Chromium(width, height)
+    try:
+        browser.send("Page.navigate", {"url": f"http://127.0.0.1:{http_port}/"})
+        wait_for("page live", lambda: browser.eval("document.body?.dataset.state") == "live", 15)
+        wait_for("satellites drawn", lambda: browser.eval(
+            "document.querySelectorAll('#sky .sat-group').length") >= 5, 10)
+        feeder.drop(8.0)
+        wait_for("an alert raised", lambda: browser.eval(
+            "document.querySelectorAll('#alerts li:not(.none)').length") >= 1, 15)
+        time.sleep(0.5)
+        browser.screenshot(shots / f"dashboard-{width}x{height}-alert.png")
+        box = browser.eval(
+            "(() => { const r = document.getElementById('alerts-panel')"
+            ".getBoundingClientRect(); return [r.top, r.bottom, r.left, r.right, "
+            "window.innerWidth, window.innerHeight]; })()")
+        top, bottom, left, right, vw, vh = box
+        assert (vw, vh) == (width, height)
+        assert top >= 0 and bottom <= vh and left >= 0 and right <= vw, box
+        text = browser.eval("document.getElementById('alerts').textContent")
+        assert "dropout" in text or "no data" in text, text
+        assert browser.console_errors() == []
+    finally:
+        browser.close()
+        feeder.stop()
+    dashboard.stop(signal.SIGTERM)
