@@ -110,7 +110,7 @@ class RecorderSettings:
         retry_s: how often writing is tried again after a failure.
     """
 
-    out_dir: Path = Path("recordings")
+    out_dir: Path = Path("flights")
     rotate_size_mb: float = 0.0
     rotate_duration_s: float = 0.0
     flush_interval_s: float = 0.5

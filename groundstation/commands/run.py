@@ -23,11 +23,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     src.add_argument("--tcp", metavar="HOST:PORT", help="TCP server streaming UBX")
     src.add_argument("--file", type=Path, metavar="PATH",
                      help=".ubx, .ubx.gz or .mcap recording (a session's later parts follow)")
-    parser.add_argument("--baud", metavar="N", help="serial baud rate (default 115200)")
+    parser.add_argument("--baud", metavar="N",
+                        help="serial baud rate, = the receiver's UART1 rate (default 115200; "
+                        "the lea6t-5hz profile sets 57600)")
     parser.add_argument("--rate", metavar="BYTES_PER_S", type=float,
                         help="pace a --file source (0 = as fast as possible)")
     parser.add_argument("--station", help="station name (names the recording files)")
-    parser.add_argument("--out-dir", type=Path, metavar="DIR", help="directory for recordings")
+    parser.add_argument("--out-dir", type=Path, metavar="DIR",
+                        help="directory for recordings (default flights)")
     parser.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
     add_zenoh_daemon(parser)
 
