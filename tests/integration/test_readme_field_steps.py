@@ -96,13 +96,14 @@ def test_readme_field_steps_run_verbatim(tmp_path: Path, pty: Pty) -> None:
         words = command.split()
         assert words[0] == "groundstation"
         shell = " ".join([shlex.quote(sys.executable), "-m", "groundstation.cli", *words[1:]])
-        proc = subprocess.run(shell, shell=True, cwd=tmp_path, env=env, text=True,
+        done = subprocess.run(shell, shell=True, cwd=tmp_path, env=env, text=True,
                               capture_output=True, timeout=300, check=False)
-        assert proc.returncode == 0, proc.stderr
+        assert done.returncode == 0, done.stderr
     assert (tmp_path / "rinex").is_dir() and any((tmp_path / "rinex").iterdir())
-    proc = subprocess.run([sys.executable, "-m", "groundstation.cli", "inspect", str(mcap)],
-                          cwd=tmp_path, env=env, text=True, capture_output=True, check=True)
-    assert re.search(r"marks\s+\d+ TIM-TM2 records", proc.stdout), proc.stdout
+    summary = subprocess.run(
+        [sys.executable, "-m", "groundstation.cli", "inspect", str(mcap)], cwd=tmp_path,
+        env=env, text=True, capture_output=True, check=True).stdout
+    assert re.search(r"marks\s+\d+ TIM-TM2 records", summary), summary
     # The solve line: placeholders, but every option in it exists.
     help_text = subprocess.run(
         [sys.executable, "-m", "groundstation.cli", "solve", "--help"], cwd=tmp_path, env=env,
