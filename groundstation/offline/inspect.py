@@ -7,7 +7,7 @@ Sans-I/O: :class:`Inspector` takes frames (from any source) and returns a :class
 from __future__ import annotations
 
 from collections import Counter
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -19,6 +19,10 @@ from groundstation.rules.marks import track_marks
 from groundstation.storage.reading import Recording
 from groundstation.ubx.decode import Decoder, message_name
 from groundstation.ubx.framer import DEFAULT_MAX_PAYLOAD, FramerStats, UbxFramer
+
+GNSS_GLONASS = 6
+UNKNOWN_SV = 255
+"""u-blox svId of a GLONASS satellite whose slot number is not known yet."""
 
 
 def gap_json(g: Gap) -> dict[str, Any]:
@@ -72,6 +76,10 @@ class Summary:
     timemarks: TimeMarkSummary
     satellites: tuple[str, ...]
     max_sats_per_epoch: int
+    file_bytes: int = 0
+    """Size on disk of the recording (all parts); ``bytes`` is the raw stream inside it."""
+    unknown_slot_signals: int = 0
+    """GLONASS measurements without a known slot (u-blox svId 255): not a satellite name."""
 
     def as_json(self) -> dict[str, Any]:
         d = asdict(self)
@@ -101,6 +109,7 @@ class Inspector:
     epoch_sources: Counter[str] = field(default_factory=Counter)
     sats: set[str] = field(default_factory=set)
     max_sats: int = 0
+    unknown_slot: int = 0
     marks: list[TimeMark] = field(default_factory=list)
     undecodable: int = 0
 
@@ -115,7 +124,11 @@ class Inspector:
             self.epoch_times.add(record.t_gps_ns)
             self.epoch_sources[record.source] += 1
             self.max_sats = max(self.max_sats, len(record.sats))
-            self.sats.update(s.label for s in record.sats)
+            # u-blox reports a GLONASS satellite whose slot it does not know yet as svId 255
+            # ("R255"): a measurement, not a satellite to list.
+            known = [s for s in record.sats if (s.gnss, s.sv) != (GNSS_GLONASS, UNKNOWN_SV)]
+            self.unknown_slot += len(record.sats) - len(known)
+            self.sats.update(s.label for s in known)
         elif isinstance(record, TimeMark):
             self.marks.append(record)
         elif isinstance(record, UndecodedFrame):
@@ -152,6 +165,7 @@ class Inspector:
             timemarks=summarise_marks(self.marks),
             satellites=tuple(sorted(self.sats)),
             max_sats_per_epoch=self.max_sats,
+            unknown_slot_signals=self.unknown_slot,
         )
 
 
@@ -187,7 +201,8 @@ def inspect_path(path: str | Path, max_payload: int = DEFAULT_MAX_PAYLOAD) -> Su
             insp.add(frame)
     for frame in framer.flush(last_t):
         insp.add(frame)
-    return insp.summary(framer.stats, path=str(p), fmt=recording.format)
+    out = insp.summary(framer.stats, path=str(p), fmt=recording.format)
+    return replace(out, file_bytes=recording.size_bytes)
 
 
 FILE_SIGNATURES: tuple[tuple[bytes, str], ...] = (

@@ -140,3 +140,25 @@ def test_bad_configuration_exits_2_naming_the_key(
     assert proc.returncode == 2, proc.stderr
     assert named in proc.stderr and "Traceback" not in proc.stderr
     assert "JSON5" not in proc.stderr  # not Zenoh's own parser error
+
+
+def test_inspect_says_what_it_measures(flight: dict[str, Path], shared_data: Path) -> None:
+    from dataclasses import replace
+
+    from groundstation.commands.inspect import format_summary
+    from groundstation.offline.inspect import TimeMarkSummary, inspect_path
+
+    s = inspect_path(flight["flight"])
+    text = format_summary(replace(s, timemarks=TimeMarkSummary()))
+    assert "marks     none: no TIM-TM2 in this recording" in text  # not an all-zero line
+    assert "0 falling edges" not in text
+    mcap = format_summary(replace(s, format="mcap", file_bytes=1234))
+    assert f"(mcap, 1,234 bytes on disk, {s.bytes:,} bytes of receiver stream)" in mcap
+    rover = shared_data / "real/jdesbonnet__GNSS_RTK_data/20181009/rover-20181009-1221.ubx.gz"
+    if not rover.exists():
+        pytest.skip(f"{rover} not present")
+    real = format_summary(inspect_path(rover))
+    assert "R255" not in real and "GLONASS measurements with no slot number yet" in real
+    pos = shared_data / "real/tridge__pyUblox/data/6P-raw-PPP.ubx"
+    gaps = format_summary(inspect_path(pos))
+    assert "after week 1729 tow 249844.999 (21:23:48.999 UTC): 2 missing" in gaps
