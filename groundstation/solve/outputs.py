@@ -181,15 +181,18 @@ def _photo_rows(out: SolveOutput) -> list[CameraRow]:
 def geo_txt(out: SolveOutput) -> str:
     """OpenDroneMap ``geo.txt``: ``EPSG:N`` then ``image x y z yaw pitch roll horz vert``.
 
-    Angles are written as 0 (ODM uses them only for radiometric calibration and accepts 0 when
-    unknown); horizontal accuracy is the larger of σ east and north.
+    Yaw is the compass direction of the image x axis from κ (90 - κ: κ counts
+    counter-clockwise from east), pitch and roll 0 for the nadir camera (ODM uses the angles
+    for radiometric calibration only, and reads 0 as unknown); horizontal accuracy is the
+    larger of σ east and north. z is the WGS84 ellipsoidal height, as in every export.
     """
     lines = [f"EPSG:{out.epsg}"]
     nd = 3 if out.projected else 9
     for r in _photo_rows(out):
         horz = max(r.sd_e_m, r.sd_n_m)
+        yaw = (90.0 - r.kappa_deg) % 360.0 if math.isfinite(r.kappa_deg) else 0.0
         lines.append(
-            f"{r.photo} {r.x_m:.{nd}f} {r.y_m:.{nd}f} {r.h_m:.3f} 0 0 0 "
+            f"{r.photo} {r.x_m:.{nd}f} {r.y_m:.{nd}f} {r.h_m:.3f} {yaw:.2f} 0 0 "
             f"{_f(horz, 3) or '0'} {_f(r.sd_u_m, 3) or '0'}"
         )
     return "\n".join(lines) + "\n"

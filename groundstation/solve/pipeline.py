@@ -263,7 +263,14 @@ def solve(settings: SolveSettings, progress: Progress | None = None) -> SolveRes
         order = np.argsort(np.where(has, mk, 1 << 40))
         ok = order[np.isfinite(ant_x[order])]
         if ok.size:
-            kap = leverarm.kappa_from_track_deg(ant_x[ok], ant_y[ok], s.kappa_offset_deg)
+            # κ from metric east/north: in a geographic CRS x/y are degrees, and a degree of
+            # longitude is cos(latitude) of a degree of latitude (48.6 instead of 59.5 deg).
+            east, north = ant_x[ok], ant_y[ok]
+            if not proj.projected:
+                lat0 = float(np.nanmean(llh[ok, 0]))
+                east = (llh[ok, 1] - llh[ok[0], 1]) * math.cos(math.radians(lat0))
+                north = llh[ok, 0] - llh[ok[0], 0]
+            kap = leverarm.kappa_from_track_deg(east, north, s.kappa_offset_deg)
             for j, row in enumerate(ok.tolist()):
                 if attitude[row] == "none":
                     opk[row] = (0.0, 0.0, kap[j])

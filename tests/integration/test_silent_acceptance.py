@@ -162,3 +162,24 @@ def test_inspect_says_what_it_measures(flight: dict[str, Path], shared_data: Pat
     pos = shared_data / "real/tridge__pyUblox/data/6P-raw-PPP.ubx"
     gaps = format_summary(inspect_path(pos))
     assert "after week 1729 tow 249844.999 (21:23:48.999 UTC): 2 missing" in gaps
+
+
+def test_kappa_is_the_same_in_a_geographic_crs(flight: dict[str, Path]) -> None:
+    """κ from the track in metres: EPSG:4326 and the UTM zone agree (to the grid convergence),
+    where degree differences gave 48.6 instead of 59.5 deg; geo.txt carries it as yaw."""
+    import csv
+
+    kappas = []
+    for epsg, out in (("4326", "o_geo"), (None, "o_utm")):
+        extra = ["--epsg", epsg] if epsg else []
+        proc = _cli("solve", "f.ubx", "--base", "b.ubx", "--base-xyz", _base_xyz(flight),
+                    "--out-dir", out, "--no-progress", *extra, cwd=flight["dir"])
+        assert proc.returncode == 0, proc.stderr
+        rows = list(csv.DictReader(
+            line for line in (flight["dir"] / out / "cameras.csv").read_text().splitlines()
+            if not line.startswith("#")))
+        kappas.append([float(r["kappa_deg"]) for r in rows])
+    geo, utm = kappas
+    assert len(geo) == len(utm) >= 3
+    for a, b in zip(geo, utm, strict=True):
+        assert abs((a - b + 180) % 360 - 180) < 1.0, (geo, utm)

@@ -77,7 +77,8 @@ def test_geo_txt(out: outputs.SolveOutput) -> None:
     f = lines[1].split()
     assert f[0] == "IMG_0001.JPG" and len(f) == 9
     assert float(f[1]) == pytest.approx(500_000.0, abs=0.01)
-    assert f[4:7] == ["0", "0", "0"] and f[7] == "0.020" and f[8] == "0.030"
+    # yaw = compass direction of the image x axis = 90 - kappa (kappa 45 here); nadir
+    assert f[4:7] == ["45.00", "0", "0"] and f[7] == "0.020" and f[8] == "0.030"
 
 
 def test_reference_and_pix4d(out: outputs.SolveOutput) -> None:
