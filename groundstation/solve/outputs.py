@@ -224,10 +224,15 @@ PIX4D_COLUMNS = ("imagename", "Y", "X", "Z", "accuracy_horz", "accuracy_vert")
 
 
 def pix4d_csv(out: SolveOutput) -> str:
-    """Pix4D image geolocation CSV: name, Y (northing/lat), X (easting/lon), Z, accuracies."""
+    """Pix4D image geolocation CSV: name, Y (northing/lat), X (easting/lon), Z, accuracies.
+
+    PIX4Dmatic reads no header row, only a comment on the first line: the column names are
+    that comment, with the CRS and the height datum after them.
+    """
     buf = io.StringIO()
+    buf.write(f"#{','.join(PIX4D_COLUMNS)} ; EPSG:{out.epsg} {out.crs_name}; "
+              "Z = WGS84 ellipsoidal height\n")
     w = csv.writer(buf, lineterminator="\n")
-    w.writerow(PIX4D_COLUMNS)
     nd = 3 if out.projected else 9
     for r in _photo_rows(out):
         w.writerow([

@@ -136,7 +136,7 @@ def test_solve_command_end_to_end(jd: dict[str, Path], tmp_path: Path,
     ref = (out / "reference.csv").read_text().splitlines()
     assert ref[0].startswith("#") and ref[1].startswith("label,x_east,y_north,z_height")
     pix4d_header = (out / "pix4d.csv").read_text().splitlines()[0]
-    assert pix4d_header == "imagename,Y,X,Z,accuracy_horz,accuracy_vert"
+    assert pix4d_header.startswith("#imagename,Y,X,Z,accuracy_horz,accuracy_vert ; EPSG:25829")
     gj = json.loads((out / "cameras.geojson").read_text())
     kinds = {feat["properties"]["kind"] for feat in gj["features"]}
     assert gj["type"] == "FeatureCollection" and kinds == {"trajectory", "mark", "photo"}

@@ -88,7 +88,9 @@ def test_reference_and_pix4d(out: outputs.SolveOutput) -> None:
     assert ref[2].startswith("IMG_0001.JPG,500000.000,")
     assert ref[2].endswith(",0.0000,0.0000,45.0000")
     pix = outputs.pix4d_csv(out).splitlines()
-    assert pix[0] == "imagename,Y,X,Z,accuracy_horz,accuracy_vert" and len(pix) == 3
+    # PIX4Dmatic: no header row, the column names in a '#' comment (with CRS and datum)
+    assert pix[0].startswith("#imagename,Y,X,Z,accuracy_horz,accuracy_vert ; EPSG:25832")
+    assert "WGS84 ellipsoidal" in pix[0] and len(pix) == 3
     name, y, x = pix[1].split(",")[:3]
     assert name == "IMG_0001.JPG" and float(x) < float(y)
 
