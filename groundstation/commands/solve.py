@@ -11,6 +11,7 @@ from groundstation.config import SOLVER_STATION_KEYS, convert
 from groundstation.errors import ConfigError
 from groundstation.solve import engine as ppk
 from groundstation.solve import interpolate as interp
+from groundstation.solve.photos import JPEG_SUFFIXES
 from groundstation.solve.pipeline import SolveResult, SolveSettings, solve
 
 NAME = "solve"
@@ -91,6 +92,11 @@ def settings_from_args(args: argparse.Namespace) -> SolveSettings:
             raise ConfigError(opt, f"{val}: no such file")
     if args.photos is not None and not Path(args.photos).is_dir():
         raise ConfigError("--photos", f"{args.photos}: not a directory")
+    if args.photos is not None and not any(
+            p.suffix.lower() in JPEG_SUFFIXES for p in Path(args.photos).iterdir()):
+        # Asked for by name: a folder without JPEGs would only give "offset +0.00 s" later.
+        # (The solver service may be given a folder the photos have not reached yet.)
+        raise ConfigError("--photos", f"{args.photos}: no JPEG files (.jpg, .jpeg) in it")
     if args.rtk_conf is not None and not Path(args.rtk_conf).is_file():
         raise ConfigError("--rtk-conf", f"{args.rtk_conf}: no such file")
     rtk_opts = ppk.options.parse_assignments(args.rtk_opt)

@@ -170,7 +170,7 @@ class Monitor:
         elif ev.kind == kinds.ZENOH_DISCONNECTED:
             alerts.raise_(kinds.ALERT_ZENOH_DISCONNECTED, ev.message, now_ns, events)
         elif ev.kind == kinds.ZENOH_CONNECTED:
-            alerts.clear(kinds.ALERT_ZENOH_DISCONNECTED, now_ns, events)
+            alerts.clear(kinds.ALERT_ZENOH_DISCONNECTED, now_ns, events, ok=ev.message)
         elif ev.kind == kinds.RECORDER_WRITE_FAILED:
             full = ev.data.get("errno") in DISK_FULL_ERRNOS
             name = kinds.ALERT_DISK_FULL if full else kinds.ALERT_RECORDING_FAILED
@@ -182,14 +182,15 @@ class Monitor:
                 if alert is not None:  # the alert now says what is being lost
                     alert.message = f"{alert.message.split('; ')[0]}; {ev.message}"
         elif ev.kind == kinds.RECORDER_RECOVERED:
-            alerts.clear(kinds.ALERT_DISK_FULL, now_ns, events)
-            alerts.clear(kinds.ALERT_RECORDING_FAILED, now_ns, events)
+            alerts.clear(kinds.ALERT_DISK_FULL, now_ns, events, ok="recording again")
+            alerts.clear(kinds.ALERT_RECORDING_FAILED, now_ns, events, ok="recording again")
         elif kinds.sink_of(ev.kind, kinds.BEHIND_SUFFIX) == "recorder":
             self.recorder_behind = True
             alerts.raise_(kinds.ALERT_RECORDER_BEHIND, ev.message, now_ns, events)
         elif kinds.sink_of(ev.kind, kinds.CAUGHT_UP_SUFFIX) == "recorder":
             self.recorder_behind = False
-            alerts.clear(kinds.ALERT_RECORDER_BEHIND, now_ns, events)
+            alerts.clear(kinds.ALERT_RECORDER_BEHIND, now_ns, events,
+                         ok="the recorder has caught up")
 
     # -- alerts from elapsed time ---------------------------------------------------------
 

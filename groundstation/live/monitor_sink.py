@@ -89,7 +89,7 @@ class MonitorSink:
             if ev.kind == kinds.ALERT_RAISED:  # the journal shows what the operator must act on
                 log.warning("alert: %s", ev.message)
             elif ev.kind == kinds.ALERT_CLEARED:
-                log.info("alert %s", ev.message)
+                log.info("alert cleared: %s", ev.message)
             publish(ev)
         if status is not None:
             self.last_status = status
