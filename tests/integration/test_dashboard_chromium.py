@@ -2,7 +2,8 @@
 ``groundstation dashboard`` -> the page.
 
 The page loads without console errors, values update, a dropout injected into the stream is on
-the timeline within 2 s, a stopped daemon shows as stale, and a restarted one is live again
+the timeline within 2 s, a daemon that ends normally shows "session finished", a restarted
+one is live again, and a killed one shows as stale with the daemon gone
 without touching the page. Chromium is driven over the DevTools protocol on a pipe
 (``--remote-debugging-pipe``: NUL-separated JSON on fds 3 and 4, no websocket needed).
 Screenshots at 1366x768 go to the test's tmp dir.
@@ -280,17 +281,21 @@ def test_dashboard_in_headless_chromium(
             "Number(document.querySelector('#timeline rect.dropout').dataset.missing)")
         assert 15 <= missing <= 25, missing  # 4 s at 5 Hz
 
-        # the daemon stops: stale (no status for more than 3 s), and the daemon is gone
+        # the daemon ends normally: "session finished", not a red STALE / "daemon gone"
         feeder.paused.set()
         rc, _ = daemon.stop(signal.SIGTERM)
         assert rc == 0, daemon.stderr
         stopped_at = time.monotonic()
-        wait_for("stale", lambda: chromium.eval("document.body?.dataset.state") == "stale", 6)
+        wait_for("finished", lambda: chromium.eval("document.body?.dataset.state") == "finished",
+                 6)
         assert time.monotonic() - stopped_at > 2.0  # not before the status is really late
-        wait_for("daemon gone", lambda: "daemon gone" in chromium.eval(
-            "document.getElementById('badge-detail').textContent"), 3)
-        assert chromium.eval("document.getElementById('badge').textContent") == "STALE"
-        chromium.screenshot(tmp_path / "3-stale.png")
+        assert chromium.eval("document.getElementById('badge').textContent") == \
+            "SESSION FINISHED"
+        assert "daemon gone" not in chromium.eval(
+            "document.getElementById('badge-detail').textContent")
+        assert not chromium.eval("document.getElementById('link-now').textContent"
+                                 ".startsWith('DROPOUT')")  # no frozen dropout
+        chromium.screenshot(tmp_path / "3-finished.png")
 
         # the daemon comes back: live again, without reloading the page
         daemon = Daemon(*daemon_args)
@@ -303,6 +308,14 @@ def test_dashboard_in_headless_chromium(
             "(m => m.received > 0 && Math.abs(m.received - m.marks) <= 1)"
             "(gsDashboard.doc.view.marks)"), 10)  # a mark may arrive before the status
         chromium.screenshot(tmp_path / "4-back.png")
+
+        # the daemon dies (no "finished"): stale, and the daemon is gone
+        daemon.kill()
+        wait_for("stale", lambda: chromium.eval("document.body?.dataset.state") == "stale", 8)
+        wait_for("daemon gone", lambda: "daemon gone" in chromium.eval(
+            "document.getElementById('badge-detail').textContent"), 15)
+        assert chromium.eval("document.getElementById('badge').textContent") == "STALE"
+        chromium.screenshot(tmp_path / "5-stale.png")
 
         assert chromium.eval("gsDashboard.errors") == []
         assert chromium.console_errors() == []
