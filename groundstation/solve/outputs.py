@@ -292,7 +292,10 @@ def geojson(out: SolveOutput) -> str:
                 "sd_n_m": _clean(r.sd_n_m), "sd_u_m": _clean(r.sd_u_m), "attitude": r.attitude,
             },
         })
-    return jsonio.dumps({"type": "FeatureCollection", "features": feats}).decode()
+    # RFC 7946 positions are WGS84 lon, lat, height; the height's datum is said as a foreign
+    # member, as in every other export.
+    return jsonio.dumps({"type": "FeatureCollection", "height_datum": "WGS84 ellipsoidal",
+                         "features": feats}).decode()
 
 
 WRITERS: dict[str, Callable[[SolveOutput], str]] = {

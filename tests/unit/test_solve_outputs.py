@@ -97,7 +97,7 @@ def test_reference_and_pix4d(out: outputs.SolveOutput) -> None:
 
 def test_geojson_is_valid_rfc7946(out: outputs.SolveOutput) -> None:
     gj = json.loads(outputs.geojson(out))
-    assert gj["type"] == "FeatureCollection"
+    assert gj["type"] == "FeatureCollection" and gj["height_datum"] == "WGS84 ellipsoidal"
     kinds = [f["properties"]["kind"] for f in gj["features"]]
     assert kinds.count("trajectory") == 2 and kinds.count("mark") == 3
     assert kinds.count("photo") == 2
