@@ -17,7 +17,7 @@ from collections.abc import Sequence
 from typing import NoReturn
 
 from groundstation import __version__
-from groundstation.commands import COMMANDS, HELP
+from groundstation.commands import COMMANDS, EXAMPLES, HELP
 from groundstation.errors import ConfigError, GroundstationError, InputError
 
 EXIT_OK = 0
@@ -34,24 +34,69 @@ class OneLineParser(argparse.ArgumentParser):
                                "(see --help)\n")
 
 
+class HelpFormatter(argparse.RawDescriptionHelpFormatter):
+    """Keeps the examples' line breaks and appends every option's default to its help.
+
+    Unlike ``ArgumentDefaultsHelpFormatter`` it says nothing for an option without a default
+    (None, False, an empty list: the help text says what happens then) and nothing when the
+    help already names its default.
+    """
+
+    def _get_help_string(self, action: argparse.Action) -> str:
+        text = action.help or ""
+        default = action.default
+        if (
+            "default" in text
+            or default is None
+            or default is False
+            or default == []
+            or default is argparse.SUPPRESS
+            or not action.option_strings
+        ):
+            return text
+        return f"{text} (default: %(default)s)"
+
+
+def _add_log_options(parser: argparse.ArgumentParser, default: object) -> None:
+    """``-v``/``-q``: on the top parser with real defaults, on each command with SUPPRESS so
+    that ``groundstation run -q`` works and does not reset ``groundstation -q run``."""
+    parser.add_argument(
+        "-v", "--verbose", action="count", default=0 if default is None else default,
+        help="more log output (-vv for debug)",
+    )
+    parser.add_argument(
+        "-q", "--quiet", action="store_true",
+        default=False if default is None else default,
+        help="only warnings and errors",
+    )
+
+
 def build_parser(argv: Sequence[str]) -> argparse.ArgumentParser:
     parser = OneLineParser(
         prog="groundstation",
         description="Ground station and post-flight solver for UAV photogrammetry "
         "with a u-blox L1 receiver over a radio link.",
-        epilog="exit status: 0 ok, 1 runtime failure (device, disk, Zenoh), 2 bad input or "
-        "configuration (the message names the option, key, variable or file), 130 interrupted",
+        epilog="examples:\n  groundstation demo\n  groundstation run --port /dev/wi232 "
+        "--station rover\n  groundstation COMMAND --help\n\n"
+        "exit status: 0 ok, 1 runtime failure (device, disk, Zenoh) or a run that gave no "
+        "result, 2 bad input or configuration (the message names the option, key, variable or "
+        "file; an input that cannot be used), 130 interrupted",
+        formatter_class=HelpFormatter,
     )
     parser.add_argument("--version", action="version", version=f"groundstation {__version__}")
-    parser.add_argument(
-        "-v", "--verbose", action="count", default=0, help="more log output (-vv for debug)"
-    )
-    parser.add_argument("-q", "--quiet", action="store_true", help="only warnings and errors")
+    _add_log_options(parser, None)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     # Only the chosen subcommand's module is imported (Zenoh, the simulator ... are heavy).
     wanted = next((a for a in argv if a in COMMANDS), None)
     for name in COMMANDS:
-        p = sub.add_parser(name, help=HELP.get(name, ""))
+        example = "\n".join(f"  {line}" for line in EXAMPLES.get(name, "").splitlines())
+        p = sub.add_parser(
+            name, help=HELP.get(name, ""),
+            description=HELP.get(name, "").capitalize() + ".",
+            epilog=f"example:\n{example}" if example else None,
+            formatter_class=HelpFormatter,
+        )
+        _add_log_options(p, argparse.SUPPRESS)
         if name == wanted:
             importlib.import_module(COMMANDS[name]).add_arguments(p)
     return parser

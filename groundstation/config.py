@@ -114,7 +114,7 @@ class RecorderSettings:
         retry_s: how often writing is tried again after a failure.
     """
 
-    out_dir: Path = Path("recordings")
+    out_dir: Path = Path("flights")
     rotate_size_mb: float = 0.0
     rotate_duration_s: float = 0.0
     flush_interval_s: float = 0.5
@@ -193,7 +193,7 @@ class MonitorSettings:
     no_data_s: float = 3.0
     disk_free_min_mb: float = 500.0
     elevation_mask_deg: float = 15.0
-    marks_missed_hold_s: float = 30.0
+    marks_missed_hold_s: float = 0.0
     no_frames_s: float = 5.0
 
 
@@ -267,6 +267,10 @@ STR, BOOL, PATH, STRLIST = Key("str"), Key("bool"), Key("path"), Key("strlist")
 STATION, STATIONS, STATION_OR_ALL = Key("station"), Key("stations"), Key("station_or_all")
 """A station name (:func:`check_station`), a list of them, or one name or ``*`` (the solver)."""
 ENDPOINTS, TRIPLE, EPSG = Key("endpoints"), Key("triple"), Key("epsg")
+ECEF = Key("ecef")
+"""A point near the Earth's surface in ECEF metres (catches lat,lon,h given instead)."""
+ECEF_NORM_M = (6_300_000.0, 6_400_000.0)
+"""|X,Y,Z| of a ground point: between the polar radius less 56 km and the equator plus 22 km."""
 DURATION = _num("float", 0.0, 10 * 365 * 86_400.0)
 """How long to run: 0 = until stopped."""
 SECONDS = _num("float", above=0, hi=86_400.0)
@@ -341,7 +345,7 @@ DAEMON_SCHEMA: Schema = {
         "no_data_s": SECONDS,
         "disk_free_min_mb": _num("float", 0.0, 1e9),
         "elevation_mask_deg": _num("float", 0.0, 90.0),
-        "marks_missed_hold_s": SECONDS,
+        "marks_missed_hold_s": _num("float", 0.0, 86_400.0),
         "no_frames_s": SECONDS,
     },
 }
@@ -349,7 +353,7 @@ DAEMON_SCHEMA: Schema = {
 
 SOLVER_STATION_KEYS: dict[str, Key] = {
     "base": STR,
-    "base_xyz": TRIPLE,
+    "base_xyz": ECEF,
     "photos": STR,
     "out_root": PATH,
     "lever_arm": TRIPLE,
@@ -537,6 +541,15 @@ def _parse(spec: Key, value: Any, *, from_text: bool) -> Any:
         if kind == "stations":
             return tuple(_station_text(v) for v in value)
         return tuple(_endpoint(v) for v in value) if kind == "endpoints" else tuple(value)
+    if kind == "ecef":
+        xyz = _parse(TRIPLE, value, from_text=from_text)
+        norm = math.sqrt(sum(v * v for v in xyz))
+        if not ECEF_NORM_M[0] <= norm <= ECEF_NORM_M[1]:
+            hint = (" (this looks like latitude,longitude,height: give ECEF X,Y,Z in metres)"
+                    if abs(xyz[0]) <= 90 and abs(xyz[1]) <= 360 else "")
+            raise ValueError(f"{value!r} is {norm / 1000:,.1f} km from the Earth's centre, not "
+                             f"on its surface: expected ECEF metres X,Y,Z{hint}")
+        return xyz
     if kind == "triple":
         if isinstance(value, str):
             value = [v for v in value.replace(" ", "").split(",") if v]

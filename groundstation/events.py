@@ -39,6 +39,9 @@ MARK_IN_DROPOUT: Final = "mark.in_dropout"
 # -- alerts ---------------------------------------------------------------------------------
 ALERT_RAISED: Final = "alert.raised"
 ALERT_CLEARED: Final = "alert.cleared"
+OPERATOR_ACK: Final = "operator.ack"
+"""An operator acknowledged an alert in a view (``groundstation/<station>/ack``); not an
+``alert.`` kind because the monitor ignores its own kinds coming back through the pipeline."""
 # -- recording ------------------------------------------------------------------------------
 RECORDER_FILE_OPENED: Final = "recorder.file_opened"
 RECORDER_WRITE_FAILED: Final = "recorder.write_failed"
@@ -92,6 +95,7 @@ CATALOGUE: Final[dict[str, Kind]] = {
         Kind(MARK_IN_DROPOUT, "warning", "a mark inside a link dropout (interpolation gap)"),
         Kind(ALERT_RAISED, "warning", "an alert (see ALERTS) is raised"),
         Kind(ALERT_CLEARED, "info", "an alert is cleared"),
+        Kind(OPERATOR_ACK, "info", "an operator acknowledged an alert (data: alert, by)"),
         Kind(RECORDER_FILE_OPENED, "info", "the recorder opened a recording file"),
         Kind(RECORDER_WRITE_FAILED, "error", "writing the recording failed; data held in memory"),
         Kind(RECORDER_DROPPED, "error", "data the recorder could not hold was dropped"),
@@ -111,6 +115,7 @@ and :func:`caught_up`."""
 # -- alert names (``data["alert"]`` of alert.raised / alert.cleared) ------------------------
 ALERT_NO_FRAMES: Final = "no_frames"
 ALERT_NO_DATA: Final = "no_data"
+ALERT_SOURCE_DOWN: Final = "source_down"
 ALERT_DROPOUT_LONG: Final = "dropout_long"
 ALERT_PPK_READY_LOW: Final = "ppk_ready_low"
 ALERT_HALF_CYCLE_HIGH: Final = "half_cycle_high"
@@ -123,7 +128,8 @@ ALERT_ZENOH_DISCONNECTED: Final = "zenoh_disconnected"
 
 ALERTS: Final[dict[str, str]] = {
     ALERT_NO_FRAMES: "bytes arrive but no valid frame (baud rate, noise, NMEA only)",
-    ALERT_NO_DATA: "no bytes at all for [monitor] no_data_s",
+    ALERT_NO_DATA: "no bytes for [monitor] no_data_s (also before the first byte)",
+    ALERT_SOURCE_DOWN: "the source (serial port, TCP server) cannot be opened or is lost",
     ALERT_DROPOUT_LONG: "a link dropout longer than [monitor] dropout_alert_s",
     ALERT_PPK_READY_LOW: "too few satellites with clean continuous phase",
     ALERT_HALF_CYCLE_HIGH: "too many satellites with unresolved half cycles",

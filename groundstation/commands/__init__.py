@@ -37,3 +37,28 @@ HELP: dict[str, str] = {
     "solver": "the solver service (listens on Zenoh, solves when a session ends)",
     "router": "a Zenoh router: TLS, mutual TLS, access control per station (from TOML)",
 }
+
+EXAMPLES: dict[str, str] = {
+    "inspect": "groundstation inspect flights/rover_20250101T120000Z.mcap\n"
+               "groundstation inspect --json rover.ubx.gz",
+    "run": "groundstation run --port /dev/wi232 --station rover\n"
+           "groundstation run --tcp 127.0.0.1:5000 --station rover --out-dir flights\n"
+           "groundstation run --file rover.ubx --no-zenoh",
+    "simulate": "groundstation simulate --out sim.ubx --duration 300 --truth truth.json\n"
+                "groundstation simulate --pty --speed 1",
+    "rinex": "groundstation rinex flights/rover_20250101T120000Z.mcap --out-dir rinex/",
+    "configure": "groundstation configure --port /dev/wi232 --profile lea6t-5hz --dry-run",
+    "watch": "groundstation watch --station rover\n"
+             "groundstation watch --station rover --connect tcp/192.168.1.10:7447",
+    "dashboard": "groundstation dashboard --station rover   # then open http://127.0.0.1:8080",
+    "demo": "groundstation demo\n"
+            "groundstation demo --flight 300 --speed max --photos photos/ --no-view",
+    "replay": "groundstation replay flights/rover_20250101T120000Z.mcap --speed 4",
+    "solve": "groundstation solve flight.mcap --base base.ubx "
+             "--base-xyz 4201000.1,180000.2,4779000.3 --photos photos/ --out-dir solution/\n"
+             "groundstation solve flight.mcap --positions flight.pos --out-dir solution/",
+    "solver": "groundstation solver --config config/solver.toml",
+    "router": "groundstation router --config config/router.toml\n"
+              "groundstation router --listen tcp/0.0.0.0:7447 --duration 3600",
+}
+"""Subcommand name -> usage examples shown at the end of its ``--help``."""

@@ -24,13 +24,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--speed", default="1", help="1 (real time, default), N or max")
     parser.add_argument("--duration", type=float, default=0.0, metavar="S",
                         help="stop after S seconds of wall time (default: end of the flight)")
-    parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--seed", type=int, default=1, help="simulation seed")
     parser.add_argument("--faults", default=None, metavar="none|default|seed|FILE",
                         help="link and mark faults to inject (default: default; seed profile: "
                         "seed)")
     add_profile_arguments(parser)
-    parser.add_argument("--out-dir", type=Path, default=Path("flights"), metavar="DIR")
-    parser.add_argument("--station", default="demo")
+    parser.add_argument("--out-dir", type=Path, default=Path("flights"), metavar="DIR",
+                        help="directory for the recording, the base stream and the truth")
+    parser.add_argument("--photos", type=Path, metavar="DIR",
+                        help="also write the camera's photos (JPEG with EXIF, camera clock off "
+                        "by hours as in the field) for every exposure, to try `solve --photos`")
+    parser.add_argument("--station", default="demo", help="station name")
     parser.add_argument("--zenoh-listen", action="append", metavar="ENDPOINT",
                         help=f"Zenoh endpoint to publish on (default {DEFAULT_ENDPOINT})")
     parser.add_argument("--no-zenoh", action="store_true", help="do not publish on Zenoh")
@@ -73,8 +77,22 @@ def run(args: argparse.Namespace) -> int:
         result = _run_with_view(opts, ready)
     else:
         result = asyncio.run(run_demo(opts, on_payload=lambda k, p: None, ready=ready))
-    _print_summary(result)
+    photos = _write_photos(result, args.photos) if args.photos is not None else None
+    _print_summary(result, photos)
     return 0
+
+
+CAMERA_CLOCK_ERROR_S = -(1 * 3600 + 51 * 60 + 2.6)
+"""The simulated camera's clock error: hours off, as camera clocks are in the field."""
+
+
+def _write_photos(result: Any, directory: Path) -> Path:
+    """The simulated camera's JPEGs, one per exposure of the truth (solve/photosim.py)."""
+    from groundstation.solve.photosim import photos_at_times, write_photo_set
+
+    times = [e["falling_t_gps_ns"] for e in result.sim.truth["exposures"]]
+    write_photo_set(photos_at_times(times, clock_error_s=CAMERA_CLOCK_ERROR_S), directory)
+    return directory
 
 
 def _run_with_view(opts: Any, ready: Any) -> Any:
@@ -119,7 +137,7 @@ def _log_through(console: Any) -> None:
     root.addHandler(RichHandler(console=console, show_path=False, level=level))
 
 
-def _print_summary(result: Any) -> None:
+def _print_summary(result: Any, photos: Path | None = None) -> None:
     s = result.summary
     truth = result.sim.truth
     injected = truth["fault_summary"]
@@ -139,7 +157,14 @@ def _print_summary(result: Any) -> None:
         print(f"  raw UBX:     {path}")
     print(f"  base UBX:    {result.base_path}")
     print(f"  truth:       {result.truth_path}")
+    if photos is not None:
+        print(f"  photos:      {photos} ({len(truth['exposures'])} JPEGs)")
     if result.endpoint:
         print(f"  Zenoh:       groundstation/{result.station}/** on {result.endpoint}")
     if s.files:
         print(f"next: groundstation inspect {s.files[0]}")
+        xyz = ",".join(f"{v:.4f}" for v in truth["base"]["ecef_m"])
+        photo_opt = f" --photos {photos}" if photos is not None else ""
+        print(f"next: groundstation solve {s.files[0]} --base {result.base_path} "
+              f"--base-xyz {xyz}{photo_opt} --out-dir {Path(s.files[0]).with_suffix('')}"
+              "_solution")

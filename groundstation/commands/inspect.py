@@ -6,7 +6,7 @@ import argparse
 import sys
 
 from groundstation import gpstime, jsonio
-from groundstation.offline.inspect import Summary, inspect_path
+from groundstation.offline.inspect import Summary, inspect_path, require_ubx_frames
 
 NAME = "inspect"
 HELP = "summary of a recording: span, epochs, gaps, marks, satellites"
@@ -17,11 +17,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("path", help="recording: .ubx, .ubx.gz, raw log or .mcap")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     parser.add_argument(
-        "--max-payload", type=int, default=8192, help="longest UBX payload accepted (bytes)"
+        "--max-payload", type=int, default=8192, metavar="BYTES",
+        help="longest UBX payload accepted",
     )
 
 
 def run(args: argparse.Namespace) -> int:
+    # No UBX frame at all: an error (exit 1), not an all-zero report that reads like a result.
+    require_ubx_frames(args.path, max_payload=args.max_payload)
     summary = inspect_path(args.path, max_payload=args.max_payload)
     if args.json:
         sys.stdout.write(jsonio.dumps(summary.as_json(), indent=2).decode())
@@ -32,7 +35,9 @@ def run(args: argparse.Namespace) -> int:
 
 
 def format_summary(s: Summary) -> str:
-    lines = [f"{s.path}  ({s.format}, {s.bytes:,} bytes)"]
+    size = (f"{s.file_bytes:,} bytes on disk, {s.bytes:,} bytes of receiver stream"
+            if s.format == "mcap" or s.file_bytes != s.bytes else f"{s.bytes:,} bytes")
+    lines = [f"{s.path}  ({s.format}, {size})"]
     if s.first_epoch_t_gps_ns is not None and s.last_epoch_t_gps_ns is not None:
         dur = (s.last_epoch_t_gps_ns - s.first_epoch_t_gps_ns) / 1e9
         first = gpstime.gps_to_datetime(s.first_epoch_t_gps_ns)
@@ -64,22 +69,29 @@ def format_summary(s: Summary) -> str:
     )
     lines.append(f"gaps      {len(s.gaps)} gaps, {s.missing_epochs} epochs missing")
     for g in s.gaps[:MAX_GAPS_SHOWN]:
+        utc = gpstime.gps_to_datetime(g.after_t_gps_ns)
         lines.append(
-            f"  after {gpstime.format_gps(g.after_t_gps_ns)}: {g.missing_epochs} missing "
-            f"({g.duration_s:.1f} s between epochs)"
+            f"  after {gpstime.format_gps(g.after_t_gps_ns)} ({utc:%H:%M:%S.%f}"[:-3]
+            + f" UTC): {g.missing_epochs} missing ({g.duration_s:.1f} s between epochs)"
         )
     if len(s.gaps) > MAX_GAPS_SHOWN:
         lines.append(f"  ... {len(s.gaps) - MAX_GAPS_SHOWN} more (use --json for all)")
     tm = s.timemarks
-    lines.append(
-        f"marks     {tm.records} TIM-TM2 records: {tm.falling} falling edges, "
-        f"{tm.rising} rising edges, {tm.count_jumps} count jumps "
-        f"({tm.missed_marks} marks missed), {tm.repeated_counts} repeated"
-    )
+    if not tm.records:
+        lines.append("marks     none: no TIM-TM2 in this recording (camera on EXTINT0? TIM-TM2 "
+                     "enabled?)")
+    else:
+        lines.append(
+            f"marks     {tm.records} TIM-TM2 records: {tm.falling} falling edges, "
+            f"{tm.rising} rising edges, {tm.count_jumps} count jumps "
+            f"({tm.missed_marks} marks missed), {tm.repeated_counts} repeated"
+        )
     if tm.records:
         lines.append(
             f"          count {tm.first_count} .. {tm.last_count}, time base "
             f"{', '.join(tm.time_bases)}"
         )
-    lines.append(f"satellites {len(s.satellites)}: {' '.join(s.satellites)}")
+    unknown = (f" (+ {s.unknown_slot_signals} GLONASS measurements with no slot number yet)"
+               if s.unknown_slot_signals else "")
+    lines.append(f"satellites {len(s.satellites)}: {' '.join(s.satellites)}{unknown}")
     return "\n".join(lines) + "\n"

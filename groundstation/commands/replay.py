@@ -26,10 +26,12 @@ def run(args: argparse.Namespace) -> int:
     from groundstation.config import check_station
     from groundstation.errors import InputError
     from groundstation.live.replay import run_replay
+    from groundstation.offline.inspect import require_ubx_frames
 
     check_station(args.station, "--station")
     if not args.input.exists():
         raise InputError(f"{args.input}: no such file")
+    require_ubx_frames(args.input)
     zenoh: dict[str, Any] = {"enabled": not args.no_zenoh, **zenoh_layer(args)}
     speed = parse_speed(args.speed, live=False)
     summary, pipeline = asyncio.run(

@@ -22,7 +22,7 @@ PROGRESS_MIN_BYTES = 4 << 20
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("input", help="recording: .ubx, .ubx.gz, raw log or .mcap")
-    parser.add_argument("-o", "--out-dir", required=True, help="output directory")
+    parser.add_argument("-o", "--out-dir", required=True, metavar="DIR", help="output directory")
     parser.add_argument(
         "--rinex", choices=rinex.RINEX_VERSIONS, default="3.04", help="RINEX version (3.04)"
     )

@@ -23,11 +23,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     src.add_argument("--tcp", metavar="HOST:PORT", help="TCP server streaming UBX")
     src.add_argument("--file", type=Path, metavar="PATH",
                      help=".ubx, .ubx.gz or .mcap recording (a session's later parts follow)")
-    parser.add_argument("--baud", metavar="N", help="serial baud rate (default 115200)")
+    parser.add_argument("--baud", metavar="N",
+                        help="serial baud rate, = the receiver's UART1 rate (default 115200; "
+                        "the lea6t-5hz profile sets 57600)")
     parser.add_argument("--rate", metavar="BYTES_PER_S", type=float,
                         help="pace a --file source (0 = as fast as possible)")
     parser.add_argument("--station", help="station name (names the recording files)")
-    parser.add_argument("--out-dir", type=Path, metavar="DIR", help="directory for recordings")
+    parser.add_argument("--out-dir", type=Path, metavar="DIR",
+                        help="directory for recordings (default flights)")
     parser.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
     add_zenoh_daemon(parser)
 
@@ -87,6 +90,10 @@ def _print_summary(summary: RunSummary) -> None:
 
 def run(args: argparse.Namespace) -> int:
     settings = load_settings(args.config, overrides=overrides_from_args(args))
+    if settings.source.kind == "file":
+        from groundstation.offline.inspect import require_ubx_frames
+
+        require_ubx_frames(settings.source.path)
 
     def on_file(path: Path) -> None:
         print(f"recording to {path}", flush=True)
@@ -94,4 +101,14 @@ def run(args: argparse.Namespace) -> int:
     summary = asyncio.run(run_daemon(settings, handle_signals=True, on_file=on_file))
     _print_summary(summary)
     sys.stdout.flush()
+    if summary.bytes_in == 0:
+        # Not "0 outages" and exit 0: a session that received nothing is a failure to say.
+        src = settings.source
+        where = {"serial": lambda: f"serial port {getattr(src, 'port', '?')}",
+                 "tcp": lambda: f"TCP {getattr(src, 'host', '?')}:{getattr(src, 'port', '?')}",
+                 "file": lambda: f"file {getattr(src, 'path', '?')}"}[src.kind]()
+        print(f"groundstation run: error: no data received from the {where} in "
+              f"{summary.duration_s:.0f} s (see the source lines above: wrong device, cable, "
+              "baud rate or server?)", file=sys.stderr)
+        return 1
     return 0

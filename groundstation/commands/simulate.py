@@ -32,7 +32,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--speed", default=None,
                         help="1 (real time), N (N times faster) or max; default: max for "
                         "--out, 1 for --pty/--tcp")
-    parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--seed", type=int, default=1,
+                        help="simulation seed (same seed, same stream)")
     parser.add_argument("--faults", default=None, metavar="none|default|seed|FILE",
                         help="link and mark faults (default: none; seed profile: seed)")
     add_profile_arguments(parser)

@@ -11,6 +11,7 @@ from groundstation.config import SOLVER_STATION_KEYS, convert
 from groundstation.errors import ConfigError
 from groundstation.solve import engine as ppk
 from groundstation.solve import interpolate as interp
+from groundstation.solve.photos import JPEG_SUFFIXES
 from groundstation.solve.pipeline import SolveResult, SolveSettings, solve
 
 NAME = "solve"
@@ -19,32 +20,43 @@ HELP = "post-flight: positions -> marks -> photos -> lever arm -> outputs"
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("flight", help="rover recording: .mcap, .ubx or .ubx.gz")
-    parser.add_argument("--out", required=True, help="output directory (created)")
-    parser.add_argument("--positions", help="RTKLIB solution (.pos, .pos.gz); no base needed")
-    parser.add_argument("--base", help="base observations (.obs RINEX or .ubx recording)")
-    parser.add_argument("--base-xyz", help="known base position, ECEF metres: X,Y,Z")
+    parser.add_argument("--out-dir", "--out", dest="out", required=True, metavar="DIR",
+                        help="output directory (created)")
+    parser.add_argument("--positions", metavar="FILE",
+                        help="RTKLIB solution (.pos, .pos.gz); no base needed")
+    parser.add_argument("--base", metavar="FILE",
+                        help="base observations (.obs RINEX or .ubx recording)")
+    parser.add_argument("--base-xyz", metavar="X,Y,Z",
+                        help="known base position, ECEF metres (not lat,lon,h)")
     parser.add_argument(
-        "--source", help="position source: pos, rtklib or receiver (default from the options)"
+        "--source", metavar="{pos,rtklib,receiver}",
+        help="position source (default: pos with --positions, rtklib with --base)",
     )
     parser.add_argument(
-        "--engine", default=ppk.DEFAULT_ENGINE,
-        help=f"PPK engine with --base: {', '.join(ppk.ENGINES)} (default {ppk.DEFAULT_ENGINE})",
+        "--engine", default=ppk.DEFAULT_ENGINE, metavar="{" + ",".join(ppk.ENGINES) + "}",
+        help=f"PPK engine with --base (default {ppk.DEFAULT_ENGINE})",
     )
     parser.add_argument(
         "--rtk-opt", action="append", default=[], metavar="KEY=VALUE",
         help="engine option (RTKLIB key, e.g. pos2-arthres=3); repeatable; checked against "
         "the engine's option table",
     )
-    parser.add_argument("--rtk-conf", help="RTKLIB options file (.conf) applied over the defaults")
-    parser.add_argument("--photos", help="directory of the flight's JPEGs")
-    parser.add_argument("--lever-arm", help="lever arm in the camera frame, metres: X,Y,Z")
-    parser.add_argument("--eo", help="exterior orientations: name, X, Y, Z, omega, phi, kappa")
-    parser.add_argument("--epsg", help="output CRS (default: the WGS84 UTM zone)")
-    parser.add_argument("--interp", default="linear", help="linear, spline or smoother")
-    parser.add_argument("--edge", default="falling", help="falling, rising or mid")
-    parser.add_argument("--shutter-delay-ms", default="0", help="added to the mark time (ms)")
+    parser.add_argument("--rtk-conf", metavar="FILE",
+                        help="RTKLIB options file (.conf) applied over the defaults")
+    parser.add_argument("--photos", metavar="DIR", help="directory of the flight's JPEGs")
+    parser.add_argument("--lever-arm", metavar="X,Y,Z",
+                        help="lever arm in the camera frame, metres (default 0,0,0)")
+    parser.add_argument("--eo", metavar="FILE",
+                        help="exterior orientations: name, X, Y, Z, omega, phi, kappa")
+    parser.add_argument("--epsg", metavar="CODE", help="output CRS (default: the WGS84 UTM zone)")
+    parser.add_argument("--interp", default="linear", metavar="{linear,spline,smoother}",
+                        help="interpolation between epochs")
+    parser.add_argument("--edge", default="falling", metavar="{falling,rising,mid}",
+                        help="which edge of the hot-shoe pulse is the exposure")
+    parser.add_argument("--shutter-delay-ms", default="0", metavar="MS",
+                        help="added to the mark time")
     parser.add_argument(
-        "--max-gap", default=str(interp.DEFAULT_MAX_GAP_S),
+        "--max-gap", default=str(interp.DEFAULT_MAX_GAP_S), metavar="S",
         help="flag marks between epochs further apart than this (s)",
     )
     parser.add_argument(
@@ -81,6 +93,11 @@ def settings_from_args(args: argparse.Namespace) -> SolveSettings:
             raise ConfigError(opt, f"{val}: {what}")
     if args.photos is not None and not Path(args.photos).is_dir():
         raise ConfigError("--photos", f"{args.photos}: not a directory")
+    if args.photos is not None and not any(
+            p.suffix.lower() in JPEG_SUFFIXES for p in Path(args.photos).iterdir()):
+        # Asked for by name: a folder without JPEGs would only give "offset +0.00 s" later.
+        # (The solver service may be given a folder the photos have not reached yet.)
+        raise ConfigError("--photos", f"{args.photos}: no JPEG files (.jpg, .jpeg) in it")
     if args.rtk_conf is not None and not Path(args.rtk_conf).is_file():
         raise ConfigError("--rtk-conf", f"{args.rtk_conf}: no such file")
     rtk_opts = ppk.options.parse_assignments(args.rtk_opt)
@@ -145,6 +162,12 @@ def run(args: argparse.Namespace) -> int:
     finally:
         progress.done()
     sys.stdout.write(format_result(result))
+    positioned = sum(1 for row in result.rows if row.mark >= 0 and row.x_m == row.x_m)
+    if positioned == 0:  # the exports exist (for diagnosis) but hold no camera position
+        print(f"groundstation solve: error: no camera position computed ({len(result.marks)} "
+              f"marks, 0 positioned): the exports in {settings.out_dir} are empty",
+              file=sys.stderr)
+        return 1
     return 0
 
 

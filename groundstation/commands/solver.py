@@ -23,7 +23,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "{stem}, {station} of the session's recording")
     parser.add_argument("--base-xyz", metavar="X,Y,Z", help="known base position, ECEF metres")
     parser.add_argument("--photos", metavar="DIR", help="photo directory (same placeholders)")
-    parser.add_argument("--out-root", metavar="DIR",
+    parser.add_argument("--out-dir", "--out-root", dest="out_root", metavar="DIR",
                         help="solutions go to DIR/<station>/<recording> (default: solutions)")
     parser.add_argument("--recording-root", dest="recording_roots", action="append",
                         metavar="DIR", help="only recordings under DIR are solved (repeatable; "

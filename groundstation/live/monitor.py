@@ -44,6 +44,19 @@ from groundstation.records import (
 
 DISK_FULL_ERRNOS = (errno.ENOSPC, errno.EDQUOT)
 
+HALF_CYCLE_WARMUP_S = 30.0
+"""No half-cycle alert in a session's first 30 s: every satellite starts with its half cycle
+unresolved until the receiver has decoded a subframe of it (6 s at best, up to 30 s)."""
+PPK_WARMUP_CLEAN_PHASES = 2.0
+"""No PPK-ready alert before twice ``clean_phase_s``: a satellite's clean-phase clock starts only
+once its half cycle is resolved, so at exactly ``clean_phase_s`` none can be ready yet."""
+ALERT_RAISE_AFTER_S = 10.0
+"""A hovering condition (half cycles, PPK-ready count) must hold this long before its alert."""
+ALERT_CLEAR_AFTER_S = 30.0
+"""... and be gone this long before the alert clears (the hysteresis of :meth:`Alerts.hold`)."""
+SOURCE_DOWN_AFTER_S = 1.0
+"""A source reconnecting within a second (a USB radio replugged) raises no alert."""
+
 MonitorThresholds = MonitorSettings
 """The alert thresholds are the ``[monitor]`` settings themselves (one definition, in config)."""
 
@@ -150,11 +163,14 @@ class Monitor:
             self.recording["file"] = ev.data.get("path")
             self.session_id = str(ev.data.get("session_id") or self.session_id)
         elif ev.kind in (kinds.SOURCE_LOST, kinds.SOURCE_CONNECTED, kinds.SOURCE_OUTAGE):
-            self.link.on_source_event(ev.kind)
+            self.link.on_source_event(ev.kind, ev.message)
+        elif ev.kind == kinds.OPERATOR_ACK:
+            self.mark_watch.acknowledge(str(ev.data.get("alert", "")),
+                                        str(ev.data.get("by", "")), now_ns, events)
         elif ev.kind == kinds.ZENOH_DISCONNECTED:
             alerts.raise_(kinds.ALERT_ZENOH_DISCONNECTED, ev.message, now_ns, events)
         elif ev.kind == kinds.ZENOH_CONNECTED:
-            alerts.clear(kinds.ALERT_ZENOH_DISCONNECTED, now_ns, events)
+            alerts.clear(kinds.ALERT_ZENOH_DISCONNECTED, now_ns, events, ok=ev.message)
         elif ev.kind == kinds.RECORDER_WRITE_FAILED:
             full = ev.data.get("errno") in DISK_FULL_ERRNOS
             name = kinds.ALERT_DISK_FULL if full else kinds.ALERT_RECORDING_FAILED
@@ -166,37 +182,50 @@ class Monitor:
                 if alert is not None:  # the alert now says what is being lost
                     alert.message = f"{alert.message.split('; ')[0]}; {ev.message}"
         elif ev.kind == kinds.RECORDER_RECOVERED:
-            alerts.clear(kinds.ALERT_DISK_FULL, now_ns, events)
-            alerts.clear(kinds.ALERT_RECORDING_FAILED, now_ns, events)
+            alerts.clear(kinds.ALERT_DISK_FULL, now_ns, events, ok="recording again")
+            alerts.clear(kinds.ALERT_RECORDING_FAILED, now_ns, events, ok="recording again")
         elif kinds.sink_of(ev.kind, kinds.BEHIND_SUFFIX) == "recorder":
             self.recorder_behind = True
             alerts.raise_(kinds.ALERT_RECORDER_BEHIND, ev.message, now_ns, events)
         elif kinds.sink_of(ev.kind, kinds.CAUGHT_UP_SUFFIX) == "recorder":
             self.recorder_behind = False
-            alerts.clear(kinds.ALERT_RECORDER_BEHIND, now_ns, events)
+            alerts.clear(kinds.ALERT_RECORDER_BEHIND, now_ns, events,
+                         ok="the recorder has caught up")
 
     # -- alerts from elapsed time ---------------------------------------------------------
 
     def _evaluate_alerts(self, now_ns: int, events: list[Event]) -> None:
         th, alerts, link = self.th, self.alerts, self.link
         link.evaluate(now_ns, events)
+        alerts.hold(
+            kinds.ALERT_SOURCE_DOWN, link.source_connected is False, now_ns, events,
+            message=f"source down: {link.source_problem or 'not connected'} (retrying)",
+            ok="source connected", raise_after_s=SOURCE_DOWN_AFTER_S, clear_after_s=0.0,
+        )
         if link.epochs and link.first_epoch_ns is not None and link.last_epoch_ns is not None:
-            warmed_up = link.last_epoch_ns - link.first_epoch_ns >= th.clean_phase_s * NS_PER_S
+            # Session time in GPS time (data time): right for live and replay alike.
+            age_s = (link.last_epoch_ns - link.first_epoch_ns) / NS_PER_S
             ready, tracked, half = self.sats.counts(link.last_epoch_ns)
-            if warmed_up and ready < th.ppk_ready_min:
-                alerts.raise_(kinds.ALERT_PPK_READY_LOW,
-                              f"only {ready} satellites with clean phase for "
-                              f"{th.clean_phase_s:g} s (need {th.ppk_ready_min})",
-                              now_ns, events, {"ppk_ready": ready})
-            elif ready >= th.ppk_ready_min:
-                alerts.clear(kinds.ALERT_PPK_READY_LOW, now_ns, events)
+            alerts.hold(
+                kinds.ALERT_PPK_READY_LOW,
+                age_s >= PPK_WARMUP_CLEAN_PHASES * th.clean_phase_s and ready < th.ppk_ready_min,
+                now_ns, events,
+                message=f"only {ready} satellites with clean phase for {th.clean_phase_s:g} s "
+                f"(need {th.ppk_ready_min})",
+                ok=f"PPK ready: {ready} satellites with clean phase for {th.clean_phase_s:g} s",
+                raise_after_s=ALERT_RAISE_AFTER_S, clear_after_s=ALERT_CLEAR_AFTER_S,
+                data={"ppk_ready": ready},
+            )
             frac = half / tracked if tracked else 0.0
-            if frac > th.half_cycle_fraction_max:
-                alerts.raise_(kinds.ALERT_HALF_CYCLE_HIGH,
-                              f"{half} of {tracked} satellites with unresolved half cycles",
-                              now_ns, events, {"fraction": round(frac, 3)})
-            else:
-                alerts.clear(kinds.ALERT_HALF_CYCLE_HIGH, now_ns, events)
+            alerts.hold(
+                kinds.ALERT_HALF_CYCLE_HIGH,
+                age_s >= HALF_CYCLE_WARMUP_S and frac > th.half_cycle_fraction_max,
+                now_ns, events,
+                message=f"{half} of {tracked} satellites with unresolved half cycles",
+                ok=f"half cycles resolved: {tracked - half} of {tracked} satellites",
+                raise_after_s=ALERT_RAISE_AFTER_S, clear_after_s=ALERT_CLEAR_AFTER_S,
+                data={"fraction": round(frac, 3)},
+            )
         link.check_frames(now_ns, events)
         self.mark_watch.evaluate(now_ns, events)
         if self.disk_free_mb is not None:
@@ -205,7 +234,8 @@ class Monitor:
                               f"disk space low: {self.disk_free_mb:.0f} MB free", now_ns, events,
                               {"free_mb": round(self.disk_free_mb, 1)})
             else:
-                alerts.clear(kinds.ALERT_DISK_LOW, now_ns, events)
+                alerts.clear(kinds.ALERT_DISK_LOW, now_ns, events,
+                             ok=f"disk space: {self.disk_free_mb:.0f} MB free")
 
     # -- output ---------------------------------------------------------------------------
 

@@ -58,6 +58,8 @@ class Link:
         self.damaged = 0
         self.garbage = 0
         self.source_connected: bool | None = None
+        self.source_problem = ""  # why the source is down (the source.lost message)
+        self.watch_since_ns: int | None = None  # the first clock tick: silence counts from here
         self.source_outages = 0
         self.nmea_sentences = 0
         self._frameless_since_ns: int | None = None  # first byte after the last frame progress
@@ -98,9 +100,10 @@ class Link:
         if connected is not None:
             self.source_connected = connected
 
-    def on_source_event(self, kind: str) -> None:
+    def on_source_event(self, kind: str, message: str = "") -> None:
         if kind == kinds.SOURCE_LOST:
             self.source_connected = False
+            self.source_problem = message
         elif kind == kinds.SOURCE_CONNECTED:
             self.source_connected = True
         elif kind == kinds.SOURCE_OUTAGE:
@@ -230,12 +233,23 @@ class Link:
             self.alerts.raise_(kinds.ALERT_DROPOUT_LONG,
                                f"link dropout longer than {th.dropout_alert_s:g} s", now_ns,
                                events, {"start_t_gps_ns": ongoing.start_t_gps_ns})
-        if self.last_byte_ns is not None:
-            if (now_ns - self.last_byte_ns) / 1e9 >= th.no_data_s:
-                self.alerts.raise_(kinds.ALERT_NO_DATA,
-                                   f"no data for {th.no_data_s:g} s or more", now_ns, events)
-            else:
-                self.alerts.clear(kinds.ALERT_NO_DATA, now_ns, events)
+        if self.watch_since_ns is None:
+            self.watch_since_ns = now_ns
+        # Silence counts from the last byte, or from the start when none came yet: a source
+        # that connects and never sends must not look alive.
+        last = self.last_byte_ns if self.last_byte_ns is not None else self.watch_since_ns
+        silent_s = (now_ns - last) / 1e9
+        if silent_s >= th.no_data_s:
+            since = ("since the start: nothing received yet" if self.last_byte_ns is None
+                     else f"for {th.no_data_s:g} s or more")
+            self.alerts.raise_(kinds.ALERT_NO_DATA, f"no data from the source {since}",
+                               now_ns, events)
+            alert = self.alerts.active[kinds.ALERT_NO_DATA]
+            alert.message = f"no data from the source for {silent_s:.0f} s" + (
+                " (nothing received since the start)" if self.last_byte_ns is None else "")
+        else:
+            self.alerts.clear(kinds.ALERT_NO_DATA, now_ns, events,
+                              ok=f"data arriving again ({self.bytes_in:,} bytes so far)")
 
     # -- status ---------------------------------------------------------------------------
 

@@ -38,6 +38,7 @@ class Marks:
         self._epoch_slots: dict[int, int] = {}
         self.last_pulse_ms: float | None = None
         self._last_missed_ns: int | None = None
+        self._missed_acked = 0  # rule.missed when the operator last acknowledged
 
     def on_mark(self, m: TimeMark, now_ns: int, events: list[Event]) -> None:
         if m.new_rising and m.rising_t_gps_ns is not None and m.falling_t_gps_ns is not None:
@@ -66,8 +67,14 @@ class Marks:
                 f"(count {last} -> {number})", "warning",
                 {"from_count": last, "to_count": number, "missed": mark.lost_before},
             ))
-            self.alerts.raise_(kinds.ALERT_MARKS_MISSED, f"{self.rule.missed} time marks missed",
-                               now_ns, events, {"missed": self.rule.missed})
+            unacked = self.rule.missed - self._missed_acked
+            since = "since the last acknowledgement" if self._missed_acked else "this session"
+            self.alerts.raise_(
+                kinds.ALERT_MARKS_MISSED,
+                f"{unacked} time mark(s) missed {since} (last: count {last} -> {number}); "
+                "acknowledge to clear",
+                now_ns, events, {"missed": self.rule.missed, "unacknowledged": unacked},
+            )
         ft = mark.falling_t_gps_ns
         if ft is None:
             return  # no exposure time to place among the epochs
@@ -115,10 +122,25 @@ class Marks:
         ))
 
     def evaluate(self, now_ns: int, events: list[Event]) -> None:
-        """The missed-marks alert clears after ``marks_missed_hold_s`` without a new loss."""
-        if (self._last_missed_ns is not None
-                and now_ns - self._last_missed_ns >= self.th.marks_missed_hold_s * NS_PER_S):
-            self.alerts.clear(kinds.ALERT_MARKS_MISSED, now_ns, events)
+        """The missed-marks alert stays until the operator acknowledges it (an operator who
+        looked away must still learn of it); with ``marks_missed_hold_s`` > 0 it also clears
+        after that long without a new loss."""
+        hold = self.th.marks_missed_hold_s
+        if (hold > 0 and self._last_missed_ns is not None
+                and now_ns - self._last_missed_ns >= hold * NS_PER_S):
+            self.alerts.clear(kinds.ALERT_MARKS_MISSED, now_ns, events,
+                              ok=f"no time mark missed for {hold:g} s")
+
+    def acknowledge(self, alert: str, by: str, now_ns: int, events: list[Event]) -> None:
+        """An operator's acknowledgement (``operator.ack``): clears the missed-marks alert; the
+        next loss raises it again, counting from here."""
+        if alert not in ("", kinds.ALERT_MARKS_MISSED):
+            return
+        acked = self.rule.missed - self._missed_acked
+        self._missed_acked = self.rule.missed
+        who = f" by {by}" if by else ""
+        self.alerts.clear(kinds.ALERT_MARKS_MISSED, now_ns, events,
+                          ok=f"{acked} missed time mark(s) acknowledged{who}")
 
     def status(self, t_last_ns: int) -> MarkStatus:
         lm = self.last_mark

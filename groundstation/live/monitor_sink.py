@@ -84,6 +84,12 @@ class MonitorSink:
     def _now(self, item: Item | None, publish: Publish) -> int | None:
         if not self.data_clock:
             return self._clock()
+        if not isinstance(item, RawChunk):
+            # Only the recorded bytes carry the recording's time (records follow their chunk).
+            # The replaying pipeline's own events and counters carry today's wall clock: taken
+            # as data time they made every view see minutes of silence ("last byte 630 s ago",
+            # no_data, a dropout) that the recording does not hold.
+            return self._data_now
         t = getattr(item, "t_host_ns", None) if item is not None else None
         if not isinstance(t, int) or t <= 0:
             return self._data_now
@@ -101,7 +107,7 @@ class MonitorSink:
             if ev.kind == kinds.ALERT_RAISED:  # the journal shows what the operator must act on
                 log.warning("alert: %s", ev.message)
             elif ev.kind == kinds.ALERT_CLEARED:
-                log.info("alert %s", ev.message)
+                log.info("alert cleared: %s", ev.message)
             publish(ev)
         if status is not None:
             self.last_status = status

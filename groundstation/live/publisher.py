@@ -28,10 +28,11 @@ import secrets
 import threading
 import time
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 from groundstation import events as kinds
-from groundstation.bus import Bus, encode, key, open_bus
+from groundstation.bus import Bus, decode, encode, key, open_bus
 from groundstation.config import ZenohSettings
 from groundstation.errors import GroundstationError
 from groundstation.live.fanout import Inbox, InboxClosed, Item, RawChunk
@@ -149,12 +150,32 @@ class ZenohPublisherSink:
         )
         bus.liveliness_token(key(st, f"alive/{self.instance}"))
         bus.subscribe_liveliness(key(st, "alive/**"), self._on_token)
+
+        def on_ack(_key: str, payload: bytes) -> None:  # a Zenoh thread: hand over to the loop
+            loop.call_soon_threadsafe(self._on_ack, payload, publish)
+
+        bus.subscribe(key(st, "ack"), on_ack)
         if self._unavailable_reported:
             self._unavailable_reported = False
             publish(Event(kinds.ZENOH_AVAILABLE, self._clock(), "Zenoh session open again", "info"))
         self._put("session", encode("session", self.session, station=st))
         log.info("publishing on Zenoh as %s (%s, listen %s, connect %s)", key(st, "**"),
                  self.settings.mode, list(self.settings.listen), list(self.settings.connect))
+
+    def _on_ack(self, payload: bytes, publish: Callable[[Item], None]) -> None:
+        """An operator's acknowledgement from a view (``groundstation/<station>/ack``, JSON
+        ``{"alert": ..., "by": ...}``): into the pipeline as ``operator.ack``, where the
+        monitor clears the alert for every view and the recorder keeps it."""
+        try:
+            msg = decode(payload)
+        except ValueError as err:
+            log.warning("ignoring a malformed acknowledgement: %s", err)
+            return
+        alert, by = str(msg.get("alert", ""))[:64], str(msg.get("by", ""))[:64]
+        log.info("operator acknowledged %s (%s)", alert or "all alerts", by or "unnamed view")
+        publish(Event(kinds.OPERATOR_ACK, self._clock(),
+                      f"{alert or 'alerts'} acknowledged by {by or 'an operator'}", "info",
+                      {"alert": alert, "by": by}))
 
     def _check_links(self, publish: Callable[[Item], None]) -> None:
         """Say when nobody we are meant to connect to is connected, and when one is again."""
@@ -226,6 +247,8 @@ class ZenohPublisherSink:
             self._put("event", encode("event", item, station=st))
             if item.kind == kinds.RECORDER_FILE_OPENED:
                 path = item.data.get("path")
+                # Absolute: the solver and the views run in other directories.
+                path = str(Path(path).absolute()) if path else path
                 if path and path not in self.session["files"]:
                     self.session["files"].append(path)
                     self.session["session_id"] = item.data.get("session_id", "")

@@ -7,17 +7,22 @@ Sans-I/O: :class:`Inspector` takes frames (from any source) and returns a :class
 from __future__ import annotations
 
 from collections import Counter
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 from groundstation import gpstime
+from groundstation.errors import InputError
 from groundstation.records import Frame, RawEpoch, TimeMark, UndecodedFrame
 from groundstation.rules.epochs import Gap, find_gaps, nominal_interval_ns
 from groundstation.rules.marks import track_marks
 from groundstation.storage.reading import Recording
 from groundstation.ubx.decode import Decoder, message_name
 from groundstation.ubx.framer import DEFAULT_MAX_PAYLOAD, FramerStats, UbxFramer
+
+GNSS_GLONASS = 6
+UNKNOWN_SV = 255
+"""u-blox svId of a GLONASS satellite whose slot number is not known yet."""
 
 
 def gap_json(g: Gap) -> dict[str, Any]:
@@ -71,6 +76,10 @@ class Summary:
     timemarks: TimeMarkSummary
     satellites: tuple[str, ...]
     max_sats_per_epoch: int
+    file_bytes: int = 0
+    """Size on disk of the recording (all parts); ``bytes`` is the raw stream inside it."""
+    unknown_slot_signals: int = 0
+    """GLONASS measurements without a known slot (u-blox svId 255): not a satellite name."""
 
     def as_json(self) -> dict[str, Any]:
         d = asdict(self)
@@ -100,6 +109,7 @@ class Inspector:
     epoch_sources: Counter[str] = field(default_factory=Counter)
     sats: set[str] = field(default_factory=set)
     max_sats: int = 0
+    unknown_slot: int = 0
     marks: list[TimeMark] = field(default_factory=list)
     undecodable: int = 0
 
@@ -114,7 +124,11 @@ class Inspector:
             self.epoch_times.add(record.t_gps_ns)
             self.epoch_sources[record.source] += 1
             self.max_sats = max(self.max_sats, len(record.sats))
-            self.sats.update(s.label for s in record.sats)
+            # u-blox reports a GLONASS satellite whose slot it does not know yet as svId 255
+            # ("R255"): a measurement, not a satellite to list.
+            known = [s for s in record.sats if (s.gnss, s.sv) != (GNSS_GLONASS, UNKNOWN_SV)]
+            self.unknown_slot += len(record.sats) - len(known)
+            self.sats.update(s.label for s in known)
         elif isinstance(record, TimeMark):
             self.marks.append(record)
         elif isinstance(record, UndecodedFrame):
@@ -151,6 +165,7 @@ class Inspector:
             timemarks=summarise_marks(self.marks),
             satellites=tuple(sorted(self.sats)),
             max_sats_per_epoch=self.max_sats,
+            unknown_slot_signals=self.unknown_slot,
         )
 
 
@@ -186,4 +201,45 @@ def inspect_path(path: str | Path, max_payload: int = DEFAULT_MAX_PAYLOAD) -> Su
             insp.add(frame)
     for frame in framer.flush(last_t):
         insp.add(frame)
-    return insp.summary(framer.stats, path=str(p), fmt=recording.format)
+    out = insp.summary(framer.stats, path=str(p), fmt=recording.format)
+    return replace(out, file_bytes=recording.size_bytes)
+
+
+FILE_SIGNATURES: tuple[tuple[bytes, str], ...] = (
+    (b"\xff\xd8\xff", "a JPEG image"),
+    (b"\x89PNG", "a PNG image"),
+    (b"%PDF", "a PDF document"),
+    (b"PK\x03\x04", "a ZIP archive"),
+)
+"""Leading bytes of files users hand over by mistake (a photo instead of the flight)."""
+
+
+def require_ubx_frames(path: str | Path, max_payload: int = DEFAULT_MAX_PAYLOAD) -> None:
+    """Raise unless the recording holds at least one valid UBX frame.
+
+    Reads only as far as the first frame, so a real recording costs one chunk. The one check
+    behind ``inspect``, ``replay`` and ``run --file``: a JPEG or an empty file gives an error
+    ("no UBX frames in this file", exit 1) instead of an all-zero report.
+
+    Raises:
+        InputError: missing, unreadable, or no UBX frame in the whole file.
+    """
+    p = Path(path)
+    recording = Recording(p)
+    framer = UbxFramer(max_payload)
+    last_t = 0
+    head = b""
+    for chunk, t_host_ns in recording.chunks():
+        if not head:
+            head = chunk[:8]
+        last_t = t_host_ns
+        if any(True for _ in framer.feed(chunk, t_host_ns)):
+            return
+    if any(True for _ in framer.flush(last_t)):
+        return
+    size = recording.size_bytes
+    what = next((name for magic, name in FILE_SIGNATURES if head.startswith(magic)), None)
+    detail = "empty file" if size == 0 else (
+        f"{size:,} bytes, {what}" if what else f"{size:,} bytes"
+    )
+    raise InputError(f"{p}: no UBX frames in this file ({detail})")

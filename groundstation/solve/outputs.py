@@ -199,10 +199,12 @@ def _photo_rows(out: SolveOutput) -> list[CameraRow]:
 def geo_txt(out: SolveOutput) -> str:
     """OpenDroneMap ``geo.txt``: ``EPSG:N`` then ``image x y z yaw pitch roll horz vert``.
 
-    Angles are written as 0 (ODM uses them only for radiometric calibration and accepts 0 when
-    unknown); horizontal accuracy is the larger of σ east and north. ODM splits a line on
-    whitespace, so a photo whose name holds any cannot be listed: it is named in a ``#`` comment
-    line (which ODM skips) instead, and keeps its row in the CSV exports.
+    Yaw is the compass direction of the image x axis from κ (90 - κ: κ counts
+    counter-clockwise from east), pitch and roll 0 for the nadir camera (ODM uses the angles
+    for radiometric calibration only, and reads 0 as unknown); horizontal accuracy is the
+    larger of σ east and north. z is the WGS84 ellipsoidal height, as in every export. ODM
+    splits a line on whitespace, so a photo whose name holds any cannot be listed: it is named
+    in a ``#`` comment line (which ODM skips) instead, and keeps its row in the CSV exports.
     """
     lines = [f"EPSG:{out.epsg}"]
     nd = 3 if out.projected else 9
@@ -211,8 +213,9 @@ def geo_txt(out: SolveOutput) -> str:
             lines.append(f"# not listed (whitespace or '#' in the name): {r.photo!r}")
             continue
         horz = max(r.sd_e_m, r.sd_n_m)
+        yaw = (90.0 - r.kappa_deg) % 360.0 if math.isfinite(r.kappa_deg) else 0.0
         lines.append(
-            f"{r.photo} {r.x_m:.{nd}f} {r.y_m:.{nd}f} {r.h_m:.3f} 0 0 0 "
+            f"{r.photo} {r.x_m:.{nd}f} {r.y_m:.{nd}f} {r.h_m:.3f} {yaw:.2f} 0 0 "
             f"{_f(horz, 3) or '0'} {_f(r.sd_u_m, 3) or '0'}"
         )
     return "\n".join(lines) + "\n"
@@ -244,10 +247,15 @@ PIX4D_COLUMNS = ("imagename", "Y", "X", "Z", "accuracy_horz", "accuracy_vert")
 
 
 def pix4d_csv(out: SolveOutput) -> str:
-    """Pix4D image geolocation CSV: name, Y (northing/lat), X (easting/lon), Z, accuracies."""
+    """Pix4D image geolocation CSV: name, Y (northing/lat), X (easting/lon), Z, accuracies.
+
+    PIX4Dmatic reads no header row, only a comment on the first line: the column names are
+    that comment, with the CRS and the height datum after them.
+    """
     buf = io.StringIO()
+    buf.write(f"#{','.join(PIX4D_COLUMNS)} ; EPSG:{out.epsg} {out.crs_name}; "
+              "Z = WGS84 ellipsoidal height\n")
     w = csv.writer(buf, lineterminator="\n")
-    w.writerow(PIX4D_COLUMNS)
     nd = 3 if out.projected else 9
     for r in _photo_rows(out):
         w.writerow([
@@ -307,7 +315,10 @@ def geojson(out: SolveOutput) -> str:
                 "sd_n_m": _clean(r.sd_n_m), "sd_u_m": _clean(r.sd_u_m), "attitude": r.attitude,
             },
         })
-    return jsonio.dumps({"type": "FeatureCollection", "features": feats}).decode()
+    # RFC 7946 positions are WGS84 lon, lat, height; the height's datum is said as a foreign
+    # member, as in every other export.
+    return jsonio.dumps({"type": "FeatureCollection", "height_datum": "WGS84 ellipsoidal",
+                         "features": feats}).decode()
 
 
 WRITERS: dict[str, Callable[[SolveOutput], str]] = {

@@ -42,7 +42,8 @@ BURST_SPREAD_S: dict[int, tuple[float, ...]] = {
     4: (-0.40, -0.15, 0.15, 0.40),
 }
 """Offsets from the middle of the EXIF second for photos that share it, by file order
-(DOMAIN.md §8); larger bursts are spread evenly."""
+(several photos in one EXIF second: spread over it, not stacked on its start); larger bursts
+are spread evenly."""
 
 JPEG_SUFFIXES = (".jpg", ".jpeg", ".jpe")
 

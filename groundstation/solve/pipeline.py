@@ -201,6 +201,9 @@ def _marks(s: SolveSettings, progress: Progress | None) -> tuple[FlightRecords, 
     """Stage 1: the flight's TIM-TM2 records (and receiver fixes) and the marks they make."""
     rec = read_flight(s.flight, progress)
     marks = tuple(build_marks(rec.timemarks))
+    if not marks and s.photos is None:
+        raise InputError(f"{s.flight}: no camera marks (TIM-TM2) in this flight: nothing to "
+                         "position (is the hot-shoe cable on EXTINT0 and TIM-TM2 enabled?)")
     log.info("%s: %d TIM-TM2 records, %d marks", s.flight.name, len(rec.timemarks), len(marks))
     return rec, marks
 
@@ -301,6 +304,7 @@ def _row_entries(
 def _attitude(
     s: SolveSettings, entries: list[tuple[str, int]], mk: npt.NDArray[np.int64],
     ant_x: npt.NDArray[np.float64], ant_y: npt.NDArray[np.float64],
+    proj: outputs.Projector, llh: npt.NDArray[np.float64],
 ) -> tuple[npt.NDArray[np.float64], list[str], dict[str, leverarm.ExteriorOrientation]]:
     """Attitude per row: EO file by photo name, else nadir with kappa along the track."""
     opk = np.full((len(entries), 3), np.nan)
@@ -318,7 +322,14 @@ def _attitude(
         order = np.argsort(np.where(mk >= 0, mk, 1 << 40))
         ok = order[np.isfinite(ant_x[order])]
         if ok.size:
-            kap = leverarm.kappa_from_track_deg(ant_x[ok], ant_y[ok], s.kappa_offset_deg)
+            # κ from metric east/north: in a geographic CRS x/y are degrees, and a degree of
+            # longitude is cos(latitude) of a degree of latitude (48.6 instead of 59.5 deg).
+            east, north = ant_x[ok], ant_y[ok]
+            if not proj.projected:
+                lat0 = float(np.nanmean(llh[ok, 0]))
+                east = (llh[ok, 1] - llh[ok[0], 1]) * math.cos(math.radians(lat0))
+                north = llh[ok, 0] - llh[ok[0], 0]
+            kap = leverarm.kappa_from_track_deg(east, north, s.kappa_offset_deg)
             for j, row in enumerate(ok.tolist()):
                 if attitude[row] == "none":
                     opk[row] = (0.0, 0.0, kap[j])
@@ -390,7 +401,7 @@ def _cameras(
     llh[has] = mark_llh[mk[has]]
     ant_x, ant_y = proj.forward(llh[:, 0], llh[:, 1])
     ant_h = llh[:, 2]
-    opk, attitude, eo_by_name = _attitude(s, entries, mk, ant_x, ant_y)
+    opk, attitude, eo_by_name = _attitude(s, entries, mk, ant_x, ant_y, proj, llh)
     cam, lever_est = _lever_arm(s, proj, epsg, llh, np.column_stack([ant_x, ant_y, ant_h]),
                                 opk, attitude, entries, eo_by_name, notes)
     if proj.projected:
@@ -428,6 +439,9 @@ def _report(
     te, tn = proj.forward(traj_llh[:, 0], traj_llh[:, 1])
     engine, version, engine_opts = report.engine_of(traj, dict(s.rtk_options), s.positions)
     base_check, base_doubtful = report.check_base(s.base, s.base_ecef_m, traj, s.positions)
+    if base_doubtful:
+        notes.append(f"WARNING base coordinates: {base_check}")
+        log.warning("base coordinates doubtful: %s", base_check)
     radio_gaps, outages, events_recorded = report.station_events(s.flight)
     unmatched = tuple(
         (photo_list[i].name, photo_list[i].error or "no mark within the pairing window")

@@ -346,7 +346,20 @@ def read_pos(path: str | Path, ref_ecef_m: tuple[float, float, float] | None = N
         raise InputError(f"{p}: cannot read: {err}") from err
     except (EOFError, gzip.BadGzipFile, zlib.error) as err:
         raise InputError(f"{p}: damaged gzip: {err}") from err
+    # A photo or a recording given by mistake: say so in one line rather than echo its bytes.
+    head = data[:4096]
+    if b"\x00" in head or head.startswith(b"\xff\xd8") or not _is_text(head):
+        raise InputError(f"{p}: not an RTKLIB .pos text file (binary data)")
     return parse_pos(data.decode("ascii", "replace"), source=p.name, ref_ecef_m=ref_ecef_m)
+
+
+def _is_text(head: bytes) -> bool:
+    """UTF-8 text, allowing a character cut at the end of ``head``."""
+    try:
+        head.decode("utf-8")
+    except UnicodeDecodeError as err:
+        return err.start >= len(head) - 3
+    return True
 
 
 # -- the receiver's own fix ---------------------------------------------------------------------

@@ -6,6 +6,8 @@
 
 from __future__ import annotations
 
+import os
+import sys
 import threading
 import time
 from collections import deque
@@ -197,7 +199,11 @@ def _status_body(st: dict[str, Any], marks: list[dict[str, Any]],
     """The screen below the title for one status."""
     link = st["link"]
     head = Text()
-    if stale:
+    # A normal end of session is not a failure: the daemon said "finished" before it went.
+    finished = stale and (session or {}).get("state") == "finished"
+    if finished:
+        head.append(" SESSION FINISHED ", style="bold black on cyan")
+    elif stale:
         head.append(" STALE: no status for more than 3 s ", style="bold white on red")
         if alive is False:
             head.append(" daemon gone ", style="bold white on red")
@@ -224,7 +230,7 @@ def _status_body(st: dict[str, Any], marks: list[dict[str, Any]],
     link_line.append(f"damaged {link.get('damaged_frames', 0)}  ")
     age = link.get("last_byte_age_s")
     link_line.append(f"last byte {_fmt(age, '.1f')} s ago")
-    if cur:
+    if cur and not finished:
         link_line.append(f"  DROPOUT NOW {cur['duration_s']:.1f} s", style="bold white on red")
     if link.get("source_connected") is False:
         link_line.append("  SOURCE LOST", style="bold white on red")
@@ -273,9 +279,12 @@ def _status_body(st: dict[str, Any], marks: list[dict[str, Any]],
         when = time.strftime("%H:%M:%S", time.localtime(e.get("t_host_ns", 0) / 1e9))
         ev_text.append(f"{when} {e.get('kind', '?'):<22} {e.get('message', '')}\n",
                        style="yellow" if e.get("severity") == "warning" else "")
+    if any("mark" in a for a in alerts):
+        alert_text.append(" press a to acknowledge the missed marks\n", style="dim")
+    # ALERTS right under the head: a short terminal (80x24) cuts the bottom, never the alerts.
     return Group(
-        head, link_line, Text("last 5 min ") + timeline(link), Text(""), ppk, sats, Text(""),
-        mark_line, Text(""), Text("ALERTS", style="bold"), alert_text,
+        head, Text("ALERTS", style="bold"), alert_text, link_line,
+        Text("last 5 min ") + timeline(link), ppk, mark_line, sats,
         Text("EVENTS", style="bold"), ev_text,
     )
 
@@ -296,6 +305,38 @@ def connect(
     return bus
 
 
+def acknowledge(bus: Bus, station: str, alert: str = "marks_missed") -> None:
+    """Put an acknowledgement on ``groundstation/<station>/ack``: the daemon clears the alert
+    for every view and records who acknowledged it (docs/zenoh.md)."""
+    import socket
+
+    from groundstation import jsonio
+
+    by = f"watch {os.environ.get('USER', '')}@{socket.gethostname()}".replace(" @", " ")
+    bus.put(key(station, "ack"), jsonio.dumps({"alert": alert, "by": by}))
+
+
+def _keys(on_key: Callable[[str], None], stop: threading.Event) -> None:
+    """Single key presses from a terminal (no Enter needed), until ``stop``."""
+    import select
+    import termios
+    import tty
+
+    fd = sys.stdin.fileno()
+    try:
+        saved = termios.tcgetattr(fd)
+    except termios.error:
+        return  # not a terminal: no keys
+    try:
+        tty.setcbreak(fd)
+        while not stop.is_set():
+            ready, _, _ = select.select([fd], [], [], 0.2)
+            if ready:
+                on_key(os.read(fd, 1).decode(errors="replace"))
+    finally:
+        termios.tcsetattr(fd, termios.TCSADRAIN, saved)
+
+
 def run_watch(
     station: str,
     settings: ZenohSettings,
@@ -310,6 +351,13 @@ def run_watch(
     state = WatchState(station)
     bus = connect(station, settings, state)
     t_end = time.monotonic() + duration_s if duration_s > 0 else None
+    keys_done = threading.Event()
+
+    def on_key(ch: str) -> None:
+        if ch.lower() == "a":
+            acknowledge(bus, station)
+
+    threading.Thread(target=_keys, args=(on_key, keys_done), daemon=True).start()
     try:
         with Live(render(state), console=console, refresh_per_second=refresh_hz,
                   screen=False, transient=False) as live:
@@ -317,5 +365,6 @@ def run_watch(
                 time.sleep(1 / refresh_hz)
                 live.update(render(state))
     finally:
+        keys_done.set()
         bus.close()
     return state

@@ -2,7 +2,8 @@
 ``groundstation dashboard`` -> the page.
 
 The page loads without console errors, values update, a dropout injected into the stream is on
-the timeline within 2 s, a stopped daemon shows as stale, and a restarted one is live again
+the timeline within 2 s, a daemon that ends normally shows "session finished", a restarted
+one is live again, and a killed one shows as stale with the daemon gone
 without touching the page. Chromium is driven over the DevTools protocol on a pipe
 (``--remote-debugging-pipe``: NUL-separated JSON on fds 3 and 4, no websocket needed).
 Screenshots at 1366x768 go to the test's tmp dir.
@@ -280,17 +281,21 @@ def test_dashboard_in_headless_chromium(
             "Number(document.querySelector('#timeline rect.dropout').dataset.missing)")
         assert 15 <= missing <= 25, missing  # 4 s at 5 Hz
 
-        # the daemon stops: stale (no status for more than 3 s), and the daemon is gone
+        # the daemon ends normally: "session finished", not a red STALE / "daemon gone"
         feeder.paused.set()
         rc, _ = daemon.stop(signal.SIGTERM)
         assert rc == 0, daemon.stderr
         stopped_at = time.monotonic()
-        wait_for("stale", lambda: chromium.eval("document.body?.dataset.state") == "stale", 6)
+        wait_for("finished", lambda: chromium.eval("document.body?.dataset.state") == "finished",
+                 6)
         assert time.monotonic() - stopped_at > 2.0  # not before the status is really late
-        wait_for("daemon gone", lambda: "daemon gone" in chromium.eval(
-            "document.getElementById('badge-detail').textContent"), 3)
-        assert chromium.eval("document.getElementById('badge').textContent") == "STALE"
-        chromium.screenshot(tmp_path / "3-stale.png")
+        assert chromium.eval("document.getElementById('badge').textContent") == \
+            "SESSION FINISHED"
+        assert "daemon gone" not in chromium.eval(
+            "document.getElementById('badge-detail').textContent")
+        assert not chromium.eval("document.getElementById('link-now').textContent"
+                                 ".startsWith('DROPOUT')")  # no frozen dropout
+        chromium.screenshot(tmp_path / "3-finished.png")
 
         # the daemon comes back: live again, without reloading the page
         daemon = Daemon(*daemon_args)
@@ -304,6 +309,14 @@ def test_dashboard_in_headless_chromium(
             "(gsDashboard.doc.view.marks)"), 10)  # a mark may arrive before the status
         chromium.screenshot(tmp_path / "4-back.png")
 
+        # the daemon dies (no "finished"): stale, and the daemon is gone
+        daemon.kill()
+        wait_for("stale", lambda: chromium.eval("document.body?.dataset.state") == "stale", 8)
+        wait_for("daemon gone", lambda: "daemon gone" in chromium.eval(
+            "document.getElementById('badge-detail').textContent"), 15)
+        assert chromium.eval("document.getElementById('badge').textContent") == "STALE"
+        chromium.screenshot(tmp_path / "5-stale.png")
+
         assert chromium.eval("gsDashboard.errors") == []
         assert chromium.console_errors() == []
     finally:
@@ -311,3 +324,50 @@ def test_dashboard_in_headless_chromium(
         print(f"screenshots in {tmp_path}")
     dashboard.stop(signal.SIGTERM)
     assert dashboard.proc.returncode == 0, dashboard.stderr
+
+
+@pytest.mark.parametrize(("width", "height"), [(1366, 768), (1024, 600)])
+def test_alerts_visible_on_small_screens(
+    tmp_path: Path, pty: Pty, daemons: list[Daemon], width: int, height: int,
+) -> None:
+    """A dropout long enough for alerts, with every panel drawn: the ALERTS panel lies inside
+    the viewport at 1366x768 and 1024x600. Screenshots go to $UX_SHOTS (default the tmp dir)."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    daemon = Daemon("--port", str(pty.link), "--station", STATION,
+                    "--out-dir", str(tmp_path / "out"), "--zenoh-listen", endpoint)
+    daemons.append(daemon)
+    http_port = free_port()
+    dashboard = Daemon("--port", str(http_port), "--connect", endpoint, "--station", STATION,
+                       command="dashboard")
+    daemons.append(dashboard)
+    daemon.wait_for("publishing on Zenoh")
+    feeder = Feeder(pty)
+    feeder.start()
+    dashboard.wait_for("dashboard on http://")
+    shots = Path(os.environ.get("UX_SHOTS") or tmp_path)
+    shots.mkdir(parents=True, exist_ok=True)
+    browser = Chromium(width, height)
+    try:
+        browser.send("Page.navigate", {"url": f"http://127.0.0.1:{http_port}/"})
+        wait_for("page live", lambda: browser.eval("document.body?.dataset.state") == "live", 15)
+        wait_for("satellites drawn", lambda: browser.eval(
+            "document.querySelectorAll('#sky .sat-group').length") >= 5, 10)
+        feeder.drop(8.0)
+        wait_for("an alert raised", lambda: browser.eval(
+            "document.querySelectorAll('#alerts li:not(.none)').length") >= 1, 15)
+        time.sleep(0.5)
+        browser.screenshot(shots / f"dashboard-{width}x{height}-alert.png")
+        box = browser.eval(
+            "(() => { const r = document.getElementById('alerts-panel')"
+            ".getBoundingClientRect(); return [r.top, r.bottom, r.left, r.right, "
+            "window.innerWidth, window.innerHeight]; })()")
+        top, bottom, left, right, vw, vh = box
+        assert (vw, vh) == (width, height)
+        assert top >= 0 and bottom <= vh and left >= 0 and right <= vw, box
+        text = browser.eval("document.getElementById('alerts').textContent")
+        assert "dropout" in text or "no data" in text, text
+        assert browser.console_errors() == []
+    finally:
+        browser.close()
+        feeder.stop()
+    dashboard.stop(signal.SIGTERM)

@@ -126,6 +126,7 @@ def test_inspect_reads_the_parts_as_one(sessions: Sessions) -> None:
     assert split["frames"] > 1000 and split["missing_epochs"] > 0
     for d in (whole, split):
         d.pop("path")
+        d.pop("file_bytes")  # on disk: the parts' overheads differ; the stream is the same
     assert split == whole
     side = inspect_path(sessions.split.sidecars[0]).as_json()
     assert side["frames"] == whole["frames"] and side["timemarks"] == whole["timemarks"]

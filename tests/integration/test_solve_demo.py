@@ -169,7 +169,9 @@ def test_metashape_and_pix4d_csv_columns(solved: dict[str, Any]) -> None:
     assert ref_lines[0].startswith("# EPSG:")
     ref = list(csv.DictReader(ref_lines[1:]))
     assert tuple(ref[0].keys()) == REFERENCE_COLUMNS
-    pix = list(csv.DictReader((solved["out"] / "pix4d.csv").read_text().splitlines()))
+    pix_lines = (solved["out"] / "pix4d.csv").read_text().splitlines()
+    assert pix_lines[0].startswith("#") and "ellipsoidal" in pix_lines[0]  # PIX4Dmatic comment
+    pix = list(csv.DictReader(pix_lines[1:], fieldnames=PIX4D_COLUMNS))
     assert tuple(pix[0].keys()) == PIX4D_COLUMNS
     assert [r["label"] for r in ref] == [r["imagename"] for r in pix] == list(rows)
     for m, p in zip(ref, pix, strict=True):

@@ -141,7 +141,8 @@ def test_solver_station_tables_between_file_defaults_and_environment(
 
     cfg = tmp_path / "solver.toml"
     cfg.write_text('interp = "linear"\nepsg = 25832\n'
-                   '[stations.alpha]\nbase = "b.ubx"\nbase_xyz = [1, 2, 3]\ninterp = "spline"\n',
+                   '[stations.alpha]\nbase = "b.ubx"\n'
+                   'base_xyz = [4201000, 180000, 4779000]\ninterp = "spline"\n',
                    encoding="utf-8")
     s = load_service_settings(cfg, {})
     alpha = s.for_station("alpha")

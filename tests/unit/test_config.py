@@ -27,7 +27,15 @@ def write(tmp_path: Path, text: str) -> Path:
 def test_example_config_loads() -> None:
     settings = load_settings(REPO / "config" / "groundstation.toml", environ={})
     assert isinstance(settings.source, SerialSourceSettings)
-    assert settings.source.baud == 115200
+    # One story: the example, the LEA-6T profile and the README's field steps say 57600 baud;
+    # the README, the demo and the daemon record to flights/.
+    assert settings.source.baud == 57600
+    profile = (REPO / "config" / "profiles" / "lea6t-5hz.toml").read_text(encoding="utf-8")
+    assert "baudRate = 57600" in profile
+    readme = (REPO / "README.md").read_text(encoding="utf-8")
+    assert "groundstation run --port /dev/wi232 --baud 57600 --station rover" in readme
+    assert settings.recorder.out_dir == load_settings(None, environ={}, overrides={
+        "source": {"port": "/dev/x"}}).recorder.out_dir == Path("flights")
     assert settings.recorder.flush_interval_s <= 1.0
 
 

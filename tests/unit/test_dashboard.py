@@ -212,6 +212,7 @@ class FakeBus:
         self.alive: dict[str, Callable[[str, bool], None]] = {}
         self.queries: list[str] = []
         self.replies: dict[str, list[tuple[str, bytes]]] = {}
+        self.puts: list[tuple[str, bytes]] = []
         self.closed = False
 
     def subscribe(self, key_expr: str, callback: Callable[[str, bytes], None]) -> None:
@@ -223,6 +224,9 @@ class FakeBus:
     def get(self, selector: str, timeout_s: float = 2.0) -> list[tuple[str, bytes]]:
         self.queries.append(selector)
         return self.replies.get(selector, [])
+
+    def put(self, key_expr: str, payload: bytes) -> None:
+        self.puts.append((key_expr, payload))
 
     def close(self) -> None:
         self.closed = True

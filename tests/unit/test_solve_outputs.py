@@ -77,7 +77,8 @@ def test_geo_txt(out: outputs.SolveOutput) -> None:
     f = lines[1].split()
     assert f[0] == "IMG_0001.JPG" and len(f) == 9
     assert float(f[1]) == pytest.approx(500_000.0, abs=0.01)
-    assert f[4:7] == ["0", "0", "0"] and f[7] == "0.020" and f[8] == "0.030"
+    # yaw = compass direction of the image x axis = 90 - kappa (kappa 45 here); nadir
+    assert f[4:7] == ["45.00", "0", "0"] and f[7] == "0.020" and f[8] == "0.030"
 
 
 def test_reference_and_pix4d(out: outputs.SolveOutput) -> None:
@@ -87,14 +88,16 @@ def test_reference_and_pix4d(out: outputs.SolveOutput) -> None:
     assert ref[2].startswith("IMG_0001.JPG,500000.000,")
     assert ref[2].endswith(",0.0000,0.0000,45.0000")
     pix = outputs.pix4d_csv(out).splitlines()
-    assert pix[0] == "imagename,Y,X,Z,accuracy_horz,accuracy_vert" and len(pix) == 3
+    # PIX4Dmatic: no header row, the column names in a '#' comment (with CRS and datum)
+    assert pix[0].startswith("#imagename,Y,X,Z,accuracy_horz,accuracy_vert ; EPSG:25832")
+    assert "WGS84 ellipsoidal" in pix[0] and len(pix) == 3
     name, y, x = pix[1].split(",")[:3]
     assert name == "IMG_0001.JPG" and float(x) < float(y)
 
 
 def test_geojson_is_valid_rfc7946(out: outputs.SolveOutput) -> None:
     gj = json.loads(outputs.geojson(out))
-    assert gj["type"] == "FeatureCollection"
+    assert gj["type"] == "FeatureCollection" and gj["height_datum"] == "WGS84 ellipsoidal"
     kinds = [f["properties"]["kind"] for f in gj["features"]]
     assert kinds.count("trajectory") == 2 and kinds.count("mark") == 3
     assert kinds.count("photo") == 2

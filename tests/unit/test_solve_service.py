@@ -35,14 +35,14 @@ def test_file_then_command_line() -> None:
     assert a.interp == "spline"  # the command line wins over the station table
     assert a.lever_arm_m == (0.1, 0.0, 0.3)  # top-level defaults reach the station
     assert s.for_station("bravo").base is None
-    cli = sv.build_service_settings(None, {"base": "b.ubx", "base_xyz": "1,2,3"})
-    assert cli.for_station("whoever").base_ecef_m == (1.0, 2.0, 3.0)
+    cli = sv.build_service_settings(None, {"base": "b.ubx", "base_xyz": "4201000,180000,4779000"})
+    assert cli.for_station("whoever").base_ecef_m == (4201000.0, 180000.0, 4779000.0)
 
 
 @pytest.mark.parametrize(("layer", "key"), [
     ({"stations": {"a": {"base_xyz": [1, 2, "x"], "base": "b"}}}, "stations.a.base_xyz"),
     ({"stations": {"a": {"base": "b"}}}, "stations.a.base_xyz"),
-    ({"stations": {"a": {"base_xyz": [1, 2, 3]}}}, "stations.a.base"),
+    ({"stations": {"a": {"base_xyz": [4201000, 180000, 4779000]}}}, "stations.a.base"),
     ({"stations": {"a": {"edge": "up"}}}, "stations.a.edge"),
     ({"stations": {"a": "b.ubx"}}, "stations.a"),
     ({"stations": {"a": {"max_gap_s": 0}}}, "stations.a.max_gap_s"),

@@ -30,6 +30,8 @@ def _call_worker(request: dict[str, Any], work: Path, timeout_s: float) -> dict[
         ToolMissingError: pyrtklib5 cannot be imported in the worker.
         EngineError: the worker died, timed out or wrote no response.
     """
+    # Absolute: the worker runs with ``cwd=work``, where a relative ``work`` would not exist.
+    work = work.resolve()
     work.mkdir(parents=True, exist_ok=True)
     req = work / "demo5-request.json"
     resp = work / "demo5-response.json"

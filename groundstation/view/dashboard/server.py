@@ -107,6 +107,8 @@ class BusLike(Protocol):
 
     def get(self, selector: str, timeout_s: float = 2.0) -> list[tuple[str, bytes]]: ...
 
+    def put(self, key_expr: str, payload: bytes) -> None: ...
+
     def close(self) -> None: ...
 
 
@@ -268,6 +270,15 @@ class Hub:
                 for k, payload in replies:
                     self.on_payload(k, payload)
 
+    def acknowledge(self, station: str, alert: str, by: str) -> bool:
+        """Put an operator's acknowledgement on ``groundstation/<station>/ack``: the daemon
+        clears the alert for every view (and records it). False without a bus."""
+        bus = self._bus
+        if bus is None or station not in self.views:
+            return False
+        bus.put(key(station, "ack"), jsonio.dumps({"alert": alert, "by": by}))
+        return True
+
     def close(self) -> None:
         with self.cond:
             self.closed = True
@@ -354,6 +365,25 @@ class _Handler(BaseHTTPRequestHandler):
             self._static(url.path.removeprefix("/static/"))
         else:
             self._send(HTTPStatus.NOT_FOUND, b"not found\n", "text/plain; charset=utf-8")
+
+    def do_POST(self) -> None:
+        """``POST /api/ack?station=S&alert=A``: the operator's acknowledgement. The custom
+        header makes a cross-site form or fetch impossible without a CORS preflight, which
+        this server never grants, so only the dashboard page itself can acknowledge."""
+        url = urlsplit(self.path)
+        query = parse_qs(url.query)
+        length = int(self.headers.get("Content-Length") or 0)
+        if length:
+            self.rfile.read(min(length, 4096))
+        if url.path != "/api/ack" or self.headers.get("X-Groundstation") != "ack":
+            self._send(HTTPStatus.NOT_FOUND, b"not found\n", "text/plain; charset=utf-8")
+            return
+        station = (query.get("station") or [""])[0]
+        alert = (query.get("alert") or ["marks_missed"])[0][:64]
+        by = f"dashboard {self.address_string()}"
+        ok = self.server.hub.acknowledge(station, alert, by)
+        self._send(HTTPStatus.OK if ok else HTTPStatus.SERVICE_UNAVAILABLE,
+                   jsonio.dumps({"acknowledged": ok}), "application/json")
 
     def _send(self, code: HTTPStatus, body: bytes, ctype: str) -> None:
         self.send_response(code)

@@ -146,7 +146,12 @@ function refreshBadge() {
     info = "no status from " + doc.view.station + " yet" + (doc.view.alive ? " (daemon up)" : "");
   } else {
     const age = (doc.view.status_age_s || 0) + sinceRx;
-    if (age > STALE_AFTER_S) {
+    const finished = doc.view.session && doc.view.session.state === "finished";
+    if (age > STALE_AFTER_S && finished) {
+      // A normal end of session is not a failure (no red STALE, no "daemon gone").
+      state = "finished"; text = "SESSION FINISHED";
+      info = "the daemon ended the session normally · values are the last ones";
+    } else if (age > STALE_AFTER_S) {
       state = "stale"; text = "STALE";
       info = "no status for " + age.toFixed(0) + " s" +
         (doc.view.alive === false ? " · daemon gone" : "") + " · values are old";
@@ -284,7 +289,8 @@ function renderLink(view) {
   setText("link-session", pct(link.completeness_session));
   setText("link-dropouts", num(link.dropouts) + " (" + num(link.missing_epochs) + " ep)",
     link.dropouts ? "warn" : "");
-  const ongoing = (view.timeline.dropouts || []).find((d) => d[2]);
+  const finished = view.session && view.session.state === "finished";
+  const ongoing = !finished && (view.timeline.dropouts || []).find((d) => d[2]);
   if (ongoing) {
     const secs = ongoing[1] - ongoing[0];
     setText("link-now", "DROPOUT " + num(secs, 1) + " s", "alarm");
@@ -389,6 +395,16 @@ function renderAlerts(alerts) {
   const count = $("alert-count");
   count.textContent = alerts.length + (alerts.length === 1 ? " alert" : " alerts");
   count.className = "alert-count " + (alerts.length ? "some" : "none");
+  // Missed marks stay raised until acknowledged: the daemon clears them for every view.
+  $("ack").hidden = !alerts.some((a) => a.indexOf("time mark") >= 0);
+}
+
+function acknowledge() {
+  const station = selectedStation() || (gs.doc && gs.doc.view ? gs.doc.view.station : "");
+  if (!station) return;
+  fetch("/api/ack?station=" + encodeURIComponent(station) + "&alert=marks_missed",
+    { method: "POST", headers: { "X-Groundstation": "ack" } })
+    .catch(() => {});
 }
 
 function renderEvents(events) {
@@ -435,5 +451,6 @@ function render(doc) {
   panel("badge", refreshBadge);
 }
 
+$("ack").addEventListener("click", acknowledge);
 window.setInterval(refreshBadge, 500);
 connect();

@@ -1,0 +1,48 @@
+"""Every command's --help: a description, an example and the defaults; -q/-v after the command."""
+
+from __future__ import annotations
+
+import argparse
+
+import pytest
+
+from groundstation.cli import HelpFormatter, build_parser
+from groundstation.commands import COMMANDS, EXAMPLES
+
+
+@pytest.mark.parametrize("name", sorted(COMMANDS))
+def test_help_has_description_example_and_defaults(
+    name: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    parser = build_parser([name])
+    with pytest.raises(SystemExit) as done:
+        parser.parse_args([name, "--help"])
+    assert done.value.code == 0
+    text = capsys.readouterr().out
+    assert "\nexample:\n  groundstation " + name in text
+    assert EXAMPLES[name].splitlines()[0] in text
+    (subs,) = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+    sub = subs.choices[name]
+    assert sub.description and len(sub.description) > 10
+    for action in sub._actions:
+        if not action.option_strings or action.help == "==SUPPRESS==":
+            continue
+        assert action.help, f"{name} {action.option_strings}: no help"
+        has_default = action.default not in (None, False, [], "==SUPPRESS==")
+        if has_default:  # said by the formatter or by the text itself
+            shown = HelpFormatter(name)._get_help_string(action)
+            assert "default" in shown, f"{name} {action.option_strings}: default not shown"
+
+
+@pytest.mark.parametrize("argv", [["-q", "inspect", "x"], ["inspect", "x", "-q"],
+                                  ["inspect", "-q", "x"]])
+def test_quiet_before_or_after_the_command(argv: list[str]) -> None:
+    args = build_parser(argv).parse_args(argv)
+    assert args.quiet is True and args.verbose == 0
+
+
+def test_verbose_after_the_command_counts() -> None:
+    argv = ["-v", "inspect", "x", "-v"]
+    assert build_parser(argv).parse_args(argv).verbose in (1, 2)
+    argv = ["inspect", "x", "-vv"]
+    assert build_parser(argv).parse_args(argv).verbose == 2
