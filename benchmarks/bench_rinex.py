@@ -69,9 +69,10 @@ def main() -> int:
         med[name] = (walls[len(v) // 2], cpus[len(v) // 2])
         print(f"{name:<14} wall best {walls[0]:.3f} s  median {med[name][0]:.3f} s   "
               f"CPU best {cpus[0]:.3f} s  median {med[name][1]:.3f} s")
-    gs, cb_ = best["groundstation"], best["convbin"]
-    print(f"ratio groundstation / convbin: wall best {gs[0] / cb_[0]:.2f}  median "
-          f"{med['groundstation'][0] / med['convbin'][0]:.2f}   CPU best {gs[1] / cb_[1]:.2f}")
+    ours_best, cb_best = best["groundstation"], best["convbin"]
+    med_ratio = med["groundstation"][0] / med["convbin"][0]
+    print(f"ratio groundstation / convbin: wall best {ours_best[0] / cb_best[0]:.2f}  median "
+          f"{med_ratio:.2f}   CPU best {ours_best[1] / cb_best[1]:.2f}")
     return 0
 
 
