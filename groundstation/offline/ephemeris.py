@@ -121,7 +121,7 @@ def collect_ephemerides(data: bytes | memoryview, index: FrameIndex, week_hint: 
         elif key == RXM_SFRB:
             if len(payload) < 42 or not 1 <= payload[1] <= 32:
                 continue
-            words = tuple(w & 0xFFFFFF for w in struct.unpack_from("<10I", payload, 2))
+            words = tuple(map((0xFFFFFF).__and__, struct.unpack_from("<10I", payload, 2)))
             subframes.append((payload[1], words))
             source = "RXM-SFRB"
         else:
