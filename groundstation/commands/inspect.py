@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from groundstation import gpstime, jsonio
+from groundstation import gpstime
 from groundstation.offline.inspect import Summary, inspect_path, require_ubx_frames
 
 NAME = "inspect"
@@ -23,10 +23,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    # No UBX frame at all: an error (exit 1), not an all-zero report that reads like a result.
+    # No UBX frame at all: an error (exit 2), not an all-zero report that reads like a result.
     require_ubx_frames(args.path, max_payload=args.max_payload)
     summary = inspect_path(args.path, max_payload=args.max_payload)
     if args.json:
+        from groundstation import jsonio  # msgspec only for --json (start-up time of inspect)
+
         sys.stdout.write(jsonio.dumps(summary.as_json(), indent=2).decode())
         sys.stdout.write("\n")
     else:

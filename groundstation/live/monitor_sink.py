@@ -32,7 +32,9 @@ log = logging.getLogger("groundstation.monitor")
 
 TICK_S = 0.1
 DISK_CHECK_S = 5.0
-LINGER_S = 0.05  # bursts of 50 ms, half a tick: the monitor's rules work on 100 ms and longer
+LINGER_S = 0.1
+"""Bursts of at least 100 ms (at most 200 ms, ``fanout.LINGER_LATE``), one tick: the monitor's
+rules work on 100 ms and longer, and marks reach Zenoh through the publisher, not through it."""
 
 MONITOR_INPUTS: frozenset[type] = frozenset(
     (RawChunk, RawEpoch, TimeMark, SvInfo, Event, PipelineStatus)

@@ -23,10 +23,11 @@ from groundstation.storage.topics import recorded_types
 
 log = logging.getLogger("groundstation.recorder")
 
-LINGER_S = 0.025
-"""How long the sink waits for more items once one has arrived: at 115 200 baud the source
-delivers a 64-byte chunk every few milliseconds, and writing them in bursts of 25 ms costs a
-fraction of a wake-up each; the sidecar still holds every byte within 25 ms of its arrival."""
+LINGER_S = 0.1
+"""How long the sink waits for more items once one has arrived (then until the next item, at
+most twice this: ``fanout.LINGER_LATE``): at 115 200 baud the source delivers a chunk every
+10 ms, and writing them in bursts costs a fraction of a wake-up each. Durability is the flush
+interval's business (0.5 s by default), which this is well below."""
 
 
 class RecorderSink:

@@ -87,6 +87,9 @@ def collect_ephemerides(data: bytes | memoryview, index: FrameIndex, week_hint: 
     asm = lnav.EphemerisAssembler(week_hint)
     seen: set[tuple[int, tuple[int, ...]]] = set()
     seen_raw: set[tuple[int, tuple[int, ...]]] = set()
+    # Subframe 4 repeats with only the HOW changing: decode each distinct body once (a 10-hour
+    # LEA-6T flight has 11 000 subframes 4; RXM-SFRB has no page filter before decoding).
+    iono_seen: dict[tuple[int, ...], lnav.IonoUtc | None] = {}
     mv = memoryview(data)
     wanted = ((index.cls == 0x02) & ((index.id == 0x11) | (index.id == 0x13))) | (
         (index.cls == 0x0B) & (index.id == 0x31)
@@ -120,7 +123,7 @@ def collect_ephemerides(data: bytes | memoryview, index: FrameIndex, week_hint: 
         elif key == RXM_SFRB:
             if len(payload) < 42 or not 1 <= payload[1] <= 32:
                 continue
-            words = tuple(w & 0xFFFFFF for w in struct.unpack_from("<10I", payload, 2))
+            words = tuple(map((0xFFFFFF).__and__, struct.unpack_from("<10I", payload, 2)))
             subframes.append((payload[1], words))
             source = "RXM-SFRB"
         else:
@@ -136,10 +139,15 @@ def collect_ephemerides(data: bytes | memoryview, index: FrameIndex, week_hint: 
                 continue
             sid = lnav.subframe_id(words)
             if sid == 4:
-                try:
-                    iono = lnav.decode_iono_utc(words)
-                except lnav.LnavError:
-                    iono = None
+                body = tuple(words[2:])
+                if body in iono_seen:
+                    iono = iono_seen[body]
+                else:
+                    try:
+                        iono = lnav.decode_iono_utc(words)
+                    except lnav.LnavError:
+                        iono = None
+                    iono_seen[body] = iono
                 if iono is not None:
                     result.iono_utc = iono
                 continue

@@ -27,8 +27,22 @@ def interval_from_spacings(spacings_ns: Iterable[int]) -> int | None:
     return max(counts, key=lambda k: (counts[k], -k)) if counts else None
 
 
+VECTOR_MIN = 2000
+"""From this many epochs on, :func:`nominal_interval_ns` counts with numpy (a 10-hour 5 Hz
+flight has 180 000 epochs: 0.6 s in a Python loop)."""
+
+
 def nominal_interval_ns(epoch_t_gps_ns: Sequence[int]) -> int | None:
     """The logging interval of sorted epoch times (:func:`interval_from_spacings`), if any."""
+    if len(epoch_t_gps_ns) >= VECTOR_MIN:
+        import numpy as np  # the same rule on arrays: rint rounds half to even like round()
+
+        t = np.asarray(epoch_t_gps_ns, dtype=np.int64)
+        ms = np.rint(np.diff(t) / 1e6).astype(np.int64)
+        values, counts = np.unique(ms[ms > 0], return_counts=True)
+        if not values.size:
+            return None
+        return int(values[counts == counts.max()].min()) * 1_000_000  # the shorter on a tie
     return interval_from_spacings(
         b - a for a, b in zip(epoch_t_gps_ns, epoch_t_gps_ns[1:], strict=False)
     )

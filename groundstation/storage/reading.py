@@ -40,7 +40,6 @@ from pathlib import Path
 from typing import BinaryIO, Literal
 
 from groundstation.errors import InputError
-from groundstation.storage.mcapio import iter_raw_chunks, read_head_metadata
 
 log = logging.getLogger("groundstation.reading")
 
@@ -105,6 +104,8 @@ class PartInfo:
 
 def part_info(path: Path) -> PartInfo | None:
     """The session and part number of a recorder's MCAP, or ``None`` for any other file."""
+    from groundstation.storage.mcapio import read_head_metadata  # mcap: only for MCAP parts
+
     meta = read_head_metadata(path).get("groundstation", {})
     session = meta.get("session_id", "")
     try:
@@ -261,6 +262,9 @@ class Recording:
             with part.open("rb") as f:
                 self._current = f
                 if fmt == "mcap":
+                    # imported here: the mcap library is not needed for a .ubx (rinex, inspect)
+                    from groundstation.storage.mcapio import iter_raw_chunks
+
                     yield from iter_raw_chunks(f)
                 elif fmt == "gzip":
                     with gzip.GzipFile(fileobj=f, mode="rb") as gz:

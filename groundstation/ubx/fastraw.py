@@ -14,6 +14,7 @@ from typing import Any
 
 import numpy as np
 import numpy.typing as npt
+from numpy.lib.stride_tricks import sliding_window_view
 
 from groundstation.ubx import layouts as L
 from groundstation.ubx.framer import DEFAULT_MAX_PAYLOAD, OVERHEAD, scan_ubx
@@ -139,7 +140,9 @@ def _decode_block(layout: L.Message, data: bytes | memoryview, index: FrameIndex
     hsize, msize = header_dtype.itemsize, meas_dtype.itemsize
     sel = sel[index.length[sel] >= hsize]
     pstart = index.start[sel] + 6
-    hbytes = arr[pstart[:, None] + np.arange(hsize)]
+    # Rows gathered from a sliding-window view: no (rows x size) int64 offset matrix (for a
+    # 10-hour flight's 2 million measurements that matrix alone was 400 MB).
+    hbytes = sliding_window_view(arr, hsize)[pstart]
     header = hbytes.reshape(-1).view(header_dtype)
     count = header[count_field].astype(np.int64)
     fits = index.length[sel] >= hsize + msize * count
@@ -150,7 +153,7 @@ def _decode_block(layout: L.Message, data: bytes | memoryview, index: FrameIndex
     first = np.cumsum(count) - count
     k = np.arange(total, dtype=np.int64) - np.repeat(first, count)
     offs = np.repeat(pstart + hsize, count) + k * msize
-    mbytes = arr[offs[:, None] + np.arange(msize)]
+    mbytes = sliding_window_view(arr, msize)[offs]
     meas = mbytes.reshape(-1).view(meas_dtype)
     return RawBlock(layout.name, sel, header.copy(), meas.copy(), epoch, rejected)
 

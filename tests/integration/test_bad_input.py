@@ -194,6 +194,10 @@ CASES: list[Case] = [
     c("demo-station-space", ("demo", "--station", "a b", "--no-zenoh"), 2, BAD_STATION),
     c("demo-station-dollar", ("demo", "--station", "$", "--no-zenoh"), 2, BAD_STATION),
     c("demo-short-flight", "demo --flight 10 --no-zenoh", 2, "flight"),
+    c("router-listen", "router --listen foo --duration 1", 2, "not a Zenoh endpoint"),
+    c("router-config-dir", "router --config adir", 2, "is a directory"),
+    c("router-duration-env", "router", 2, "duration_s", GROUNDSTATION_ROUTER_DURATION_S="nan"),
+    c("router-config-not-utf8", "router --config not_utf8.toml", 2, "not UTF-8"),
     c("unknown-command", "bogus", 2, "invalid choice"),
 ]
 

@@ -233,3 +233,26 @@ def test_backoff_is_jittered_and_capped() -> None:
     assert backoff_delay_s(0, 0.1, 1.0, lambda: 1.0) == pytest.approx(0.1)
     assert backoff_delay_s(10, 0.1, 1.0, lambda: 0.999) <= 1.0
     assert backoff_delay_s(10, 0.1, 1.0, lambda: 0.0) == pytest.approx(0.5)
+
+
+def test_a_linger_ends_on_the_first_item_after_it_not_on_a_timer(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """The sink wakes in its producer's pass: the first put once the linger is over ends it
+    (the fallback timer is pushed out of reach here, so only the put can end it)."""
+    import groundstation.live.fanout as fanout_mod
+
+    monkeypatch.setattr(fanout_mod, "LINGER_LATE", 10_000.0)
+
+    async def main() -> None:
+        fan = Fanout()
+        box = fan.add_inbox("rec", 100, Overflow.NEVER_DROP, (RawChunk,))
+        fan.publish(chunk(0))
+        task = asyncio.create_task(box.get_all(linger_s=0.01))
+        await asyncio.sleep(0.05)  # the linger is over; nothing has ended it yet
+        assert not task.done()
+        fan.publish(chunk(1))
+        got = await asyncio.wait_for(task, timeout=30)  # a guard against hanging, not a timing
+        assert got == [chunk(0), chunk(1)]
+
+    asyncio.run(main())
