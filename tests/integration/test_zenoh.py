@@ -13,6 +13,7 @@ import threading
 import time
 from pathlib import Path
 
+import pytest
 from peers import REPO, Daemon, Pty, free_port, wait_until
 from streams import epoch_with_mark
 
@@ -56,6 +57,7 @@ def fly(pty: Pty, epochs: int) -> None:
         time.sleep(0.2)
 
 
+@pytest.mark.slow
 def test_marks_status_and_late_joiner(tmp_path: Path, pty: Pty, daemons: list[Daemon]) -> None:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     d = start_daemon(tmp_path, pty, daemons, endpoint)
@@ -101,6 +103,7 @@ def test_marks_status_and_late_joiner(tmp_path: Path, pty: Pty, daemons: list[Da
         late.close()
 
 
+@pytest.mark.slow
 def test_watch_shows_live_then_stale(tmp_path: Path, pty: Pty, daemons: list[Daemon]) -> None:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     d = start_daemon(tmp_path, pty, daemons, endpoint)

@@ -18,6 +18,7 @@ from groundstation.bus import decode, key, open_bus
 from groundstation.config import ZenohSettings
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("mode", ["peer", "client"])
 def test_peer_gone_and_back_publishing_resumes_recording_exact(
     tmp_path: Path, pty: Pty, daemons: list[Daemon], mode: str
