@@ -1,5 +1,6 @@
-"""Real peers for integration tests: a pty pair that can be unplugged, and the daemon as a
-real process with its stderr collected."""
+"""Real peers for integration tests: a pty pair that can be unplugged, the daemon as a
+real process with its stderr collected, and :func:`wait_until`, the one way a test waits for
+something to happen (a condition with a timeout, never a fixed sleep)."""
 
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 from groundstation.live.fanout import Inbox, InboxClosed
@@ -16,6 +18,23 @@ from groundstation.records import Event
 from groundstation.sim.ptylink import PtyLink
 
 REPO = Path(__file__).resolve().parents[1]
+
+
+def wait_until(
+    cond: Callable[[], object], timeout_s: float = 10.0, what: str = "condition",
+    poll_s: float = 0.02,
+) -> None:
+    """Return as soon as ``cond()`` is true; fail naming ``what`` after ``timeout_s``.
+
+    Polls every ``poll_s``: the things tests wait for (a file's size, a message on the bus, a
+    line on stderr) have no notification to block on, and the poll keeps the wait short
+    where a fixed sleep would have to assume the slowest machine.
+    """
+    deadline = time.monotonic() + timeout_s
+    while not cond():
+        if time.monotonic() >= deadline:
+            raise AssertionError(f"{what} not met within {timeout_s:g} s")
+        time.sleep(poll_s)
 
 
 def free_port() -> int:

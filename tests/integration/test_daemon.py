@@ -173,7 +173,7 @@ def test_kill_9_loses_at_most_a_second(tmp_path: Path, pty: Pty, daemons: list[D
         written_at.append((time.time(), len(sent)))
         i += len(piece)
         time.sleep(0.05)
-    time.sleep(0.1)  # let the daemon read what was written
+    wait_for_size(one(out, "t_*.ubx"), len(sent))  # the daemon has read what was written
     t_kill = time.time()
     os.kill(d.proc.pid, signal.SIGKILL)
     d.proc.wait(timeout=5)

@@ -78,6 +78,7 @@ def _max_rss_mb(*args: str, cwd: Path, cap_gb: float = 0.0
     return int(last) / 1024, proc
 
 
+@pytest.mark.slow
 def test_inspect_of_a_2gb_sparse_file_stays_under_500mb(sparse_2gb: Path) -> None:
     rss, proc = _max_rss_mb("inspect", str(sparse_2gb), cwd=sparse_2gb.parent)
     print(f"inspect 2 GB sparse: peak RSS {rss:.0f} MB")

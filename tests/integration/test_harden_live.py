@@ -16,12 +16,11 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import pytest
-from peers import REPO, Daemon, Pty, free_port
+from peers import REPO, Daemon, Pty, free_port, wait_until
 from poison import POISON
 from streams import epoch_with_mark
 
@@ -35,15 +34,6 @@ from groundstation.view.dashboard.server import Dashboard, DashboardSettings
 WEEK = 2300
 TOW0_MS = 400_000_000
 SATS = [(3, 0), (7, 0), (11, 2), (19, 0), (23, 0), (27, 0)]
-
-
-def wait_until(cond: Callable[[], object], timeout_s: float = 10.0) -> None:
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        if cond():
-            return
-        time.sleep(0.05)
-    raise AssertionError("condition not met in time")
 
 
 class Feeder:

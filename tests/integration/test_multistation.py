@@ -20,6 +20,7 @@ import time
 import urllib.request
 from pathlib import Path
 
+import pytest
 from peers import REPO, free_port
 
 from groundstation import jsonio
@@ -102,6 +103,7 @@ def dashboard_stations(port: int) -> dict[str, bool]:
     return {s["name"]: bool(s["alive"] and s["has_status"]) for s in doc}
 
 
+@pytest.mark.slow
 def test_daemons_with_the_same_settings_are_all_visible_and_survive_the_first(
         tmp_path: Path) -> None:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
@@ -169,6 +171,7 @@ def test_a_joined_bus_takes_over_and_declares_again() -> None:
             b.close()
 
 
+@pytest.mark.slow
 def test_an_endpoint_held_by_another_program_is_one_clear_line() -> None:
     import socket
 

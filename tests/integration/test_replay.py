@@ -9,6 +9,7 @@ import sys
 from collections import Counter
 from pathlib import Path
 
+import pytest
 from peers import EventCollector
 
 from groundstation import jsonio
@@ -28,6 +29,7 @@ def data_events(events: list[dict[str, object]]) -> Counter[str]:
     )
 
 
+@pytest.mark.slow
 def test_replay_of_a_live_recording_gives_the_same_monitor_output(tmp_path: Path) -> None:
     opts = DemoOptions(flight_s=90, speed=6.0, seed=11, faults="default",
                        out_dir=tmp_path / "live", zenoh=False)

@@ -250,6 +250,7 @@ def _shots_dir(tmp_path: Path) -> Path:
     return d
 
 
+@pytest.mark.slow
 @needs_chromium
 def test_report_renders_in_chromium(flight: dict[str, Any], tmp_path: Path) -> None:
     page = (flight["out"] / "report.html").resolve()

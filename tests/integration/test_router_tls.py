@@ -124,6 +124,7 @@ def test_recipe_makes_x509_v3_certificates(tmp_path: Path) -> None:
         assert "X509v3 Basic Constraints" in text, name
 
 
+@pytest.mark.slow
 def test_mtls_router_admits_by_certificate_and_confines_each_station(tmp_path: Path) -> None:
     ca, other = make_ca(tmp_path / "ca1"), make_ca(tmp_path / "ca2")
     tls_port, tcp_port = free_port(), free_port()

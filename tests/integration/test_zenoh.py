@@ -13,7 +13,8 @@ import threading
 import time
 from pathlib import Path
 
-from peers import REPO, Daemon, Pty, free_port
+import pytest
+from peers import REPO, Daemon, Pty, free_port, wait_until
 from streams import epoch_with_mark
 
 from groundstation.bus import Bus, decode, key, open_bus
@@ -40,15 +41,6 @@ class Collector:
             return [m for _, _, m in self.items if m.get("type") == kind]
 
 
-def wait_until(cond: object, timeout_s: float = 10.0) -> None:
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        if cond():  # type: ignore[operator]
-            return
-        time.sleep(0.05)
-    raise AssertionError("condition not met in time")
-
-
 def start_daemon(tmp_path: Path, pty: Pty, daemons: list[Daemon], endpoint: str) -> Daemon:
     d = Daemon("--port", str(pty.link), "--station", STATION, "--out-dir", str(tmp_path / "out"),
                "--zenoh-listen", endpoint)
@@ -65,6 +57,7 @@ def fly(pty: Pty, epochs: int) -> None:
         time.sleep(0.2)
 
 
+@pytest.mark.slow
 def test_marks_status_and_late_joiner(tmp_path: Path, pty: Pty, daemons: list[Daemon]) -> None:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     d = start_daemon(tmp_path, pty, daemons, endpoint)
@@ -99,7 +92,7 @@ def test_marks_status_and_late_joiner(tmp_path: Path, pty: Pty, daemons: list[Da
         replies = late.get(key(STATION, "q/timemarks"), timeout_s=3.0)
         assert [decode(p)["count"] for _, p in replies] == list(range(20))
         col2 = Collector(late)
-        time.sleep(0.5)  # let the subscription reach the daemon
+        wait_until(lambda: col2.of("status"), 5, "a status through the late subscription")
         rc, _ = d.stop(signal.SIGTERM)
         assert rc == 0, d.stderr
         wait_until(lambda: any(s.get("state") == "finished" for s in col2.of("session")), 5)
@@ -110,6 +103,7 @@ def test_marks_status_and_late_joiner(tmp_path: Path, pty: Pty, daemons: list[Da
         late.close()
 
 
+@pytest.mark.slow
 def test_watch_shows_live_then_stale(tmp_path: Path, pty: Pty, daemons: list[Daemon]) -> None:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     d = start_daemon(tmp_path, pty, daemons, endpoint)

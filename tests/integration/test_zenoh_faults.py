@@ -9,15 +9,16 @@ import time
 from pathlib import Path
 
 import pytest
-from peers import Daemon, Pty, free_port
+from peers import Daemon, Pty, free_port, wait_until
 from streams import epoch_with_mark
 from test_daemon import one, raw_from_mcap, wait_for_size
-from test_zenoh import SATS, STATION, TOW0_MS, WEEK, Collector, wait_until
+from test_zenoh import SATS, STATION, TOW0_MS, WEEK, Collector
 
 from groundstation.bus import decode, key, open_bus
 from groundstation.config import ZenohSettings
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("mode", ["peer", "client"])
 def test_peer_gone_and_back_publishing_resumes_recording_exact(
     tmp_path: Path, pty: Pty, daemons: list[Daemon], mode: str

@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from peers import wait_until
 
 from groundstation.bus import encode
 from groundstation.config import ZenohSettings
@@ -230,15 +231,6 @@ class FakeBus:
 
     def close(self) -> None:
         self.closed = True
-
-
-def wait_until(cond: Callable[[], object], timeout_s: float = 3.0) -> None:
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        if cond():
-            return
-        time.sleep(0.01)
-    raise AssertionError("condition not met in time")
 
 
 def test_station_of() -> None:
