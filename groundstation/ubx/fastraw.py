@@ -131,6 +131,13 @@ class RawBlock:
         return self.header["iTOW"].astype(np.int64) * 1_000_000
 
 
+def _rows(arr: npt.NDArray[np.uint8], starts: IntArray, size: int) -> npt.NDArray[np.uint8]:
+    """``size`` bytes from each start, as a (starts x size) view (no copy of the data)."""
+    if starts.size == 0:  # also when the data is shorter than one row (no window to take)
+        return np.zeros((0, size), dtype=np.uint8)
+    return sliding_window_view(arr, size)[starts]
+
+
 def _decode_block(layout: L.Message, data: bytes | memoryview, index: FrameIndex) -> RawBlock:
     """Every message of one layout with a counted group: fixed parts and group rows as arrays."""
     assert isinstance(layout.count, str)
@@ -142,7 +149,7 @@ def _decode_block(layout: L.Message, data: bytes | memoryview, index: FrameIndex
     pstart = index.start[sel] + 6
     # Rows gathered from a sliding-window view: no (rows x size) int64 offset matrix (for a
     # 10-hour flight's 2 million measurements that matrix alone was 400 MB).
-    hbytes = sliding_window_view(arr, hsize)[pstart]
+    hbytes = _rows(arr, pstart, hsize)
     header = hbytes.reshape(-1).view(header_dtype)
     count = header[count_field].astype(np.int64)
     fits = index.length[sel] >= hsize + msize * count
@@ -153,7 +160,7 @@ def _decode_block(layout: L.Message, data: bytes | memoryview, index: FrameIndex
     first = np.cumsum(count) - count
     k = np.arange(total, dtype=np.int64) - np.repeat(first, count)
     offs = np.repeat(pstart + hsize, count) + k * msize
-    mbytes = sliding_window_view(arr, msize)[offs]
+    mbytes = _rows(arr, offs, msize)
     meas = mbytes.reshape(-1).view(meas_dtype)
     return RawBlock(layout.name, sel, header.copy(), meas.copy(), epoch, rejected)
 
