@@ -173,9 +173,11 @@ class ZenohPublisherSink:
             return
         alert, by = str(msg.get("alert", ""))[:64], str(msg.get("by", ""))[:64]
         log.info("operator acknowledged %s (%s)", alert or "all alerts", by or "unnamed view")
-        publish(Event(kinds.OPERATOR_ACK, self._clock(),
-                      f"{alert or 'alerts'} acknowledged by {by or 'an operator'}", "info",
-                      {"alert": alert, "by": by}))
+        ev = Event(kinds.OPERATOR_ACK, self._clock(),
+                   f"{alert or 'alerts'} acknowledged by {by or 'an operator'}", "info",
+                   {"alert": alert, "by": by})
+        publish(ev)  # to the monitor and the recorder; the fanout never hands it back to us
+        self._put("event", encode("event", ev, station=self.station))
 
     def _check_links(self, publish: Callable[[Item], None]) -> None:
         """Say when nobody we are meant to connect to is connected, and when one is again."""
