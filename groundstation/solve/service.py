@@ -109,7 +109,7 @@ class ServiceSettings:
     default: StationSolve = field(default_factory=StationSolve)
     stations: Mapping[str, StationSolve] = field(default_factory=dict)
     queue_size: int = QUEUE_SIZE
-    recording_roots: tuple[Path, ...] = (Path("recordings"),)
+    recording_roots: tuple[Path, ...] = (Path("flights"),)
     max_sessions_per_min: float = MAX_SESSIONS_PER_MIN
 
     def for_station(self, station: str) -> StationSolve:
@@ -150,7 +150,7 @@ def _service_settings(resolved: Resolved) -> ServiceSettings:
         stations[name] = _station_solve(merged, later, f"stations.{name}.")
     if "mode" in resolved.values["zenoh"] and resolved.values["zenoh"]["mode"] == "router":
         raise ConfigError("zenoh.mode", "the solver joins as peer or client")
-    roots = tuple(Path(r).expanduser() for r in top.get("recording_roots", ("recordings",)))
+    roots = tuple(Path(r).expanduser() for r in top.get("recording_roots", ("flights",)))
     if not roots:
         raise ConfigError("recording_roots", "at least one directory")
     return ServiceSettings(zenoh_settings(resolved.values["zenoh"]), station, default, stations,

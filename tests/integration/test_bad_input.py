@@ -218,6 +218,7 @@ def _workspace(root: Path) -> None:
     (root / "fifo-link.ubx").symlink_to(root / "fifo")
     (root / "adir").mkdir()
     (root / "X").mkdir()
+    (root / "X" / "a.jpg").write_bytes(bytes.fromhex("ffd8ffd9"))  # --photos X has a JPEG
     (root / "X" / "cameras.csv").write_text("name,x,y,z,omega,phi,kappa\nA.JPG,1,2,3,0,0,0\n")
     (root / "not_utf8.toml").write_bytes(b"station = \"\xff\xfe\"\n")
     (root / "not_toml.toml").write_text("station = \n")

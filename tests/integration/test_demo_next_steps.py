@@ -55,7 +55,8 @@ def test_solver_in_another_directory_solves_the_demo_session(
     office.mkdir()
     conf = office / "solver.toml"
     conf.write_text(
-        f'out_root = "solutions"\n\n[zenoh]\nconnect = ["{endpoint}"]\nlisten = []\n\n'
+        f'out_root = "solutions"\nrecording_roots = ["{field / "flights"}"]\n\n'
+        f'[zenoh]\nconnect = ["{endpoint}"]\nlisten = []\n\n'
         f'[stations.demo]\nbase = "{{dir}}/{{stem}}_base.ubx"\nbase_xyz = [{BASE_XYZ}]\n',
         encoding="utf-8")
     demo = subprocess.Popen(

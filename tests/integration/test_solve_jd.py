@@ -157,6 +157,7 @@ def test_solve_refuses_to_write_into_the_photo_directory(
     jd: dict[str, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     (tmp_path / "p").mkdir()
+    (tmp_path / "p" / "a.jpg").write_bytes(bytes.fromhex("ffd8ffd9"))  # a photo folder
     rc = main(["solve", str(jd["rover"]), "--positions", str(jd["pos"]), "--photos",
                str(tmp_path / "p"), "--out", str(tmp_path / "p" / "out"), "--no-progress"])
     assert rc == 2 and "--out" in capsys.readouterr().err
