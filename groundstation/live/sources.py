@@ -222,7 +222,7 @@ class SerialSource:
         try:  # after the coalescing pause bytes are usually waiting: no readiness round trip
             data = os.read(fd, s.read_size_bytes)
         except BlockingIOError:
-            pass
+            pass  # nothing there yet: wait for readiness below
         except OSError as err:
             raise DeviceVanished(f"{os.strerror(err.errno or 0)} (errno {err.errno})") from err
         else:
