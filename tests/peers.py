@@ -14,7 +14,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from groundstation.live.fanout import Inbox, InboxClosed
-from groundstation.records import Event
+from groundstation.records import Event, Status
 from groundstation.sim.ptylink import PtyLink
 
 REPO = Path(__file__).resolve().parents[1]
@@ -116,3 +116,22 @@ class EventCollector:
             except InboxClosed:
                 return
             self.items.extend(i for i in items if isinstance(i, Event))
+
+
+class StatusEventCollector:
+    """A pipeline sink that keeps every Event and Status published, in order (never drops:
+    register it with ``Overflow.NEVER_DROP``)."""
+
+    name = "everything"
+    accepts: frozenset[type] = frozenset({Event, Status})
+
+    def __init__(self) -> None:
+        self.items: list[Event | Status] = []
+
+    async def consume(self, inbox: Inbox, publish: object) -> None:
+        while True:
+            try:
+                items = await inbox.get_all()
+            except InboxClosed:
+                return
+            self.items.extend(i for i in items if isinstance(i, (Event, Status)))

@@ -12,33 +12,17 @@ import asyncio
 from pathlib import Path
 
 import pytest
+from peers import StatusEventCollector
 
 from groundstation import events as kinds
 from groundstation.config import MonitorSettings
-from groundstation.live.fanout import Inbox, InboxClosed, Overflow, SinkSpec
+from groundstation.live.fanout import Overflow, SinkSpec
 from groundstation.live.replay import run_replay
 from groundstation.records import Event, Status
 
 ROVER = "real/jdesbonnet__GNSS_RTK_data/20181009/rover-20181009-1221.ubx.gz"
 
 
-class _Everything:
-    """Keeps every event and status the pipeline publishes."""
-
-    name = "everything"
-    accepts: frozenset[type] = frozenset({Event, Status})
-
-    def __init__(self) -> None:
-        self.items: list[Event | Status] = []
-
-    async def consume(self, inbox: Inbox, publish: object) -> None:
-        while True:
-            try:
-                item = await inbox.get()
-            except InboxClosed:
-                return
-            if isinstance(item, (Event, Status)):
-                self.items.append(item)
 
 
 def test_half_cycle_alert_on_the_real_rover_changes_state_at_most_4_times(
@@ -47,7 +31,7 @@ def test_half_cycle_alert_on_the_real_rover_changes_state_at_most_4_times(
     path = shared_data / ROVER
     if not path.exists():
         pytest.skip(f"{path} not present")
-    sink = _Everything()
+    sink = StatusEventCollector()
     asyncio.run(run_replay(path, speed=None,
                            sinks=(SinkSpec(sink, 1_000_000, Overflow.NEVER_DROP),)))
     changes = [e for e in sink.items if isinstance(e, Event)

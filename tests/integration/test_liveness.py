@@ -14,14 +14,14 @@ import threading
 import time
 from pathlib import Path
 
-from peers import Daemon, Pty, free_port
+from peers import Daemon, Pty, StatusEventCollector, free_port
 
 from groundstation import events as kinds
 from groundstation import jsonio
 from groundstation.bus import decode, key, open_bus
 from groundstation.config import ZenohSettings
 from groundstation.live.demo import DemoOptions, run_demo
-from groundstation.live.fanout import Inbox, InboxClosed, Overflow, SinkSpec
+from groundstation.live.fanout import Overflow, SinkSpec
 from groundstation.live.replay import run_replay
 from groundstation.records import Event, Status
 from groundstation.storage import iter_messages
@@ -93,21 +93,6 @@ def test_an_acknowledgement_travels_to_the_daemon_and_back(
     assert any(e["kind"] == kinds.OPERATOR_ACK for e in recorded)  # kept with the session
 
 
-class _Everything:
-    name = "everything"
-    accepts: frozenset[type] = frozenset({Event, Status})
-
-    def __init__(self) -> None:
-        self.items: list[Event | Status] = []
-
-    async def consume(self, inbox: Inbox, publish: object) -> None:
-        while True:
-            try:
-                item = await inbox.get()
-            except InboxClosed:
-                return
-            if isinstance(item, (Event, Status)):
-                self.items.append(item)
 
 
 def test_replay_at_speed_4_shows_no_silence_or_dropout_the_recording_lacks(
@@ -122,7 +107,7 @@ def test_replay_at_speed_4_shows_no_silence_or_dropout_the_recording_lacks(
     (mcap,) = live.summary.files
     recorded = [json.loads(m.data) for m in iter_messages(mcap, ["/groundstation/event"])]
     rec_dropouts = sum(e["kind"] == kinds.LINK_DROPOUT for e in recorded)
-    sink = _Everything()
+    sink = StatusEventCollector()
     asyncio.run(run_replay(mcap, speed=4.0,
                            sinks=(SinkSpec(sink, 1_000_000, Overflow.NEVER_DROP),)))
     events = [e for e in sink.items if isinstance(e, Event)]
