@@ -43,26 +43,41 @@ def run(cmd: list[str], env: dict[str, str] | None = None) -> tuple[float, float
     return wall, usage.ru_utime + usage.ru_stime
 
 
-def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def setup(description: str) -> tuple[argparse.Namespace, str, list[str]] | None:
+    """The benchmarks' shared command line (input, ``--runs``), convbin's path and our command;
+    None (after one line on stderr) when the input or convbin is missing."""
+    ap = argparse.ArgumentParser(description=description)
     ap.add_argument("input", nargs="?", type=Path, default=DEFAULT_INPUT)
     ap.add_argument("--runs", type=int, default=7)
     args = ap.parse_args()
     if not args.input.exists():
         print(f"input not found: {args.input}", file=sys.stderr)
-        return 2
+        return None
     convbin = shutil.which("convbin")
     if convbin is None:
         print("convbin not installed (apt-get install rtklib)", file=sys.stderr)
-        return 2
+        return None
     gs = shutil.which("groundstation") or ""
-    ours_cmd = [gs] if gs else [sys.executable, "-m", "groundstation.cli"]
+    return args, convbin, [gs] if gs else [sys.executable, "-m", "groundstation.cli"]
+
+
+def plain_copy(src_path: Path, dir_: Path) -> Path:
+    """``src_path`` decompressed (if gzipped) into ``dir_/input.ubx``: what convbin reads."""
+    ubx = dir_ / "input.ubx"
+    opener = gzip.open if src_path.suffix == ".gz" else open
+    with opener(src_path, "rb") as src, ubx.open("wb") as dst:
+        shutil.copyfileobj(src, dst)
+    return ubx
+
+
+def main() -> int:
+    got = setup(__doc__.splitlines()[0])
+    if got is None:
+        return 2
+    args, convbin, ours_cmd = got
     with tempfile.TemporaryDirectory() as tmp:
         t = Path(tmp)
-        ubx = t / "input.ubx"
-        opener = gzip.open if args.input.suffix == ".gz" else open
-        with opener(args.input, "rb") as src, ubx.open("wb") as dst:
-            shutil.copyfileobj(src, dst)
+        ubx = plain_copy(args.input, t)
         cb = [convbin, "-r", "ubx", "-od", "-os", "-o", str(t / "cb.obs"), "-n", str(t / "cb.nav"),
               str(ubx)]
         ours = [*ours_cmd, "inspect", str(args.input)]

@@ -14,41 +14,23 @@ A 10-hour simulated flight: ``groundstation simulate --out /tmp/sim10h.ubx --dur
 
 from __future__ import annotations
 
-import argparse
-import gzip
-import shutil
 import sys
 import tempfile
 from pathlib import Path
 
-from bench_inspect import run
+from bench_inspect import plain_copy, run, setup
 
 REPO = Path(__file__).resolve().parents[1]
-DEFAULT_INPUT = (
-    REPO.parent / "shared/data/real/jdesbonnet__GNSS_RTK_data/20181104/rover-20181104-1634.ubx.gz"
-)
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("input", nargs="?", type=Path, default=DEFAULT_INPUT)
-    ap.add_argument("--runs", type=int, default=7)
-    args = ap.parse_args()
-    if not args.input.exists():
-        print(f"input not found: {args.input}", file=sys.stderr)
+    got = setup(__doc__.splitlines()[0])
+    if got is None:
         return 2
-    convbin = shutil.which("convbin")
-    if convbin is None:
-        print("convbin not installed (apt-get install rtklib)", file=sys.stderr)
-        return 2
-    gs = shutil.which("groundstation") or ""
-    ours_cmd = [gs] if gs else [sys.executable, "-m", "groundstation.cli"]
+    args, convbin, ours_cmd = got
     with tempfile.TemporaryDirectory() as tmp:
         t = Path(tmp)
-        ubx = t / "input.ubx"
-        opener = gzip.open if args.input.suffix == ".gz" else open
-        with opener(args.input, "rb") as src, ubx.open("wb") as dst:
-            shutil.copyfileobj(src, dst)
+        ubx = plain_copy(args.input, t)
         cb = [convbin, "-r", "ubx", "-od", "-os", "-o", str(t / "cb.obs"), "-n", str(t / "cb.nav"),
               str(ubx)]
         ours = [*ours_cmd, "rinex", str(ubx), "-o", str(t / "gs"), "--progress", "never"]
