@@ -47,6 +47,7 @@ RECORDER_FILE_OPENED: Final = "recorder.file_opened"
 RECORDER_WRITE_FAILED: Final = "recorder.write_failed"
 RECORDER_DROPPED: Final = "recorder.dropped"
 RECORDER_RECOVERED: Final = "recorder.recovered"
+RECORDER_VANISHED: Final = "recorder.vanished"
 # -- Zenoh ----------------------------------------------------------------------------------
 ZENOH_CONNECTED: Final = "zenoh.connected"
 ZENOH_DISCONNECTED: Final = "zenoh.disconnected"
@@ -100,6 +101,8 @@ CATALOGUE: Final[dict[str, Kind]] = {
         Kind(RECORDER_WRITE_FAILED, "error", "writing the recording failed; data held in memory"),
         Kind(RECORDER_DROPPED, "error", "data the recorder could not hold was dropped"),
         Kind(RECORDER_RECOVERED, "warning", "writing the recording works again"),
+        Kind(RECORDER_VANISHED, "error",
+             "the recording's file or directory was deleted; a new part continues it"),
         Kind(ZENOH_CONNECTED, "info", "a Zenoh peer or router is connected"),
         Kind(ZENOH_DISCONNECTED, "warning", "no Zenoh peer or router connected"),
         Kind(ZENOH_AVAILABLE, "info", "the Zenoh session is open again"),

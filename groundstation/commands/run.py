@@ -86,6 +86,8 @@ def _print_summary(summary: RunSummary) -> None:
         print(f"  wrote {path}")
     for path in summary.sidecars:
         print(f"  wrote {path}")
+    for path in summary.lost_files:
+        print(f"  lost {path} (deleted while recording)")
 
 
 def run(args: argparse.Namespace) -> int:

@@ -66,6 +66,8 @@ class RunSummary:
     dropped_raw_bytes: int = 0
     dropped_records: int = 0
     lost_held_bytes: int = 0
+    lost_files: tuple[Path, ...] = ()
+    """Files of the session deleted while it was recorded (not in ``files``/``sidecars``)."""
 
 
 def make_monitor(settings: Settings) -> Monitor:
@@ -360,6 +362,7 @@ class Pipeline:
             dropped_raw_bytes=rec.dropped_raw_bytes if rec else 0,
             dropped_records=rec.dropped_records if rec else 0,
             lost_held_bytes=rec.held_bytes if rec else 0,
+            lost_files=rec.lost_files if rec else (),
         )
 
 

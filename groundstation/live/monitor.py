@@ -171,7 +171,7 @@ class Monitor:
             alerts.raise_(kinds.ALERT_ZENOH_DISCONNECTED, ev.message, now_ns, events)
         elif ev.kind == kinds.ZENOH_CONNECTED:
             alerts.clear(kinds.ALERT_ZENOH_DISCONNECTED, now_ns, events, ok=ev.message)
-        elif ev.kind == kinds.RECORDER_WRITE_FAILED:
+        elif ev.kind in (kinds.RECORDER_WRITE_FAILED, kinds.RECORDER_VANISHED):
             full = ev.data.get("errno") in DISK_FULL_ERRNOS
             name = kinds.ALERT_DISK_FULL if full else kinds.ALERT_RECORDING_FAILED
             alerts.raise_(name, ev.message, now_ns, events,

@@ -255,6 +255,9 @@ class ZenohPublisherSink:
                     self.session["files"].append(path)
                     self.session["session_id"] = item.data.get("session_id", "")
                     self._put("session", encode("session", self.session, station=st))
+            elif item.kind == kinds.RECORDER_VANISHED:  # the solver must not look for them
+                gone = {str(Path(str(p)).absolute()) for p in item.data.get("lost") or ()}
+                self.session["files"] = [f for f in self.session["files"] if f not in gone]
         elif isinstance(item, RawEpoch):
             if self.publish_epochs:
                 self._put("epoch", encode("epoch", item, station=st))

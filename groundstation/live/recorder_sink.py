@@ -5,8 +5,8 @@ at least every ``flush_interval_s``, even when no data arrives, and writes the M
 when the inbox is closed and drained. It accepts the raw chunks and every record type of the
 topic registry (``storage/topics.py``). When writing fails (a full disk) the session recorder
 holds the data and retries (``storage/session.py``); this sink records and publishes what it
-reports (``recorder.write_failed``, ``recorder.dropped``, ``recorder.recovered``) and announces
-the file the recording resumes in.
+reports (``recorder.write_failed``, ``recorder.dropped``, ``recorder.recovered``,
+``recorder.vanished``) and announces the file the recording resumes in.
 """
 
 from __future__ import annotations
@@ -74,7 +74,7 @@ class RecorderSink:
     def _notify_files(self) -> None:
         if self.recorder.failing:
             return  # a part opened while recovering is announced once it holds the backlog
-        files = self.recorder.stats.files
+        files = self.recorder.created_files  # lost ones too: the indices stay put
         if self._on_file is not None:
             for path in files[self._files_seen:]:
                 self._on_file(path)

@@ -292,6 +292,13 @@ class McapFileWriter:
         with contextlib.suppress(OSError):
             self._file.close()
 
+    def forsake(self) -> None:
+        """Close without a summary, leaving the path alone: the file was deleted or replaced
+        under the writer, so whatever the path names now is not this writer's to cut."""
+        self._finished = True
+        with contextlib.suppress(OSError):
+            self._file.close()
+
     def discard(self) -> None:
         """Close and delete a file this writer created and that holds nothing needed."""
         self._finished = True

@@ -35,12 +35,26 @@ Write failures (ENOSPC, EDQUOT, EIO ... any ``OSError``) never escape. The desig
   part's raw bytes.
 - A recording that cannot even be started (the first file) raises ``OSError`` from
   :meth:`SessionRecorder.open`: the daemon refuses to start with that message.
+
+Files that vanish (the out dir deleted, a file unlinked, renamed away or replaced) raise no
+error on write: the descriptors still work, into an inode nobody can reach. So at every flush,
+after the chunk is written and before the pending messages are let go, and before a rotation,
+the current pair's paths are checked against the inodes created (a ``stat`` per file, twice a
+second at the default flush interval, never per message). When they differ, a
+``recorder.vanished`` event names the files lost (every file of the session no longer at its
+path), the directory is created again and the session continues in a new part, starting with
+the pending messages: everything received since the last check, so nothing after the deletion
+is lost. If the directory cannot be created, the write-failure machine above takes over
+(``recorder.write_failed``, data held in memory, retried). The summary (:attr:`stats`) names
+only files that exist, and the lost ones apart.
 """
 
 from __future__ import annotations
 
 import contextlib
+import errno
 import logging
+import os
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -48,11 +62,12 @@ from pathlib import Path
 from typing import Any
 
 from groundstation import __version__, jsonio
+from groundstation import events as kinds
 from groundstation.records import Event, NavSolution
 from groundstation.storage.backlog import Backlog, Msg, cost, size_text
 from groundstation.storage.location import LOCATION_CHANNEL, location_fix
 from groundstation.storage.mcapio import ExactFile, McapFileWriter, WritableFile
-from groundstation.storage.naming import candidate_pairs, session_file_stem
+from groundstation.storage.naming import candidate_pairs, new_session_id, session_file_stem
 from groundstation.storage.publish_time import PublishClock
 from groundstation.storage.rotation import RotationPolicy
 from groundstation.storage.topics import RAW_CHANNEL, ROUTES
@@ -65,7 +80,8 @@ class RecorderStats:
 
     ``raw_chunks``/``raw_bytes``/``records`` count what was received; what a write failure made
     it drop is in the ``dropped_*`` counters and ``held_bytes`` is the memory taken by what waits
-    (data plus a per-message overhead).
+    (data plus a per-message overhead). ``files`` and ``sidecars`` exist (as far as the
+    recorder knows); ``lost_files`` were deleted under it (module docstring).
     """
 
     session_id: str
@@ -81,6 +97,7 @@ class RecorderStats:
     dropped_raw_chunks: int = 0
     dropped_raw_bytes: int = 0
     dropped_records: int = 0
+    lost_files: tuple[Path, ...] = ()
 
 
 FileOpener = Callable[[Path], WritableFile]
@@ -171,6 +188,9 @@ class SessionRecorder:
         self._next_retry_ns = 0
         self._pair_empty_size = 0  # MCAP size of the current pair before any message
         self._drained_bytes = 0
+        # vanished files (module docstring)
+        self._idents: list[tuple[Path, tuple[int, int]]] = []  # the current pair's inodes
+        self._lost: dict[Path, None] = {}  # ordered set
 
     # -- lifecycle ------------------------------------------------------------------------------
 
@@ -182,7 +202,7 @@ class SessionRecorder:
         """
         now = self._clock()
         self.out_dir.mkdir(parents=True, exist_ok=True)
-        self.session_id = session_file_stem(self.station, now)
+        self.session_id = new_session_id(self.station, now)
         return self._open_file(now)
 
     def _open_file(self, now_ns: int, after_failure: str = "") -> Path:
@@ -190,9 +210,10 @@ class SessionRecorder:
         stem = session_file_stem(self.station, now_ns)
         created: list[WritableFile] = []
         try:
+            self.out_dir.mkdir(parents=True, exist_ok=True)  # again after it was deleted
             for path, side in candidate_pairs(self.out_dir, stem):
-                if side.exists() and self.sidecar:
-                    continue
+                if (side.exists() and self.sidecar) or path in self._lost:
+                    continue  # a lost part's name stays its own (the summary names it lost)
                 try:
                     mcap_file = self._open(path)
                 except FileExistsError:
@@ -226,6 +247,7 @@ class SessionRecorder:
             )
             mcap.add_metadata("configuration", {"json": jsonio.dumps(self.configuration).decode()})
             mcap.flush()
+            idents = [(f.path, _ident(f.path)) for f in created]
         except OSError:
             for f in created:
                 with contextlib.suppress(OSError):
@@ -234,6 +256,7 @@ class SessionRecorder:
                     f.path.unlink()  # our own file of a moment ago, holding nothing
             raise
         self._mcap, self._ubx = mcap, ubx
+        self._idents = idents
         self._files.append(path)
         if self.sidecar:
             self._sidecars.append(side)
@@ -272,6 +295,8 @@ class SessionRecorder:
         """
         if self._closed:
             return
+        if self._failure is None and self._mcap is not None:
+            self._pair_gone(self._clock())
         if self._failure is not None:
             self._recover(self._clock(), budget_bytes=None)
         if self._failure is None:
@@ -280,6 +305,7 @@ class SessionRecorder:
             except OSError as err:
                 self._fail(err)
         self._closed = True
+        self._mark_lost()  # earlier parts deleted meanwhile: not named as the recording
         if self._failure is not None:
             log.error(
                 "session %s ends with its recording failing (%s): %d bytes held in memory "
@@ -287,8 +313,12 @@ class SessionRecorder:
             )
         log.info(
             "session %s finished: %d raw bytes, %d records, %d file(s)",
-            self.session_id, self._raw_bytes, self._records, len(self._files),
+            self.session_id, self._raw_bytes, self._records, len(self._files) - len(self._lost),
         )
+        if self._lost:
+            log.warning("session %s: %d file(s) were deleted during the recording and are lost: "
+                        "%s", self.session_id, len(self._lost),
+                        ", ".join(str(p) for p in self._lost))
 
     # -- writing --------------------------------------------------------------------------------
 
@@ -323,10 +353,14 @@ class SessionRecorder:
         if self._failure is not None:
             self._backlog.hold(msg)
             return
+        now = self._clock()
+        rotate = self._rotate_due(now)
+        if rotate and self._pair_gone(now):
+            self._write(msg)  # into the new part, or held if there is none
+            return
         pending = False
         try:
-            now = self._clock()
-            if self._rotate_due(now):
+            if rotate:
                 self._close_file()
                 self._open_file(now)
             pending = True  # _put makes it pending before anything can fail
@@ -378,8 +412,11 @@ class SessionRecorder:
         self._backlog.push_front(self._pending)
         self._pending.clear()
         self._next_retry_ns = now + self.retry_interval_ns
-        if not first:
-            return
+        if first:
+            self._report_failure(err, path or self.out_dir, now)
+
+    def _report_failure(self, err: OSError, path: Path, now: int) -> None:
+        """The ``recorder.write_failed`` event (and log line) of a failure's start."""
         reason = f"{err.strerror or err}" + (f" (errno {err.errno})" if err.errno else "")
         log.error("cannot write %s: %s; holding data in memory (up to %s), retrying "
                   "every %g s", path, reason, size_text(self.backlog_bytes_max),
@@ -389,7 +426,7 @@ class SessionRecorder:
             f"cannot write the recording ({reason}): holding the data in memory (up to "
             f"{size_text(self.backlog_bytes_max)}), retrying every "
             f"{self.retry_interval_ns / 1e9:g} s", "error",
-            {"error": reason, "errno": err.errno or 0, "file": str(path or ""),
+            {"error": reason, "errno": err.errno or 0, "file": str(path),
              "backlog_mb": self.backlog_bytes_max / 1e6},
         ))
 
@@ -442,6 +479,78 @@ class SessionRecorder:
             {"file": str(mcap.path), "held_bytes": held, **backlog.drop_counts()},
         ))
 
+    # -- vanished files -------------------------------------------------------------------------
+
+    def _vanished(self) -> str:
+        """Why the current pair is no longer at its paths, or ``""`` while it is."""
+        for path, ident in self._idents:
+            try:
+                now_there = _ident(path)
+            except (FileNotFoundError, NotADirectoryError):
+                gone = not self.out_dir.is_dir()
+                return f"{self.out_dir} was deleted" if gone else f"{path.name} was deleted"
+            except OSError as err:  # cannot tell (e.g. no search permission): keep writing
+                log.debug("cannot check %s: %s", path, err)
+                continue
+            if now_there != ident:
+                return f"{path.name} was replaced by another file"
+        return ""
+
+    def _pair_gone(self, now: int) -> bool:
+        """Check the current pair (module docstring); if it vanished, continue in a new part
+        (or hold the data if none can be created) and return True."""
+        why = self._vanished()
+        if not why:
+            return False
+        mcap, ubx = self._mcap, self._ubx
+        assert mcap is not None
+        ours = {path for path, ident in self._idents if _still(path, ident)}
+        # What is still ours (a sidecar deleted beside its MCAP) is cut back to its last good
+        # boundary as after a write failure, so the pending messages are not there twice.
+        if mcap.path in ours:
+            mcap.abandon(self._mcap_good)
+        else:
+            mcap.forsake()
+        if ubx is not None:
+            with contextlib.suppress(OSError):
+                if ubx.path in ours:
+                    ubx.truncate(self._side_good)
+            with contextlib.suppress(OSError):
+                ubx.close()
+        self._mcap = self._ubx = None
+        self._idents = []
+        lost = self._mark_lost()
+        self._backlog.push_front(self._pending)
+        self._pending.clear()
+        self._failure = FileNotFoundError(errno.ENOENT, why)
+        names = ", ".join(p.name for p in lost) or "none"
+        text = (f"the recording vanished ({why}): {len(lost)} file(s) lost ({names}); "
+                f"continuing in a new part in {self.out_dir}")
+        log.error("%s", text)
+        self._notices.append(Event(
+            kinds.RECORDER_VANISHED, now, text, "error",
+            {"error": why, "errno": errno.ENOENT, "file": str(mcap.path),
+             "lost": [str(p) for p in lost], "out_dir": str(self.out_dir)},
+        ))
+        try:
+            self._open_file(now, after_failure=why)
+        except OSError as err:  # the directory cannot be made again: hold, retry
+            self._failure = err
+            self._failures += 1
+            self._next_retry_ns = now + self.retry_interval_ns
+            self._report_failure(err, self.out_dir, now)
+            return True
+        self._recover(now)  # the pending messages first, into the new part
+        return True
+
+    def _mark_lost(self) -> list[Path]:
+        """Move the session's files that no longer exist to the lost ones; the newly lost."""
+        lost = [p for p in (*self._files, *self._sidecars)
+                if p not in self._lost and (self._mcap is None or p != self._mcap.path)
+                and (self._ubx is None or p != self._ubx.path) and not p.exists()]
+        self._lost.update(dict.fromkeys(lost))
+        return lost
+
     def take_notices(self) -> list[Event]:
         """Events about the recording itself (write failed, dropped, recovered) since the
         last call, for the sink to publish."""
@@ -467,7 +576,10 @@ class SessionRecorder:
         except OSError as err:
             self._fail(err)
             return
-        self._mark_flushed(self._clock())
+        now = self._clock()
+        if self._pair_gone(now):  # what was just written went nowhere: it is still pending
+            return
+        self._mark_flushed(now)
 
     def _mark_flushed(self, now_ns: int) -> None:
         assert self._mcap is not None
@@ -503,10 +615,30 @@ class SessionRecorder:
         return self._files[-1] if self._files else None
 
     @property
+    def created_files(self) -> tuple[Path, ...]:
+        """Every MCAP part created, in order, lost ones included (what was announced)."""
+        return tuple(self._files)
+
+    @property
     def stats(self) -> RecorderStats:
+        lost = self._lost
         return RecorderStats(
-            self.session_id, tuple(self._files), tuple(self._sidecars), self._raw_chunks,
+            self.session_id, tuple(p for p in self._files if p not in lost),
+            tuple(p for p in self._sidecars if p not in lost), self._raw_chunks,
             self._raw_bytes, self._records, self._events, self._flushes, self._failures,
             self._backlog.bytes, self._backlog.dropped_chunks, self._backlog.dropped_bytes,
-            self._backlog.dropped_records,
+            self._backlog.dropped_records, tuple(lost),
         )
+
+
+def _ident(path: Path) -> tuple[int, int]:
+    st = os.stat(path)
+    return st.st_dev, st.st_ino
+
+
+def _still(path: Path, ident: tuple[int, int]) -> bool:
+    """Whether ``path`` still names the file created as ``ident``."""
+    try:
+        return _ident(path) == ident
+    except OSError:
+        return False

@@ -7,6 +7,7 @@ import asyncio
 import errno
 import json
 import os
+import shutil
 import time
 from collections.abc import AsyncIterator
 from pathlib import Path
@@ -19,6 +20,7 @@ from groundstation.live.daemon import Pipeline
 from groundstation.records import Event
 from groundstation.storage import iter_messages, iter_raw_chunks, read_metadata, read_summary
 from groundstation.storage.mcapio import ExactFile, ReadReport
+from groundstation.storage.reading import Recording
 from groundstation.storage.session import SessionRecorder
 from groundstation.ubx.decode import Decoder
 from groundstation.ubx.framer import UbxFramer
@@ -310,3 +312,107 @@ def test_packed_chunk_indexes_write_the_same_file(tmp_path: Path) -> None:
     assert files[0] == files[1]
     summary = read_summary(tmp_path / "packed_True.mcap")
     assert summary is not None and summary.chunk_count > 5
+
+
+# -- files deleted under the recorder -----------------------------------------------------------
+
+
+def test_out_dir_deleted_mid_session_continues_in_a_new_part(tmp_path: Path) -> None:
+    out = tmp_path / "out"
+    f = Feeder(out, Disk())
+    stream = generated_stream(n=2400)
+    cut = len(stream) // 3
+    f.feed(stream[:cut])
+    first = f.rec.current_file
+    assert first is not None
+    shutil.rmtree(out)  # the operator cleans the wrong directory
+    f.feed(stream[cut:])
+    f.rec.close()
+    kinds = f.kinds()
+    assert kinds[:2] == ["recorder.vanished", "recorder.recovered"], kinds
+    gone = f.notices[0]
+    assert gone.severity == "error" and f"{out} was deleted" in gone.message
+    assert gone.data["lost"] == [str(first), str(first.with_suffix(".ubx"))]
+    stats = f.rec.stats
+    assert stats.lost_files == (first, first.with_suffix(".ubx"))
+    assert all(p.exists() for p in (*stats.files, *stats.sidecars))  # only what exists named
+    assert first not in stats.files and len(stats.files) >= 1
+    # everything since the last check before the deletion, and all after it, in the new parts:
+    # the stream's tail, byte for byte, from at most one flush interval before the cut
+    got = raw_of(list(stats.files))
+    assert stream.endswith(got) and len(got) >= len(stream) - cut
+    assert b"".join(p.read_bytes() for p in stats.sidecars) == got
+    meta = read_metadata(stats.files[0])["groundstation"]
+    assert meta["part"] == "2" and meta["session_id"] == f.rec.session_id
+    assert "was deleted" in meta["after_write_failure"]
+    assert stats.write_failures == 0 and stats.dropped_raw_bytes == 0
+    # the one reader reads the new part (and its later ones) as the session's tail
+    assert b"".join(d for d, _ in Recording(stats.files[0]).chunks()) == got
+
+
+def test_out_dir_deleted_with_rotation_on_loses_nothing_after_it(tmp_path: Path) -> None:
+    out = tmp_path / "out"
+    clock = FakeClock()
+    rec = SessionRecorder(out, "st1", chunk_size_bytes=512, clock=clock,
+                          flush_interval_ns=50_000_000, rotate_size_bytes=6_000)
+    rec.open()
+    stream = generated_stream(n=2400)
+    cut = len(stream) // 2
+    notices: list[Event] = []
+    for i in range(0, len(stream), 97):
+        if i <= cut < i + 97:
+            shutil.rmtree(out)
+        rec.write_raw(stream[i : i + 97], clock())
+        rec.maybe_flush()
+        notices += rec.take_notices()
+    rec.close()
+    notices += rec.take_notices()
+    assert "recorder.write_failed" not in [e.kind for e in notices]  # never "cannot write None"
+    vanished = [e for e in notices if e.kind == "recorder.vanished"]
+    assert len(vanished) == 1 and len(vanished[0].data["lost"]) >= 4  # parts rotated before
+    stats = rec.stats
+    assert len(stats.files) >= 2 and all(p.exists() for p in stats.files)
+    got = raw_of(list(stats.files))
+    assert stream.endswith(got) and len(got) >= len(stream) - cut
+    assert b"".join(d for d, _ in Recording(stats.files[0]).chunks()) == got
+
+
+def test_a_deleted_sidecar_is_cut_from_its_mcap_without_duplicates(tmp_path: Path) -> None:
+    f = Feeder(tmp_path, Disk())
+    stream = generated_stream(n=1200)
+    f.feed(stream[:20_000])
+    side = f.rec.stats.sidecars[0]
+    side.unlink()
+    f.feed(stream[20_000:])
+    f.rec.close()
+    stats = f.rec.stats
+    assert stats.lost_files == (side,) and len(stats.files) == 2  # the first MCAP is kept
+    assert f.kinds()[:2] == ["recorder.vanished", "recorder.recovered"]
+    assert raw_of(list(stats.files)) == stream  # every byte once: the MCAP was cut back
+    assert stats.sidecars[0].read_bytes() == raw_of([stats.files[1]])
+
+
+def test_a_directory_that_cannot_be_made_again_holds_the_data_and_retries(
+    tmp_path: Path,
+) -> None:
+    out = tmp_path / "out"
+    f = Feeder(out, Disk())
+    stream = generated_stream(n=2400)
+    cut = len(stream) // 3
+    f.feed(stream[:cut])
+    shutil.rmtree(out)
+    out.write_bytes(b"")  # a file where the directory was: mkdir fails
+    f.feed(stream[cut : 2 * cut])
+    assert f.kinds() == ["recorder.vanished", "recorder.write_failed"]
+    assert f.rec.failing and f.rec.stats.held_bytes > 0
+    f.idle(1.0)
+    assert f.rec.failing  # still a file
+    out.unlink()
+    f.idle(1.0)
+    assert f.kinds() == ["recorder.vanished", "recorder.write_failed", "recorder.recovered"]
+    f.feed(stream[2 * cut :])
+    f.rec.close()
+    stats = f.rec.stats
+    got = raw_of(list(stats.files))
+    assert stream.endswith(got) and len(got) >= len(stream) - cut
+    assert stats.write_failures == 1 and stats.dropped_raw_bytes == 0

@@ -9,8 +9,6 @@ PPK-readiness figures, alerts, recent events and the session.
 
 from __future__ import annotations
 
-import datetime as dt
-import re
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -19,6 +17,7 @@ from urllib.parse import quote
 
 from groundstation import events as kinds
 from groundstation import gpstime, messages
+from groundstation.storage.naming import session_start_ns
 
 STALE_AFTER_S = 3.0
 """No status for longer than this and the station is shown as stale."""
@@ -34,7 +33,6 @@ LEAF_KINDS = {"status": "status", "q/status": "status", "event": "event",
               "timemark": "timemark", "q/timemarks": "timemark", "session": "session"}
 """Key leaf -> the message kind it must carry."""
 NOT_SHOWN = frozenset({"ubx", "epoch", "alive"})
-_SESSION_TIME = re.compile(r"(\d{8}T\d{6}Z)$")
 
 NS = gpstime.NS_PER_S
 
@@ -474,9 +472,5 @@ def _slots(first: int, interval: int, a: int, b: int) -> int:
 
 
 def _session_start_unix_ns(session_id: str) -> int | None:
-    """Session ids end with the UTC start time (``station_20250602T080000Z``)."""
-    m = _SESSION_TIME.search(session_id)
-    if m is None:
-        return None
-    when = dt.datetime.strptime(m.group(1), "%Y%m%dT%H%M%SZ").replace(tzinfo=dt.UTC)
-    return int(when.timestamp()) * NS
+    """Session ids carry the UTC start second (``storage/naming.py`` owns the format)."""
+    return session_start_ns(session_id)
