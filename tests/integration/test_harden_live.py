@@ -1,5 +1,7 @@
 """Real processes, real ptys, real Zenoh on loopback: the station is not blinded or fooled.
 
+- The out dir deleted mid-session (with and without rotation): ``recorder.vanished`` on the bus
+  and in the log, and every frame sent after the deletion in the new parts.
 - The device path re-pointed to a new device while the old tty stays open: the daemon notices
   and records the new device's bytes within 3 s.
 - Two daemons with one station name: both raise the ``station_conflict`` alert.
@@ -12,6 +14,7 @@ from __future__ import annotations
 import http.client
 import json
 import os
+import shutil
 import subprocess
 import sys
 import threading
@@ -28,7 +31,10 @@ from groundstation import jsonio
 from groundstation.bus import Bus, decode, encode, key, open_bus
 from groundstation.config import ZenohSettings
 from groundstation.sim.ptylink import PtyLink
+from groundstation.storage import read_metadata
+from groundstation.storage.reading import Recording
 from groundstation.ubx.build import build_frame
+from groundstation.ubx.framer import UbxFramer
 from groundstation.view.dashboard.server import Dashboard, DashboardSettings
 
 WEEK = 2300
@@ -105,6 +111,109 @@ def test_repointed_device_path_is_reopened_and_recorded_within_3_s(
     finally:
         old.close()
         new.close()
+
+
+class CountingFeeder:
+    """A simulated receiver on a pty: 5 Hz epochs with a mark every fifth, written at 50 Hz
+    (ten times real time, so a rotation holds many); keeps every piece it wrote, in order."""
+
+    def __init__(self, link: PtyLink) -> None:
+        self.link = link
+        self.sent: list[bytes] = []
+        self.stop = threading.Event()
+        self.thread = threading.Thread(target=self.run, daemon=True)
+        self.thread.start()
+
+    def run(self) -> None:
+        k = 0
+        while not self.stop.is_set():
+            data = epoch_with_mark(k, k // 5 if k % 5 == 0 else None, SATS, WEEK, TOW0_MS)
+            try:
+                self.link.write(data)
+            except OSError:
+                return
+            self.sent.append(data)
+            k += 1
+            time.sleep(0.02)
+
+    def close(self) -> None:
+        self.stop.set()
+        self.thread.join(timeout=5)
+
+
+def _frames(data: bytes) -> list[bytes]:
+    return [f.raw for f in UbxFramer().feed(data, 0)]
+
+
+@pytest.mark.parametrize("rotate", [False, True], ids=["one_file", "rotating"])
+def test_out_dir_deleted_mid_session_alerts_and_loses_nothing_after(
+    tmp_path: Path, pty: Pty, daemons: list[Daemon], rotate: bool,
+) -> None:
+    conf = tmp_path / "rec.toml"
+    conf.write_text("[recorder]\nflush_interval_s = 0.2\n"
+                    + ("rotate_duration_s = 1.0\n" if rotate else ""))
+    out = tmp_path / "out"
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    zenoh = ["--no-zenoh"] if rotate else ["--zenoh-listen", endpoint]
+    d = Daemon("--port", str(pty.link), "--station", "vd", "--out-dir", str(out),
+               "--config", str(conf), *zenoh)
+    daemons.append(d)
+    d.wait_for("publishing on Zenoh" if not rotate else "connected", timeout_s=20)
+    seen: list[dict[str, Any]] = []
+    bus = None if rotate else open_bus(ZenohSettings(listen=(), connect=(endpoint,)))
+    if bus is not None:
+        bus.subscribe(key("vd", "event"), lambda _k, payload: seen.append(decode(payload)))
+    feeder = CountingFeeder(pty)
+    try:
+        wait_until(lambda: len(feeder.sent) > 100 and len(list(out.glob("*.mcap"))) >= 1
+                   + rotate, timeout_s=20, what="a recording under way")
+        old = sorted(out.glob("*"))
+        before = len(feeder.sent)
+        shutil.rmtree(out)
+        after = len(feeder.sent)  # every piece from here on was written after the deletion
+        d.wait_for("the recording vanished", timeout_s=10)
+        wait_until(lambda: len(feeder.sent) > after + 100, timeout_s=20)
+    finally:
+        feeder.close()
+    sent = feeder.sent
+    tail = b"".join(sent[after:])
+
+    def new_parts() -> bytes:
+        first = min(out.glob("*.mcap"), key=lambda p: int(
+            read_metadata(p)["groundstation"]["part"]))
+        return b"".join(c for c, _ in Recording(first).chunks())
+
+    # the daemon has recorded the last piece (MCAP flushed), then stops in order
+    wait_until(lambda: new_parts().endswith(sent[-1]), timeout_s=10, what="all recorded")
+    rc, stdout = d.stop()
+    assert rc == 0, d.stderr
+    assert "Traceback" not in d.stderr and "cannot write None" not in d.stderr
+    got = new_parts()
+    print(f"deleted after {before}-{after} of {len(sent)} pieces; new parts hold "
+          f"{len(got)} bytes, {len(_frames(got))} frames")
+    # every frame sent after the deletion is in the new parts, in order, byte for byte
+    assert got.endswith(tail)
+    assert len(_frames(got)) >= len(_frames(tail))
+    assert _frames(got)[-len(_frames(tail)):] == _frames(tail)
+    # the summary names only files that exist, and the deleted ones as lost
+    wrote = [Path(line.split("wrote ", 1)[1]) for line in stdout.splitlines()
+             if line.strip().startswith("wrote ")]
+    lost = [Path(line.split("lost ", 1)[1].split(" (")[0]) for line in stdout.splitlines()
+            if line.strip().startswith("lost ")]
+    assert wrote and all(p.exists() for p in wrote), stdout
+    assert {p.name for p in old} <= {p.name for p in lost}, stdout
+    assert not any(p.exists() and p in wrote for p in lost)
+    if rotate:
+        assert len([p for p in wrote if p.suffix == ".mcap"]) >= 2  # rotated after, too
+    if bus is not None:
+        try:
+            wait_until(lambda: any(m.get("kind") == "recorder.vanished" for m in seen),
+                       timeout_s=5, what="recorder.vanished on the bus")
+            assert any(m.get("kind") == "alert.raised"
+                       and (m.get("data") or {}).get("alert") == "recording_failed"
+                       for m in seen)
+        finally:
+            bus.close()
 
 
 def test_two_daemons_with_one_station_name_both_alert(
