@@ -11,7 +11,9 @@ new part after a write failure such as a full disk) is followed automatically. T
 
 - The parts of a session are the MCAP files in the same directory whose ``groundstation``
   metadata record (written at the head of every part by
-  :class:`~groundstation.storage.session.SessionRecorder`) carries the same ``session_id``;
+  :class:`~groundstation.storage.session.SessionRecorder`) carries the same ``session_id``
+  (``<station>_<start second>-<random token>``, unique even for two daemons of one station
+  started in the same second: ``storage/naming.py``);
   their order is the metadata's ``part`` number (1, 2, ...), not the file name (a part opened in
   the same second as the previous one is named ``<stem>_1``, ``<stem>_2``, ... and ``_10`` sorts
   before ``_2``).

@@ -15,6 +15,7 @@ from groundstation.errors import InputError
 from groundstation.offline.inspect import inspect_path
 from groundstation.pacing import Pacer, link_time_ns
 from groundstation.storage import iter_raw_chunks
+from groundstation.storage.naming import session_start_ns
 from groundstation.storage.reading import Recording, detect_format, iter_chunks, session_parts
 from groundstation.storage.session import SessionRecorder
 
@@ -150,6 +151,38 @@ def test_other_sessions_and_files_beside_it_are_not_read(tmp_path: Path) -> None
     (out / "st1_99999999T999999Z.mcap").write_bytes(b"\x89MCAP0\r\n")
     assert raw(first) == a
     assert raw(later.stats.files[0]) == b
+
+
+def test_two_daemons_of_one_station_in_one_second_get_distinct_sessions(
+    tmp_path: Path,
+) -> None:
+    """Two daemons named alike, started in the same second, rotating into one directory, their
+    parts interleaved by name: distinct session ids keep each session's parts its own (with
+    one id the reader would follow one session into the other)."""
+    a_data = generated_stream(seed=1, n=1200)
+    b_data = generated_stream(seed=2, n=1200)
+    a = SessionRecorder(tmp_path, "st1", chunk_size_bytes=512, clock=FakeClock(),
+                        rotate_size_bytes=1500)
+    b = SessionRecorder(tmp_path, "st1", chunk_size_bytes=512, clock=FakeClock(),
+                        rotate_size_bytes=1500)
+    a.open()
+    b.open()
+    assert a.session_id != b.session_id
+    assert a.session_id.startswith("st1_20231114T221320Z-")
+    assert session_start_ns(a.session_id) == session_start_ns(b.session_id) == (
+        session_start_ns(a.stats.files[0].stem))
+    for i in range(0, max(len(a_data), len(b_data)), 97):
+        for rec, data in ((a, a_data), (b, b_data)):
+            if data[i : i + 97]:
+                rec.write_raw(data[i : i + 97], 1_000 + i)
+                rec.maybe_flush()
+    a.close()
+    b.close()
+    assert len(a.stats.files) >= 5 and len(b.stats.files) >= 5
+    assert raw(a.stats.files[0]) == a_data and raw(b.stats.files[0]) == b_data
+    assert raw(a.stats.sidecars[0]) == a_data and raw(b.stats.sidecars[0]) == b_data
+    # a later part still reads the session's tail from there
+    assert a_data.endswith(raw(a.stats.files[3]))
 
 
 def test_a_missing_part_is_reported_and_skipped(

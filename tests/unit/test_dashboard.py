@@ -86,6 +86,7 @@ def test_slots_counts_epoch_grid_points_in_half_open_ranges() -> None:
 
 def test_session_start_from_session_id() -> None:
     assert _session_start_unix_ns("st_20250602T080000Z") == 1_748_851_200 * NS
+    assert _session_start_unix_ns("st_20250602T080000Z-3fa9c1") == 1_748_851_200 * NS
     assert _session_start_unix_ns("no-time") is None
 
 
