@@ -247,8 +247,7 @@ def test_two_daemons_with_one_station_name_both_alert(
                             if m.get("type") == "event" and m.get("kind") == "station.conflict"}
 
             def alerted() -> set[str]:
-                """The daemons (by their out dir: two sessions may share an id) whose status
-                carries the alert."""
+                """The daemons (by their out dir) whose status carries the alert."""
                 with lock:
                     return {Path(str((m.get("recording") or {}).get("file"))).parent.name
                             for m in seen if m.get("type") == "status"
@@ -259,6 +258,17 @@ def test_two_daemons_with_one_station_name_both_alert(
             wait_until(lambda: alerted() >= {"o1", "o2"} or len(conflicts()) == 2,
                        timeout_s=20)
             assert "another daemon publishes as station 'dup'" in d1.stderr + d2.stderr
+
+            def session_ids() -> dict[str, object]:
+                with lock:
+                    return {Path(str((m.get("recording") or {}).get("file"))).parent.name:
+                            m.get("session_id") for m in seen if m.get("type") == "status"
+                            and m.get("session_id")}
+
+            # one station name, two sessions: never one id for both
+            wait_until(lambda: {"o1", "o2"} <= set(session_ids()), timeout_s=10)
+            sids = session_ids()
+            assert sids["o1"] != sids["o2"], sids
         finally:
             bus.close()
             for f in feeders:
