@@ -162,7 +162,8 @@ def test_out_dir_deleted_mid_session_alerts_and_loses_nothing_after(
     seen: list[dict[str, Any]] = []
     bus = None if rotate else open_bus(ZenohSettings(listen=(), connect=(endpoint,)))
     if bus is not None:
-        bus.subscribe(key("vd", "event"), lambda _k, payload: seen.append(decode(payload)))
+        for leaf in ("event", "session"):
+            bus.subscribe(key("vd", leaf), lambda _k, payload: seen.append(decode(payload)))
     feeder = CountingFeeder(pty)
     try:
         wait_until(lambda: len(feeder.sent) > 100 and len(list(out.glob("*.mcap"))) >= 1
@@ -212,6 +213,12 @@ def test_out_dir_deleted_mid_session_alerts_and_loses_nothing_after(
             assert any(m.get("kind") == "alert.raised"
                        and (m.get("data") or {}).get("alert") == "recording_failed"
                        for m in seen)
+            # the session's last word names the files a solver can find, not the lost ones
+            wait_until(lambda: any(m.get("type") == "session" and m.get("state") == "finished"
+                                   for m in seen), timeout_s=5, what="session finished")
+            final = next(m for m in seen if m.get("type") == "session"
+                         and m.get("state") == "finished")
+            assert final["files"] and all(Path(f).exists() for f in final["files"]), final
         finally:
             bus.close()
 
