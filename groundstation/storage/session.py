@@ -488,7 +488,8 @@ class SessionRecorder:
                 now_there = _ident(path)
             except (FileNotFoundError, NotADirectoryError):
                 gone = not self.out_dir.is_dir()
-                return f"{self.out_dir} was deleted" if gone else f"{path.name} was deleted"
+                return (f"{self.out_dir} was deleted or moved" if gone
+                        else f"{path.name} was deleted or moved")
             except OSError as err:  # cannot tell (e.g. no search permission): keep writing
                 log.debug("cannot check %s: %s", path, err)
                 continue
@@ -523,18 +524,22 @@ class SessionRecorder:
         self._backlog.push_front(self._pending)
         self._pending.clear()
         self._failure = FileNotFoundError(errno.ENOENT, why)
+        try:
+            self._open_file(now, after_failure=why)
+            err: OSError | None = None
+            then = f"continuing in a new part in {self.out_dir}"
+        except OSError as e:  # the directory cannot be made again: hold and retry
+            err = e
+            then = f"cannot make {self.out_dir} again ({e.strerror or e}): holding the data"
         names = ", ".join(p.name for p in lost) or "none"
-        text = (f"the recording vanished ({why}): {len(lost)} file(s) lost ({names}); "
-                f"continuing in a new part in {self.out_dir}")
+        text = f"the recording vanished ({why}): {len(lost)} file(s) lost ({names}); {then}"
         log.error("%s", text)
         self._notices.append(Event(
             kinds.RECORDER_VANISHED, now, text, "error",
             {"error": why, "errno": errno.ENOENT, "file": str(mcap.path),
              "lost": [str(p) for p in lost], "out_dir": str(self.out_dir)},
         ))
-        try:
-            self._open_file(now, after_failure=why)
-        except OSError as err:  # the directory cannot be made again: hold, retry
+        if err is not None:  # the write-failure machine from here on
             self._failure = err
             self._failures += 1
             self._next_retry_ns = now + self.retry_interval_ns

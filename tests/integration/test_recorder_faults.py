@@ -404,6 +404,7 @@ def test_a_directory_that_cannot_be_made_again_holds_the_data_and_retries(
     out.write_bytes(b"")  # a file where the directory was: mkdir fails
     f.feed(stream[cut : 2 * cut])
     assert f.kinds() == ["recorder.vanished", "recorder.write_failed"]
+    assert f"cannot make {out} again" in f.notices[0].message
     assert f.rec.failing and f.rec.stats.held_bytes > 0
     f.idle(1.0)
     assert f.rec.failing  # still a file
