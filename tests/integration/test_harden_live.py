@@ -31,8 +31,7 @@ from groundstation import jsonio
 from groundstation.bus import Bus, decode, encode, key, open_bus
 from groundstation.config import ZenohSettings
 from groundstation.sim.ptylink import PtyLink
-from groundstation.storage import read_metadata
-from groundstation.storage.reading import Recording
+from groundstation.storage.reading import Recording, part_info
 from groundstation.ubx.build import build_frame
 from groundstation.ubx.framer import UbxFramer
 from groundstation.view.dashboard.server import Dashboard, DashboardSettings
@@ -120,6 +119,7 @@ class CountingFeeder:
     def __init__(self, link: PtyLink) -> None:
         self.link = link
         self.sent: list[bytes] = []
+        self.lock = threading.Lock()  # a piece is written and counted at once
         self.stop = threading.Event()
         self.thread = threading.Thread(target=self.run, daemon=True)
         self.thread.start()
@@ -128,11 +128,12 @@ class CountingFeeder:
         k = 0
         while not self.stop.is_set():
             data = epoch_with_mark(k, k // 5 if k % 5 == 0 else None, SATS, WEEK, TOW0_MS)
-            try:
-                self.link.write(data)
-            except OSError:
-                return
-            self.sent.append(data)
+            with self.lock:
+                try:
+                    self.link.write(data)
+                except OSError:
+                    return
+                self.sent.append(data)
             k += 1
             time.sleep(0.02)
 
@@ -169,9 +170,11 @@ def test_out_dir_deleted_mid_session_alerts_and_loses_nothing_after(
         wait_until(lambda: len(feeder.sent) > 100 and len(list(out.glob("*.mcap"))) >= 1
                    + rotate, timeout_s=20, what="a recording under way")
         old = sorted(out.glob("*"))
-        before = len(feeder.sent)
+        with feeder.lock:
+            before = len(feeder.sent)
         shutil.rmtree(out)
-        after = len(feeder.sent)  # every piece from here on was written after the deletion
+        with feeder.lock:
+            after = len(feeder.sent)  # every piece from here on is written after the deletion
         d.wait_for("the recording vanished", timeout_s=10)
         wait_until(lambda: len(feeder.sent) > after + 100, timeout_s=20)
     finally:
@@ -180,8 +183,7 @@ def test_out_dir_deleted_mid_session_alerts_and_loses_nothing_after(
     tail = b"".join(sent[after:])
 
     def new_parts() -> bytes:
-        first = min(out.glob("*.mcap"), key=lambda p: int(
-            read_metadata(p)["groundstation"]["part"]))
+        first = min(out.glob("*.mcap"), key=lambda p: getattr(part_info(p), "part", 0))
         return b"".join(c for c, _ in Recording(first).chunks())
 
     # the daemon has recorded the last piece (MCAP flushed), then stops in order
