@@ -141,6 +141,8 @@ class Fetcher:
             raise GroundstationError(f"{dest} exists with other content: not overwritten")
         dest.parent.mkdir(parents=True, exist_ok=True)
         part = dest.with_name(dest.name + ".part")
+        log.info("fetching %s (%d bytes) from station %s over Zenoh into %s", remote.name,
+                 remote.size, remote.station, dest.parent)
         for attempt in range(1, ATTEMPTS + 1):
             self._fill(remote, part)
             digest = transfer.sha256_file(part)

@@ -1,0 +1,174 @@
+"""A remote solver fetches a station's recording through the router, byte for byte, and
+solves it (issue 16: recordings over Zenoh).
+
+Separate processes in separate working directories, real Zenoh on loopback, free ports:
+
+- ``groundstation router`` (access control on, loopback TCP allowed) in ``router/``;
+- ``groundstation demo --station rover`` in ``A/``: its daemon finds the router's endpoint
+  taken and joins it; after the flight it keeps serving its recording (``--serve-after``);
+- ``groundstation solver`` in ``B/``, connected to the router, its recording roots and output
+  inside ``B/`` only: the path the session message names is not readable there, so it fetches
+  the file over the bus into ``B/solutions/rover/``, checks it, solves it and publishes;
+- this process, a client of the router: subscribes to the solutions, and asks
+  ``q/solution`` afterwards, as a late joiner would.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import pytest
+from peers import REPO, free_port
+
+from groundstation.bus import Bus, decode, key, open_bus
+from groundstation.config import ZenohSettings
+from groundstation.storage.transfer import sha256_file
+
+WAIT_S = 120.0  # generous: the shared 2-core machine
+
+
+def _env() -> dict[str, str]:
+    env = {k: v for k, v in os.environ.items() if not k.startswith("GROUNDSTATION_")}
+    env["PYTHONPATH"] = str(REPO)
+    return env
+
+
+class Proc:
+    """A CLI process in its own working directory, stderr to a file."""
+
+    def __init__(self, cwd: Path, *argv: str) -> None:
+        cwd.mkdir(parents=True, exist_ok=True)
+        self.err_path = cwd / "stderr.txt"
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "groundstation.cli", *argv], cwd=cwd, env=_env(),
+            stdout=(cwd / "stdout.txt").open("w"), stderr=self.err_path.open("w"))
+
+    def stderr(self) -> str:
+        return self.err_path.read_text(errors="replace")
+
+    def wait_for(self, text: str, timeout_s: float = WAIT_S) -> None:
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            if text in self.stderr():
+                return
+            assert self.proc.poll() is None, f"exited early:\n{self.stderr()}"
+            time.sleep(0.1)
+        raise AssertionError(f"no {text!r} within {timeout_s} s:\n{self.stderr()}")
+
+    def stop(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGTERM)
+            try:
+                self.proc.wait(timeout=20)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait(timeout=10)
+
+
+class Solutions:
+    def __init__(self, bus: Bus) -> None:
+        self.lock = threading.Lock()
+        self.items: list[dict[str, Any]] = []
+        bus.subscribe(key("*", "solution"), self.on)
+
+    def on(self, _key: str, payload: bytes) -> None:
+        with self.lock:
+            self.items.append(decode(payload))
+
+    def final(self) -> dict[str, Any] | None:
+        with self.lock:
+            done = [m for m in self.items if m.get("status") not in ("solving", None)]
+        return done[-1] if done else None
+
+
+def _until(check: Any, what: str, timeout_s: float = WAIT_S) -> Any:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        got = check()
+        if got:
+            return got
+        time.sleep(0.2)
+    raise AssertionError(f"{what} not within {timeout_s:g} s")
+
+
+@pytest.mark.slow
+def test_a_remote_solver_fetches_the_recording_through_the_router_and_solves_it(
+        tmp_path: Path) -> None:
+    port = free_port()
+    endpoint = f"tcp/127.0.0.1:{port}"
+    router_dir, a_dir, b_dir = tmp_path / "router", tmp_path / "A", tmp_path / "B"
+    router_dir.mkdir()
+    (router_dir / "router.toml").write_text(
+        f'listen = ["{endpoint}"]\n[access]\nenabled = true\nlocal = true\n')
+    procs: list[Proc] = []
+    bus: Bus | None = None
+    try:
+        router = Proc(router_dir, "router", "--config", "router.toml")
+        procs.append(router)
+        router.wait_for("router listening")
+        # the station: a flight long enough for the solver to start while it flies
+        demo = Proc(a_dir, "demo", "--station", "rover", "--no-view", "--flight", "120",
+                    "--speed", "6", "--seed", "6", "--out-dir", "flights",
+                    "--zenoh-listen", endpoint, "--serve-after", "300")
+        procs.append(demo)
+        demo.wait_for("is taken: joined it")  # the router holds the endpoint
+        truth_path = _until(lambda: next((a_dir / "flights").glob("*.truth.json"), None),
+                            "the demo's truth file")
+        base_path = next((a_dir / "flights").glob("*_base.ubx"))
+        truth = json.loads(truth_path.read_text())
+        # the base station's stream reaches the solver's machine by other means (base pairing
+        # over the bus is another change): a copy in B
+        (b_dir / "base").mkdir(parents=True)
+        shutil.copy(base_path, b_dir / "base" / base_path.name)
+        xyz = ", ".join(f"{v:.4f}" for v in truth["base"]["ecef_m"])
+        (b_dir / "solver.toml").write_text(
+            f'out_root = "{b_dir / "solutions"}"\nrecording_roots = ["{b_dir / "flights"}"]\n'
+            f'[zenoh]\nconnect = ["{endpoint}"]\nlisten = []\n'
+            f'[stations.rover]\nbase = "{b_dir / "base"}/{{stem}}_base.ubx"\n'
+            f'base_xyz = [{xyz}]\nlever_arm = [0.16, -0.03, 0.57]\n')
+        bus = open_bus(ZenohSettings(mode="client", listen=(), connect=(endpoint,)))
+        sols = Solutions(bus)
+        solver = Proc(b_dir, "solver", "--config", "solver.toml")
+        procs.append(solver)
+        solver.wait_for("listening on groundstation/*/session")
+
+        # the flight ends; the daemon announces the finished file with its SHA-256 and serves it
+        demo.wait_for("serving 1 recording file(s)")
+        final = _until(sols.final, "a final solution")
+        assert final["status"] == "ok", (final, solver.stderr())
+        (mcap,) = (a_dir / "flights").glob("rover_*.mcap")
+        fetched = b_dir / "solutions" / "rover" / mcap.name
+        assert final["flight"] == str(fetched)
+        assert fetched.read_bytes() == mcap.read_bytes()
+        assert sha256_file(fetched) == sha256_file(mcap)
+        assert not fetched.with_name(fetched.name + ".part").exists()
+        assert "SHA-256 verified" in solver.stderr()
+        n_marks = len(truth["exposures"])
+        assert final["counts"]["marks"] == n_marks
+        assert final["quality"]["fixed_fraction"] > 0.9
+        assert Path(final["out_dir"]).parent == b_dir / "solutions" / "rover"
+        assert not any(a_dir.rglob("cameras.csv"))  # nothing written on the station's side
+        # the daemon saw its file sent in full and stopped serving by itself
+        demo.wait_for("every recording file was sent in full")
+        assert demo.proc.wait(timeout=60) == 0, demo.stderr()
+
+        # a late joiner asks for the latest solution
+        replies = bus.get(key("rover", "q/solution"), timeout_s=10.0)
+        late = [decode(p) for _, p in replies]
+        assert [m["status"] for m in late] == ["ok"]
+        assert late[0]["flight"] == str(fetched) and late[0]["counts"] == final["counts"]
+        assert "Traceback" not in solver.stderr() + demo.stderr() + router.stderr()
+    finally:
+        if bus is not None:
+            bus.close()
+        for p in reversed(procs):
+            p.stop()
