@@ -5,14 +5,17 @@ mid-fetch, a damaged chunk, a corrupted ``.part`` and crafted queries."""
 
 from __future__ import annotations
 
+import os
 import random
+import subprocess
+import sys
 import threading
 import time
 from collections.abc import Iterator, Mapping
 from pathlib import Path
 
 import pytest
-from peers import free_port, wait_until
+from peers import REPO, free_port, wait_until
 
 from groundstation import messages
 from groundstation.bus import Bus, Reply, encode, open_bus
@@ -46,11 +49,11 @@ def recording(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, str]:
 class Link:
     """A serving bus and a fetching bus joined on loopback; ``answer`` may be wrapped."""
 
-    def __init__(self) -> None:
+    def __init__(self, station: Bus | None = None, solver: Bus | None = None) -> None:
         endpoint = f"tcp/127.0.0.1:{free_port()}"
-        self.station_bus: Bus = open_bus(ZenohSettings(listen=(endpoint,)))
-        self.solver_bus: Bus = open_bus(ZenohSettings(mode="client", listen=(),
-                                                      connect=(endpoint,)))
+        self.station_bus: Bus = station or open_bus(ZenohSettings(listen=(endpoint,)))
+        self.solver_bus: Bus = solver or open_bus(ZenohSettings(
+            mode="client", listen=(), connect=(endpoint,)))
         self.server = RecordingServer("rover", chunk_bytes=CHUNK)
         self.asked: list[tuple[str, dict[str, str | None]]] = []
         self.mute_from: int | None = None  # no reply from this offset on (the link is down)
@@ -254,3 +257,70 @@ def test_session_message_recordings_are_checked() -> None:
         with pytest.raises(messages.BadMessage):
             messages.parse(encode("session", {**body, "recordings": [bad]}, station="rover"),
                            "session")
+
+
+def _router(cwd: Path, endpoint: str) -> subprocess.Popen[bytes]:
+    cwd.mkdir(parents=True, exist_ok=True)
+    env = {k: v for k, v in os.environ.items() if not k.startswith("GROUNDSTATION_")}
+    env["PYTHONPATH"] = str(REPO)
+    return subprocess.Popen([sys.executable, "-m", "groundstation.cli", "router", "--listen",
+                             endpoint], cwd=cwd, env=env, stdout=subprocess.DEVNULL,
+                            stderr=(cwd / "stderr.txt").open("ab"))
+
+
+@pytest.mark.slow
+def test_the_router_killed_and_restarted_mid_fetch_is_resumed(
+        recording: tuple[Path, str], tmp_path: Path) -> None:
+    """A real broken link: both ends are clients of a router process that is killed while
+    the fetch is half done (held there by answering no further chunk until then), and
+    started again on the same port; the sessions reconnect by themselves and the fetch goes
+    on from the ``.part`` without being started again."""
+    path, _ = recording
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    router = _router(tmp_path / "router", endpoint)
+    client = ZenohSettings(mode="client", listen=(), connect=(endpoint,))
+    link: Link | None = None
+    try:
+        wait_until(lambda: _can_open(client), 30, "the router up")
+        link = Link(station=open_bus(client), solver=open_bus(client))
+        remote = _remote(link, recording, tmp_path / "out")
+        part = remote.dest.with_name(remote.name + ".part")
+        link.mute_from = 9 * CHUNK
+        fetcher = Fetcher(link.solver_bus, stall_s=60.0, query_timeout_s=2.0)
+        result: list[Path | BaseException] = []
+
+        def run() -> None:
+            try:
+                result.append(fetcher.fetch(remote))
+            except BaseException as err:  # handed to the test thread
+                result.append(err)
+
+        worker = threading.Thread(target=run, daemon=True)
+        worker.start()
+        wait_until(lambda: part.exists() and part.stat().st_size == 9 * CHUNK, 30,
+                   "half the file fetched")
+        router.kill()
+        router.wait(timeout=10)
+        link.mute_from = None  # the station would answer now, but there is no link
+        time.sleep(1.0)  # a real outage: queries meanwhile go nowhere
+        assert not result and part.stat().st_size == 9 * CHUNK
+        router = _router(tmp_path / "router", endpoint)
+        worker.join(timeout=90)
+        assert result and isinstance(result[0], Path), result
+        assert result[0].read_bytes() == path.read_bytes()
+        assert fetcher.retries > 0 and fetcher.discarded == 0
+    finally:
+        if link is not None:
+            link.close()
+        router.kill()
+        router.wait(timeout=10)
+
+
+def _can_open(settings: ZenohSettings) -> bool:
+    try:
+        bus = open_bus(settings)
+    except GroundstationError:
+        return False
+    ok = bus.connections() > 0
+    bus.close()
+    return ok
