@@ -172,3 +172,66 @@ def test_a_remote_solver_fetches_the_recording_through_the_router_and_solves_it(
             bus.close()
         for p in reversed(procs):
             p.stop()
+
+
+@pytest.mark.slow
+def test_each_rotated_part_is_served_while_the_daemon_records(tmp_path: Path) -> None:
+    """``groundstation run`` on the simulator's TCP stream, a new file every 5 s: each closed
+    part appears in ``recordings[]`` and is fetched byte-identical while the daemon goes on
+    recording; the part being written is refused."""
+    from groundstation import messages
+    from groundstation.solve.fetch import Fetcher, remote_for
+    from groundstation.storage import transfer
+
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    sim_port = free_port()
+    procs: list[Proc] = []
+    bus: Bus | None = None
+    sessions: list[dict[str, Any]] = []
+    lock = threading.Lock()
+    try:
+        procs.append(Proc(tmp_path / "sim", "simulate", "--tcp", str(sim_port), "--duration",
+                          "600", "--speed", "1"))
+        a_dir = tmp_path / "A"
+        a_dir.mkdir()
+        (a_dir / "rover.toml").write_text(
+            f'station = "rover"\n[source]\naddress = "127.0.0.1:{sim_port}"\n'
+            f'[recorder]\nrotate_duration_s = 5\n[zenoh]\nlisten = ["{endpoint}"]\n')
+        daemon = Proc(a_dir, "run", "--config", "rover.toml")
+        procs.append(daemon)
+        daemon.wait_for("publishing on Zenoh")
+        bus = open_bus(ZenohSettings(mode="client", listen=(), connect=(endpoint,)))
+
+        def on_session(_key: str, payload: bytes) -> None:
+            with lock:
+                sessions.append(messages.parse(payload, "session"))
+
+        bus.subscribe(key("rover", "session"), on_session)
+
+        def served() -> dict[str, Any] | None:
+            with lock:
+                return next((m for m in sessions if m.get("recordings")), None)
+
+        msg = _until(served, "a session message listing a closed part", 60)
+        assert msg["state"] == "started"
+        first = msg["recordings"][0]
+        assert first["name"] == Path(msg["files"][0]).name
+        assert len(msg["files"]) >= 2  # the part being written is listed, not served
+        current = Path(msg["files"][-1]).name
+        assert current not in {r["name"] for r in msg["recordings"]}
+        remote = remote_for("rover", msg, Path(msg["files"][0]), tmp_path / "B", None)
+        assert remote is not None
+        # asked at once: the part being written has most of its 5 s ahead of it
+        refused = bus.ask(remote.key_expr, transfer.Request(current, 0, 10).parameters())()
+        assert len(refused) == 1 and refused[0].error
+        assert b"not a finished file" in refused[0].payload
+        got = Fetcher(bus).fetch(remote)
+        on_disk = a_dir / "flights" / first["name"]
+        assert got.read_bytes() == on_disk.read_bytes()
+        assert sha256_file(on_disk) == first["sha256"]
+        assert daemon.proc.poll() is None  # still recording
+    finally:
+        if bus is not None:
+            bus.close()
+        for p in reversed(procs):
+            p.stop()
