@@ -235,3 +235,55 @@ def test_each_rotated_part_is_served_while_the_daemon_records(tmp_path: Path) ->
             bus.close()
         for p in reversed(procs):
             p.stop()
+
+
+@pytest.mark.slow
+def test_after_the_session_the_daemon_serves_until_told_to_stop(tmp_path: Path) -> None:
+    """``run`` with ``duration_s`` and ``serve_after_s``: the session ends, the last file is
+    announced ``finished`` with its SHA-256 and served; nobody fetches it, so the daemon
+    waits, and a SIGTERM then ends it at once, cleanly."""
+    from groundstation import messages
+
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    sim_port = free_port()
+    procs: list[Proc] = []
+    bus: Bus | None = None
+    sessions: list[dict[str, Any]] = []
+    lock = threading.Lock()
+    try:
+        procs.append(Proc(tmp_path / "sim", "simulate", "--tcp", str(sim_port), "--duration",
+                          "600", "--speed", "1"))
+        a_dir = tmp_path / "A"
+        a_dir.mkdir()
+        (a_dir / "rover.toml").write_text(
+            f'station = "rover"\nduration_s = 4\n[source]\naddress = "127.0.0.1:{sim_port}"\n'
+            f'[zenoh]\nlisten = ["{endpoint}"]\nserve_after_s = 600\n')
+        daemon = Proc(a_dir, "run", "--config", "rover.toml")
+        procs.append(daemon)
+        daemon.wait_for("publishing on Zenoh")
+        bus = open_bus(ZenohSettings(mode="client", listen=(), connect=(endpoint,)))
+
+        def on_session(_key: str, payload: bytes) -> None:
+            with lock:
+                sessions.append(messages.parse(payload, "session"))
+
+        bus.subscribe(key("rover", "session"), on_session)
+        daemon.wait_for("serving 1 recording file(s) for up to 600 s")
+
+        def finished() -> dict[str, Any] | None:
+            with lock:
+                return next((m for m in sessions if m.get("state") == "finished"), None)
+
+        msg = _until(finished, "the finished session message", 30)
+        (mcap,) = (a_dir / "flights").glob("rover_*.mcap")
+        assert msg["recordings"] == [{"name": mcap.name, "size": mcap.stat().st_size,
+                                      "sha256": sha256_file(mcap), "chunk_bytes": 262144}]
+        assert daemon.proc.poll() is None  # still serving: nobody fetched it
+        daemon.proc.send_signal(signal.SIGTERM)
+        assert daemon.proc.wait(timeout=20) == 0, daemon.stderr()
+        assert "Traceback" not in daemon.stderr()
+    finally:
+        if bus is not None:
+            bus.close()
+        for p in reversed(procs):
+            p.stop()
