@@ -72,7 +72,7 @@ def main() -> None:
             sha256_file(src)
             ref = time.perf_counter() - t0
             print(f"file {args.mb:g} MB; via {'router' if args.router else 'peer link'}; "
-                  f"load {open('/proc/loadavg').read().split()[0]}")
+                  f"load {Path('/proc/loadavg').read_text().split()[0]}")
             print(f"reference: read + SHA-256 locally: {ref:.3f} s "
                   f"({args.mb / ref:.0f} MB/s)")
             print("| window | time | MB/s | x reference |")
