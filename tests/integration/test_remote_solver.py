@@ -1,5 +1,7 @@
 """A remote solver fetches a station's recording through the router, byte for byte, and
-solves it (issue 16: recordings over Zenoh).
+solves it (issue 16: recordings over Zenoh). Also: each rotated part served while the daemon
+records, serving after the session until told to stop, and the same over mutual TLS with
+access control (another station's certificate is not answered).
 
 Separate processes in separate working directories, real Zenoh on loopback, free ports:
 
@@ -285,5 +287,101 @@ def test_after_the_session_the_daemon_serves_until_told_to_stop(tmp_path: Path) 
     finally:
         if bus is not None:
             bus.close()
+        for p in reversed(procs):
+            p.stop()
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(shutil.which("openssl") is None, reason="needs the openssl CLI")
+def test_over_mutual_tls_a_solver_fetches_and_another_station_cannot(tmp_path: Path) -> None:
+    """The same through a router that admits by certificate only (mutual TLS, access control,
+    no loopback exception): the rover daemon (``run``, certificate ``rover``) serves its
+    recording, the solver (certificate ``solver``) fetches, verifies and solves it; a party
+    with the ``base`` station's certificate is not answered when it asks for the rover's
+    recording."""
+    from test_router_tls import make_ca
+
+    from groundstation.storage import transfer
+
+    ca = make_ca(tmp_path / "ca")
+    tls_port, sim_port = free_port(), free_port()
+    tls = f"tls/localhost:{tls_port}"
+    router_dir, a_dir, b_dir = tmp_path / "router", tmp_path / "A", tmp_path / "B"
+    router_dir.mkdir()
+    (router_dir / "router.toml").write_text(
+        f'listen = ["tls/127.0.0.1:{tls_port}"]\n[tls]\nca = "{ca / "ca.pem"}"\n'
+        f'certificate = "{ca / "router.pem"}"\nprivate_key = "{ca / "router.key"}"\n'
+        'mtls = true\n[access]\nenabled = true\nlocal = false\nsolvers = ["solver"]\n'
+        '[stations.rover]\n[stations.base]\n')
+
+    def tls_zenoh(name: str) -> str:
+        return (f'[zenoh]\nmode = "client"\nlisten = []\nconnect = ["{tls}"]\n'
+                f'tls_ca = "{ca / "ca.pem"}"\ntls_certificate = "{ca / f"{name}.pem"}"\n'
+                f'tls_private_key = "{ca / f"{name}.key"}"\n')
+
+    def as_party(name: str) -> Bus:
+        return open_bus(ZenohSettings(mode="client", listen=(), connect=(tls,),
+                                      tls_ca=ca / "ca.pem", tls_certificate=ca / f"{name}.pem",
+                                      tls_private_key=ca / f"{name}.key"))
+
+    procs: list[Proc] = []
+    buses: list[Bus] = []
+    try:
+        router = Proc(router_dir, "router", "--config", "router.toml")
+        procs.append(router)
+        router.wait_for("router listening")
+        (b_dir / "base").mkdir(parents=True)
+        base = b_dir / "base" / "base.ubx"  # the base's stream, on the solver's side
+        truth_path = tmp_path / "truth.json"
+        procs.append(Proc(tmp_path / "sim", "simulate", "--tcp", str(sim_port), "--duration",
+                          "120", "--speed", "6", "--seed", "6", "--faults", "default",
+                          "--base-out", str(base), "--truth", str(truth_path)))
+        # truth and base are written before it listens
+        _until(lambda: "listening on tcp://" in (tmp_path / "sim" / "stdout.txt").read_text(),
+               "the simulator listening")
+        truth = json.loads(truth_path.read_text())
+        xyz = ", ".join(f"{v:.4f}" for v in truth["base"]["ecef_m"])
+        (b_dir / "solver.toml").write_text(
+            f'out_root = "{b_dir / "solutions"}"\nrecording_roots = ["{b_dir / "flights"}"]\n'
+            f'base = "{base}"\nbase_xyz = [{xyz}]\n' + tls_zenoh("solver"))
+        observer = as_party("solver")
+        buses.append(observer)
+        sols = Solutions(observer)
+        solver = Proc(b_dir, "solver", "--config", "solver.toml")
+        procs.append(solver)
+        solver.wait_for("listening on groundstation/*/session")
+        a_dir.mkdir()
+        (a_dir / "rover.toml").write_text(
+            f'station = "rover"\nduration_s = 26\n[source]\naddress = "127.0.0.1:{sim_port}"\n'
+            + tls_zenoh("rover") + "serve_after_s = 300\n")
+        daemon = Proc(a_dir, "run", "--config", "rover.toml")
+        procs.append(daemon)
+        daemon.wait_for("serving 1 recording file(s)")
+        (mcap,) = (a_dir / "flights").glob("rover_*.mcap")
+        sid = mcap.stem
+        # a solver's certificate is answered; another station's is not (the router drops it)
+        selector = f"groundstation/rover/q/recording/{sid}"
+        params = transfer.Request(mcap.name, 0, 1000).parameters()
+        (answer,) = observer.ask(selector, params, 5.0)()
+        assert not answer.error and answer.payload == mcap.read_bytes()[:1000]
+        intruder = as_party("base")
+        buses.append(intruder)
+        _until(lambda: intruder.connections() > 0, "the intruder connected", 30)
+        for _ in range(3):
+            assert intruder.ask(selector, params, 1.0)() == []
+
+        final = _until(sols.final, "a final solution")
+        assert final["status"] == "ok", (final, solver.stderr())
+        fetched = b_dir / "solutions" / "rover" / mcap.name
+        assert final["flight"] == str(fetched)
+        assert fetched.read_bytes() == mcap.read_bytes()
+        assert final["counts"]["marks"] == len(truth["exposures"])
+        daemon.wait_for("every recording file was sent in full")
+        late = [decode(p) for _, p in observer.get(key("rover", "q/solution"), 10.0)]
+        assert [m["status"] for m in late] == ["ok"]
+        assert "Traceback" not in solver.stderr() + daemon.stderr() + router.stderr()
+    finally:
+        for b in buses:
+            b.close()
         for p in reversed(procs):
             p.stop()
