@@ -15,7 +15,8 @@ readable file inside the recording roots, ``always``, ``never``); :class:`Fetche
 - when the announced size is reached, the whole file's SHA-256 must equal the announced one,
   else the ``.part`` is discarded and fetched once more from the start; only a verified file is
   renamed to ``<name>`` and solved;
-- a refusal by the daemon (an unknown file or session) fails the fetch at once, with its text.
+- a refusal by the daemon (an unknown file or session) fails the fetch at once, with its text;
+  so does an announced size that would leave less than 100 MB free on the solver's disk.
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ from __future__ import annotations
 import contextlib
 import logging
 import os
+import shutil
 import time
 from collections import deque
 from collections.abc import Callable, Mapping
@@ -44,7 +46,8 @@ STALL_S = 120.0
 RETRY_MIN_S, RETRY_MAX_S = 0.2, 5.0
 ATTEMPTS = 2
 """Whole-file attempts: a SHA-256 mismatch discards the ``.part`` and fetches once more."""
-FETCH_MODES = ("auto", "always", "never")
+FREE_MARGIN_BYTES = 100_000_000
+"""Left free on the solver's disk: a station announcing a huge file cannot fill it."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -141,6 +144,11 @@ class Fetcher:
             raise GroundstationError(f"{dest} exists with other content: not overwritten")
         dest.parent.mkdir(parents=True, exist_ok=True)
         part = dest.with_name(dest.name + ".part")
+        have = part.stat().st_size if part.exists() else 0
+        free = shutil.disk_usage(dest.parent).free
+        if remote.size - have > free - FREE_MARGIN_BYTES:  # an announced size is not trusted
+            raise GroundstationError(f"{remote.name}: {remote.size} bytes announced, "
+                                     f"{free} free in {dest.parent}: not fetched")
         log.info("fetching %s (%d bytes) from station %s over Zenoh into %s", remote.name,
                  remote.size, remote.station, dest.parent)
         for attempt in range(1, ATTEMPTS + 1):

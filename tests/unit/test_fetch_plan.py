@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 from groundstation.bus import encode
-from groundstation.errors import ConfigError
+from groundstation.errors import ConfigError, GroundstationError
 from groundstation.solve import service as sv
 from groundstation.solve.fetch import remote_for
 from groundstation.solve.solutions import LatestSolutions
@@ -111,3 +111,18 @@ def test_latest_solution_per_recording_answers_matching_keys() -> None:
     latest.keep("rover", body, encode("solution", body))  # the oldest goes beyond 2
     assert len(latest.answer("groundstation/**", {})) == 2
     assert latest.answer("groundstation/nobody/q/solution", {}) == []
+
+
+def test_an_announced_size_beyond_the_free_disk_is_not_fetched(tmp_path: Path) -> None:
+    from groundstation.bus import open_bus
+    from groundstation.config import ZenohSettings
+    from groundstation.solve.fetch import Fetcher, Remote
+
+    remote = Remote("alpha", "s", NAME, 1 << 50, "ab" * 32, 65536, tmp_path / "alpha" / NAME)
+    bus = open_bus(ZenohSettings(listen=(), connect=()))  # a session on its own
+    try:
+        with pytest.raises(GroundstationError, match="free in"):
+            Fetcher(bus).fetch(remote)
+    finally:
+        bus.close()
+    assert not any((tmp_path / "alpha").iterdir())  # not even a .part
