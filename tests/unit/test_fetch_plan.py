@@ -126,3 +126,19 @@ def test_an_announced_size_beyond_the_free_disk_is_not_fetched(tmp_path: Path) -
     finally:
         bus.close()
     assert not any((tmp_path / "alpha").iterdir())  # not even a .part
+
+
+@pytest.mark.parametrize(("env", "key"), [
+    ({"GROUNDSTATION_ZENOH_SERVE_AFTER_S": "-1"}, "zenoh.serve_after_s"),
+    ({"GROUNDSTATION_ZENOH_SERVE_RECORDINGS": "perhaps"}, "zenoh.serve_recordings"),
+])
+def test_the_daemon_serving_keys_are_checked(env: dict[str, str], key: str) -> None:
+    from groundstation.config import load_settings
+
+    source = {"source": {"path": "flight.ubx"}}
+    with pytest.raises(ConfigError) as err:
+        load_settings(None, environ=env, overrides=source)
+    assert err.value.key == key
+    ok = load_settings(None, environ={"GROUNDSTATION_ZENOH_SERVE_AFTER_S": "600"},
+                       overrides=source)
+    assert ok.zenoh.serve_after_s == 600.0 and ok.zenoh.serve_recordings
