@@ -12,9 +12,9 @@ random moment (so that not every daemon tries at once), takes the endpoint over 
 on it, or joins whoever took it first, and declares again everything it had declared.
 
 Key space (DESIGN.md): ``groundstation/<station>/{status,timemark,event,epoch,ubx,session,
-q/timemarks,q/status,alive,solution}``. Payloads are UTF-8 JSON objects carrying ``schema``
-(:data:`~groundstation.records.STATUS_SCHEMA_VERSION`) and ``type``; ``docs/zenoh.md`` lists
-every key and field.
+q/timemarks,q/status,q/recording/<session_id>,alive,solution,q/solution}``. Payloads are
+UTF-8 JSON objects carrying ``schema`` (:data:`~groundstation.records.STATUS_SCHEMA_VERSION`)
+and ``type``; ``docs/zenoh.md`` lists every key and field.
 """
 
 from __future__ import annotations
@@ -24,8 +24,8 @@ import random
 import re
 import threading
 import time
-from collections.abc import Callable, Iterable
-from dataclasses import replace
+from collections.abc import Callable, Iterable, Mapping
+from dataclasses import dataclass, replace
 from typing import Any
 
 import zenoh
@@ -44,6 +44,31 @@ TAKEOVER_JITTER_S = 1.0
 """Up to this long (random) before trying to take the endpoint over: the joined daemons do not
 all try at the same instant, so one wins and the others join it at once."""
 _CHECK_S = 0.2
+
+
+@dataclass(frozen=True, slots=True)
+class Reply:
+    """One reply to a query (sent by a queryable, or received by :meth:`Bus.ask`).
+
+    Attributes:
+        key: the key expression it answers on.
+        payload: the bytes; for an ``error`` reply, the queryable's one-line refusal.
+        attachment: Zenoh's attachment (the chunk's offset and CRC of a recording chunk).
+        error: a refusal (Zenoh's ``reply_err``), not data.
+    """
+
+    key: str
+    payload: bytes
+    attachment: bytes | None = None
+    error: bool = False
+
+
+def intersects(key_a: str, key_b: str) -> bool:
+    """Whether two key expressions share a key (False when either is not a key expression)."""
+    try:
+        return bool(zenoh.KeyExpr(key_a).intersects(zenoh.KeyExpr(key_b)))
+    except Exception:  # zenoh's own error type for a malformed key expression
+        return False
 
 
 def key(station: str, leaf: str) -> str:
@@ -254,11 +279,22 @@ class Bus:
 
     def queryable(self, key_expr: str, answer: Callable[[], Iterable[bytes]]) -> None:
         """Answer every query on ``key_expr`` with the payloads ``answer()`` returns."""
+        self.answer(key_expr, lambda _key, _params: [Reply(key_expr, p) for p in answer()])
+
+    def answer(self, key_expr: str,
+               answer: Callable[[str, Mapping[str, str | None]], Iterable[Reply]]) -> None:
+        """Answer every query on ``key_expr`` (which may hold wildcards) with the replies
+        ``answer(query_key, parameters)`` returns; an ``error`` reply is sent as Zenoh's
+        ``reply_err``. Runs on a Zenoh thread."""
 
         def handler(query: Any) -> None:
             try:
-                for payload in answer():
-                    query.reply(key_expr, payload)
+                params = dict(query.parameters)
+                for reply in answer(str(query.key_expr), params):
+                    if reply.error:
+                        query.reply_err(reply.payload)
+                    else:
+                        query.reply(reply.key, reply.payload, attachment=reply.attachment)
             except Exception:  # a failing reply must not kill Zenoh's thread
                 log.exception("queryable %s failed", key_expr)
 
@@ -304,6 +340,32 @@ class Bus:
             if ok is not None:
                 out.append((str(ok.key_expr), ok.payload.to_bytes()))
         return out
+
+    def ask(self, key_expr: str, parameters: Mapping[str, str],
+            timeout_s: float = 10.0) -> Callable[[], list[Reply]]:
+        """Send a query now and return a function that waits for its replies (every reply,
+        errors included, unconsolidated): several queries can be in flight at once."""
+        session = self._session
+        if session is None:
+            return list
+        handler = session.get(
+            zenoh.Selector(key_expr, zenoh.Parameters(dict(parameters))), timeout=timeout_s,
+            consolidation=zenoh.QueryConsolidation(zenoh.ConsolidationMode.NONE),
+        )
+
+        def replies() -> list[Reply]:
+            out = []
+            for reply in handler:  # ends when the query is finished (answered or timed out)
+                ok = reply.ok
+                if ok is not None:
+                    att = ok.attachment
+                    out.append(Reply(str(ok.key_expr), ok.payload.to_bytes(),
+                                     att.to_bytes() if att is not None else None))
+                elif reply.err is not None:
+                    out.append(Reply(key_expr, reply.err.payload.to_bytes(), error=True))
+            return out
+
+        return replies
 
     def connections(self) -> int:
         """How many Zenoh peers and routers this session is connected to right now."""

@@ -162,6 +162,11 @@ class ZenohSettings:
             to a router that asks for one (``docs/security.md``); its common name is who the
             router's access control sees.
         tls_private_key: the certificate's private key (PEM).
+        serve_recordings: the daemon answers chunk queries for its finished recording files
+            (``q/recording/<session_id>``, ``docs/zenoh.md``).
+        serve_after_s: after its session ends, the daemon keeps serving the session's files
+            this long at most (0: it exits at once), ending earlier once every file was sent in
+            full, or at a second Ctrl-C / SIGTERM.
     """
 
     enabled: bool = True
@@ -174,6 +179,8 @@ class ZenohSettings:
     tls_ca: Path | None = None
     tls_certificate: Path | None = None
     tls_private_key: Path | None = None
+    serve_recordings: bool = True
+    serve_after_s: float = 0.0
 
 
 CLIENT_ZENOH = ZenohSettings(listen=(), connect=(DEFAULT_ENDPOINT,))
@@ -335,6 +342,8 @@ DAEMON_SCHEMA: Schema = {
         **ZENOH_KEYS,
         "publish_epochs": BOOL,
         "publish_raw": BOOL,
+        "serve_recordings": BOOL,
+        "serve_after_s": _num("float", 0.0, 86_400.0),
     },
     "monitor": {
         "enabled": BOOL,
@@ -362,6 +371,8 @@ SOLVER_STATION_KEYS: dict[str, Key] = {
     "epsg": EPSG,
     "shutter_delay_ms": _num("float", -10_000.0, 10_000.0),
     "max_gap_s": _num("float", above=0.0, hi=3600.0),
+    # fetch the recording over the bus: when not readable here (auto), always, never
+    "fetch": _choice("auto", "always", "never"),
 }
 """What may differ per station in the solver (top-level defaults, ``[stations.<name>]``)."""
 

@@ -14,6 +14,9 @@ The rules, by field name (``docs/zenoh.md`` keeps units in the names):
 - durations and other ``*_s`` are finite numbers within ``±MAX_SECONDS``, ``*interval_s`` in
   ``(0, 3600]``; ``*_fraction`` in ``[0, 1]``;
 - counters (:data:`COUNTERS`) are integers in ``[0, 2**53]`` (exact in the page's JavaScript);
+- a ``session``'s ``recordings[]`` (the finished files the daemon serves) each have a plain
+  recording file ``name``, a byte ``size``, a ``sha256`` and ``chunk_bytes``
+  (:func:`groundstation.storage.transfer.check_entry`);
 - the tables a view reads (``link``, ``marks``, ``recording``, ``data`` ...) are objects and
   the lists (``sats``, ``alerts``, ``files`` ...) are lists; ``null`` is allowed for any value.
 """
@@ -25,6 +28,7 @@ from collections.abc import Mapping
 from typing import Any
 
 from groundstation import jsonio
+from groundstation.storage import transfer
 
 KINDS = frozenset({"status", "event", "timemark", "session", "solution", "epoch"})
 MAX_PAYLOAD_BYTES = 1 << 20
@@ -40,7 +44,7 @@ COUNTERS = frozenset({
     "tracked", "ppk_ready", "received", "last_count", "part", "marks", "schema",
 })
 TABLES = {"link", "recording", "data", "current_dropout"}
-LISTS = {"sats", "alerts", "files", "recent_dropouts", "notes"}
+LISTS = {"sats", "alerts", "files", "recent_dropouts", "notes", "recordings"}
 STRINGS = {"type", "station", "session_id", "kind", "message"}
 
 
@@ -88,6 +92,11 @@ def check(msg: Any, expected: str | None = None) -> dict[str, Any]:
         files = msg.get("files") or []
         if not all(isinstance(f, str) for f in files):
             raise BadMessage("session files must be strings")
+        for entry in msg.get("recordings") or []:  # the finished files served over the bus
+            try:
+                transfer.check_entry(entry)
+            except transfer.BadRequest as err:
+                raise BadMessage(str(err)) from err
     return msg
 
 

@@ -38,6 +38,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--zenoh-listen", action="append", metavar="ENDPOINT",
                         help=f"Zenoh endpoint to publish on (default {DEFAULT_ENDPOINT})")
     parser.add_argument("--no-zenoh", action="store_true", help="do not publish on Zenoh")
+    parser.add_argument("--serve-after", type=float, default=0.0, metavar="S",
+                        help="after the flight, keep serving the recording to remote solvers "
+                        "for up to S seconds (until fetched; [zenoh] serve_after_s)")
     parser.add_argument("--no-view", action="store_true", help="no live view, just the summary")
 
 
@@ -51,6 +54,8 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError("flight", "must be at least 60 s (static, take-off, lines, landing)")
     if args.duration < 0:
         raise ConfigError("duration", "must be >= 0")
+    if not 0 <= args.serve_after <= 86_400:
+        raise ConfigError("serve-after", "must be in [0, 86400] s")
     opts = DemoOptions(
         flight_s=args.flight, speed=parse_speed(args.speed, live=True), seed=args.seed,
         faults=args.faults or ("seed" if args.profile == "seed" else "default"),
@@ -58,6 +63,7 @@ def run(args: argparse.Namespace) -> int:
         out_dir=args.out_dir,
         station=args.station, zenoh=not args.no_zenoh,
         zenoh_listen=tuple(args.zenoh_listen or [DEFAULT_ENDPOINT]),
+        serve_after_s=args.serve_after,
     )
     speed = "as fast as possible" if opts.speed is None else f"x{opts.speed:g}"
 

@@ -260,23 +260,33 @@ class Pipeline:
         stop = stop_event if stop_event is not None else asyncio.Event()
         loop = asyncio.get_running_loop()
         handled: list[signal.Signals] = []
+        serving = [False]
+        serve_stop = asyncio.Event()  # a signal while the finished files are served
         if handle_signals:
             for sig in (signal.SIGINT, signal.SIGTERM):
                 def on_signal(sig: signal.Signals = sig) -> None:
                     log.info("%s: stopping", sig.name)
                     self.stopped_by = self.stopped_by or sig.name
+                    if serving[0]:
+                        serve_stop.set()
                     stop.set()
                 loop.add_signal_handler(sig, on_signal)
                 handled.append(sig)
         t0 = time.monotonic()
         try:
             await self._run(stop)
+            if self.publisher is not None:  # the recorder has closed every file by now
+                serving[0] = True
+                rec = self.recorder.recorder.stats.files if self.recorder is not None else ()
+                await self.publisher.finish(rec, serve_stop)
         except BaseExceptionGroup as group:
             ours = group.subgroup(lambda e: isinstance(e, GroundstationError))
             if ours is not None:
                 raise ours.exceptions[0] from group
             raise
         finally:
+            if self.publisher is not None:
+                self.publisher.close()
             for sig in handled:
                 loop.remove_signal_handler(sig)
         return self.summary(time.monotonic() - t0)

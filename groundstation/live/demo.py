@@ -43,6 +43,7 @@ class DemoOptions:
     station: str = "demo"
     zenoh_listen: tuple[str, ...] = (DEFAULT_ENDPOINT,)
     zenoh: bool = True
+    serve_after_s: float = 0.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -105,7 +106,8 @@ async def run_demo(
         "receiver": "simulated u-blox LEA-6T (groundstation.sim)",
         "source": {"port": feeder.path, "baud": 115200},
         "recorder": {"out_dir": opts.out_dir},
-        "zenoh": {"enabled": opts.zenoh, "listen": list(opts.zenoh_listen)},
+        "zenoh": {"enabled": opts.zenoh, "listen": list(opts.zenoh_listen),
+                  "serve_after_s": opts.serve_after_s},
     }
     settings = load_settings(None, environ={}, overrides=overrides)
     view = ViewSink(on_payload, opts.station) if on_payload is not None else None

@@ -17,6 +17,13 @@ there means a second daemon claims the station: both raise the ``station.conflic
 carry a ``station_conflict: ...`` alert in every status while it lasts (``station.conflict_ended``
 after). Neither stops recording: a peer on the bus must not be able to silence a station by
 claiming its name; the operator sees the alert in every view and renames one of them.
+
+Recordings over Zenoh (``serve_recordings``): each MCAP file of the session, once closed, is
+handed to :class:`~groundstation.live.serve.RecordingServer` (hashed off the event loop) and
+listed in the ``session`` message's ``recordings[]``. The ``finished`` session message then
+waits for the recorder: the daemon calls :meth:`ZenohPublisherSink.finish` once the last file
+is closed (so a solver never reads a file being finished), which may keep serving for
+``serve_after_s``.
 """
 
 from __future__ import annotations
@@ -27,7 +34,7 @@ import logging
 import secrets
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -36,6 +43,7 @@ from groundstation.bus import Bus, decode, encode, key, open_bus
 from groundstation.config import ZenohSettings
 from groundstation.errors import GroundstationError
 from groundstation.live.fanout import Inbox, InboxClosed, Item, RawChunk
+from groundstation.live.serve import RecordingServer
 from groundstation.records import Event, RawEpoch, Status, TimeMark
 
 log = logging.getLogger("groundstation.publisher")
@@ -88,6 +96,8 @@ class ZenohPublisherSink:
         self._others_lock = threading.Lock()
         self.conflict: tuple[str, ...] = ()
         """The other daemons' ids claiming this station, as last reported."""
+        self.server = RecordingServer(station) if settings.serve_recordings else None
+        self._hashing: set[asyncio.Task[None]] = set()
 
     def _on_token(self, key_expr: str, alive: bool) -> None:
         """A liveliness token under this station's ``alive`` (on a Zenoh thread)."""
@@ -155,10 +165,12 @@ class ZenohPublisherSink:
             loop.call_soon_threadsafe(self._on_ack, payload, publish)
 
         bus.subscribe(key(st, "ack"), on_ack)
+        if self.server is not None:
+            self.server.bind(bus)
         if self._unavailable_reported:
             self._unavailable_reported = False
             publish(Event(kinds.ZENOH_AVAILABLE, self._clock(), "Zenoh session open again", "info"))
-        self._put("session", encode("session", self.session, station=st))
+        self._put_session()
         log.info("publishing on Zenoh as %s (%s, listen %s, connect %s)", key(st, "**"),
                  self.settings.mode, list(self.settings.listen), list(self.settings.connect))
 
@@ -224,6 +236,70 @@ class ZenohPublisherSink:
             log.warning("Zenoh put on %s failed: %s", leaf, err)
             self._drop_bus()
 
+    def _put_session(self) -> None:
+        if self.server is not None:
+            self.session["recordings"] = self.server.entries()
+        self._put("session", encode("session", self.session, station=self.station))
+
+    def _serve(self, paths: Sequence[Path]) -> None:
+        """Serve closed files: hashed in a thread, then the session message says so."""
+        server = self.server
+        if server is None:
+            return
+        session_id = str(self.session.get("session_id") or "")
+
+        async def hash_and_announce() -> None:
+            loop = asyncio.get_running_loop()
+            for path in paths:
+                await loop.run_in_executor(None, server.add, path, session_id)
+            self._put_session()
+
+        try:
+            task = asyncio.get_running_loop().create_task(hash_and_announce())
+        except RuntimeError:  # no event loop (a synchronous caller): hash here
+            for path in paths:
+                server.add(path, session_id)
+            self._put_session()
+            return
+        self._hashing.add(task)
+        task.add_done_callback(self._hashing.discard)
+
+    async def finish(self, files: Sequence[Path], stop: asyncio.Event | None = None) -> None:
+        """The session has ended and the recorder has closed ``files``: serve them, put the
+        ``finished`` session message, keep serving up to ``serve_after_s`` (until every file
+        was sent in full, or ``stop`` is set), then leave the bus."""
+        try:
+            if self.server is None:
+                return
+            if self._hashing:
+                await asyncio.wait(set(self._hashing))
+            if self.bus is not None:
+                loop = asyncio.get_running_loop()
+                sid = str(self.session.get("session_id") or "")
+                for path in files:
+                    await loop.run_in_executor(None, self.server.add, path, sid)
+            self.session["state"] = "finished"
+            self.session["marks"] = len(self.marks)
+            self._put_session()
+            linger = self.settings.serve_after_s
+            if self.bus is not None and linger > 0 and self.server.entries():
+                log.info("serving %d recording file(s) for up to %g s (Ctrl-C to stop now)",
+                         len(self.server.entries()), linger)
+                deadline = time.monotonic() + linger
+                while time.monotonic() < deadline and not (stop and stop.is_set()):
+                    if self.server.sent_in_full():
+                        log.info("every recording file was sent in full: done serving")
+                        break
+                    await asyncio.sleep(0.2)
+            if self.bus is not None:
+                await asyncio.sleep(FLUSH_BEFORE_CLOSE_S)  # let the last puts leave the host
+        finally:
+            self._drop_bus()
+
+    def close(self) -> None:
+        """Leave the bus (when :meth:`finish` was not reached)."""
+        self._drop_bus()
+
     def _drop_bus(self) -> None:
         bus, self.bus = self.bus, None
         if bus is not None:
@@ -252,9 +328,12 @@ class ZenohPublisherSink:
                 # Absolute: the solver and the views run in other directories.
                 path = str(Path(path).absolute()) if path else path
                 if path and path not in self.session["files"]:
+                    closed = [Path(p) for p in self.session["files"]]  # all but the new one
                     self.session["files"].append(path)
                     self.session["session_id"] = item.data.get("session_id", "")
-                    self._put("session", encode("session", self.session, station=st))
+                    self._put_session()
+                    if closed:
+                        self._serve(closed)
             elif item.kind == kinds.RECORDER_VANISHED:  # the solver must not look for them
                 gone = {str(Path(str(p)).absolute()) for p in item.data.get("lost") or ()}
                 self.session["files"] = [f for f in self.session["files"] if f not in gone]
@@ -279,9 +358,11 @@ class ZenohPublisherSink:
                 self._check_links(publish)
                 self._check_conflict(publish)
         finally:
-            self.session["state"] = "finished"
-            self.session["marks"] = len(self.marks)
-            self._put("session", encode("session", self.session, station=self.station))
-            if self.bus is not None:
-                await asyncio.sleep(FLUSH_BEFORE_CLOSE_S)  # let the last puts leave the host
-            self._drop_bus()
+            if self.server is None:
+                self.session["state"] = "finished"
+                self.session["marks"] = len(self.marks)
+                self._put_session()
+                if self.bus is not None:
+                    await asyncio.sleep(FLUSH_BEFORE_CLOSE_S)  # the last puts leave the host
+                self._drop_bus()
+            # else: the daemon calls finish() once the recorder has closed the last file

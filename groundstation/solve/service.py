@@ -53,6 +53,7 @@ from groundstation.config import (
 )
 from groundstation.errors import ConfigError, GroundstationError
 from groundstation.solve import interpolate as mi
+from groundstation.solve.fetch import Remote, remote_for
 from groundstation.solve.pipeline import SolveResult, SolveSettings, solve
 from groundstation.solve.positions import Q_FIX
 
@@ -86,6 +87,7 @@ class StationSolve:
     epsg: int | None = None
     shutter_delay_ms: float = 0.0
     max_gap_s: float = mi.DEFAULT_MAX_GAP_S
+    fetch: str = "auto"
 
 
 @dataclass(frozen=True, slots=True)
@@ -209,6 +211,8 @@ class Job:
     flight: Path
     settings: SolveSettings
     notes: tuple[str, ...] = ()
+    remote: Remote | None = None
+    """Fetched over the bus into ``flight`` before solving (``solve/fetch.py``)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -284,12 +288,14 @@ def plan(station: str, session: Mapping[str, Any], conf: StationSolve,
                             f"no base configured for station {station!r} (--base FILE "
                             f"--base-xyz X,Y,Z, or base and base_xyz in [stations.{station}])"))
             continue
-        flight = given
-        if roots is not None:
-            real, why = confine(given, roots)
-            if real is None:
-                out.append(Refusal(station, sid, given, f"refused: {why}"))
-                continue
+        real, why = confine(given, roots) if roots is not None else (given, "")
+        remote = remote_for(station, session, given, conf.out_root, real, conf.fetch)
+        if remote is not None:  # the daemon serves it: fetched into out_root, then solved
+            flight = remote.dest
+        elif real is None:
+            out.append(Refusal(station, sid, given, f"refused: {why}"))
+            continue
+        else:
             flight = real
         out_dir = conf.out_root / station / flight.stem
         root = conf.out_root.resolve()
@@ -317,7 +323,7 @@ def plan(station: str, session: Mapping[str, Any], conf: StationSolve,
             shutter_delay_ms=conf.shutter_delay_ms,
             max_gap_s=conf.max_gap_s,
         )
-        out.append(Job(station, sid, flight, settings, tuple(notes)))
+        out.append(Job(station, sid, flight, settings, tuple(notes), remote))
     if not files:
         out.append(Skip(station, sid, Path(), "the finished session lists no recording file"))
     return out
@@ -354,15 +360,11 @@ def quality_summary(result: SolveResult) -> dict[str, Any]:
 # -- the worker ------------------------------------------------------------------------------
 
 
-def content_hash(path: Path, chunk_bytes: int = 1 << 20) -> str:
-    """SHA-256 of a file, streamed (a recording is solved once whatever its name)."""
-    import hashlib
+def content_hash(path: Path) -> str:
+    """SHA-256 of a file (a recording is solved once whatever its name)."""
+    from groundstation.storage.transfer import sha256_file
 
-    h = hashlib.sha256()
-    with path.open("rb") as f:
-        while block := f.read(chunk_bytes):
-            h.update(block)
-    return h.hexdigest()
+    return sha256_file(path)
 
 
 class SolverService:
@@ -379,8 +381,10 @@ class SolverService:
         *,
         solver: Solver = solve,
         clock_ns: Callable[[], int] = time.time_ns,
+        fetcher: Callable[[Remote], Path] | None = None,
     ) -> None:
         self.settings = settings
+        self._fetch = fetcher
         self._publish = publish
         self._solver = solver
         self._clock_ns = clock_ns
@@ -503,6 +507,11 @@ class SolverService:
         t0 = time.monotonic()
         digest = ""
         try:
+            if job.remote is not None:
+                if self._fetch is None:
+                    raise GroundstationError(f"{job.remote.name}: not readable here and no bus "
+                                             "to fetch it over")
+                self._fetch(job.remote)
             if not job.flight.is_file():
                 raise GroundstationError(f"{job.flight}: recording not found")
             digest = content_hash(job.flight)
@@ -563,13 +572,21 @@ def run_service(
         GroundstationError: the Zenoh session cannot be opened.
     """
     from groundstation.bus import encode, key, open_bus
+    from groundstation.solve.fetch import Fetcher
+    from groundstation.solve.solutions import LatestSolutions
 
     bus = open_bus(settings.bus)
     try:
-        def publish(station: str, body: dict[str, Any]) -> None:
-            bus.put(key(station, "solution"), encode("solution", body))
+        latest = LatestSolutions()  # answered on q/solution for late joiners
 
-        service = SolverService(settings, publish, solver=solver)
+        def publish(station: str, body: dict[str, Any]) -> None:
+            payload = encode("solution", body)
+            latest.keep(station, body, payload)
+            bus.put(key(station, "solution"), payload)
+
+        bus.answer(key(settings.station, "q/solution"), latest.answer)
+        service = SolverService(settings, publish, solver=solver,
+                                fetcher=Fetcher(bus).fetch)
 
         def on_sample(key_expr: str, payload: bytes) -> None:
             parts = key_expr.split("/")
