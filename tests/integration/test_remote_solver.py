@@ -33,6 +33,7 @@ from peers import REPO, free_port
 
 from groundstation.bus import Bus, decode, key, open_bus
 from groundstation.config import ZenohSettings
+from groundstation.storage import reading
 from groundstation.storage.transfer import sha256_file
 
 WAIT_S = 120.0  # generous: the shared 2-core machine
@@ -358,7 +359,9 @@ def test_over_mutual_tls_a_solver_fetches_and_another_station_cannot(tmp_path: P
         procs.append(daemon)
         daemon.wait_for("serving 1 recording file(s)")
         (mcap,) = (a_dir / "flights").glob("rover_*.mcap")
-        sid = mcap.stem
+        info = reading.part_info(mcap)  # the id carries a random token the name does not
+        assert info is not None
+        sid = info.session_id
         # a solver's certificate is answered; another station's is not (the router drops it)
         selector = f"groundstation/rover/q/recording/{sid}"
         params = transfer.Request(mcap.name, 0, 1000).parameters()
