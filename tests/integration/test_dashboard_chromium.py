@@ -204,6 +204,27 @@ class Feeder:
         self._thread.join(timeout=5)
 
 
+PANELS_CUT = """(() => {
+  const cut = [];
+  for (const id of ["ppk-panel", "marks-panel", "alerts-panel", "session-panel"]) {
+    const panel = document.getElementById(id);
+    const box = panel.getBoundingClientRect();
+    const inner = box.bottom - parseFloat(getComputedStyle(panel).borderBottomWidth);
+    for (const el of panel.querySelectorAll(
+        "h2, #alerts li, .label, .big, .mid, .detail, .kv th, .kv td, .rec")) {
+      if (!el.textContent.trim()) continue;
+      const r = el.getBoundingClientRect();
+      // (a table cell may end in an ellipsis on purpose: its full text is in its title)
+      const wide = el.tagName !== "TD" && el.scrollWidth > el.clientWidth + 1;
+      if (r.bottom > inner + 0.5 || r.right > box.right + 0.5 || wide)
+        cut.push(id + " " + (el.id || el.className) + ": " + el.textContent.trim().slice(0, 40));
+    }
+  }
+  return cut;
+})()"""
+"""Panel texts that do not fit: their box ends below or right of the panel's, or overflows."""
+
+
 def wait_for(what: str, cond: Callable[[], Any], timeout_s: float, poll_s: float = 0.05) -> Any:
     deadline = time.monotonic() + timeout_s
     while True:
@@ -352,6 +373,9 @@ def test_alerts_visible_on_small_screens(
         wait_for("page live", lambda: browser.eval("document.body?.dataset.state") == "live", 15)
         wait_for("satellites drawn", lambda: browser.eval(
             "document.querySelectorAll('#sky .sat-group').length") >= 5, 10)
+        # a mark received: its panel shows the longest texts ("08:01:40.123  (3 s ago)")
+        wait_for("a mark shown", lambda: "ago" in browser.eval(
+            "document.getElementById('marks-last').textContent"), 30)
         feeder.drop(8.0)
         wait_for("an alert raised", lambda: browser.eval(
             "document.querySelectorAll('#alerts li:not(.none)').length") >= 1, 15)
@@ -366,6 +390,9 @@ def test_alerts_visible_on_small_screens(
         assert top >= 0 and bottom <= vh and left >= 0 and right <= vw, box
         text = browser.eval("document.getElementById('alerts').textContent")
         assert "dropout" in text or "no data" in text, text
+        # every line of the panels the operator reads in a glance is inside its panel
+        cut = browser.eval(PANELS_CUT)
+        assert cut == [], f"text cut at {width}x{height}: {cut}"
         assert browser.console_errors() == []
     finally:
         browser.close()
