@@ -27,7 +27,9 @@ from groundstation.sim.stream import SimResult, simulate
 
 log = logging.getLogger("groundstation.demo")
 
-DRAIN_S = 2.0
+DRAIN_IDLE_S = 2.0
+"""At the end, the daemon reads what is still in the pty; if it reads nothing for this long it
+is not reading any more (the bytes it never read are then reported in the summary)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -132,16 +134,32 @@ async def run_demo(
         pipeline.add_sink(view, 1000, Overflow.DROP_OLDEST)
     stop = asyncio.Event()
 
-    async def stop_when_flight_ends() -> None:
+    async def drained() -> None:
+        """Until the feeder has stopped and the daemon has read every byte it wrote into the
+        pty (a loaded machine may be seconds behind); a fixed pause lost the tail."""
         while not feeder.done.is_set():  # polled: an executor thread would block the exit
-            await asyncio.sleep(0.1)
-        await asyncio.sleep(DRAIN_S)  # let the daemon read what is still in the pty
+            await asyncio.sleep(0.05)
+        loop = asyncio.get_running_loop()
+        read, idle_since = -1, loop.time()
+        while pipeline.framer.stats.bytes_in < feeder.bytes_written:
+            if pipeline.framer.stats.bytes_in != read:
+                read, idle_since = pipeline.framer.stats.bytes_in, loop.time()
+            elif loop.time() - idle_since > DRAIN_IDLE_S:
+                log.warning("the daemon stopped reading the pty with %d bytes unread",
+                            feeder.bytes_written - read)
+                return
+            await asyncio.sleep(0.02)
+
+    async def stop_when_flight_ends() -> None:
+        await drained()
         pipeline.stopped_by = pipeline.stopped_by or "end of simulated flight"
         stop.set()
 
     async def stop_after_duration() -> None:
         await asyncio.sleep(opts.duration_s)
         pipeline.stopped_by = pipeline.stopped_by or f"duration {opts.duration_s:g} s"
+        feeder.stop()  # the radio goes quiet first: what it sent is read, not cut off
+        await drained()
         stop.set()
 
     watchers = [asyncio.create_task(stop_when_flight_ends(), name="flight-end")]

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import asyncio
 import json
 import subprocess
 import sys
@@ -9,6 +10,7 @@ from pathlib import Path
 
 from peers import REPO
 
+from groundstation.live.demo import DemoOptions, run_demo
 from groundstation.offline.inspect import inspect_path
 from groundstation.storage import iter_raw_chunks
 
@@ -49,3 +51,17 @@ def test_demo_bad_option_exits_2(tmp_path: Path) -> None:
     )
     assert proc.returncode == 2
     assert "flight" in proc.stderr
+
+
+def test_a_demo_stopped_early_reads_every_byte_written(tmp_path: Path) -> None:
+    """``--duration`` ends the demo in the middle of the flight, fed as fast as possible (the
+    pty full, as when a loaded machine's daemon lags): the feeder stops first and the daemon
+    reads what is still in the pty, so the summary has nothing "not read"."""
+    opts = DemoOptions(flight_s=600, speed=None, seed=4, duration_s=1.0,
+                       out_dir=tmp_path / "flights", zenoh=False)
+    result = asyncio.run(run_demo(opts, on_payload=lambda k, p: None))
+    assert result.summary.stopped_by == "duration 1 s"
+    assert 0 < result.bytes_written < len(result.sim.rover_bytes)  # cut in the middle
+    assert result.summary.bytes_in == result.bytes_written
+    (sidecar,) = result.summary.sidecars
+    assert sidecar.read_bytes() == result.sim.rover_bytes[: result.bytes_written]
