@@ -20,7 +20,7 @@ from collections.abc import AsyncIterator, Callable
 from pathlib import Path
 from typing import Any
 
-from groundstation.config import FileSourceSettings, load_settings
+from groundstation.config import FileSourceSettings, Settings, load_settings
 from groundstation.live.daemon import Pipeline, RunSummary
 from groundstation.live.fanout import SinkSpec
 from groundstation.live.sources import FileSource
@@ -29,6 +29,24 @@ from groundstation.storage.naming import session_file_stem
 READ_SIZE_BYTES = 1024
 """Chunk size of a file without recorded chunks: about what a serial read returns at 115200
 baud, so the monitor sees the bytes arrive as it would live."""
+
+
+REPLAY_DEFAULTS: dict[str, Any] = {"station": "replay"}
+"""Where ``replay`` differs from the daemon's defaults (below the file and the environment)."""
+
+
+def replay_settings(path: Path, config_file: Path | None = None, *,
+                    environ: dict[str, str] | None = None,
+                    overrides: dict[str, Any] | None = None) -> Settings:
+    """``replay``'s settings, through the one resolver: its defaults < file < environment
+    < ``overrides`` (its options); the source is ``path`` whatever the layers say.
+
+    Raises:
+        ConfigError: naming the offending key or variable.
+    """
+    layer = {**(overrides or {}), "source": {"path": path}}
+    return load_settings(config_file, environ=environ, overrides=layer,
+                         defaults=REPLAY_DEFAULTS)
 
 
 def replay_session_id(station: str, wall_start_ns: int, data_start_ns: int) -> str:
@@ -64,15 +82,21 @@ async def run_replay(
     station: str = "replay",
     zenoh: dict[str, Any] | None = None,
     sinks: tuple[SinkSpec, ...] = (),
+    settings: Settings | None = None,
 ) -> tuple[RunSummary, Pipeline]:
     """Replay ``path`` (and its session's later parts) through a pipeline that does not record,
-    at ``speed`` times the recorded pace (``None``: as fast as possible); return its summary."""
-    overrides: dict[str, Any] = {
-        "station": station,
-        "source": {"path": path},
-        "zenoh": zenoh if zenoh is not None else {"enabled": False},
-    }
-    settings = load_settings(None, environ={}, overrides=overrides)
+    at ``speed`` times the recorded pace (``None``: as fast as possible); return its summary.
+
+    Args:
+        settings: the resolved settings (``groundstation replay`` resolves them with the
+            file, the environment and its options: :func:`replay_settings`); when ``None``,
+            ``station`` and ``zenoh`` over the defaults, without the environment.
+    """
+    if settings is None:
+        settings = load_settings(None, environ={}, overrides={
+            "station": station, "source": {"path": path},
+            "zenoh": zenoh if zenoh is not None else {"enabled": False}})
+    station = settings.station
     source = FileSource(FileSourceSettings(path, read_size_bytes=READ_SIZE_BYTES), speed=speed)
     wall_start_ns = time.time_ns()
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import os
 import re
 import subprocess
 import sys
@@ -122,3 +123,28 @@ def test_each_replay_is_a_session_of_its_own_for_the_views(tmp_path: Path) -> No
     assert snap["marks"]["received"] == len(set(marks[1]))
     assert abs(snap["marks"]["last_t_gps_ns"] - max(marks[1])) < 1000  # ns, as decoded
     assert snap["marks"]["last_age_s"] >= 0
+
+
+def test_replay_reads_the_environment_like_every_command(tmp_path: Path) -> None:
+    """``GROUNDSTATION_*`` goes through the one resolver (it was ignored): Zenoh and the
+    monitor switched off from the environment; a bad variable exits 2 naming it."""
+    from groundstation.sim.stream import SimConfig, simulate
+
+    path = tmp_path / "flight.ubx"
+    path.write_bytes(simulate(SimConfig(duration_s=60, seed=2, with_base=False)).rover_bytes)
+    env = {k: v for k, v in os.environ.items() if not k.startswith("GROUNDSTATION_")}
+
+    def replay(**settings: str) -> subprocess.CompletedProcess[str]:
+        return subprocess.run(
+            [sys.executable, "-m", "groundstation.cli", "replay", str(path)],
+            capture_output=True, text=True, timeout=120, check=False, env={**env, **settings})
+
+    proc = replay(GROUNDSTATION_ZENOH_ENABLED="false", GROUNDSTATION_MONITOR_ENABLED="no")
+    assert proc.returncode == 0, proc.stderr
+    assert "publishing on Zenoh" not in proc.stderr
+    assert proc.stdout.startswith("replayed ") and "link:" not in proc.stdout  # no monitor
+    proc = replay(GROUNDSTATION_ZENOH_ENABLED="false", GROUNDSTATION_STATION="no/slash")
+    assert proc.returncode == 2 and "GROUNDSTATION_STATION" in proc.stderr, proc.stderr
+    proc = replay(GROUNDSTATION_MONITR_ENABLED="no")
+    assert proc.returncode == 2 and "GROUNDSTATION_MONITR_ENABLED" in proc.stderr, proc.stderr
+    assert len(proc.stderr.strip().splitlines()) == 1, proc.stderr
