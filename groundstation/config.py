@@ -8,7 +8,7 @@ each value (numbers must be finite), and raising :class:`~groundstation.errors.C
 naming the dotted key (and the variable, for the environment); the command line turns that into
 exit status 2. The scopes:
 
-- :data:`DAEMON` (``run``; ``demo`` and ``replay`` build the same settings):
+- :data:`DAEMON` (``run``, ``demo`` and ``replay``, each with its own defaults):
   ``GROUNDSTATION_<KEY>``, ``GROUNDSTATION_<SECTION>_<KEY>`` (``GROUNDSTATION_SOURCE_BAUD``),
   file ``--config`` or ``GROUNDSTATION_CONFIG``; :func:`load_settings` gives :class:`Settings`.
 - :data:`SOLVER` (``solver``): ``GROUNDSTATION_SOLVER_<KEY>``,
@@ -731,6 +731,7 @@ def resolve(
     environ: Mapping[str, str] | None = None,
     overrides: Mapping[str, Any] | None = None,
     before_layer: Hook | None = None,
+    defaults: Mapping[str, Any] | None = None,
 ) -> Resolved:
     """Merge defaults < TOML file < environment < ``overrides`` (the command line) for a scope.
 
@@ -742,6 +743,9 @@ def resolve(
         overrides: command-line values as a nested layer (``{"zenoh": {"connect": [...]}}``).
         before_layer: called with the merged values and each layer before it is merged (the
             daemon lets a layer that names a device choose the source kind).
+        defaults: the command's own defaults where they differ from the scope's (``demo``
+            and ``replay`` name their station), as the lowest layer: a file, the
+            environment and the command line all override them.
 
     Raises:
         ConfigError: naming the offending key, or the unknown variable.
@@ -751,6 +755,8 @@ def resolve(
     if config_file is None and env.get(scope.config_variable):
         config_file = Path(env[scope.config_variable])
     layers: list[Layer] = []
+    if defaults:
+        layers.append((defaults, "defaults of the command", False))
     if config_file is not None:
         layers.append((read_toml(config_file), f"file {config_file}", False))
     layers.append((env_layer(scope, env), "environment", True))
@@ -854,8 +860,11 @@ def load_settings(
     *,
     environ: Mapping[str, str] | None = None,
     overrides: Mapping[str, Any] | None = None,
+    defaults: Mapping[str, Any] | None = None,
 ) -> Settings:
     """Resolve the daemon's settings: defaults < TOML file < environment < ``overrides`` (CLI).
+
+    ``run``, ``demo`` and ``replay`` all resolve their settings here.
 
     Args:
         config_file: TOML file; ``None`` uses ``$GROUNDSTATION_CONFIG`` if set, else no file.
@@ -863,12 +872,13 @@ def load_settings(
         overrides: command-line values as a nested layer (``{"source": {"port": ...}}``);
             a ``source`` table here that carries a locator (port, address or path) replaces
             the source type chosen by earlier layers.
+        defaults: the command's own defaults, below the file (:func:`resolve`).
 
     Raises:
         ConfigError: naming the offending key.
     """
     resolved = resolve(DAEMON, config_file, environ=environ, overrides=overrides,
-                       before_layer=_source_kind_from_layer)
+                       before_layer=_source_kind_from_layer, defaults=defaults)
     return build_settings(resolved.values)
 
 

@@ -8,8 +8,9 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from groundstation.commands.options import add_config, add_zenoh_daemon, layer
 from groundstation.commands.simulate import add_profile_arguments, parse_speed
-from groundstation.config import DEFAULT_ENDPOINT, check_station
+from groundstation.config import DAEMON, DEFAULT_ENDPOINT
 from groundstation.errors import ConfigError
 from groundstation.view.summary import status_lines
 
@@ -29,41 +30,41 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="link and mark faults to inject (default: default; seed profile: "
                         "seed)")
     add_profile_arguments(parser)
-    parser.add_argument("--out-dir", type=Path, default=Path("flights"), metavar="DIR",
-                        help="directory for the recording, the base stream and the truth")
+    add_config(parser, DAEMON, "config/groundstation.toml; the source is the simulator's pty")
+    parser.add_argument("--out-dir", type=Path, metavar="DIR",
+                        help="directory for the recording, the base stream and the truth "
+                        "(default flights)")
     parser.add_argument("--photos", type=Path, metavar="DIR",
                         help="also write the camera's photos (JPEG with EXIF, camera clock off "
                         "by hours as in the field) for every exposure, to try `solve --photos`")
-    parser.add_argument("--station", default="demo", help="station name")
-    parser.add_argument("--zenoh-listen", action="append", metavar="ENDPOINT",
-                        help=f"Zenoh endpoint to publish on (default {DEFAULT_ENDPOINT})")
-    parser.add_argument("--no-zenoh", action="store_true", help="do not publish on Zenoh")
-    parser.add_argument("--serve-after", type=float, default=0.0, metavar="S",
+    parser.add_argument("--station", help="station name (default demo)")
+    add_zenoh_daemon(parser)
+    parser.add_argument("--serve-after", type=float, metavar="S",
                         help="after the flight, keep serving the recording to remote solvers "
-                        "for up to S seconds (until fetched; [zenoh] serve_after_s)")
+                        "for up to S seconds (until fetched; [zenoh] serve_after_s, default 0)")
     parser.add_argument("--no-view", action="store_true", help="no live view, just the summary")
 
 
 def run(args: argparse.Namespace) -> int:
-    from groundstation.live.demo import DemoOptions, run_demo
+    from groundstation.live.demo import DemoOptions, demo_settings, run_demo
 
-    check_station(args.station, "--station")
+    cli = layer(args, {"station": "station"})
+    if args.out_dir is not None:
+        cli["recorder"] = {"out_dir": args.out_dir}
+    if args.serve_after is not None:
+        cli.setdefault("zenoh", {})["serve_after_s"] = args.serve_after
+    settings = demo_settings(args.config, overrides=cli)
     if args.flight is None:
         args.flight = 3000.0 if args.profile == "seed" else 300.0
     if args.flight < 60:
         raise ConfigError("flight", "must be at least 60 s (static, take-off, lines, landing)")
     if args.duration < 0:
         raise ConfigError("duration", "must be >= 0")
-    if not 0 <= args.serve_after <= 86_400:
-        raise ConfigError("serve-after", "must be in [0, 86400] s")
     opts = DemoOptions(
         flight_s=args.flight, speed=parse_speed(args.speed, live=True), seed=args.seed,
         faults=args.faults or ("seed" if args.profile == "seed" else "default"),
         profile=args.profile, severity=args.severity, duration_s=args.duration,
-        out_dir=args.out_dir,
-        station=args.station, zenoh=not args.no_zenoh,
-        zenoh_listen=tuple(args.zenoh_listen or [DEFAULT_ENDPOINT]),
-        serve_after_s=args.serve_after,
+        settings=settings,
     )
     speed = "as fast as possible" if opts.speed is None else f"x{opts.speed:g}"
 
@@ -74,7 +75,7 @@ def run(args: argparse.Namespace) -> int:
             endpoints = info["zenoh"]
             connect = "" if endpoints == [DEFAULT_ENDPOINT] else f" --connect {endpoints[0]}"
             print(f"demo: publishing on Zenoh {', '.join(endpoints)} (watch it from another "
-                  f"terminal: groundstation watch --station {opts.station}{connect})",
+                  f"terminal: groundstation watch --station {info['station']}{connect})",
                   file=sys.stderr, flush=True)
         print("demo: Ctrl-C ends it cleanly", file=sys.stderr, flush=True)
 
@@ -108,7 +109,7 @@ def _run_with_view(opts: Any, ready: Any) -> Any:
     from groundstation.live.demo import run_demo
     from groundstation.view.watch import WatchState, render
 
-    state = WatchState(opts.station)
+    state = WatchState(opts.settings.station if opts.settings else opts.station)
     console = Console()
     _log_through(console)
 

@@ -9,6 +9,7 @@ the MCAP and raw sidecar of the session, the base station's stream and the simul
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 import logging
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -16,7 +17,12 @@ from pathlib import Path
 from typing import Any
 
 from groundstation.bus import encode
-from groundstation.config import DEFAULT_ENDPOINT, load_settings
+from groundstation.config import (
+    DEFAULT_ENDPOINT,
+    SerialSourceSettings,
+    Settings,
+    load_settings,
+)
 from groundstation.live.daemon import Pipeline, RunSummary
 from groundstation.live.fanout import Inbox, InboxClosed, Item, Overflow
 from groundstation.records import Event, Status, TimeMark
@@ -27,11 +33,41 @@ from groundstation.sim.stream import SimResult, simulate
 
 log = logging.getLogger("groundstation.demo")
 
-DRAIN_S = 2.0
+DRAIN_IDLE_S = 2.0
+"""At the end, the daemon reads what is still in the pty; if it reads nothing for this long it
+is not reading any more (the bytes it never read are then reported in the summary)."""
+
+
+SIMULATED_RECEIVER = "simulated u-blox LEA-6T (groundstation.sim)"
+DEMO_DEFAULTS: dict[str, Any] = {"station": "demo", "receiver": SIMULATED_RECEIVER}
+"""Where ``demo`` differs from the daemon's defaults (below the file and the environment)."""
+PTY_BAUD = 115200
+"""The pty has no baud rate; the source is told the simulator's link rate."""
+
+
+def demo_settings(config_file: Path | None = None, *, environ: dict[str, str] | None = None,
+                  overrides: dict[str, Any] | None = None) -> Settings:
+    """``demo``'s daemon settings through the one resolver: its defaults < file < environment
+    < ``overrides`` (its options). The source is the simulator's pty whatever the layers say
+    (:func:`run_demo` opens it and puts its path in).
+
+    Raises:
+        ConfigError: naming the offending key or variable.
+    """
+    layer = {**(overrides or {}), "source": {"type": "serial", "port": "(the simulator's pty)",
+                                             "baud": PTY_BAUD}}
+    return load_settings(config_file, environ=environ, overrides=layer, defaults=DEMO_DEFAULTS)
 
 
 @dataclass(frozen=True, slots=True)
 class DemoOptions:
+    """What to simulate and how to run the daemon on it.
+
+    ``settings`` (from :func:`demo_settings`: file, environment, options) is the daemon's
+    configuration; without it, ``station``, ``out_dir`` and the Zenoh fields over the demo's
+    defaults, without the environment.
+    """
+
     flight_s: float = 300.0
     speed: float | None = 1.0
     seed: int = 1
@@ -44,6 +80,7 @@ class DemoOptions:
     zenoh_listen: tuple[str, ...] = (DEFAULT_ENDPOINT,)
     zenoh: bool = True
     serve_after_s: float = 0.0
+    settings: Settings | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -99,18 +136,19 @@ async def run_demo(
     faults = FaultConfig.load(opts.faults)
     sim = simulate(sim_config(opts.profile, duration_s=opts.flight_s, seed=opts.seed,
                               severity=opts.severity, faults=faults))
-    opts.out_dir.mkdir(parents=True, exist_ok=True)
-    feeder = PtyLink()
-    overrides: dict[str, Any] = {
-        "station": opts.station,
-        "receiver": "simulated u-blox LEA-6T (groundstation.sim)",
-        "source": {"port": feeder.path, "baud": 115200},
-        "recorder": {"out_dir": opts.out_dir},
+    settings = opts.settings or demo_settings(environ={}, overrides={
+        "station": opts.station, "recorder": {"out_dir": opts.out_dir},
         "zenoh": {"enabled": opts.zenoh, "listen": list(opts.zenoh_listen),
-                  "serve_after_s": opts.serve_after_s},
-    }
-    settings = load_settings(None, environ={}, overrides=overrides)
-    view = ViewSink(on_payload, opts.station) if on_payload is not None else None
+                  "serve_after_s": opts.serve_after_s}})
+    station, out_dir, zenoh = settings.station, settings.recorder.out_dir, settings.zenoh
+    out_dir.mkdir(parents=True, exist_ok=True)
+    feeder = PtyLink()
+    source = settings.source
+    settings = dataclasses.replace(settings, source=(
+        dataclasses.replace(source, port=feeder.path, baud=PTY_BAUD)
+        if isinstance(source, SerialSourceSettings)
+        else SerialSourceSettings(port=feeder.path, baud=PTY_BAUD)))
+    view = ViewSink(on_payload, station) if on_payload is not None else None
     written: list[Path] = []
 
     def write_companions(stem: str) -> None:
@@ -118,9 +156,9 @@ async def run_demo(
         (a solver reacting to the session's end must find them)."""
         if written:
             return
-        base_path = opts.out_dir / f"{stem}_base.ubx"
+        base_path = out_dir / f"{stem}_base.ubx"
         base_path.write_bytes(sim.base_bytes)
-        truth_path = opts.out_dir / f"{stem}.truth.json"
+        truth_path = out_dir / f"{stem}.truth.json"
         sim.write_truth(truth_path)
         written.extend((base_path, truth_path))
 
@@ -134,24 +172,40 @@ async def run_demo(
         pipeline.add_sink(view, 1000, Overflow.DROP_OLDEST)
     stop = asyncio.Event()
 
-    async def stop_when_flight_ends() -> None:
+    async def drained() -> None:
+        """Until the feeder has stopped and the daemon has read every byte it wrote into the
+        pty (a loaded machine may be seconds behind); a fixed pause lost the tail."""
         while not feeder.done.is_set():  # polled: an executor thread would block the exit
-            await asyncio.sleep(0.1)
-        await asyncio.sleep(DRAIN_S)  # let the daemon read what is still in the pty
+            await asyncio.sleep(0.05)
+        loop = asyncio.get_running_loop()
+        read, idle_since = -1, loop.time()
+        while pipeline.framer.stats.bytes_in < feeder.bytes_written:
+            if pipeline.framer.stats.bytes_in != read:
+                read, idle_since = pipeline.framer.stats.bytes_in, loop.time()
+            elif loop.time() - idle_since > DRAIN_IDLE_S:
+                log.warning("the daemon stopped reading the pty with %d bytes unread",
+                            feeder.bytes_written - read)
+                return
+            await asyncio.sleep(0.02)
+
+    async def stop_when_flight_ends() -> None:
+        await drained()
         pipeline.stopped_by = pipeline.stopped_by or "end of simulated flight"
         stop.set()
 
     async def stop_after_duration() -> None:
         await asyncio.sleep(opts.duration_s)
         pipeline.stopped_by = pipeline.stopped_by or f"duration {opts.duration_s:g} s"
+        feeder.stop()  # the radio goes quiet first: what it sent is read, not cut off
+        await drained()
         stop.set()
 
     watchers = [asyncio.create_task(stop_when_flight_ends(), name="flight-end")]
     if opts.duration_s > 0:
         watchers.append(asyncio.create_task(stop_after_duration(), name="duration"))
     if ready is not None:
-        ready({"pty": feeder.path, "out_dir": str(opts.out_dir),
-               "zenoh": list(opts.zenoh_listen) if opts.zenoh else None,
+        ready({"pty": feeder.path, "out_dir": str(out_dir), "station": station,
+               "zenoh": list(zenoh.listen) if zenoh.enabled else None,
                "flight_s": opts.flight_s, "speed": opts.speed})
     runner = asyncio.create_task(pipeline.run(stop, handle_signals=True), name="pipeline")
     # the serial source opens the pty (and flushes its input) before the first byte is written
@@ -166,12 +220,12 @@ async def run_demo(
         feeder.close()
         for w in watchers:
             w.cancel()
-    write_companions(summary.files[0].stem if summary.files else f"{opts.station}_demo")
+    write_companions(summary.files[0].stem if summary.files else f"{station}_demo")
     base_path, truth_path = written
     return DemoResult(
         summary=summary, sim=sim, base_path=base_path, truth_path=truth_path,
         pty_path=feeder.path, last_status=view.last_status if view else None,
-        endpoint=opts.zenoh_listen[0] if opts.zenoh and opts.zenoh_listen else None,
-        station=opts.station,
+        endpoint=zenoh.listen[0] if zenoh.enabled and zenoh.listen else None,
+        station=station,
         bytes_written=feeder.bytes_written,
     )

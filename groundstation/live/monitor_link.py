@@ -24,6 +24,10 @@ INTERVAL_HISTORY = 25
 RECENT_DROPOUTS = 50
 LINK_HISTORY_NS = 600 * NS_PER_S  # epochs kept for the completeness windows and the timeline
 NO_FRAMES_MIN_BYTES = 64  # a few stray bytes after the last frame are no evidence of anything
+NOISY_GARBAGE_SHARE = 0.5
+"""Between two readings of the pipeline's counters (every status interval), bytes more than
+half garbage are noise, whatever stray frame checked out among them; less, with frames, is
+the link decoding (a damaged frame or two leave some garbage)."""
 
 GapCallback = Callable[[int, int, int, list[Event]], None]
 """Called with (last epoch before, first epoch after, now_ns, events) for each measured gap."""
@@ -65,6 +69,10 @@ class Link:
         self._frameless_since_ns: int | None = None  # first byte after the last frame progress
         self._frameless_bytes = 0
         self._frameless_nmea = 0
+        # while no_frames is raised: since when the counters have shown frames decoding
+        # without noise (it clears after no_frames_s of that, not at the first frame)
+        self._decoding_since_ns: int | None = None
+        self._bytes_at_counters = 0
 
     # -- bytes and frames -----------------------------------------------------------------
 
@@ -77,23 +85,35 @@ class Link:
         self._frameless_bytes += n
 
     def frames_progress(self, now_ns: int, events: list[Event]) -> None:
-        """Valid frames arrived: the bytes make sense again."""
+        """Valid frames arrived: no frameless span to time. A raised ``no_frames`` alert is
+        not cleared here: one stray frame that checks out amid noise is not the link decoding
+        again (:meth:`on_counters` and :meth:`check_frames` hold the clear)."""
         self._frameless_since_ns = None
         self._frameless_bytes = 0
         self._frameless_nmea = 0
-        self.alerts.clear(kinds.ALERT_NO_FRAMES, now_ns, events)
 
     def on_counters(
         self, bad_checksum: int, garbage_bytes: int, frames: int | None, nmea: int,
         connected: bool | None, now_ns: int, events: list[Event],
     ) -> None:
         """The pipeline's own counters (framer damage, frames, NMEA, source state)."""
+        new_garbage = garbage_bytes - self.garbage
+        new_bytes = self.bytes_in - self._bytes_at_counters
+        self._bytes_at_counters = self.bytes_in
         self.damaged = bad_checksum
         self.garbage = garbage_bytes
         frames = self.frames if frames is None else frames
-        if frames > self.frames:
+        new_frames = frames - self.frames
+        if new_frames > 0:
             self.frames_progress(now_ns, events)
         self.frames = frames
+        if kinds.ALERT_NO_FRAMES in self.alerts.active and new_bytes > 0:
+            noisy = (new_garbage >= NO_FRAMES_MIN_BYTES
+                     and new_garbage > NOISY_GARBAGE_SHARE * new_bytes)
+            if noisy or new_frames <= 0:
+                self._decoding_since_ns = None  # still (or again) noise: the hold restarts
+            elif self._decoding_since_ns is None:
+                self._decoding_since_ns = now_ns
         if self._frameless_since_ns is not None:
             self._frameless_nmea += max(0, nmea - self.nmea_sentences)
         self.nmea_sentences = nmea
@@ -111,7 +131,16 @@ class Link:
             self.source_connected = True
 
     def check_frames(self, now_ns: int, events: list[Event]) -> None:
-        """Bytes arriving for ``no_frames_s`` without one valid UBX frame among them."""
+        """Raise ``no_frames`` when bytes arrive for ``no_frames_s`` without one valid UBX
+        frame among them; clear it once frames have been decoding without noise for
+        ``no_frames_s`` (hysteresis: noise with a stray valid frame neither clears it nor
+        raises it again)."""
+        run = self._decoding_since_ns
+        if run is not None and (now_ns - run) / NS_PER_S >= self.th.no_frames_s:
+            self._decoding_since_ns = None
+            self.alerts.clear(kinds.ALERT_NO_FRAMES, now_ns, events)
+        if self._decoding_since_ns is not None:
+            return  # decoding again, in the hold: a short frameless span is no new alert
         since, last = self._frameless_since_ns, self.last_byte_ns
         if since is None or last is None or self._frameless_bytes < NO_FRAMES_MIN_BYTES:
             return

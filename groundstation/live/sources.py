@@ -243,15 +243,20 @@ class SerialSource:
 
             loop.add_reader(fd, readable)
             try:
-                async with asyncio.timeout(s.stall_check_s):
-                    data = await fut
-            except TimeoutError:
-                # Quiet line: fine, unless the device node is gone (USB unplugged) or the
-                # path now names another device.
-                if not os.path.exists(s.port):
-                    raise DeviceVanished(f"{s.port} no longer exists") from None
-                self._check_same_device(fd)
-                continue
+                try:
+                    async with asyncio.timeout(s.stall_check_s):
+                        data = await fut
+                except TimeoutError:
+                    if not fut.done() or fut.cancelled():
+                        # Quiet line: fine, unless the device node is gone (USB unplugged)
+                        # or the path now names another device.
+                        if not os.path.exists(s.port):
+                            raise DeviceVanished(f"{s.port} no longer exists") from None
+                        self._check_same_device(fd)
+                        continue
+                    # The timer fired in the loop iteration in which readable() read a
+                    # chunk (a busy loop): the chunk is in the future; dropping it lost bytes.
+                    data = fut.result()
             except OSError as err:
                 raise DeviceVanished(f"{os.strerror(err.errno or 0)} (errno {err.errno})") \
                     from err

@@ -40,6 +40,8 @@ STATE_STYLE = {
 SHOWN = {"status": "status", "q/status": "status", "timemark": "timemark",
          "q/timemarks": "timemark", "event": "event", "session": "session"}
 """Key leaf -> the message kind it carries, for what this view shows."""
+SESSION_MARK_LEAD_NS = 10 * 1_000_000_000
+"""A time mark arrives before the status that counts it: at most this far after its epochs."""
 
 
 @dataclass
@@ -87,6 +89,7 @@ class WatchState:
         with self.lock:
             self.received += 1
             if kind == "status":
+                self._new_session(msg)
                 self.status = msg
                 self.status_rx_s = now_s
             elif kind == "timemark":
@@ -96,10 +99,31 @@ class WatchState:
             elif kind == "session":
                 self.session = msg
 
+    def _new_session(self, status: dict[str, Any]) -> None:
+        """A status naming another session (a restarted daemon, the next ``replay``): the
+        previous session's marks and its "finished" go. Marks that came just before this
+        first status and lie within its epochs are the new session's own: they stay."""
+        sid = status.get("session_id")
+        old = self.status.get("session_id") if self.status is not None else None
+        if self.status is None or sid == old:
+            return
+        link = status.get("link") or {}
+        first, last = link.get("first_epoch_t_gps_ns"), link.get("last_epoch_t_gps_ns")
+
+        def ours(m: dict[str, Any]) -> bool:
+            t = m.get("falling_t_gps_ns")
+            return (isinstance(t, int) and isinstance(first, int) and isinstance(last, int)
+                    and first <= t <= last + SESSION_MARK_LEAD_NS)
+
+        self.marks = [m for m in self.marks if ours(m)]
+        self.session = None
+
     def _add_mark(self, msg: dict[str, Any]) -> None:
-        idx = msg.get("index")
-        if isinstance(idx, int) and any(m.get("index") == idx for m in self.marks[-50:]):
-            return  # already had it (queryable and subscription overlap)
+        idx, t = msg.get("index"), msg.get("falling_t_gps_ns")
+        if isinstance(idx, int) and any(m.get("index") == idx and m.get("falling_t_gps_ns") == t
+                                        for m in self.marks[-50:]):
+            return  # already had it (queryable and subscription overlap); the same index at
+            # another time is the next session's mark, come before its first status
         self.marks.append(msg)
 
     def on_alive(self, key_expr: str, alive: bool) -> None:

@@ -2,9 +2,11 @@
 ``groundstation dashboard`` -> the page.
 
 The page loads without console errors, values update, a dropout injected into the stream is on
-the timeline within 2 s, a daemon that ends normally shows "session finished", a restarted
-one is live again, and a killed one shows as stale with the daemon gone
-without touching the page. Chromium is driven over the DevTools protocol on a pipe
+the timeline while the stream is still silent, with the epochs it missed, a daemon that ends
+normally shows "session finished", a restarted one is live again, and a killed one shows as
+stale with the daemon gone without touching the page. Every wait is on the page's content with
+a generous timeout, never a time window. At 1366x768 and 1024x600 no panel text is cut.
+Chromium is driven over the DevTools protocol on a pipe
 (``--remote-debugging-pipe``: NUL-separated JSON on fds 3 and 4, no websocket needed).
 Screenshots at 1366x768 go to the test's tmp dir.
 """
@@ -34,6 +36,7 @@ from groundstation.pacing import paced
 from groundstation.sim.stream import SimConfig, simulate
 
 CHROMIUM = Path("/usr/bin/chromium")
+RXM_RAW_HEADER = b"\xb5\x62\x02\x10"
 STATION = "dash"
 WIDTH, HEIGHT = 1366, 768
 SKIP_S = 100.0
@@ -176,6 +179,8 @@ class Feeder:
         self.pty = pty
         self.silent_until = 0.0
         self.silence_started: float | None = None
+        self.skipped_epochs = 0
+        """RXM-RAW headers in the chunks not written (the epochs a dropout misses)."""
         self.paused = threading.Event()
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="feeder", daemon=True)
@@ -191,6 +196,7 @@ class Feeder:
             if now < self.silent_until or self.paused.is_set():
                 if self.silence_started is None:
                     self.silence_started = now
+                self.skipped_epochs += chunk.count(RXM_RAW_HEADER)
                 continue
             with contextlib.suppress(OSError):
                 self.pty.write(chunk)
@@ -202,6 +208,27 @@ class Feeder:
     def stop(self) -> None:
         self._stop.set()
         self._thread.join(timeout=5)
+
+
+PANELS_CUT = """(() => {
+  const cut = [];
+  for (const id of ["ppk-panel", "marks-panel", "alerts-panel", "session-panel"]) {
+    const panel = document.getElementById(id);
+    const box = panel.getBoundingClientRect();
+    const inner = box.bottom - parseFloat(getComputedStyle(panel).borderBottomWidth);
+    for (const el of panel.querySelectorAll(
+        "h2, #alerts li, .label, .big, .mid, .detail, .kv th, .kv td, .rec")) {
+      if (!el.textContent.trim()) continue;
+      const r = el.getBoundingClientRect();
+      // (a table cell may end in an ellipsis on purpose: its full text is in its title)
+      const wide = el.tagName !== "TD" && el.scrollWidth > el.clientWidth + 1;
+      if (r.bottom > inner + 0.5 || r.right > box.right + 0.5 || wide)
+        cut.push(id + " " + (el.id || el.className) + ": " + el.textContent.trim().slice(0, 40));
+    }
+  }
+  return cut;
+})()"""
+"""Panel texts that do not fit: their box ends below or right of the panel's, or overflows."""
 
 
 def wait_for(what: str, cond: Callable[[], Any], timeout_s: float, poll_s: float = 0.05) -> Any:
@@ -263,23 +290,24 @@ def test_dashboard_in_headless_chromium(
         assert chromium.eval("document.querySelectorAll('#timeline rect.dropout').length") == 0
         chromium.screenshot(tmp_path / "1-live.png")
 
-        # a dropout in the stream: on the timeline within 2 s
-        feeder.drop(4.0)
-        wait_for("feeder silent", lambda: feeder.silence_started is not None, 2, 0.01)
-        silent_at = feeder.silence_started
-        assert silent_at is not None
-        wait_for("dropout on the timeline", lambda: chromium.eval(
-            "document.querySelectorAll('#timeline rect.dropout.ongoing').length"), 4, 0.02)
-        latency_s = time.monotonic() - silent_at
-        assert latency_s < 2.0, f"dropout shown {latency_s:.2f} s after the stream stopped"
+        # a dropout in the stream: the page shows it while the stream is still silent (the
+        # stream stays silent until it does: a condition on the page, not a time window that
+        # a loaded machine misses)
+        feeder.skipped_epochs = 0
+        feeder.paused.set()
+        wait_for("dropout on the timeline while the stream is silent", lambda: chromium.eval(
+            "document.querySelectorAll('#timeline rect.dropout.ongoing').length"), 20, 0.02)
         assert "DROPOUT" in chromium.eval("document.getElementById('link-now').textContent")
         chromium.screenshot(tmp_path / "2-dropout.png")
+        wait_for("a dropout of 2 s or more", lambda: feeder.skipped_epochs >= 10, 20)
+        feeder.paused.clear()
         # the stream returns: the dropout stays on the timeline, closed, with its epochs
         wait_for("dropout closed", lambda: chromium.eval(
-            "document.querySelectorAll('#timeline rect.dropout:not(.ongoing)').length"), 8)
+            "document.querySelectorAll('#timeline rect.dropout:not(.ongoing)').length"), 20)
         missing = chromium.eval(
             "Number(document.querySelector('#timeline rect.dropout').dataset.missing)")
-        assert 15 <= missing <= 25, missing  # 4 s at 5 Hz
+        skipped = feeder.skipped_epochs
+        assert abs(missing - skipped) <= 2, (missing, skipped)  # frames cut at either end
 
         # the daemon ends normally: "session finished", not a red STALE / "daemon gone"
         feeder.paused.set()
@@ -352,6 +380,9 @@ def test_alerts_visible_on_small_screens(
         wait_for("page live", lambda: browser.eval("document.body?.dataset.state") == "live", 15)
         wait_for("satellites drawn", lambda: browser.eval(
             "document.querySelectorAll('#sky .sat-group').length") >= 5, 10)
+        # a mark received: its panel shows the longest texts ("08:01:40.123  (3 s ago)")
+        wait_for("a mark shown", lambda: "ago" in browser.eval(
+            "document.getElementById('marks-last').textContent"), 30)
         feeder.drop(8.0)
         wait_for("an alert raised", lambda: browser.eval(
             "document.querySelectorAll('#alerts li:not(.none)').length") >= 1, 15)
@@ -366,6 +397,9 @@ def test_alerts_visible_on_small_screens(
         assert top >= 0 and bottom <= vh and left >= 0 and right <= vw, box
         text = browser.eval("document.getElementById('alerts').textContent")
         assert "dropout" in text or "no data" in text, text
+        # every line of the panels the operator reads in a glance is inside its panel
+        cut = browser.eval(PANELS_CUT)
+        assert cut == [], f"text cut at {width}x{height}: {cut}"
         assert browser.console_errors() == []
     finally:
         browser.close()

@@ -2,13 +2,16 @@
 
 from __future__ import annotations
 
+import asyncio
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
 
 from peers import REPO
 
+from groundstation.live.demo import DemoOptions, run_demo
 from groundstation.offline.inspect import inspect_path
 from groundstation.storage import iter_raw_chunks
 
@@ -49,3 +52,46 @@ def test_demo_bad_option_exits_2(tmp_path: Path) -> None:
     )
     assert proc.returncode == 2
     assert "flight" in proc.stderr
+
+
+def test_a_demo_stopped_early_reads_every_byte_written(tmp_path: Path) -> None:
+    """``--duration`` ends the demo in the middle of the flight, fed as fast as possible (the
+    pty full, as when a loaded machine's daemon lags): the feeder stops first and the daemon
+    reads what is still in the pty, so the summary has nothing "not read"."""
+    opts = DemoOptions(flight_s=600, speed=None, seed=4, duration_s=1.0,
+                       out_dir=tmp_path / "flights", zenoh=False)
+    result = asyncio.run(run_demo(opts, on_payload=lambda k, p: None))
+    assert result.summary.stopped_by == "duration 1 s"
+    assert 0 < result.bytes_written < len(result.sim.rover_bytes)  # cut in the middle
+    assert result.summary.bytes_in == result.bytes_written
+    (sidecar,) = result.summary.sidecars
+    assert sidecar.read_bytes() == result.sim.rover_bytes[: result.bytes_written]
+
+
+def _env(**settings: str) -> dict[str, str]:
+    env = {k: v for k, v in os.environ.items() if not k.startswith("GROUNDSTATION_")}
+    return {**env, **settings}
+
+
+def test_demo_reads_the_environment_like_every_command(tmp_path: Path) -> None:
+    """``GROUNDSTATION_*`` goes through the one resolver: defaults < file < environment <
+    options; a bad variable exits 2 naming it, in one line."""
+    out = tmp_path / "from-env"
+    proc = subprocess.run(
+        [sys.executable, "-m", "groundstation.cli", "demo", "--flight", "60", "--speed", "max",
+         "--no-zenoh"],
+        cwd=tmp_path, capture_output=True, text=True, timeout=120, check=False,
+        env=_env(GROUNDSTATION_STATION="envst", GROUNDSTATION_RECORDER_OUT_DIR=str(out)),
+    )
+    assert proc.returncode == 0, proc.stderr
+    (mcap,) = out.glob("envst_*.mcap")
+    assert str(mcap) in proc.stdout
+    for var, value in (("GROUNDSTATION_MONITOR_NO_FRAMES_S", "soon"),
+                       ("GROUNDSTATION_STATOIN", "envst")):
+        proc = subprocess.run(
+            [sys.executable, "-m", "groundstation.cli", "demo", "--speed", "max", "--no-zenoh"],
+            cwd=tmp_path, capture_output=True, text=True, timeout=60, check=False,
+            env=_env(**{var: value}),
+        )
+        assert proc.returncode == 2, proc.stderr
+        assert var in proc.stderr and len(proc.stderr.strip().splitlines()) == 1, proc.stderr

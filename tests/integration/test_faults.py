@@ -165,3 +165,41 @@ def test_a_full_disk_at_start_is_refused_with_a_message(
     assert "cannot create the recording in" in d.stderr
     assert "No space left on device" in d.stderr
     assert "Traceback" not in d.stderr
+
+
+def test_no_frames_alert_stays_raised_through_noise_with_stray_frames(
+    tmp_path: Path, pty: Pty, daemons: list[Daemon]
+) -> None:
+    """A link that still delivers noise, with a stray valid frame now and then, for longer
+    than the clear hold: the alert is raised once and not cleared (one stray frame cleared it,
+    and the next noise raised it again); it clears once frames decode steadily again."""
+    from groundstation.ubx.build import build_frame
+
+    cfg = tmp_path / "gs.toml"
+    cfg.write_text("[monitor]\nno_frames_s = 1.5\n")
+    out = tmp_path / "out"
+    d = start(daemons, pty, out, "--config", str(cfg))
+    rng = random.Random(5)
+    stray = build_frame(0x01, 0x22, bytes(20))  # a valid NAV-CLOCK amid the noise
+    written = 0
+    for i in range(100):  # 10 s of noise (> 1.5 s to raise + 1.5 s clear hold), and a
+        chunk = bytes(rng.randrange(256) for _ in range(1152))  # frame every 2.5 s
+        if i % 25 == 24:
+            chunk = chunk[:500] + stray + chunk[500:]
+        pty.write(chunk)
+        written += len(chunk)
+        time.sleep(0.1)
+    d.wait_for("no valid frames", timeout_s=1.0)
+    stream, _ = flight_stream(50)
+    for i in range(0, len(stream), 1152):
+        pty.write(stream[i : i + 1152])
+        time.sleep(0.1)
+    wait_for_size(one(out, "t_*.ubx"), written + len(stream))
+    d.wait_for("(was: no valid frames")
+    rc, _ = d.stop(signal.SIGTERM)
+    assert rc == 0, d.stderr
+    _, _, events = raw_from_mcap(one(out, "t_*.mcap"))
+    alerts = [e for e in events if isinstance(e["data"], dict)
+              and e["data"].get("alert") == "no_frames"]
+    assert [e["kind"] for e in alerts] == ["alert.raised", "alert.cleared"], [
+        (e["kind"], e["message"]) for e in alerts]

@@ -4,8 +4,11 @@ from __future__ import annotations
 
 import asyncio
 import json
+import os
+import re
 import subprocess
 import sys
+import time
 from collections import Counter
 from pathlib import Path
 
@@ -75,3 +78,73 @@ def test_replay_command_on_a_ubx_file(tmp_path: Path) -> None:
     assert proc.returncode == 0, proc.stderr
     lost = len(sim.truth["fault_summary"]["epochs_lost_tow_ms"])
     assert f"({lost} epochs missing)" in proc.stdout
+
+
+def test_each_replay_is_a_session_of_its_own_for_the_views(tmp_path: Path) -> None:
+    """Two recordings replayed one after the other into one dashboard view (the payloads the
+    publisher puts on Zenoh, and the hub's catch-up of the run's marks when a new session
+    shows): the second run's statuses name a new session, dated by its data, so the view
+    shows only its marks, with ages on its data clock."""
+    from groundstation.live.demo import ViewSink
+    from groundstation.sim.stream import SimConfig, simulate
+    from groundstation.view.dashboard.state import StationView
+
+    view = StationView("replay")
+    sessions: list[str] = []
+    run_marks: list[bytes] = []  # what the run's q/timemarks queryable answers
+
+    def on_payload(kind: str, payload: bytes) -> None:
+        if kind == "timemark":
+            run_marks.append(payload)
+        view.on_payload(f"groundstation/replay/{kind}", payload, time.monotonic())
+        if view.session_changed:  # as the hub does: fetch the new session's marks again
+            view.session_changed = False
+            for p in list(run_marks):
+                view.on_payload("groundstation/replay/q/timemarks", p, time.monotonic())
+        if kind == "status":
+            sessions.append(json.loads(payload)["session_id"])
+
+    marks = []
+    for n, flight_s in enumerate((160.0, 110.0)):
+        sim = simulate(SimConfig(duration_s=flight_s, seed=3 + n, with_base=False))
+        path = tmp_path / f"flight{n}.ubx"
+        path.write_bytes(sim.rover_bytes)
+        run_marks.clear()
+        marks.append([e["falling_t_gps_ns"] for e in sim.truth["exposures"] if e["sent"]])
+        asyncio.run(run_replay(path, speed=None, sinks=(
+            SinkSpec(ViewSink(on_payload, "replay"), 100_000, Overflow.NEVER_DROP),)))
+    assert len(marks[0]) != len(marks[1])
+    first, second = sessions[0], sessions[-1]
+    assert first != second and {first, second} == set(sessions)
+    for sid in (first, second):
+        assert re.fullmatch(r"replay_replay-\d{8}T\d{6}Z-[0-9a-f]{6}_\d{8}T\d{6}Z", sid), sid
+    snap = view.snapshot(time.monotonic())
+    assert snap["session_id"] == second
+    assert snap["marks"]["received"] == len(set(marks[1]))
+    assert abs(snap["marks"]["last_t_gps_ns"] - max(marks[1])) < 1000  # ns, as decoded
+    assert snap["marks"]["last_age_s"] >= 0
+
+
+def test_replay_reads_the_environment_like_every_command(tmp_path: Path) -> None:
+    """``GROUNDSTATION_*`` goes through the one resolver (it was ignored): Zenoh and the
+    monitor switched off from the environment; a bad variable exits 2 naming it."""
+    from groundstation.sim.stream import SimConfig, simulate
+
+    path = tmp_path / "flight.ubx"
+    path.write_bytes(simulate(SimConfig(duration_s=60, seed=2, with_base=False)).rover_bytes)
+    env = {k: v for k, v in os.environ.items() if not k.startswith("GROUNDSTATION_")}
+
+    def replay(**settings: str) -> subprocess.CompletedProcess[str]:
+        return subprocess.run(
+            [sys.executable, "-m", "groundstation.cli", "replay", str(path)],
+            capture_output=True, text=True, timeout=120, check=False, env={**env, **settings})
+
+    proc = replay(GROUNDSTATION_ZENOH_ENABLED="false", GROUNDSTATION_MONITOR_ENABLED="no")
+    assert proc.returncode == 0, proc.stderr
+    assert "publishing on Zenoh" not in proc.stderr
+    assert proc.stdout.startswith("replayed ") and "link:" not in proc.stdout  # no monitor
+    proc = replay(GROUNDSTATION_ZENOH_ENABLED="false", GROUNDSTATION_STATION="no/slash")
+    assert proc.returncode == 2 and "GROUNDSTATION_STATION" in proc.stderr, proc.stderr
+    proc = replay(GROUNDSTATION_MONITR_ENABLED="no")
+    assert proc.returncode == 2 and "GROUNDSTATION_MONITR_ENABLED" in proc.stderr, proc.stderr
+    assert len(proc.stderr.strip().splitlines()) == 1, proc.stderr

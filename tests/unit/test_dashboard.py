@@ -365,3 +365,41 @@ def test_latest_report_is_linked_and_served(
     code, ctype, raw = _get(dash, report["url"])
     assert code == 200 and ctype.startswith("text/html") and raw.startswith(b"<!DOCTYPE html>")
     assert _get(dash, report["url"] + "&format=pdf")[0] == 404  # no PDF was written
+
+
+def test_mark_ages_run_on_the_data_clock_of_a_replay() -> None:
+    """``replay --speed 4``: statuses 1 s apart in data time arrive 0.25 s apart; a mark
+    arrives between two statuses. Its age is taken on the data clock, never negative."""
+    v = StationView("st")
+    for k in range(8):
+        v.on_payload("k", status(100.0 + k), now_s=k * 0.25)
+    assert v.data_rate() == pytest.approx(4.0)
+    rx = 7 * 0.25  # the last status: data time 107 s
+    v.on_payload("k", mark(0, 107.3), now_s=rx + 0.1)  # 0.4 s of data time after it
+    assert v.snapshot(rx + 0.1)["marks"]["last_age_s"] == pytest.approx(0.1, abs=0.05)
+    assert v.snapshot(rx + 0.2)["marks"]["last_age_s"] == pytest.approx(0.5, abs=0.05)
+    # at max speed a mark may be far ahead of the extrapolated clock: age 0, not negative
+    v.on_payload("k", mark(1, 150.0), now_s=rx + 0.2)
+    assert v.snapshot(rx + 0.2)["marks"]["last_age_s"] == 0.0
+    # a live daemon's statuses come once a second: the clock runs at 1 despite jitter
+    live = StationView("st")
+    for k, jitter in enumerate((0.0, 0.08, -0.05, 0.1, 0.0)):
+        live.on_payload("k", status(100.0 + k), now_s=k + jitter)
+    assert live.data_rate() == 1.0
+
+
+def test_a_replay_of_an_older_recording_starts_afresh() -> None:
+    """A new session whose data time is earlier (a replay of an older recording after a
+    live session): the previous session's marks go, and ages follow the new data clock."""
+    v = StationView("st")
+    for k in range(3):
+        v.on_payload("k", status(1000.0 + k), now_s=float(k))
+    v.on_payload("k", mark(0, 1001.5), now_s=2.1)
+    assert v.snapshot(2.2)["marks"]["received"] == 1
+    older = "st_replay-20250602T100000Z_20250601T080000Z"
+    v.on_payload("k", status(10.0, sid=older, host_s=10.0), now_s=3.0)
+    v.on_payload("k", mark(0, 9.0), now_s=3.1)
+    snap = v.snapshot(3.1)
+    assert snap["marks"]["received"] == 1
+    assert snap["marks"]["last_t_gps_ns"] == T0 + 9 * NS
+    assert snap["marks"]["last_age_s"] == pytest.approx(1.1, abs=0.05)

@@ -53,10 +53,33 @@ def test_random_bytes_raise_no_frames_naming_baud_or_noise_and_frames_clear_it()
     )
     assert raised.data["likely_cause"] == "baud_or_noise"
     assert any("no valid frames" in a for a in m.status(t).alerts)
-    # frames come again (the operator fixed the baud rate): cleared
-    events, t, b, f, n = feed(m, 2.0, frames_per_s=20, t0=t, bytes0=b, frames0=f)
-    assert len(alerts(events, "alert.cleared")) == 1
+    # frames come again (the operator fixed the baud rate): cleared once they have kept
+    # decoding for no_frames_s (the hold), not at the first one
+    events, t, b, f, n = feed(m, 3.0, frames_per_s=20, t0=t, bytes0=b, frames0=f)
+    assert not alerts(events, "alert.cleared")
+    events, t, b, f, n = feed(m, 3.0, frames_per_s=20, t0=t, bytes0=b, frames0=f)
+    (cleared,) = alerts(events, "alert.cleared")
+    assert cleared.message.startswith("OK again (was: no valid frames")
     assert not any("no valid frames" in a for a in m.status(t).alerts)
+
+
+def test_a_stray_frame_amid_noise_does_not_clear_it() -> None:
+    """Noise (the framer's garbage grows with the bytes) with one frame that checks out
+    every 2 s, for longer than the hold: raised once, never cleared."""
+    m = Monitor("t", MonitorThresholds(no_frames_s=1.5))
+    events: list[Event] = []
+    t, b, frames = HOST0, 0, 0
+    for step in range(200):  # 20 s
+        t += 100_000_000
+        b += 1152
+        m.on_bytes(1152, t)
+        if step % 10 == 9:
+            frames += step % 20 == 19  # a stray frame every other second
+            events += m.observe(PipelineStatus(t, "serial:/dev/x", True, b, 0, frames,
+                                               b - 24 * frames, 0, 0, 0, {}, {}), t)
+        events += m.tick(t)[1]
+    assert len(alerts(events, "alert.raised")) == 1
+    assert not alerts(events, "alert.cleared")
 
 
 def test_nmea_only_names_the_receiver_configuration() -> None:

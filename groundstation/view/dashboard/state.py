@@ -21,6 +21,10 @@ from groundstation.storage.naming import session_start_ns
 
 STALE_AFTER_S = 3.0
 """No status for longer than this and the station is shown as stale."""
+DATA_RATE_STATUSES = 10
+"""Statuses over which the pace of the daemon's data clock against the wall clock is measured."""
+DATA_RATE_MIN_SPAN_S = 0.5
+"""Below this much receiving time between them, statuses came in one burst: no pace measured."""
 TIMELINE_SPAN_S = 600
 TIMELINE_BUCKET_S = 5
 PPK_READY_MIN = 5
@@ -99,6 +103,10 @@ class StationView:
     """Source outages (host times mapped to GPS time through ``host_minus_gps_ns``)."""
     host_minus_gps_ns: int | None = None
     _offsets: deque[int] = field(default_factory=lambda: deque(maxlen=20))
+    _data_clock: deque[tuple[float, int]] = field(
+        default_factory=lambda: deque(maxlen=DATA_RATE_STATUSES))
+    """(receiving time, data time) of the latest statuses: how fast the daemon's clock runs
+    against ours (1 live; N for a ``replay --speed N``, which runs on the recording's time)."""
     _session_id: str | None = None
     instances: set[str] = field(default_factory=set)
     """Liveliness ids of the daemons alive for this station (more than one: a conflict)."""
@@ -172,6 +180,10 @@ class StationView:
         self.dropouts.clear()
         self.pending_dropout_gps_ns = None
         self.outages.clear()
+        # the previous session's clock: a replay of an older recording runs on older times
+        self._offsets.clear()
+        self.host_minus_gps_ns = None
+        self._data_clock.clear()
 
     def _on_status(self, msg: dict[str, Any], now_s: float) -> None:
         sid = msg.get("session_id")
@@ -188,6 +200,8 @@ class StationView:
         if isinstance(last, int) and isinstance(t_host, int) and not link.get("current_dropout"):
             self._offsets.append(t_host - last)
             self.host_minus_gps_ns = min(self._offsets)  # the least delayed reception
+        if isinstance(t_host, int):
+            self._data_clock.append((now_s, t_host))
         for d in link.get("recent_dropouts") or []:
             self._add_dropout(d)
         pending = self.pending_dropout_gps_ns
@@ -275,11 +289,26 @@ class StationView:
     def status_age_s(self, now_s: float) -> float | None:
         return None if self.status_rx_s is None else max(0.0, now_s - self.status_rx_s)
 
-    def gps_now_ns(self, now_s: float) -> int | None:
-        """GPS time at ``now_s`` as the daemon's clock would say, from the latest status.
+    def data_rate(self) -> float:
+        """How many seconds of the daemon's data time pass per second here: 1 for a live
+        daemon, N for ``replay --speed N`` (its monitor runs on the recording's times);
+        measured over the latest statuses, 1 until they span :data:`DATA_RATE_MIN_SPAN_S`."""
+        if len(self._data_clock) < 2:
+            return 1.0
+        (rx0, t0), (rx1, t1) = self._data_clock[0], self._data_clock[-1]
+        if rx1 - rx0 < DATA_RATE_MIN_SPAN_S or t1 <= t0:
+            return 1.0
+        rate = (t1 - t0) / NS / (rx1 - rx0)
+        return 1.0 if 0.8 <= rate <= 1.25 else rate  # live: reception jitter, not a pace
 
-        Between statuses it runs on the local monotonic clock; it stops 3 s after the last
-        status so that a dead daemon's timeline stops moving instead of filling with gaps.
+    def gps_now_ns(self, now_s: float) -> int | None:
+        """GPS time at ``now_s`` on the daemon's data clock, from the latest status.
+
+        Between statuses it runs on the local monotonic clock at the data clock's pace
+        (:meth:`data_rate`), at most :data:`STALE_AFTER_S` of data time beyond the status, so
+        that a dead daemon's timeline stops moving instead of filling with gaps. It is never
+        before the newest time mark of the session (a mark arrives before the next status:
+        its age is 0, not negative).
         """
         st = self.status
         if st is None or self.status_rx_s is None:
@@ -293,8 +322,10 @@ class StationView:
             at_status = last
         else:
             return None
-        ahead = min(max(0.0, now_s - self.status_rx_s), STALE_AFTER_S)
-        return at_status + int(ahead * NS)
+        ahead = min(max(0.0, now_s - self.status_rx_s) * self.data_rate(), STALE_AFTER_S)
+        now = at_status + int(ahead * NS)
+        newest_mark = self.marks[-1][0] if self.marks else None
+        return now if newest_mark is None else max(now, newest_mark)
 
     def snapshot(
         self, now_s: float, *, file_info: Callable[[str], FileInfo] = no_file_info,
@@ -357,7 +388,7 @@ class StationView:
         ms["last_t_gps_ns"] = last_t
         ms["last_utc"] = (gpstime.gps_to_datetime(last_t).strftime("%H:%M:%S.%f")[:-3]
                           if isinstance(last_t, int) else None)
-        ms["last_age_s"] = (round((gps_now - last_t) / NS, 1)
+        ms["last_age_s"] = (round(max(0, gps_now - last_t) / NS, 1)
                             if isinstance(last_t, int) and gps_now is not None else None)
         return ms
 
