@@ -48,11 +48,13 @@ def _fit_residuals(obs: dict[int, dict[str, dict[str, tuple[float, int]]]],
     out: dict[bool, tuple[list[float], list[float]]] = {False: ([], []), True: ([], [])}
     for i in range(times.size):
         win = np.flatnonzero(np.abs(ts - ts[i]) <= WINDOW_S)
-        for k in np.flatnonzero(~np.isnan(phase[i])):
-            for r in np.flatnonzero(~np.isnan(phase[i])):
-                if r == k or np.any(lli[win][:, [k, r]]):
+        seen = [int(v) for v in np.flatnonzero(~np.isnan(phase[i]))]
+        for k in seen:
+            for r in seen:
+                pair = np.array([k, r], dtype=np.int64)
+                if r == k or np.any(lli[win][:, pair]):
                     continue
-                ok = [j for j in win if j != i and not np.isnan(phase[j, [k, r]]).any()]
+                ok = [int(j) for j in win if j != i and not np.isnan(phase[j, pair]).any()]
                 if len(ok) < 6:
                     continue
                 sd = phase[:, k] - phase[:, r]
