@@ -17,8 +17,7 @@ against rnx2rtkp EX 2.5.1's solutions; MatRTKLIB's static Septentrio pair proces
 kinematic, L1 only, against its true position.
 
 Columns: epochs; fixed share (seed: of the in-flight epochs); wrong fixes (fixed epochs more than
-10 cm from the truth, where there is truth; in brackets those where the simulator's ionosphere
-steps, see :func:`iono_step_times`); camera centres (the antenna at each exposure, no
+10 cm from the truth, where there is truth); camera centres (the antenna at each exposure, no
 lever arm: the lever arm is exact in the simulation) RMS horizontal / vertical against the
 truth's; agreement with the demo5 reference where both are fixed (p95 3D); wall time of the
 whole ``run_engine`` call (RINEX conversion, conditioning, engine).
@@ -43,9 +42,6 @@ import numpy as np
 import numpy.typing as npt
 
 from groundstation.geodesy import ecef_to_llh, enu_rotation, llh_to_ecef
-from groundstation.gnss.atmosphere import klobuchar_delay_m
-from groundstation.gnss.ephemeris import BroadcastEphemeris
-from groundstation.gnss.orbit import sat_state, toe_gps_ns
 from groundstation.offline import rinex
 from groundstation.rules.marks import build_marks
 from groundstation.sim.profiles import sim_config
@@ -91,46 +87,6 @@ class Dataset:
     exposures: list[dict[str, Any]] | None = None
     reference: Path | None = None
     truth: dict[str, Any] | None = None
-
-
-def iono_step_times(truth: dict[str, Any], t_ns: npt.NDArray[np.int64]) -> npt.NDArray[np.bool_]:
-    """Where the simulator's ionosphere differs between rover and base by more than 1 cm on
-    some satellite above 15 degrees.
-
-    The simulator's "true" ionosphere is the broadcast (Klobuchar) model, which steps by
-    several centimetres where its cosine is cut off (|x| = 1.57); the rover and the base cross
-    that line up to a few seconds apart, and in between the double differences carry the step.
-    A real ionosphere has no such step, so the wrong fixes there are counted apart.
-    """
-    io = truth["iono"]
-    tr = truth["trajectory"]
-    tt = np.asarray(tr["t_gps_ns"], dtype=np.int64)
-    xyz = np.stack([np.asarray(tr[c], dtype=np.float64) for c in ("x_m", "y_m", "z_m")], axis=1)
-    i = np.clip(np.searchsorted(tt, t_ns), 0, tt.size - 1)
-    rover = xyz[i]
-    base = np.asarray(truth["base"]["ecef_m"], dtype=np.float64)
-    tow = (t_ns / 1e9) % 604800.0
-    out = np.zeros(t_ns.size, dtype=bool)
-    seen: set[int] = set()
-    for d in truth["ephemerides"]:
-        if d["sv"] in seen:
-            continue
-        seen.add(d["sv"])
-        eph = BroadcastEphemeris(**d)
-        sat = sat_state(eph, (t_ns - toe_gps_ns(eph)) / 1e9).pos_m
-        delays = []
-        # As the simulator: each receiver's model at its first position, lines of sight from
-        # where it is.
-        for rx, at in ((rover, xyz[0]), (np.broadcast_to(base, rover.shape), base)):
-            lat, lon, _ = ecef_to_llh(*(float(v) for v in at))
-            enu = np.einsum("ij,nj->ni", np.asarray(enu_rotation(lat, lon)), sat - rx)
-            az = np.degrees(np.arctan2(enu[:, 0], enu[:, 1])) % 360.0
-            el = np.degrees(np.arctan2(enu[:, 2], np.hypot(enu[:, 0], enu[:, 1])))
-            delays.append((klobuchar_delay_m(tuple(io["alpha"]), tuple(io["beta"]), lat, lon,
-                                             az, np.maximum(el, 0.0), tow), el))
-        (dr, el_r), (db, _) = delays
-        out |= (el_r > 15.0) & (np.abs(dr - db) > 0.01)
-    return out
 
 
 def sim_dataset(work: Path, profile: str, duration_s: float, seed: int,
@@ -232,9 +188,6 @@ def evaluate(ds: Dataset, label: str, engine_name: str, cond: bool, interp: str,
         err = np.linalg.norm(traj.ecef_m - truth, axis=1)
         wrong = fix & (err > WRONG_M)
         row["wrong"] = str(int(np.sum(wrong)))
-        if ds.truth is not None and wrong.any():
-            step = iono_step_times(ds.truth, traj.t_gps_ns[wrong])
-            row["wrong"] += f" ({int(step.sum())} at iono steps)"
     if ds.exposures:
         marks = build_marks(read_flight(ds.rover).timemarks)
         times = [mi.mark_time_ns(m.falling_t_gps_ns, m.rising_t_gps_ns, "falling") for m in marks]

@@ -1,4 +1,5 @@
-"""Signal delay models: Klobuchar ionosphere (IS-GPS-200 20.3.3.5.2.5), Saastamoinen troposphere."""
+"""Signal delay models: Klobuchar ionosphere (IS-GPS-200 20.3.3.5.2.5), the simulator's continuous
+ionosphere of the same shape, Saastamoinen troposphere."""
 
 from __future__ import annotations
 
@@ -14,7 +15,7 @@ KLOBUCHAR_ALPHA_DEFAULT = (1.1175870895385742e-08, 7.450580596923828e-09,
 KLOBUCHAR_BETA_DEFAULT = (90112.0, 0.0, -196608.0, -65536.0)
 
 
-def klobuchar_delay_m(
+def _klobuchar_terms(
     alpha: tuple[float, float, float, float],
     beta: tuple[float, float, float, float],
     lat_deg: float,
@@ -22,8 +23,9 @@ def klobuchar_delay_m(
     az_deg: ArrayLike,
     el_deg: ArrayLike,
     tow_s: ArrayLike,
-) -> FloatArray:
-    """L1 ionospheric group delay (m) of the broadcast model, per IS-GPS-200."""
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Obliquity factor, daytime amplitude (s) and phase (rad) of the broadcast model at the
+    ionospheric pierce point, per IS-GPS-200 20.3.3.5.2.5."""
     phi_u = lat_deg / 180.0
     lam_u = lon_deg / 180.0
     az = np.radians(np.asarray(az_deg, dtype=np.float64))
@@ -34,17 +36,60 @@ def klobuchar_delay_m(
     phi_m = phi_i + 0.064 * np.cos((lam_i - 1.617) * np.pi)
     t = np.mod(4.32e4 * lam_i + np.asarray(tow_s, dtype=np.float64), 86400.0)
     f = 1.0 + 16.0 * (0.53 - e) ** 3
-    amp = sum(a * phi_m**n for n, a in enumerate(alpha))
-    per = sum(b * phi_m**n for n, b in enumerate(beta))
-    amp = np.maximum(amp, 0.0)
-    per = np.maximum(per, 72000.0)
+    amp = np.maximum(sum(a * phi_m**n for n, a in enumerate(alpha)), 0.0)
+    per = np.maximum(sum(b * phi_m**n for n, b in enumerate(beta)), 72000.0)
     x = 2.0 * np.pi * (t - 50400.0) / per
+    return np.asarray(f, dtype=np.float64), np.asarray(amp, dtype=np.float64), x
+
+
+def klobuchar_delay_m(
+    alpha: tuple[float, float, float, float],
+    beta: tuple[float, float, float, float],
+    lat_deg: float,
+    lon_deg: float,
+    az_deg: ArrayLike,
+    el_deg: ArrayLike,
+    tow_s: ArrayLike,
+) -> FloatArray:
+    """L1 ionospheric group delay (m) of the broadcast model, per IS-GPS-200.
+
+    As the standard has it, the daytime cosine is a 4th-order series cut off at ``|x| = 1.57``,
+    where it still has 2 % of its amplitude: the delay steps there by up to several centimetres.
+    That is right for a receiver's correction model and wrong for a "true" ionosphere (see
+    :func:`smooth_ionosphere_delay_m`).
+    """
+    f, amp, x = _klobuchar_terms(alpha, beta, lat_deg, lon_deg, az_deg, el_deg, tow_s)
     delay = np.where(
         np.abs(x) < 1.57,
         f * (5e-9 + amp * (1.0 - x * x / 2.0 + x**4 / 24.0)),
         f * 5e-9,
     )
     return np.asarray(delay * C_M_S, dtype=np.float64)
+
+
+def smooth_ionosphere_delay_m(
+    alpha: tuple[float, float, float, float],
+    beta: tuple[float, float, float, float],
+    lat_deg: float,
+    lon_deg: float,
+    az_deg: ArrayLike,
+    el_deg: ArrayLike,
+    tow_s: ArrayLike,
+) -> FloatArray:
+    """L1 ionospheric group delay (m) of a continuous ionosphere shaped like the broadcast model.
+
+    The simulator's "true" ionosphere. A real ionosphere is smooth in time and space; the
+    broadcast model's series steps by centimetres at its cut-off, and two receivers a few hundred
+    metres apart cross that step seconds apart, which puts a false jump into their double
+    differences. Here the daytime term is the cosine itself, ``amp * cos(x)``, which reaches zero
+    exactly where the night-time constant takes over: the delay is continuous everywhere (its
+    slope changes there by ``amp * 2 pi / period``, a few tenths of a millimetre per second).
+    Same pierce point, obliquity, amplitude and period as :func:`klobuchar_delay_m`; the two
+    differ by at most 2 % of the daytime delay (the series' remainder near the cut-off).
+    """
+    f, amp, x = _klobuchar_terms(alpha, beta, lat_deg, lon_deg, az_deg, el_deg, tow_s)
+    day = np.where(np.abs(x) < np.pi / 2, amp * np.cos(x), 0.0)
+    return np.asarray(f * (5e-9 + day) * C_M_S, dtype=np.float64)
 
 
 def saastamoinen_delay_m(

@@ -27,7 +27,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from groundstation.geodesy import ecef_to_llh, enu_rotation
-from groundstation.gnss.atmosphere import klobuchar_delay_m, saastamoinen_delay_m
+from groundstation.gnss.atmosphere import saastamoinen_delay_m, smooth_ionosphere_delay_m
 from groundstation.gnss.orbit import (
     C_M_S,
     L1_WAVELENGTH_M,
@@ -221,7 +221,8 @@ def observe(
         position: antenna ECEF position and velocity at seconds since ``start_gps_ns``.
         in_flight: whether each of those times is in flight (for the squaring model).
         rng: the random generator (the caller seeds it).
-        iono_scale: true ionosphere relative to the broadcast Klobuchar model.
+        iono_scale: true ionosphere relative to the broadcast model's amplitude (the true one
+            is continuous, :func:`~groundstation.gnss.atmosphere.smooth_ionosphere_delay_m`).
         turns: the rover's turns, for the shadow model (seconds since ``start_gps_ns``).
     """
     svs = constellation.svs
@@ -293,7 +294,9 @@ def observe(
         el[:, j] = elev
         az[:, j] = azim
         visible = elev >= config.elevation_mask_deg
-        iono = iono_scale * klobuchar_delay_m(
+        # The broadcast model's shape without its step (a real ionosphere is smooth), so
+        # receivers a few hundred metres apart see nearly the same delay at the same time.
+        iono = iono_scale * smooth_ionosphere_delay_m(
             constellation.iono.alpha, constellation.iono.beta, lat, lon, azim,
             np.maximum(elev, 0.0), tow_s,
         )

@@ -3,9 +3,10 @@
 Optionally (the field procedure) a lever-arm calibration pass at a lower height before and after
 the survey lines.
 
-Every leg between waypoints has a trapezoidal speed profile (the copter stops at each waypoint),
-so position, velocity and the time a given distance is reached are all closed-form. Positions are
-local east/north/up metres at the take-off point, converted to ECEF in bulk.
+Every leg between waypoints has a jerk-limited speed profile (half-cosine ramps: the acceleration
+is continuous, as a flight controller makes it; the copter stops at each waypoint), so position
+and velocity are closed-form and the time a given distance is reached is found by bisection.
+Positions are local east/north/up metres at the take-off point, converted to ECEF in bulk.
 """
 
 from __future__ import annotations
@@ -36,7 +37,7 @@ class TrajectoryConfig:
         height_m: survey height above the take-off point.
         speed_m_s: cruise speed on the lines.
         climb_m_s: vertical speed in take-off and landing.
-        accel_m_s2: acceleration at the ends of each leg.
+        accel_m_s2: peak acceleration at the ends of each leg (the climb and the descent use half).
         line_length_m: length of one survey line.
         line_spacing_m: distance between neighbouring lines.
         n_lines: number of lines, flown in alternating directions.
@@ -95,7 +96,15 @@ class TrajectoryConfig:
 
 @dataclass(frozen=True, slots=True)
 class Leg:
-    """A straight move between two waypoints, trapezoidal speed, starting at ``t0_s``."""
+    """A straight move between two waypoints, starting at ``t0_s``, jerk-limited.
+
+    Speed rises and falls as half a cosine (``v/2 (1 - cos(pi t / T))`` over the ramp time
+    ``T``), so the acceleration is a half sine: continuous, zero at rest and at cruise speed, at
+    most ``accel_m_s2``. A multicopter's flight controller limits jerk the same way; a
+    trapezoidal speed profile would step the acceleration by ``accel_m_s2`` at four instants of
+    every leg, which no airframe does and which a PPK filter's dynamics model (acceleration as a
+    slow random walk) is right to distrust.
+    """
 
     t0_s: float
     start_enu_m: tuple[float, float, float]
@@ -110,43 +119,64 @@ class Leg:
         return math.dist(self.start_enu_m, self.end_enu_m)
 
     def _profile(self) -> tuple[float, float, float]:
-        """(time to accelerate, top speed, total time)."""
+        """(ramp time, top speed, total time).
+
+        The ramp to speed ``v`` with peak acceleration ``a`` takes ``T = pi v / (2 a)`` and covers
+        ``v T / 2``; a leg too short for two ramps at ``v_max`` never reaches it.
+        """
         d, a, v = self.length_m, self.accel_m_s2, self.v_max_m_s
-        if d <= v * v / a:  # triangular: never reaches v
-            v = math.sqrt(d * a)
-        ta = v / a
-        cruise = (d - v * ta) / v if v > 0 else 0.0
-        return ta, v, 2 * ta + cruise
+        if d <= math.pi * v * v / (2 * a):  # two ramps, no cruise
+            v = math.sqrt(2 * a * d / math.pi)
+        if v <= 0:
+            return 0.0, 0.0, 0.0
+        ta = math.pi * v / (2 * a)
+        cruise = (d - v * ta) / v
+        return ta, v, 2 * ta + max(cruise, 0.0)
 
     @property
     def duration_s(self) -> float:
         return self._profile()[2]
 
+    def _ramp(self, t: FloatArray, ta: float, v: float) -> tuple[FloatArray, FloatArray]:
+        """Distance and speed ``t`` seconds into the ramp up (``0 <= t <= ta``)."""
+        w = np.pi / ta
+        return 0.5 * v * (t - np.sin(w * t) / w), 0.5 * v * (1.0 - np.cos(w * t))
+
     def distance(self, tau_s: FloatArray) -> tuple[FloatArray, FloatArray]:
         """Distance along the leg and speed at times since the leg started."""
         ta, v, total = self._profile()
-        a = self.accel_m_s2
+        if total <= 0:
+            z = np.zeros_like(np.asarray(tau_s, dtype=np.float64))
+            return z, z
         t = np.clip(tau_s, 0.0, total)
-        d_acc = 0.5 * a * ta * ta
-        s = np.where(
-            t < ta,
-            0.5 * a * t * t,
-            np.where(t <= total - ta, d_acc + v * (t - ta),
-                     self.length_m - 0.5 * a * (total - t) ** 2),
-        )
-        spd = np.where(t < ta, a * t, np.where(t <= total - ta, v, a * (total - t)))
+        up_s, up_v = self._ramp(np.minimum(t, ta), ta, v)
+        down_s, down_v = self._ramp(np.minimum(total - t, ta), ta, v)
+        s = np.where(t < ta, up_s,
+                     np.where(t <= total - ta, 0.5 * v * ta + v * (t - ta),
+                              self.length_m - down_s))
+        spd = np.where(t < ta, up_v, np.where(t <= total - ta, v, down_v))
         return s, spd
 
     def time_at_distance(self, s_m: float) -> float:
         """Seconds after the leg start at which the distance ``s_m`` is reached."""
         ta, v, total = self._profile()
-        a = self.accel_m_s2
-        d_acc = 0.5 * a * ta * ta
-        if s_m <= d_acc:
-            return math.sqrt(2 * s_m / a)
-        if s_m <= self.length_m - d_acc:
-            return ta + (s_m - d_acc) / v
-        return total - math.sqrt(max(0.0, 2 * (self.length_m - s_m) / a))
+        if total <= 0:
+            return 0.0
+        d_ramp = 0.5 * v * ta
+        if d_ramp <= s_m <= self.length_m - d_ramp:
+            return ta + (s_m - d_ramp) / v
+        w = math.pi / ta
+        target = s_m if s_m < d_ramp else self.length_m - s_m
+        target = min(max(target, 0.0), d_ramp)
+        lo, hi = 0.0, ta
+        for _ in range(60):  # the ramp's distance grows monotonically: bisection
+            mid = 0.5 * (lo + hi)
+            if 0.5 * v * (mid - math.sin(w * mid) / w) < target:
+                lo = mid
+            else:
+                hi = mid
+        t = 0.5 * (lo + hi)
+        return t if s_m < d_ramp else total - t
 
 
 @dataclass(frozen=True, slots=True)

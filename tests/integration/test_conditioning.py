@@ -26,7 +26,6 @@ from groundstation.solve.positions import Q_FIX, read_pos
 
 FLIGHT_S = 1200.0  # 6 min static, 8 min flight, 6 min static: short seed flights vary a lot
 SEED = 1
-L1_WAVELENGTH_M = 0.1903
 
 
 @dataclass
@@ -139,8 +138,6 @@ def test_demo5_fixes_the_seed_flight_once_conditioned(flight: Conditioned) -> No
     fixed = traj.quality == Q_FIX
     assert in_flight.sum() > 1500
     assert np.mean(fixed[in_flight]) >= 0.90
-    # No fix on a wrong integer (that is a whole wavelength off). A few fixed epochs come out
-    # 10-17 cm off where the simulator's broadcast-model ionosphere steps (Klobuchar's
-    # |x| < 1.57 cut) at the rover a moment before the base: bounded here, counted in RESULTS.
-    assert float(np.max(err[fixed])) < L1_WAVELENGTH_M
-    assert np.mean(err[fixed] > 0.10) < 0.005
+    # No wrong fix: every fixed epoch within 10 cm of the truth (the simulator's ionosphere is
+    # continuous and its legs jerk-limited; with a step in either, fixes came out 10-23 cm off).
+    assert float(np.max(err[fixed])) <= 0.10, f"{np.sum(err[fixed] > 0.10)} fixes > 10 cm"

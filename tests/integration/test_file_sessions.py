@@ -157,5 +157,5 @@ def test_solve_reads_the_parts_as_one(sessions: Sessions, tmp_path: Path) -> Non
         for name, f in (("whole", whole), ("split", split))
     ]
     a, b = results
-    assert len(a.marks) > 10
+    assert len(a.marks) > 5  # 150 s leave one short line: 6 exposures with jerk-limited legs
     assert a.rows == b.rows and a.marks == b.marks

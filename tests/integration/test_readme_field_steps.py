@@ -43,10 +43,10 @@ def _argv(command: str, pty: Pty) -> list[str]:
 
 
 def _feed(pty: Pty, stop: threading.Event) -> None:
-    """The flight's stream at 6x real time, from 100 s in (the camera fires from then on)."""
+    """The flight's stream at 6x real time, from 70 s in (the camera fires from 78 s to 101 s)."""
     sim = simulate(SimConfig(duration_s=200, with_base=False))
     t0 = sim.rover_chunks[0][0]
-    chunks = [c for c in sim.rover_chunks if t0 + 100e9 <= c[0] < t0 + 170e9]
+    chunks = [c for c in sim.rover_chunks if t0 + 70e9 <= c[0] < t0 + 140e9]
     for _, chunk in paced(chunks, 6.0):
         if stop.is_set():
             return

@@ -242,7 +242,8 @@ def test_cno_is_5_db_lower_in_flight(seed: Flight) -> None:
 def test_low_satellites_are_shadowed_for_10_s_in_each_turn(seed: Flight) -> None:
     turns = seed.truth["turns"]
     shadows = seed.truth["receivers"]["rover"]["shadows"]
-    assert len(turns) >= 4 and shadows
+    # 10 min of flight hold 4 lines (3 turns) with jerk-limited legs (5 with trapezoidal ones).
+    assert len(turns) >= 3 and shadows
     assert len({sh["turn"] for sh in shadows}) >= len(turns) // 2
     elev: dict[int, dict[int, tuple[int, int]]] = {}  # epoch index -> sv -> (elev, azim)
     for info in seed.svinfo:
