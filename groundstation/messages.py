@@ -14,6 +14,8 @@ The rules, by field name (``docs/zenoh.md`` keeps units in the names):
 - durations and other ``*_s`` are finite numbers within ``±MAX_SECONDS``, ``*interval_s`` in
   ``(0, 3600]``; ``*_fraction`` in ``[0, 1]``;
 - counters (:data:`COUNTERS`) are integers in ``[0, 2**53]`` (exact in the page's JavaScript);
+- a ``session``'s ``files`` are strings and its ``first_epoch_t_gps_ns`` is not after its
+  ``last_epoch_t_gps_ns`` (the span a solver pairs rover and base by);
 - the tables a view reads (``link``, ``marks``, ``recording``, ``data`` ...) are objects and
   the lists (``sats``, ``alerts``, ``files`` ...) are lists; ``null`` is allowed for any value.
 """
@@ -88,6 +90,9 @@ def check(msg: Any, expected: str | None = None) -> dict[str, Any]:
         files = msg.get("files") or []
         if not all(isinstance(f, str) for f in files):
             raise BadMessage("session files must be strings")
+        first, last = msg.get("first_epoch_t_gps_ns"), msg.get("last_epoch_t_gps_ns")
+        if first is not None and last is not None and first > last:
+            raise BadMessage(f"session span: first epoch {first} after last {last}")
     return msg
 
 

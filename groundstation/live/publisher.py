@@ -245,6 +245,10 @@ class ZenohPublisherSink:
                 item = dataclasses.replace(item, alerts=(*item.alerts, alert))
             self.latest_status = encode("status", item)
             self._put("status", self.latest_status)
+            # the span of epochs recorded so far, for a solver pairing rover and base
+            for k in ("first_epoch_t_gps_ns", "last_epoch_t_gps_ns"):
+                if getattr(item.link, k) is not None:
+                    self.session[k] = getattr(item.link, k)
         elif isinstance(item, Event):
             self._put("event", encode("event", item, station=st))
             if item.kind == kinds.RECORDER_FILE_OPENED:

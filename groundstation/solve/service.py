@@ -32,7 +32,7 @@ import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -53,8 +53,12 @@ from groundstation.config import (
 )
 from groundstation.errors import ConfigError, GroundstationError
 from groundstation.solve import interpolate as mi
+from groundstation.solve.pairing import BASE_WAIT_S, Pairing, base_station, span_of
 from groundstation.solve.pipeline import SolveResult, SolveSettings, solve
 from groundstation.solve.positions import Q_FIX
+
+if TYPE_CHECKING:
+    from groundstation.solve.claims import Claims
 
 log = logging.getLogger("groundstation.solver")
 
@@ -102,6 +106,8 @@ class ServiceSettings:
             session naming a file elsewhere is refused).
         max_sessions_per_min: session messages handled per minute (burst
             :data:`SESSION_BURST`); more are dropped and counted.
+        base_wait_s: how long a rover session paired with a base station waits for a base
+            recording that covers its last epoch (:mod:`groundstation.solve.pairing`).
     """
 
     bus: ZenohSettings = CLIENT_ZENOH
@@ -111,10 +117,16 @@ class ServiceSettings:
     queue_size: int = QUEUE_SIZE
     recording_roots: tuple[Path, ...] = (Path("flights"),)
     max_sessions_per_min: float = MAX_SESSIONS_PER_MIN
+    base_wait_s: float = BASE_WAIT_S
 
     def for_station(self, station: str) -> StationSolve:
         """The settings that apply to ``station``."""
         return self.stations.get(station, self.default)
+
+    def base_stations(self) -> set[str]:
+        """The stations some configuration names as its base (``base = "station:<name>"``)."""
+        confs = [self.default, *self.stations.values()]
+        return {b for b in (base_station(c.base) for c in confs) if b is not None}
 
 
 # -- configuration --------------------------------------------------------------------------
@@ -123,12 +135,15 @@ _FIELDS = {"base_xyz": "base_ecef_m", "lever_arm": "lever_arm_m"}
 """Configuration key -> :class:`StationSolve` field, where the names differ."""
 
 
-def _station_solve(base: StationSolve, values: Mapping[str, Any], prefix: str) -> StationSolve:
+def _station_solve(base: StationSolve, values: Mapping[str, Any], prefix: str,
+                   station: str | None = None) -> StationSolve:
     """``base`` with converted values (:data:`~groundstation.config.SOLVER_STATION_KEYS`)
-    applied; ``base`` and ``base_xyz`` must come together."""
+    applied; ``base`` and ``base_xyz`` must come together; ``base = "station:<name>"`` names
+    a valid station other than ``station`` itself."""
     out = replace(base, **{_FIELDS.get(k, k): v for k, v in values.items()})
     if out.base is not None and not out.base:
         raise ConfigError(f"{prefix}base", "expected a non-empty path")
+    base_station(out.base, f"{prefix}base", station)
     if (out.base is None) != (out.base_ecef_m is None):
         missing = "base_xyz" if out.base_ecef_m is None else "base"
         raise ConfigError(f"{prefix}{missing}", "base and base_xyz go together")
@@ -147,7 +162,7 @@ def _service_settings(resolved: Resolved) -> ServiceSettings:
         # file defaults < the station's table < environment and command line
         merged = replace(StationSolve(), **{_FIELDS.get(k, k): v for k, v in
                                             {**from_file, **table}.items()})
-        stations[name] = _station_solve(merged, later, f"stations.{name}.")
+        stations[name] = _station_solve(merged, later, f"stations.{name}.", name)
     if "mode" in resolved.values["zenoh"] and resolved.values["zenoh"]["mode"] == "router":
         raise ConfigError("zenoh.mode", "the solver joins as peer or client")
     roots = tuple(Path(r).expanduser() for r in top.get("recording_roots", ("flights",)))
@@ -155,7 +170,8 @@ def _service_settings(resolved: Resolved) -> ServiceSettings:
         raise ConfigError("recording_roots", "at least one directory")
     return ServiceSettings(zenoh_settings(resolved.values["zenoh"]), station, default, stations,
                            top.get("queue_size", QUEUE_SIZE), roots,
-                           top.get("max_sessions_per_min", MAX_SESSIONS_PER_MIN))
+                           top.get("max_sessions_per_min", MAX_SESSIONS_PER_MIN),
+                           top.get("base_wait_s", BASE_WAIT_S))
 
 
 def build_service_settings(
@@ -209,6 +225,10 @@ class Job:
     flight: Path
     settings: SolveSettings
     notes: tuple[str, ...] = ()
+    base_station: str | None = None
+    """The base is this station's recording of the same time (picked when solving)."""
+    span_ns: tuple[int, int] | None = None
+    """First and last epoch of the recording (GPS ns), as the session message says."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -291,6 +311,11 @@ def plan(station: str, session: Mapping[str, Any], conf: StationSolve,
                 out.append(Refusal(station, sid, given, f"refused: {why}"))
                 continue
             flight = real
+        paired = base_station(conf.base)
+        if paired == station:  # a top-level base = "station:x" does not apply to x itself
+            out.append(Skip(station, sid, given, f"station {station!r} is its own base "
+                                                 f"(base = \"station:{paired}\")"))
+            continue
         out_dir = conf.out_root / station / flight.stem
         root = conf.out_root.resolve()
         if root not in out_dir.resolve().parents:  # a symbolic link under out_root leading out
@@ -307,7 +332,7 @@ def plan(station: str, session: Mapping[str, Any], conf: StationSolve,
         settings = SolveSettings(
             flight=flight,
             out_dir=out_dir,
-            base=_expand(conf.base, flight, station),
+            base=None if paired else _expand(conf.base, flight, station),
             base_ecef_m=conf.base_ecef_m,
             photos=photos,
             lever_arm_m=conf.lever_arm_m,
@@ -317,7 +342,8 @@ def plan(station: str, session: Mapping[str, Any], conf: StationSolve,
             shutter_delay_ms=conf.shutter_delay_ms,
             max_gap_s=conf.max_gap_s,
         )
-        out.append(Job(station, sid, flight, settings, tuple(notes)))
+        out.append(Job(station, sid, flight, settings, tuple(notes), paired,
+                       span_of(session)))
     if not files:
         out.append(Skip(station, sid, Path(), "the finished session lists no recording file"))
     return out
@@ -397,6 +423,11 @@ class SolverService:
         self.refused = 0
         self.rejected = 0
         """Session messages dropped: malformed, a bad station name, or over the rate limit."""
+        self.pairing = Pairing(lambda p: confine(p, settings.recording_roots),
+                               settings.base_wait_s)
+        self.claims: Claims | None = None
+        """Shares the jobs with other workers (:mod:`~groundstation.solve.claims`), if set."""
+        self._stop = threading.Event()
 
     def _admit(self) -> bool:
         """Token bucket: ``max_sessions_per_min``, bursts of :data:`SESSION_BURST`."""
@@ -436,6 +467,9 @@ class SolverService:
             messages.check({"type": "session", **session}, "session")
         except (ConfigError, messages.BadMessage) as err:
             self.drop(station, str(err))
+            return
+        self.pairing.note(station, session)
+        if self.settings.station not in ("*", station):  # heard only as someone's base
             return
         if not self._admit():
             self.drop(station, "over the rate limit "
@@ -480,7 +514,9 @@ class SolverService:
             log.info("%s %s: queued (%d waiting)", act.station, act.flight, self._queue.qsize())
 
     def run(self, stop: threading.Event) -> None:
-        """Solve queued jobs one by one until ``stop`` is set (or :meth:`close` is called)."""
+        """Solve queued jobs one by one until ``stop`` is set (or :meth:`close` is called);
+        with :attr:`claims`, only the jobs this worker claims."""
+        self._stop = stop
         while not stop.is_set():
             try:
                 job = self._queue.get(timeout=0.2)
@@ -488,7 +524,22 @@ class SolverService:
                 continue
             if job is None:
                 return
-            self.solve_job(job)
+            claims = self.claims
+            if claims is None:
+                self.solve_job(job)
+                continue
+            from groundstation.solve.claims import job_key
+
+            ident = job_key(job.station, job.session_id, job.flight)
+            if claims.acquire(ident, job, job.settings.out_dir):
+                try:
+                    self.solve_job(job)
+                finally:
+                    claims.release(ident)
+
+    def requeue(self, job: Job) -> None:
+        """Hand a job back to the worker (a claim on it vanished); waits for room."""
+        self._queue.put(job)
 
     def close(self) -> None:
         """Wake the worker so that it returns."""
@@ -497,7 +548,10 @@ class SolverService:
 
     def solve_job(self, job: Job) -> None:
         """Solve one recording and publish the outcome (ok or failed); never raises."""
-        s = replace(job.settings, out_dir=_free_dir(job.settings.out_dir))
+        # Shared by workers: one directory per recording, overwritten by a replacement worker.
+        out_dir = job.settings.out_dir if self.claims else _free_dir(job.settings.out_dir)
+        s = replace(job.settings, out_dir=out_dir)
+        notes = list(job.notes)
         self._send(job.station, STATUS_SOLVING, job.flight, job.session_id,
                    out_dir=str(s.out_dir))
         t0 = time.monotonic()
@@ -516,6 +570,9 @@ class SolverService:
                 self._send(job.station, STATUS_SKIPPED, job.flight, job.session_id,
                            reason=f"already solved: same content as {first}")
                 return
+            if job.base_station is not None:
+                s = replace(s, base=self.pairing.base_for(job.base_station, job.span_ns,
+                                                          self._stop, notes))
             if s.base is not None and not s.base.is_file():
                 raise GroundstationError(f"{s.base}: base recording not found")
             result = self._solver(s)
@@ -530,12 +587,12 @@ class SolverService:
                 log.warning("%s %s: solve failed: %s", job.station, job.flight, err)
             self._send(job.station, STATUS_FAILED, job.flight, job.session_id,
                        reason=f"{type(err).__name__}: {err}", out_dir=str(s.out_dir),
-                       elapsed_s=round(time.monotonic() - t0, 3), notes=list(job.notes))
+                       elapsed_s=round(time.monotonic() - t0, 3), notes=notes)
             return
         self.solved += 1
         summary = result.summary()
         files = summary.pop("files")
-        notes = [*job.notes, *summary.pop("notes")]  # type: ignore[misc]
+        notes = [*notes, *summary.pop("notes")]  # type: ignore[misc]
         elapsed = time.monotonic() - t0
         log.info("%s %s: solved in %.1f s: %s marks, %s positioned, %.0f%% epochs fixed",
                  job.station, job.flight, elapsed, summary["marks"], summary["marks_positioned"],
@@ -559,17 +616,26 @@ def run_service(
 ) -> SolverService:
     """Join Zenoh, subscribe to sessions, solve until ``stop`` is set; returns the service.
 
+    Several such workers share the sessions (:mod:`groundstation.solve.claims`): each job is
+    claimed by one of them; base stations' sessions are followed for pairing.
+
     Raises:
         GroundstationError: the Zenoh session cannot be opened.
     """
     from groundstation.bus import encode, key, open_bus
+    from groundstation.solve.claims import Claims
 
     bus = open_bus(settings.bus)
+    claims: Claims | None = None
     try:
         def publish(station: str, body: dict[str, Any]) -> None:
             bus.put(key(station, "solution"), encode("solution", body))
+            if claims is not None:
+                claims.record(station, body)
 
         service = SolverService(settings, publish, solver=solver)
+        claims = service.claims = Claims(bus, service.requeue)
+        claims.start()
 
         def on_sample(key_expr: str, payload: bytes) -> None:
             parts = key_expr.split("/")
@@ -584,16 +650,20 @@ def run_service(
 
         selector = key(settings.station, "session")
         bus.subscribe(selector, on_sample)
+        if settings.station != "*":  # the paired base stations' sessions, for pairing only
+            for base in sorted(settings.base_stations() - {settings.station}):
+                bus.subscribe(key(base, "session"), on_sample)
         worker = threading.Thread(target=service.run, args=(stop,), name="solver-worker",
                                   daemon=True)
         worker.start()
-        log.info("listening on %s (connect %s, listen %s)", selector,
-                 list(settings.bus.connect), list(settings.bus.listen))
+        log.info("listening on %s (connect %s, listen %s); worker %s", selector,
+                 list(settings.bus.connect), list(settings.bus.listen), claims.worker)
         if ready is not None:
             ready(selector)
         while not stop.wait(0.5):  # a timed wait, so signals are handled promptly
             continue
         service.close()
+        claims.close()
         worker.join(timeout=5.0)
         if worker.is_alive():
             log.warning("a solve is still running; leaving it to the process exit")
