@@ -45,9 +45,9 @@ if TYPE_CHECKING:
 log = logging.getLogger("groundstation.solver")
 
 CLAIM_ROOT = f"{KEY_ROOT}/solvers/claim"
-SETTLE_S = 0.5
+SETTLE_S = 1.0
 """Between declaring a claim and checking for rivals: a token crosses loopback or a LAN in
-milliseconds; half a second leaves room for a loaded machine."""
+milliseconds; a second leaves room for a loaded machine."""
 RECLAIM_MAX_S = 5.0
 """A vanished claim is taken up again after a random 0..this many seconds."""
 FINAL = frozenset({"ok", "failed", "skipped", "refused"})
@@ -105,6 +105,8 @@ class Claims:
         self._held: dict[JobKey, Callable[[], None]] = {}
         self._aside: dict[str, tuple[JobKey, Any]] = {}
         """Claim prefix -> a job another worker holds, kept to take it up if that one dies."""
+        self._seen: dict[str, set[str]] = {}
+        """Claim prefix -> the workers whose claim the liveliness subscription shows now."""
         self._stop = threading.Event()
         self.reclaimed = 0
 
@@ -186,9 +188,13 @@ class Claims:
     # -- claiming ------------------------------------------------------------------------------
 
     def _claimants(self, job: JobKey) -> set[str]:
+        """Who claims ``job``: a liveliness query, and what the subscription has shown (two
+        views, so that a reply cut short on a loaded machine does not hide a rival)."""
         prefix = claim_prefix(job)
-        return {k.rsplit("/", 1)[-1] for k in self.bus.liveliness_get(f"{prefix}/*", 1.0)
-                if k.startswith(prefix + "/")}
+        got = {k.rsplit("/", 1)[-1] for k in self.bus.liveliness_get(f"{prefix}/*", 2.0)
+               if k.startswith(prefix + "/")}
+        with self._lock:
+            return got | self._seen.get(prefix, set())
 
     def _aside_job(self, job: JobKey, item: Any) -> None:
         with self._lock:
@@ -217,6 +223,7 @@ class Claims:
         with self._lock:
             self._held[job] = withdraw
             self._aside.pop(claim_prefix(job), None)
+        log.info("%s: claimed (no other claim)", "/".join(job))
         return True
 
     def release(self, job: JobKey) -> None:
@@ -229,6 +236,15 @@ class Claims:
     def _on_claim(self, key_expr: str, alive: bool) -> None:
         """A claim appeared or vanished (on a Zenoh thread)."""
         prefix, _, worker = key_expr.rpartition("/")
+        with self._lock:
+            if alive:
+                self._seen.setdefault(prefix, set()).add(worker)
+                if len(self._seen) > 10_000:  # only live claims stay; bound it all the same
+                    self._seen.pop(next(iter(self._seen)))
+            elif prefix in self._seen:
+                self._seen[prefix].discard(worker)
+                if not self._seen[prefix]:
+                    del self._seen[prefix]
         if alive or worker == self.worker or self._stop.is_set():
             return
         with self._lock:

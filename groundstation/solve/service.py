@@ -629,6 +629,8 @@ def run_service(
     claims: Claims | None = None
     try:
         def publish(station: str, body: dict[str, Any]) -> None:
+            if claims is not None:
+                body = {**body, "worker": claims.worker}  # who solved it, among the workers
             bus.put(key(station, "solution"), encode("solution", body))
             if claims is not None:
                 claims.record(station, body)
