@@ -148,6 +148,9 @@ class ZenohPublisherSink:
         bus.queryable(
             key(st, "q/status"), lambda: [self.latest_status] if self.latest_status else []
         )
+        # the session so far (files, span) for a solver pairing a rover with this base
+        bus.queryable(key(st, "q/session"), lambda: [
+            encode("session", dict(self.session), station=st)] if self.session["files"] else [])
         bus.liveliness_token(key(st, f"alive/{self.instance}"))
         bus.subscribe_liveliness(key(st, "alive/**"), self._on_token)
 

@@ -7,10 +7,12 @@ epochs its recording holds (``first_epoch_t_gps_ns``, ``last_epoch_t_gps_ns``, a
 daemon's publisher). For a finished rover session, :meth:`Pairing.base_for` picks the base
 session whose span covers the rover's, and hands back its first recording file (the recording
 reader follows the session's later parts by itself). A base that is still recording is fine:
-the solver waits, up to ``base_wait_s``, for a session message of the base whose span reaches
-the rover's last epoch (the daemon announces its session at every new file and at the end),
-and says so when it gives up. A base recording is confined to ``recording_roots`` like the
-rover's.
+the solver waits, up to ``base_wait_s``, for the base's span to reach the rover's last epoch,
+and says so when it gives up. While it waits it asks the base daemon for its session every
+second (``q/session``: the files and the span recorded so far), since the daemon announces its
+session only at every new file and at the end, and a solver started later never heard that;
+the recording reader reads a file still being written up to its last complete chunk. A base
+recording is confined to ``recording_roots`` like the rover's.
 
 No Zenoh in here: the service feeds the messages and calls :meth:`Pairing.base_for` from its
 worker thread.
@@ -42,6 +44,9 @@ covers it."""
 
 Confine = Callable[[Path], tuple[Path | None, str]]
 """``confine(path) -> (resolved path or None, why not)`` (the service's recording roots)."""
+AskSession = Callable[[str], Mapping[str, Any] | None]
+"""``ask(station)``: the station's current (checked) session message, if its daemon answers."""
+ASK_EVERY_S = 1.0
 
 
 def base_station(value: str | None, key: str = "base", station: str | None = None) -> str | None:
@@ -96,6 +101,8 @@ class Pairing:
         self._keep = keep
         self._cond = threading.Condition()
         self._sessions: dict[str, OrderedDict[str, dict[str, Any]]] = {}
+        self.ask: AskSession | None = None
+        """Asks a base daemon for its session while waiting (set by the service on the bus)."""
 
     def note(self, station: str, session: Mapping[str, Any]) -> None:
         """Keep a (checked) session message of ``station``; wakes a waiting :meth:`base_for`."""
@@ -145,14 +152,19 @@ class Pairing:
                 "last_epoch_t_gps_ns): cannot pick the base station's recording")
         deadline = time.monotonic() + self.wait_s
         waited = False
-        with self._cond:
-            while True:
+        while True:
+            with self._cond:
                 msg, covers = self._best(base, span)
-                left = deadline - time.monotonic()
-                if covers or left <= 0 or stop.is_set():
-                    break
-                waited = True
-                self._cond.wait(min(left, 0.5))
+            left = deadline - time.monotonic()
+            if covers or left <= 0 or stop.is_set():
+                break
+            waited = True
+            ask = self.ask
+            current = ask(base) if ask is not None else None
+            if current is not None:
+                self.note(base, current)
+            with self._cond:
+                self._cond.wait(min(left, ASK_EVERY_S))
         if msg is None:
             raise GroundstationError(
                 f"no recording of base station {base!r} covers the rover's epochs "

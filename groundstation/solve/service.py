@@ -71,6 +71,11 @@ MAX_SESSIONS_PER_MIN = 60.0
 SESSION_BURST = 20
 RECORDING_SUFFIXES = (".mcap", ".ubx", ".ubx.gz", ".gz", ".log")
 
+SOLVER_ZENOH = replace(CLIENT_ZENOH, mode="client")
+"""The solver's default: a client of the daemon (or router). Not a peer: a peer that listens
+nowhere reaches only the process it connects to, and a meeting point routes for its clients,
+not between peers, so several peer workers would never hear each other's claims."""
+
 Publish = Callable[[str, dict[str, Any]], None]
 """``publish(station, body)``: send one ``solution`` message for a station."""
 Solver = Callable[[SolveSettings], SolveResult]
@@ -97,7 +102,7 @@ class ServiceSettings:
     """The resolved service configuration.
 
     Attributes:
-        bus: how to join Zenoh (by default a peer that connects to the local daemon).
+        bus: how to join Zenoh (by default a client of the local daemon).
         station: whose sessions to solve, ``*`` for all.
         default: settings for stations without a ``[stations.<name>]`` table.
         stations: per-station settings (defaults already merged in).
@@ -110,7 +115,7 @@ class ServiceSettings:
             recording that covers its last epoch (:mod:`groundstation.solve.pairing`).
     """
 
-    bus: ZenohSettings = CLIENT_ZENOH
+    bus: ZenohSettings = SOLVER_ZENOH
     station: str = "*"
     default: StationSolve = field(default_factory=StationSolve)
     stations: Mapping[str, StationSolve] = field(default_factory=dict)
@@ -168,8 +173,8 @@ def _service_settings(resolved: Resolved) -> ServiceSettings:
     roots = tuple(Path(r).expanduser() for r in top.get("recording_roots", ("flights",)))
     if not roots:
         raise ConfigError("recording_roots", "at least one directory")
-    return ServiceSettings(zenoh_settings(resolved.values["zenoh"]), station, default, stations,
-                           top.get("queue_size", QUEUE_SIZE), roots,
+    return ServiceSettings(zenoh_settings(resolved.values["zenoh"], SOLVER_ZENOH), station,
+                           default, stations, top.get("queue_size", QUEUE_SIZE), roots,
                            top.get("max_sessions_per_min", MAX_SESSIONS_PER_MIN),
                            top.get("base_wait_s", BASE_WAIT_S))
 
@@ -638,6 +643,14 @@ def run_service(
         service = SolverService(settings, publish, solver=solver)
         claims = service.claims = Claims(bus, service.requeue)
         claims.start()
+
+        def ask_session(station: str) -> dict[str, Any] | None:
+            for _, payload in bus.get(key(station, "q/session"), timeout_s=1.0):
+                with contextlib.suppress(messages.BadMessage):
+                    return messages.parse(payload, "session")
+            return None
+
+        service.pairing.ask = ask_session
 
         def on_sample(key_expr: str, payload: bytes) -> None:
             parts = key_expr.split("/")

@@ -25,6 +25,7 @@ from peers import REPO, free_port, wait_until
 
 from groundstation.bus import Bus, decode, encode, key, open_bus
 from groundstation.config import ZenohSettings
+from groundstation.sim.ptylink import PtyLink
 
 WAIT_S = 60.0  # generous: the shared 2-core machine
 
@@ -240,3 +241,77 @@ def test_a_killed_worker_is_replaced_and_every_session_is_solved_once(
     assert by[victim_sid] != victim_id
     assert "vanished; taking it up" in survivor.stderr()
     assert survivor.proc.poll() is None
+
+
+@pytest.mark.slow
+def test_rover_and_base_daemons_are_paired_by_the_solver(tmp_path: Path) -> None:
+    """Two ``run`` daemons with the same (default) settings, the second joining the first;
+    the solver, told only ``base = "station:base"``, solves the rover against the base
+    daemon's recording of the same time, while the base goes on recording (its session is
+    not finished: the solver learns how far it got from its status)."""
+    sim = tmp_path / "sim"
+    sim.mkdir()
+    made = subprocess.run(
+        [sys.executable, "-m", "groundstation.cli", "simulate", "--out", "rover.ubx",
+         "--base-out", "base.ubx", "--truth", "truth.json", "--duration", "60", "--speed",
+         "max", "--faults", "none", "--seed", "4"],
+        cwd=sim, env=_env(), capture_output=True, text=True, timeout=120, check=False)
+    assert made.returncode == 0, made.stderr
+    truth = json.loads((sim / "truth.json").read_text())
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    xyz = ", ".join(f"{v:.4f}" for v in truth["base"]["ecef_m"])
+    conf = tmp_path / "solver" / "solver.toml"
+    conf.parent.mkdir()
+    conf.write_text(
+        f'out_root = "{tmp_path / "solver" / "solutions"}"\n'
+        f'recording_roots = ["{tmp_path / "base" / "flights"}", '
+        f'"{tmp_path / "rover" / "flights"}"]\nbase_wait_s = 60\n\n'
+        f'[zenoh]\nconnect = ["{endpoint}"]\n\n'
+        f'[stations.rover]\nbase = "station:base"\nbase_xyz = [{xyz}]\n')
+    procs: list[Proc] = []
+    watcher: Bus | None = None
+    radio = PtyLink(tmp_path / "ttyBASE")
+    try:
+        # The base receiver on a serial port (a pty): it keeps recording after its data ends.
+        base = Proc(tmp_path / "base", "run", "--port", radio.path, "--station", "base",
+                    "--zenoh-listen", endpoint)
+        procs.append(base)
+        base.wait_for("publishing on Zenoh")
+        solver = Proc(tmp_path / "solver", "solver", "--config", str(conf))
+        procs.append(solver)
+        solver.wait_for("listening on groundstation/*/session")
+        watcher = open_bus(ZenohSettings(mode="client", listen=(), connect=(endpoint,)))
+        sols = Solutions(watcher)
+        data = (sim / "base.ubx").read_bytes()
+        piece = 1000  # 15 kB/s: the base's 60 s of data in about 10 s, longer than the rover
+        radio.start_feed(((i * 1_000_000_000 // 15, data[i * piece:(i + 1) * piece])
+                          for i in range((len(data) + piece - 1) // piece)), speed=1.0)
+        rover = Proc(tmp_path / "rover", "run", "--file", str(sim / "rover.ubx"), "--rate",
+                     "24000", "--station", "rover", "--zenoh-listen", endpoint)
+        procs.append(rover)
+        rover.wait_for("is taken: joined it")
+        bus = watcher
+
+        def both_visible() -> bool:
+            keys = bus.liveliness_get("groundstation/*/alive/*", 1.0)
+            return {k.split("/")[1] for k in keys} >= {"rover", "base"}
+
+        wait_until(both_visible, 20, "rover and base both visible on the bus")
+        wait_until(lambda: sols.of("ok") or sols.of("failed"), 120, "the rover solved")
+        assert not sols.of("failed"), sols.of("failed")
+        (ok,) = sols.of("ok")
+        assert ok["station"] == "rover" and base.proc.poll() is None  # the base still records
+        (base_file,) = sorted((tmp_path / "base" / "flights").glob("base_*.mcap"))
+        assert [n for n in ok["notes"] if n.startswith("base: station 'base'")] == [
+            f"base: station 'base', session {base_file.stem}, {base_file.name}"]
+        assert any("waited for base station 'base'" in n for n in ok["notes"])
+        assert ok["counts"]["marks"] == len(truth["exposures"]) > 0
+        assert ok["counts"]["marks_positioned"] == ok["counts"]["marks"]
+        assert ok["quality"]["fixed_fraction"] > 0.9
+        assert ok["flight"].startswith(str(tmp_path / "rover" / "flights"))
+    finally:
+        radio.close()
+        for p in reversed(procs):
+            p.stop()
+        if watcher is not None:
+            watcher.close()
