@@ -24,6 +24,7 @@ values into :class:`ServiceSettings`.
 
 from __future__ import annotations
 
+import collections
 import contextlib
 import logging
 import queue
@@ -416,6 +417,8 @@ class SolverService:
         self._solver = solver
         self._clock_ns = clock_ns
         self._queue: queue.Queue[Job | None] = queue.Queue(maxsize=settings.queue_size)
+        self._taken_up: collections.deque[Job] = collections.deque()
+        """Jobs whose claimant vanished: solved before the queue (a replacement is prompt)."""
         self._seen: set[tuple[str, str, str]] = set()
         self._hashes: dict[str, Path] = {}
         """Content hash of every recording solved (or being solved) -> its path."""
@@ -524,7 +527,8 @@ class SolverService:
         self._stop = stop
         while not stop.is_set():
             try:
-                job = self._queue.get(timeout=0.2)
+                job = self._taken_up.popleft() if self._taken_up else self._queue.get(
+                    timeout=0.2)
             except queue.Empty:
                 continue
             if job is None:
@@ -543,8 +547,8 @@ class SolverService:
                     claims.release(ident)
 
     def requeue(self, job: Job) -> None:
-        """Hand a job back to the worker (a claim on it vanished); waits for room."""
-        self._queue.put(job)
+        """Hand a job back to the worker (a claim on it vanished): it comes next."""
+        self._taken_up.append(job)
 
     def close(self) -> None:
         """Wake the worker so that it returns."""
