@@ -616,6 +616,34 @@ class SolverService:
 # -- running it on the bus ------------------------------------------------------------------
 
 
+OPEN_RETRY_S = 2.0
+"""A client solver started before its daemon or router tries again this often."""
+
+
+def _open_bus_when_reachable(bus_settings: ZenohSettings, stop: threading.Event) -> Any:
+    """The open bus; a client whose endpoints nobody listens on yet waits for one (a solver
+    service may start before the daemons), ``None`` if stopped meanwhile.
+
+    Raises:
+        GroundstationError: any other failure (a peer's listener, TLS files ...).
+    """
+    from groundstation.bus import open_bus
+
+    said = False
+    while True:
+        try:
+            return open_bus(bus_settings)
+        except GroundstationError as err:
+            if bus_settings.mode != "client" or "Unable to connect" not in str(err):
+                raise
+            if not said:
+                said = True
+                log.info("waiting for a daemon or router on %s (retrying every %g s)",
+                         ", ".join(bus_settings.connect), OPEN_RETRY_S)
+        if stop.wait(OPEN_RETRY_S):
+            return None
+
+
 def run_service(
     settings: ServiceSettings,
     stop: threading.Event,
@@ -631,10 +659,12 @@ def run_service(
     Raises:
         GroundstationError: the Zenoh session cannot be opened.
     """
-    from groundstation.bus import encode, key, open_bus
+    from groundstation.bus import encode, key
     from groundstation.solve.claims import Claims
 
-    bus = open_bus(settings.bus)
+    bus = _open_bus_when_reachable(settings.bus, stop)
+    if bus is None:  # stopped before the daemon or router was there
+        return SolverService(settings, lambda *_: None, solver=solver)
     claims: Claims | None = None
     try:
         def publish(station: str, body: dict[str, Any]) -> None:
