@@ -5,9 +5,9 @@ A job is one recording of a finished session, named by ``(station, session_id, f
 claims it (:meth:`Claims.acquire`):
 
 1. The job is done if a final ``solution`` (``ok``, ``failed``, ``skipped``, ``refused``) of it
-   has been heard, is answered by ``q/solution`` (when some solver serves it), or is recorded in
-   its output directory (``solution.json``, written when the solution is published). Done: not
-   claimed.
+   has been heard or is answered by ``q/solution`` (when some solver serves it), or an ``ok`` is
+   recorded in its output directory (``solution.json``, written when it is published; a failed
+   job is not recorded, so a restarted worker may try it again). Done: not claimed.
 2. A liveliness query on ``groundstation/solvers/claim/<station>/<session>/<file>/*`` shows no
    other claim; then the worker declares its own token there and, after :data:`SETTLE_S` (the
    time a token takes to reach the other workers), queries again. Two claims made at the same
@@ -53,7 +53,9 @@ RECLAIM_MAX_S = 5.0
 FINAL = frozenset({"ok", "failed", "skipped", "refused"})
 """Solution statuses that end a job (``solving`` does not)."""
 RECORD_NAME = "solution.json"
-"""The published solution, kept in the job's output directory: the job's local done-record."""
+"""The published ``ok`` solution, kept in the job's output directory: its local done-record."""
+MAX_DONE = 100_000
+"""Finished jobs remembered from the bus (the oldest forgotten first)."""
 
 JobKey = tuple[str, str, str]
 """(station, session_id, recording file name)."""
@@ -133,14 +135,16 @@ class Claims:
         job = job_key(station, str(body.get("session_id") or ""), str(body["flight"]))
         with self._lock:
             self._done[job] = str(status)
+            if len(self._done) > MAX_DONE:  # a flood of solutions must not grow it for ever
+                self._done.pop(next(iter(self._done)))
             self._aside.pop(claim_prefix(job), None)
 
     def record(self, station: str, body: Mapping[str, Any]) -> None:
-        """Note a solution this worker publishes; a final one with an output directory is
-        also kept there as ``solution.json`` (the done-record a restarted worker reads)."""
+        """Note a solution this worker publishes; an ``ok`` is also kept in its output
+        directory as ``solution.json`` (the done-record a restarted worker reads)."""
         self.note_solution(station, body)
         out = body.get("out_dir")
-        if body.get("status") not in FINAL or not out:
+        if body.get("status") != "ok" or not out:
             return
         try:
             path = Path(str(out)) / RECORD_NAME
@@ -277,7 +281,7 @@ def _recorded(path: Path, job: JobKey) -> str | None:
     except (OSError, messages.BadMessage):
         return None
     station = str(msg.get("station") or "")
-    if msg.get("status") in FINAL and msg.get("flight") and job_key(
+    if msg.get("status") == "ok" and msg.get("flight") and job_key(
             station, str(msg.get("session_id") or ""), str(msg["flight"])) == job:
         return str(msg["status"])
     return None

@@ -433,6 +433,7 @@ class SolverService:
         """Session messages dropped: malformed, a bad station name, or over the rate limit."""
         self.pairing = Pairing(lambda p: confine(p, settings.recording_roots),
                                settings.base_wait_s)
+        self._bases = settings.base_stations()
         self.claims: Claims | None = None
         """Shares the jobs with other workers (:mod:`~groundstation.solve.claims`), if set."""
         self._stop = threading.Event()
@@ -476,7 +477,8 @@ class SolverService:
         except (ConfigError, messages.BadMessage) as err:
             self.drop(station, str(err))
             return
-        self.pairing.note(station, session)
+        if station in self._bases:  # only bases: a flood of station names keeps nothing
+            self.pairing.note(station, session)
         if self.settings.station not in ("*", station):  # heard only as someone's base
             return
         if not self._admit():
