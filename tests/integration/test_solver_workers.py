@@ -315,3 +315,55 @@ def test_rover_and_base_daemons_are_paired_by_the_solver(tmp_path: Path) -> None
             p.stop()
         if watcher is not None:
             watcher.close()
+
+
+def test_simultaneous_claims_go_to_the_smallest_worker_and_a_vanished_one_is_taken_up(
+    tmp_path: Path,
+) -> None:
+    """The claim protocol on real Zenoh (three sessions in this process): two workers claim
+    one job at the same instant; the smaller id keeps it. When its session goes (as a killed
+    process's does), the other hands the job back to its queue; a finished job is not."""
+    from groundstation.solve.claims import Claims
+
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    hub = open_bus(ZenohSettings(listen=(endpoint,)))
+    client = ZenohSettings(mode="client", listen=(), connect=(endpoint,))
+    bus_a, bus_b = open_bus(client), open_bus(client)
+    requeued: dict[str, list[Any]] = {"wa": [], "wb": []}
+    a = Claims(bus_a, requeued["wa"].append, worker="wa", reclaim_max_s=0.5)
+    b = Claims(bus_b, requeued["wb"].append, worker="wb", reclaim_max_s=0.5)
+    try:
+        for c in (a, b):
+            c.start()
+        job = ("rover", "s1", "rover_1.mcap")
+        got: dict[str, bool] = {}
+        threads = [threading.Thread(target=lambda c=c: got.__setitem__(
+            c.worker, c.acquire(job, f"job-of-{c.worker}", tmp_path / c.worker)))
+            for c in (a, b)]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join(timeout=20)
+        assert got == {"wa": True, "wb": False}
+        bus_a.close()  # the holder's session goes without a word (as with SIGKILL)
+        wait_until(lambda: requeued["wb"] == ["job-of-wb"], 10, "the job handed back")
+        assert b.reclaimed == 1
+        # b claims it now; when it publishes ok and withdraws, nobody takes it up again
+        assert b.acquire(job, "job-of-wb", tmp_path / "wb")
+        c = Claims(open_bus(client), requeued["wa"].append, worker="wc", reclaim_max_s=0.1)
+        c.start()
+        assert not c.acquire(job, "job-of-wc", tmp_path / "wc")  # held by b: kept aside
+        ok = {"status": "ok", "station": "rover", "session_id": "s1", "flight": "/x/rover_1.mcap",
+              "out_dir": str(tmp_path / "wb")}
+        bus_b.put(key("rover", "solution"), encode("solution", ok))
+        b.record("rover", ok)
+        wait_until(lambda: c.done(job) == "ok", 10, "the solution heard")
+        b.release(job)
+        time.sleep(0.5)  # past c's reclaim delay: nothing may come back
+        assert requeued["wa"] == []
+        assert json.loads((tmp_path / "wb" / "solution.json").read_text())["status"] == "ok"
+        c.close()
+        c.bus.close()
+    finally:
+        for bus in (bus_b, bus_a, hub):
+            bus.close()
