@@ -12,7 +12,8 @@ random moment (so that not every daemon tries at once), takes the endpoint over 
 on it, or joins whoever took it first, and declares again everything it had declared.
 
 Key space (DESIGN.md): ``groundstation/<station>/{status,timemark,event,epoch,ubx,session,
-q/timemarks,q/status,alive,solution}``. Payloads are UTF-8 JSON objects carrying ``schema``
+q/timemarks,q/status,q/session,alive,solution}`` and the solver workers' claims
+``groundstation/solvers/claim/...``. Payloads are UTF-8 JSON objects carrying ``schema``
 (:data:`~groundstation.records.STATUS_SCHEMA_VERSION`) and ``type``; ``docs/zenoh.md`` lists
 every key and field.
 """

@@ -5,7 +5,10 @@ recording of a ``finished`` session either queues a solve (when a base is config
 station) or says why it will not. One worker thread runs the solves one after the other, so the
 Zenoh callbacks only parse, decide and enqueue; every outcome is published on
 ``groundstation/<station>/solution`` (``docs/zenoh.md``). Nothing a session brings (a missing
-file, a failing engine) stops the service.
+file, a failing engine) stops the service. Several services (workers) share the sessions: each
+job is claimed by one of them first (:mod:`groundstation.solve.claims`); a base given as
+``station:<name>`` is that station's recording of the same time
+(:mod:`groundstation.solve.pairing`).
 
 Nothing a session message says is trusted: it is parsed and range-checked
 (:mod:`groundstation.messages`), its station name checked, and at most
