@@ -151,7 +151,7 @@ class Pairing:
                 "the rover's session message carries no epoch span (first_epoch_t_gps_ns, "
                 "last_epoch_t_gps_ns): cannot pick the base station's recording")
         deadline = time.monotonic() + self.wait_s
-        waited = False
+        waited = unknown = False
         while True:
             with self._cond:
                 msg, covers = self._best(base, span)
@@ -163,13 +163,17 @@ class Pairing:
             current = ask(base) if ask is not None else None
             if current is not None:
                 self.note(base, current)
+            elif not self._sessions.get(base):  # never heard of, and no daemon answers:
+                unknown = True                  # waiting would only hold the queue up
+                break
             with self._cond:
                 self._cond.wait(min(left, ASK_EVERY_S))
         if msg is None:
+            why = (f"no session of it heard and no daemon of {base!r} answers" if unknown
+                   else f"gave up after waiting {self.wait_s:g} s (base_wait_s)")
             raise GroundstationError(
                 f"no recording of base station {base!r} covers the rover's epochs "
-                f"(GPS {_s(span[0]):.1f}-{_s(span[1]):.1f} s); gave up after waiting "
-                f"{self.wait_s:g} s (base_wait_s)")
+                f"(GPS {_s(span[0]):.1f}-{_s(span[1]):.1f} s): {why}")
         got = span_of(msg)
         assert got is not None
         if not covers:

@@ -64,6 +64,13 @@ def test_partial_cover_is_used_with_a_note_and_none_is_an_error() -> None:
         pairing.base_for("base", None, threading.Event(), [])
 
 
+def test_a_base_never_heard_of_and_not_answering_fails_at_once() -> None:
+    pairing = _pairing(wait_s=3600.0)  # no wait: there is nothing to wait for
+    pairing.ask = lambda station: None
+    with pytest.raises(GroundstationError, match="no session of it heard and no daemon"):
+        pairing.base_for("base", (T0, T0 + S), threading.Event(), [])
+
+
 def test_a_base_outside_the_recording_roots_is_refused() -> None:
     pairing = _pairing()
     pairing.note("base", _session("b1", 0, 100, files=["/etc/b1.mcap"]))
