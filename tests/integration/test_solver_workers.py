@@ -367,3 +367,56 @@ def test_simultaneous_claims_go_to_the_smallest_worker_and_a_vanished_one_is_tak
     finally:
         for bus in (bus_b, bus_a, hub):
             bus.close()
+
+
+def test_solver_claims_pass_the_routers_access_control(tmp_path: Path) -> None:
+    """Two workers with the solver certificate, through ``groundstation router`` with mutual
+    TLS and access control: each sees the other's claim, and its end."""
+    from test_router_tls import make_ca  # the recipe of docs/security.md, run once
+
+    ca = make_ca(tmp_path / "ca")
+    tls_port = free_port()
+    rdir = tmp_path / "router"
+    rdir.mkdir()
+    env = _env() | {
+        "GROUNDSTATION_ROUTER_LISTEN": f"tls/127.0.0.1:{tls_port}",
+        "GROUNDSTATION_ROUTER_TLS_CA": str(ca / "ca.pem"),
+        "GROUNDSTATION_ROUTER_TLS_CERTIFICATE": str(ca / "router.pem"),
+        "GROUNDSTATION_ROUTER_TLS_PRIVATE_KEY": str(ca / "router.key"),
+        "GROUNDSTATION_ROUTER_ACCESS_ENABLED": "true",
+        "GROUNDSTATION_ROUTER_ACCESS_SOLVERS": "solver",
+    }
+    router = subprocess.Popen([sys.executable, "-m", "groundstation.cli", "router"], cwd=rdir,
+                              env=env, stdout=subprocess.DEVNULL,
+                              stderr=(rdir / "stderr.txt").open("w"), text=True)
+    settings = ZenohSettings(mode="client", listen=(), connect=(f"tls/localhost:{tls_port}",),
+                             tls_ca=ca / "ca.pem", tls_certificate=ca / "solver.pem",
+                             tls_private_key=ca / "solver.key")
+    buses: list[Bus] = []
+    try:
+        def up() -> bool:
+            assert router.poll() is None, (rdir / "stderr.txt").read_text()
+            try:
+                buses.append(open_bus(settings))
+            except Exception:
+                return False
+            return True
+
+        wait_until(up, WAIT_S, "the router up")
+        buses.append(open_bus(settings))
+        a, b = buses
+        seen: list[tuple[str, bool]] = []
+        b.subscribe_liveliness("groundstation/solvers/claim/**",
+                               lambda k, alive: seen.append((k, alive)))
+        claim = "groundstation/solvers/claim/rover/s1/rover_1.mcap/wa"
+        withdraw = a.liveliness_token(claim)
+        wait_until(lambda: b.liveliness_get("groundstation/solvers/claim/rover/s1/*/*") == [claim],
+                   10, "the claim seen through the router")
+        withdraw()
+        wait_until(lambda: (claim, False) in seen, 10, "the claim's end seen")
+        assert (claim, True) in seen
+    finally:
+        for bus in buses:
+            bus.close()
+        router.terminate()
+        router.wait(timeout=15)
