@@ -482,6 +482,8 @@ class SolverService:
             return
         if station in self._bases:  # only bases: a flood of station names keeps nothing
             self.pairing.note(station, session)
+            if self.settings.for_station(station).base is None:  # a base, not to be solved
+                return
         if self.settings.station not in ("*", station):  # heard only as someone's base
             return
         if not self._admit():

@@ -159,3 +159,15 @@ def test_claim_keys_are_one_chunk_per_part_whatever_the_names() -> None:
     odd = claim_prefix(("r", "a/b*$c", ".."))
     assert odd == f"{CLAIM_ROOT}/r/a_b__c/_.."
     assert not set("*$#?") & set(odd)
+
+
+def test_a_base_stations_sessions_are_kept_for_pairing_not_answered() -> None:
+    settings = sv.build_service_settings({"recording_roots": ["/rec"], "stations": {
+        "rover": {"base": "station:base", "base_xyz": XYZ}}})
+    sent: list[tuple[str, dict[str, Any]]] = []
+    service = sv.SolverService(settings, lambda st, body: sent.append((st, body)))
+    service.on_session("base", _session("base_1", 0, 100))
+    service.on_session("other", _session("other_1", 0, 100))
+    assert [(st, body["status"]) for st, body in sent] == [("other", "skipped")]
+    got = service.pairing.base_for("base", (T0 + S, T0 + 2 * S), threading.Event(), [])
+    assert got.name == "base_1.mcap"
