@@ -12,9 +12,10 @@ random moment (so that not every daemon tries at once), takes the endpoint over 
 on it, or joins whoever took it first, and declares again everything it had declared.
 
 Key space (DESIGN.md): ``groundstation/<station>/{status,timemark,event,epoch,ubx,session,
-q/timemarks,q/status,q/recording/<session_id>,alive,solution,q/solution}``. Payloads are
-UTF-8 JSON objects carrying ``schema`` (:data:`~groundstation.records.STATUS_SCHEMA_VERSION`)
-and ``type``; ``docs/zenoh.md`` lists every key and field.
+q/timemarks,q/status,q/session,q/recording/<session_id>,alive,solution,q/solution}`` and the
+solver workers' claims ``groundstation/solvers/claim/...``. Payloads are UTF-8 JSON objects
+carrying ``schema`` (:data:`~groundstation.records.STATUS_SCHEMA_VERSION`) and ``type``;
+``docs/zenoh.md`` lists every key and field.
 """
 
 from __future__ import annotations
@@ -300,8 +301,45 @@ class Bus:
 
         self._add(lambda s: self._declared.append(s.declare_queryable(key_expr, handler)))
 
-    def liveliness_token(self, key_expr: str) -> None:
-        self._add(lambda s: self._declared.append(s.liveliness().declare_token(key_expr)))
+    def liveliness_token(self, key_expr: str) -> Callable[[], None]:
+        """Declare a token (present while this session lives, declared again after a
+        takeover); returns ``withdraw()``, which undeclares it for good (a solver's claim)."""
+        current: list[Any] = []
+
+        def declare(s: Any) -> None:
+            token = s.liveliness().declare_token(key_expr)
+            current[:] = [token]
+            self._declared.append(token)
+
+        self._add(declare)
+
+        def withdraw() -> None:
+            with self._lock:
+                if declare in self._declare:
+                    self._declare.remove(declare)
+                tokens, current[:] = list(current), []
+                for t in tokens:
+                    if t in self._declared:
+                        self._declared.remove(t)
+            for t in tokens:
+                try:
+                    t.undeclare()
+                except Exception:  # already gone with the session
+                    log.debug("undeclaring %s failed", key_expr, exc_info=True)
+
+        return withdraw
+
+    def liveliness_get(self, selector: str, timeout_s: float = 2.0) -> list[str]:
+        """The keys of the liveliness tokens alive now that match ``selector``."""
+        session = self._session
+        if session is None:
+            return []
+        out = []
+        for reply in session.liveliness().get(selector, timeout=timeout_s):
+            ok = reply.ok
+            if ok is not None:
+                out.append(str(ok.key_expr))
+        return out
 
     def subscribe(self, key_expr: str, callback: Callable[[str, bytes], None]) -> None:
         """``callback(key, payload)`` runs on a Zenoh thread: hand data over thread-safely."""

@@ -379,6 +379,7 @@ SOLVER_STATION_KEYS: dict[str, Key] = {
 SOLVER_SCHEMA: Schema = {
     "": {"station": STATION_OR_ALL, "queue_size": _num("int", 1, 10_000),
          "recording_roots": STRLIST, "max_sessions_per_min": _num("float", above=0.0, hi=1e4),
+         "base_wait_s": _num("float", 0.0, 86_400.0),
          **SOLVER_STATION_KEYS},
     "zenoh": ZENOH_KEYS,
 }

@@ -17,6 +17,8 @@ The rules, by field name (``docs/zenoh.md`` keeps units in the names):
 - a ``session``'s ``recordings[]`` (the finished files the daemon serves) each have a plain
   recording file ``name``, a byte ``size``, a ``sha256`` and ``chunk_bytes``
   (:func:`groundstation.storage.transfer.check_entry`);
+- a ``session``'s ``files`` are strings and its ``first_epoch_t_gps_ns`` is not after its
+  ``last_epoch_t_gps_ns`` (the span a solver pairs rover and base by);
 - the tables a view reads (``link``, ``marks``, ``recording``, ``data`` ...) are objects and
   the lists (``sats``, ``alerts``, ``files`` ...) are lists; ``null`` is allowed for any value.
 """
@@ -97,6 +99,9 @@ def check(msg: Any, expected: str | None = None) -> dict[str, Any]:
                 transfer.check_entry(entry)
             except transfer.BadRequest as err:
                 raise BadMessage(str(err)) from err
+        first, last = msg.get("first_epoch_t_gps_ns"), msg.get("last_epoch_t_gps_ns")
+        if first is not None and last is not None and first > last:
+            raise BadMessage(f"session span: first epoch {first} after last {last}")
     return msg
 
 

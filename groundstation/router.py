@@ -11,7 +11,8 @@ common name (Zenoh matches the CN of the client certificate of a ``tls/`` link w
 - a station: writes (put, delete, queryable, reply, liveliness token) only
   ``groundstation/<its name>/**``, and is asked (queries, subscriber interest) only there;
 - a solver: reads every station (subscribe, query, liveliness) and writes only
-  ``groundstation/*/solution`` (and answers ``groundstation/*/q/solution``);
+  ``groundstation/*/solution`` (and answers ``groundstation/*/q/solution``), and claims jobs
+  with liveliness tokens on ``groundstation/solvers/claim/**``;
 - a viewer: reads every station;
 - with ``access.local``, plain TCP over the loopback interface (the daemons and views on this
   machine): everything under ``groundstation/**``.
@@ -73,13 +74,17 @@ def access_control(settings: RouterSettings) -> dict[str, Any]:
         ])
     if access.solvers:
         solution = [f"{KEY_ROOT}/*/solution"]
+        claims = [f"{KEY_ROOT}/solvers/claim/**"]
         grant("solvers", {"cert_common_names": list(access.solvers)}, [
             _rule("solvers-read", "ingress", READ, [ALL]),
             _rule("solvers-deliver", "egress", DELIVER, [ALL]),
             _rule("solvers-write", "ingress", ["put", "delete"], solution),
             _rule("solvers-serve", "ingress", ["declare_queryable", "reply"],
                   [f"{KEY_ROOT}/*/q/solution"]),
-            _rule("solvers-asked", "egress", ASKED, solution + [f"{KEY_ROOT}/*/q/solution"]),
+            # the workers' claims (solve/claims.py): a token each, seen by the other workers
+            _rule("solvers-claim", "ingress", ["liveliness_token"], claims),
+            _rule("solvers-asked", "egress", ASKED,
+                  solution + [f"{KEY_ROOT}/*/q/solution"] + claims),
         ])
     if access.viewers:
         grant("viewers", {"cert_common_names": list(access.viewers)}, [

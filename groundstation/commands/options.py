@@ -22,7 +22,7 @@ def add_config(parser: argparse.ArgumentParser, scope: Scope, example: str) -> N
     )
 
 
-def add_zenoh_client(parser: argparse.ArgumentParser) -> None:
+def add_zenoh_client(parser: argparse.ArgumentParser, mode: str = CLIENT_ZENOH.mode) -> None:
     """The Zenoh options of a client (a view, the solver): connect to the daemon, listen nowhere.
 
     The names are the daemon's (``--zenoh-connect`` ...); the short ones stay as aliases.
@@ -37,7 +37,7 @@ def add_zenoh_client(parser: argparse.ArgumentParser) -> None:
                         metavar="ENDPOINT",
                         help="Zenoh endpoint to listen on (default: none; repeatable)")
     parser.add_argument("--zenoh-mode", "--mode", dest="zenoh_mode", choices=("peer", "client"),
-                        help=f"Zenoh mode (default {CLIENT_ZENOH.mode})")
+                        help=f"Zenoh mode (default {mode})")
 
 
 def add_zenoh_daemon(parser: argparse.ArgumentParser) -> None:

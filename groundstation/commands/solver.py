@@ -31,7 +31,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--lever-arm", metavar="X,Y,Z", help="lever arm, camera frame, metres")
     parser.add_argument("--interp", help="linear, spline or smoother (default smoother)")
     parser.add_argument("--epsg", help="output CRS (default: the WGS84 UTM zone)")
-    add_zenoh_client(parser)
+    add_zenoh_client(parser, "client")  # service.SOLVER_ZENOH
     parser.add_argument("--duration", type=float, default=0.0, metavar="S",
                         help="stop after S seconds (default: until SIGINT/SIGTERM)")
 

@@ -158,6 +158,9 @@ class ZenohPublisherSink:
         bus.queryable(
             key(st, "q/status"), lambda: [self.latest_status] if self.latest_status else []
         )
+        # the session so far (files, span) for a solver pairing a rover with this base
+        bus.queryable(key(st, "q/session"), lambda: [
+            encode("session", dict(self.session), station=st)] if self.session["files"] else [])
         bus.liveliness_token(key(st, f"alive/{self.instance}"))
         bus.subscribe_liveliness(key(st, "alive/**"), self._on_token)
 
@@ -321,6 +324,10 @@ class ZenohPublisherSink:
                 item = dataclasses.replace(item, alerts=(*item.alerts, alert))
             self.latest_status = encode("status", item)
             self._put("status", self.latest_status)
+            # the span of epochs recorded so far, for a solver pairing rover and base
+            for k in ("first_epoch_t_gps_ns", "last_epoch_t_gps_ns"):
+                if getattr(item.link, k) is not None:
+                    self.session[k] = getattr(item.link, k)
         elif isinstance(item, Event):
             self._put("event", encode("event", item, station=st))
             if item.kind == kinds.RECORDER_FILE_OPENED:

@@ -5,7 +5,10 @@ recording of a ``finished`` session either queues a solve (when a base is config
 station) or says why it will not. One worker thread runs the solves one after the other, so the
 Zenoh callbacks only parse, decide and enqueue; every outcome is published on
 ``groundstation/<station>/solution`` (``docs/zenoh.md``). Nothing a session brings (a missing
-file, a failing engine) stops the service.
+file, a failing engine) stops the service. Several services (workers) share the sessions: each
+job is claimed by one of them first (:mod:`groundstation.solve.claims`); a base given as
+``station:<name>`` is that station's recording of the same time
+(:mod:`groundstation.solve.pairing`).
 
 Nothing a session message says is trusted: it is parsed and range-checked
 (:mod:`groundstation.messages`), its station name checked, and at most
@@ -24,6 +27,7 @@ values into :class:`ServiceSettings`.
 
 from __future__ import annotations
 
+import collections
 import contextlib
 import logging
 import queue
@@ -32,7 +36,7 @@ import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -54,8 +58,12 @@ from groundstation.config import (
 from groundstation.errors import ConfigError, GroundstationError
 from groundstation.solve import interpolate as mi
 from groundstation.solve.fetch import Remote, remote_for
+from groundstation.solve.pairing import BASE_WAIT_S, Pairing, base_station, span_of
 from groundstation.solve.pipeline import SolveResult, SolveSettings, solve
 from groundstation.solve.positions import Q_FIX
+
+if TYPE_CHECKING:
+    from groundstation.solve.claims import Claims
 
 log = logging.getLogger("groundstation.solver")
 
@@ -67,6 +75,11 @@ STATUS_REFUSED = "refused"
 MAX_SESSIONS_PER_MIN = 60.0
 SESSION_BURST = 20
 RECORDING_SUFFIXES = (".mcap", ".ubx", ".ubx.gz", ".gz", ".log")
+
+SOLVER_ZENOH = replace(CLIENT_ZENOH, mode="client")
+"""The solver's default: a client of the daemon (or router). Not a peer: a peer that listens
+nowhere reaches only the process it connects to, and a meeting point routes for its clients,
+not between peers, so several peer workers would never hear each other's claims."""
 
 Publish = Callable[[str, dict[str, Any]], None]
 """``publish(station, body)``: send one ``solution`` message for a station."""
@@ -95,7 +108,7 @@ class ServiceSettings:
     """The resolved service configuration.
 
     Attributes:
-        bus: how to join Zenoh (by default a peer that connects to the local daemon).
+        bus: how to join Zenoh (by default a client of the local daemon).
         station: whose sessions to solve, ``*`` for all.
         default: settings for stations without a ``[stations.<name>]`` table.
         stations: per-station settings (defaults already merged in).
@@ -104,19 +117,27 @@ class ServiceSettings:
             session naming a file elsewhere is refused).
         max_sessions_per_min: session messages handled per minute (burst
             :data:`SESSION_BURST`); more are dropped and counted.
+        base_wait_s: how long a rover session paired with a base station waits for a base
+            recording that covers its last epoch (:mod:`groundstation.solve.pairing`).
     """
 
-    bus: ZenohSettings = CLIENT_ZENOH
+    bus: ZenohSettings = SOLVER_ZENOH
     station: str = "*"
     default: StationSolve = field(default_factory=StationSolve)
     stations: Mapping[str, StationSolve] = field(default_factory=dict)
     queue_size: int = QUEUE_SIZE
     recording_roots: tuple[Path, ...] = (Path("flights"),)
     max_sessions_per_min: float = MAX_SESSIONS_PER_MIN
+    base_wait_s: float = BASE_WAIT_S
 
     def for_station(self, station: str) -> StationSolve:
         """The settings that apply to ``station``."""
         return self.stations.get(station, self.default)
+
+    def base_stations(self) -> set[str]:
+        """The stations some configuration names as its base (``base = "station:<name>"``)."""
+        confs = [self.default, *self.stations.values()]
+        return {b for b in (base_station(c.base) for c in confs) if b is not None}
 
 
 # -- configuration --------------------------------------------------------------------------
@@ -125,12 +146,15 @@ _FIELDS = {"base_xyz": "base_ecef_m", "lever_arm": "lever_arm_m"}
 """Configuration key -> :class:`StationSolve` field, where the names differ."""
 
 
-def _station_solve(base: StationSolve, values: Mapping[str, Any], prefix: str) -> StationSolve:
+def _station_solve(base: StationSolve, values: Mapping[str, Any], prefix: str,
+                   station: str | None = None) -> StationSolve:
     """``base`` with converted values (:data:`~groundstation.config.SOLVER_STATION_KEYS`)
-    applied; ``base`` and ``base_xyz`` must come together."""
+    applied; ``base`` and ``base_xyz`` must come together; ``base = "station:<name>"`` names
+    a valid station other than ``station`` itself."""
     out = replace(base, **{_FIELDS.get(k, k): v for k, v in values.items()})
     if out.base is not None and not out.base:
         raise ConfigError(f"{prefix}base", "expected a non-empty path")
+    base_station(out.base, f"{prefix}base", station)
     if (out.base is None) != (out.base_ecef_m is None):
         missing = "base_xyz" if out.base_ecef_m is None else "base"
         raise ConfigError(f"{prefix}{missing}", "base and base_xyz go together")
@@ -149,15 +173,16 @@ def _service_settings(resolved: Resolved) -> ServiceSettings:
         # file defaults < the station's table < environment and command line
         merged = replace(StationSolve(), **{_FIELDS.get(k, k): v for k, v in
                                             {**from_file, **table}.items()})
-        stations[name] = _station_solve(merged, later, f"stations.{name}.")
+        stations[name] = _station_solve(merged, later, f"stations.{name}.", name)
     if "mode" in resolved.values["zenoh"] and resolved.values["zenoh"]["mode"] == "router":
         raise ConfigError("zenoh.mode", "the solver joins as peer or client")
     roots = tuple(Path(r).expanduser() for r in top.get("recording_roots", ("flights",)))
     if not roots:
         raise ConfigError("recording_roots", "at least one directory")
-    return ServiceSettings(zenoh_settings(resolved.values["zenoh"]), station, default, stations,
-                           top.get("queue_size", QUEUE_SIZE), roots,
-                           top.get("max_sessions_per_min", MAX_SESSIONS_PER_MIN))
+    return ServiceSettings(zenoh_settings(resolved.values["zenoh"], SOLVER_ZENOH), station,
+                           default, stations, top.get("queue_size", QUEUE_SIZE), roots,
+                           top.get("max_sessions_per_min", MAX_SESSIONS_PER_MIN),
+                           top.get("base_wait_s", BASE_WAIT_S))
 
 
 def build_service_settings(
@@ -213,6 +238,10 @@ class Job:
     notes: tuple[str, ...] = ()
     remote: Remote | None = None
     """Fetched over the bus into ``flight`` before solving (``solve/fetch.py``)."""
+    base_station: str | None = None
+    """The base is this station's recording of the same time (picked when solving)."""
+    span_ns: tuple[int, int] | None = None
+    """First and last epoch of the recording (GPS ns), as the session message says."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -297,6 +326,11 @@ def plan(station: str, session: Mapping[str, Any], conf: StationSolve,
             continue
         else:
             flight = real
+        paired = base_station(conf.base)
+        if paired == station:  # a top-level base = "station:x" does not apply to x itself
+            out.append(Skip(station, sid, given, f"station {station!r} is its own base "
+                                                 f"(base = \"station:{paired}\")"))
+            continue
         out_dir = conf.out_root / station / flight.stem
         root = conf.out_root.resolve()
         if root not in out_dir.resolve().parents:  # a symbolic link under out_root leading out
@@ -313,7 +347,7 @@ def plan(station: str, session: Mapping[str, Any], conf: StationSolve,
         settings = SolveSettings(
             flight=flight,
             out_dir=out_dir,
-            base=_expand(conf.base, flight, station),
+            base=None if paired else _expand(conf.base, flight, station),
             base_ecef_m=conf.base_ecef_m,
             photos=photos,
             lever_arm_m=conf.lever_arm_m,
@@ -323,7 +357,8 @@ def plan(station: str, session: Mapping[str, Any], conf: StationSolve,
             shutter_delay_ms=conf.shutter_delay_ms,
             max_gap_s=conf.max_gap_s,
         )
-        out.append(Job(station, sid, flight, settings, tuple(notes), remote))
+        out.append(Job(station, sid, flight, settings, tuple(notes), remote=remote,
+                       base_station=paired, span_ns=span_of(session)))
     if not files:
         out.append(Skip(station, sid, Path(), "the finished session lists no recording file"))
     return out
@@ -389,6 +424,8 @@ class SolverService:
         self._solver = solver
         self._clock_ns = clock_ns
         self._queue: queue.Queue[Job | None] = queue.Queue(maxsize=settings.queue_size)
+        self._taken_up: collections.deque[Job] = collections.deque()
+        """Jobs whose claimant vanished: solved before the queue (a replacement is prompt)."""
         self._seen: set[tuple[str, str, str]] = set()
         self._hashes: dict[str, Path] = {}
         """Content hash of every recording solved (or being solved) -> its path."""
@@ -401,6 +438,12 @@ class SolverService:
         self.refused = 0
         self.rejected = 0
         """Session messages dropped: malformed, a bad station name, or over the rate limit."""
+        self.pairing = Pairing(lambda p: confine(p, settings.recording_roots),
+                               settings.base_wait_s)
+        self._bases = settings.base_stations()
+        self.claims: Claims | None = None
+        """Shares the jobs with other workers (:mod:`~groundstation.solve.claims`), if set."""
+        self._stop = threading.Event()
 
     def _admit(self) -> bool:
         """Token bucket: ``max_sessions_per_min``, bursts of :data:`SESSION_BURST`."""
@@ -440,6 +483,12 @@ class SolverService:
             messages.check({"type": "session", **session}, "session")
         except (ConfigError, messages.BadMessage) as err:
             self.drop(station, str(err))
+            return
+        if station in self._bases:  # only bases: a flood of station names keeps nothing
+            self.pairing.note(station, session)
+            if self.settings.for_station(station).base is None:  # a base, not to be solved
+                return
+        if self.settings.station not in ("*", station):  # heard only as someone's base
             return
         if not self._admit():
             self.drop(station, "over the rate limit "
@@ -484,15 +533,33 @@ class SolverService:
             log.info("%s %s: queued (%d waiting)", act.station, act.flight, self._queue.qsize())
 
     def run(self, stop: threading.Event) -> None:
-        """Solve queued jobs one by one until ``stop`` is set (or :meth:`close` is called)."""
+        """Solve queued jobs one by one until ``stop`` is set (or :meth:`close` is called);
+        with :attr:`claims`, only the jobs this worker claims."""
+        self._stop = stop
         while not stop.is_set():
             try:
-                job = self._queue.get(timeout=0.2)
+                job = self._taken_up.popleft() if self._taken_up else self._queue.get(
+                    timeout=0.2)
             except queue.Empty:
                 continue
             if job is None:
                 return
-            self.solve_job(job)
+            claims = self.claims
+            if claims is None:
+                self.solve_job(job)
+                continue
+            from groundstation.solve.claims import job_key
+
+            ident = job_key(job.station, job.session_id, job.flight)
+            if claims.acquire(ident, job, job.settings.out_dir):
+                try:
+                    self.solve_job(job)
+                finally:
+                    claims.release(ident)
+
+    def requeue(self, job: Job) -> None:
+        """Hand a job back to the worker (a claim on it vanished): it comes next."""
+        self._taken_up.append(job)
 
     def close(self) -> None:
         """Wake the worker so that it returns."""
@@ -501,7 +568,10 @@ class SolverService:
 
     def solve_job(self, job: Job) -> None:
         """Solve one recording and publish the outcome (ok or failed); never raises."""
-        s = replace(job.settings, out_dir=_free_dir(job.settings.out_dir))
+        # Shared by workers: one directory per recording, overwritten by a replacement worker.
+        out_dir = job.settings.out_dir if self.claims else _free_dir(job.settings.out_dir)
+        s = replace(job.settings, out_dir=out_dir)
+        notes = list(job.notes)
         self._send(job.station, STATUS_SOLVING, job.flight, job.session_id,
                    out_dir=str(s.out_dir))
         t0 = time.monotonic()
@@ -525,6 +595,9 @@ class SolverService:
                 self._send(job.station, STATUS_SKIPPED, job.flight, job.session_id,
                            reason=f"already solved: same content as {first}")
                 return
+            if job.base_station is not None:
+                s = replace(s, base=self.pairing.base_for(job.base_station, job.span_ns,
+                                                          self._stop, notes))
             if s.base is not None and not s.base.is_file():
                 raise GroundstationError(f"{s.base}: base recording not found")
             result = self._solver(s)
@@ -539,12 +612,12 @@ class SolverService:
                 log.warning("%s %s: solve failed: %s", job.station, job.flight, err)
             self._send(job.station, STATUS_FAILED, job.flight, job.session_id,
                        reason=f"{type(err).__name__}: {err}", out_dir=str(s.out_dir),
-                       elapsed_s=round(time.monotonic() - t0, 3), notes=list(job.notes))
+                       elapsed_s=round(time.monotonic() - t0, 3), notes=notes)
             return
         self.solved += 1
         summary = result.summary()
         files = summary.pop("files")
-        notes = [*job.notes, *summary.pop("notes")]  # type: ignore[misc]
+        notes = [*notes, *summary.pop("notes")]  # type: ignore[misc]
         elapsed = time.monotonic() - t0
         log.info("%s %s: solved in %.1f s: %s marks, %s positioned, %.0f%% epochs fixed",
                  job.station, job.flight, elapsed, summary["marks"], summary["marks_positioned"],
@@ -559,6 +632,34 @@ class SolverService:
 # -- running it on the bus ------------------------------------------------------------------
 
 
+OPEN_RETRY_S = 2.0
+"""A client solver started before its daemon or router tries again this often."""
+
+
+def _open_bus_when_reachable(bus_settings: ZenohSettings, stop: threading.Event) -> Any:
+    """The open bus; a client whose endpoints nobody listens on yet waits for one (a solver
+    service may start before the daemons), ``None`` if stopped meanwhile.
+
+    Raises:
+        GroundstationError: any other failure (a peer's listener, TLS files ...).
+    """
+    from groundstation.bus import open_bus
+
+    said = False
+    while True:
+        try:
+            return open_bus(bus_settings)
+        except GroundstationError as err:
+            if bus_settings.mode != "client" or "Unable to connect" not in str(err):
+                raise
+            if not said:
+                said = True
+                log.info("waiting for a daemon or router on %s (retrying every %g s)",
+                         ", ".join(bus_settings.connect), OPEN_RETRY_S)
+        if stop.wait(OPEN_RETRY_S):
+            return None
+
+
 def run_service(
     settings: ServiceSettings,
     stop: threading.Event,
@@ -568,25 +669,46 @@ def run_service(
 ) -> SolverService:
     """Join Zenoh, subscribe to sessions, solve until ``stop`` is set; returns the service.
 
+    Several such workers share the sessions (:mod:`groundstation.solve.claims`): each job is
+    claimed by one of them; base stations' sessions are followed for pairing.
+
     Raises:
         GroundstationError: the Zenoh session cannot be opened.
     """
-    from groundstation.bus import encode, key, open_bus
+    from groundstation.bus import encode, key
+    from groundstation.solve.claims import Claims
     from groundstation.solve.fetch import Fetcher
     from groundstation.solve.solutions import LatestSolutions
 
-    bus = open_bus(settings.bus)
+    bus = _open_bus_when_reachable(settings.bus, stop)
+    if bus is None:  # stopped before the daemon or router was there
+        return SolverService(settings, lambda *_: None, solver=solver)
+    claims: Claims | None = None
     try:
         latest = LatestSolutions()  # answered on q/solution for late joiners
 
         def publish(station: str, body: dict[str, Any]) -> None:
+            if claims is not None:
+                body = {**body, "worker": claims.worker}  # who solved it, among the workers
             payload = encode("solution", body)
             latest.keep(station, body, payload)
             bus.put(key(station, "solution"), payload)
+            if claims is not None:
+                claims.record(station, body)
 
         bus.answer(key(settings.station, "q/solution"), latest.answer)
         service = SolverService(settings, publish, solver=solver,
                                 fetcher=Fetcher(bus).fetch)
+        claims = service.claims = Claims(bus, service.requeue)
+        claims.start()
+
+        def ask_session(station: str) -> dict[str, Any] | None:
+            for _, payload in bus.get(key(station, "q/session"), timeout_s=1.0):
+                with contextlib.suppress(messages.BadMessage):
+                    return messages.parse(payload, "session")
+            return None
+
+        service.pairing.ask = ask_session
 
         def on_sample(key_expr: str, payload: bytes) -> None:
             parts = key_expr.split("/")
@@ -601,16 +723,20 @@ def run_service(
 
         selector = key(settings.station, "session")
         bus.subscribe(selector, on_sample)
+        if settings.station != "*":  # the paired base stations' sessions, for pairing only
+            for base in sorted(settings.base_stations() - {settings.station}):
+                bus.subscribe(key(base, "session"), on_sample)
         worker = threading.Thread(target=service.run, args=(stop,), name="solver-worker",
                                   daemon=True)
         worker.start()
-        log.info("listening on %s (connect %s, listen %s)", selector,
-                 list(settings.bus.connect), list(settings.bus.listen))
+        log.info("listening on %s (connect %s, listen %s); worker %s", selector,
+                 list(settings.bus.connect), list(settings.bus.listen), claims.worker)
         if ready is not None:
             ready(selector)
         while not stop.wait(0.5):  # a timed wait, so signals are handled promptly
             continue
         service.close()
+        claims.close()
         worker.join(timeout=5.0)
         if worker.is_alive():
             log.warning("a solve is still running; leaving it to the process exit")
