@@ -26,6 +26,7 @@ from peers import REPO, free_port, wait_until
 from groundstation.bus import Bus, decode, encode, key, open_bus
 from groundstation.config import ZenohSettings
 from groundstation.sim.ptylink import PtyLink
+from groundstation.storage import reading
 
 WAIT_S = 60.0  # generous: the shared 2-core machine
 
@@ -302,8 +303,10 @@ def test_rover_and_base_daemons_are_paired_by_the_solver(tmp_path: Path) -> None
         (ok,) = sols.of("ok")
         assert ok["station"] == "rover" and base.proc.poll() is None  # the base still records
         (base_file,) = sorted((tmp_path / "base" / "flights").glob("base_*.mcap"))
+        info = reading.part_info(base_file)  # the id carries a token the file name does not
+        assert info is not None
         assert [n for n in ok["notes"] if n.startswith("base: station 'base'")] == [
-            f"base: station 'base', session {base_file.stem}, {base_file.name}"]
+            f"base: station 'base', session {info.session_id}, {base_file.name}"]
         assert any("waited for base station 'base'" in n for n in ok["notes"])
         assert ok["counts"]["marks"] == len(truth["exposures"]) > 0
         assert ok["counts"]["marks_positioned"] == ok["counts"]["marks"]
