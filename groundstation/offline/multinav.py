@@ -17,6 +17,8 @@ import struct
 from dataclasses import dataclass, field
 
 import numpy as np
+import numpy.typing as npt
+from numpy.lib.stride_tricks import sliding_window_view
 
 from groundstation import gpstime
 from groundstation.gnss import beidou, galileo, glonass
@@ -59,35 +61,50 @@ def _payload(data: memoryview, index: FrameIndex, i: int) -> bytes:
     return bytes(data[s : s + int(index.length[i])])
 
 
+def _fields(rows: npt.NDArray[np.uint8], at: int, dtype: str
+            ) -> npt.NDArray[np.int64]:
+    """One little-endian field at byte ``at`` of every payload row, as int64 (floats kept)."""
+    size = np.dtype(dtype).itemsize
+    return np.ascontiguousarray(rows[:, at : at + size]).view(dtype).ravel()
+
+
 def receiver_times(data: bytes | memoryview, index: FrameIndex) -> list[tuple[int, int]]:
     """(stream offset, GPS ns) of every message that states the receiver's GPS time with a
     valid week: RXM-RAWX, RXM-RAW, NAV-SOL, NAV-TIMEGPS (week 0 or not valid: skipped)."""
-    mv = memoryview(data)
-    out: list[tuple[int, int]] = []
-    wanted = {(0x02, 0x15), (0x02, 0x10), (0x01, 0x06), (0x01, 0x20)}
-    cls, ids = index.cls, index.id
-    sel = np.zeros(len(index), dtype=bool)
-    for c, m in wanted:
-        sel |= (cls == c) & (ids == m)
-    for i in np.flatnonzero(sel).tolist():
-        key = (int(cls[i]), int(ids[i]))
-        p = _payload(mv, index, i)
-        week, tow_ns = 0, 0
-        if key == (0x02, 0x15) and len(p) >= 16:
-            tow_s, week = struct.unpack_from("<dH", p, 0)
-            tow_ns = round(tow_s * 1e9)
-        elif key == (0x02, 0x10) and len(p) >= 8:
-            itow, week = struct.unpack_from("<ih", p, 0)
-            tow_ns = itow * 1_000_000
-        elif key in ((0x01, 0x06), (0x01, 0x20)) and len(p) >= 12:
-            itow, ftow, week = struct.unpack_from("<Iih", p, 0)
-            tow_ns = itow * 1_000_000 + ftow
+    arr = np.frombuffer(data, dtype=np.uint8)
+    offsets: list[npt.NDArray[np.int64]] = []
+    times: list[npt.NDArray[np.int64]] = []
+    for key, need in (((0x02, 0x15), 16), ((0x02, 0x10), 8), ((0x01, 0x06), 12),
+                      ((0x01, 0x20), 12)):
+        sel = index.select(key)
+        sel = sel[index.length[sel] >= need]
+        if sel.size == 0:
+            continue
+        rows = sliding_window_view(arr, need)[index.start[sel] + 6]
+        if key == (0x02, 0x15):
+            tow_s = _fields(rows, 0, "<f8")
+            week = _fields(rows, 8, "<u2").astype(np.int64)
+            finite = np.isfinite(tow_s)
+            week[~finite] = 0
+            tow_ns = np.rint(np.where(finite, tow_s, 0.0) * 1e9).astype(np.int64)
+        elif key == (0x02, 0x10):
+            tow_ns = _fields(rows, 0, "<i4").astype(np.int64) * 1_000_000
+            week = _fields(rows, 4, "<i2").astype(np.int64)
+        else:
+            tow_ns = (_fields(rows, 0, "<u4").astype(np.int64) * 1_000_000
+                      + _fields(rows, 4, "<i4"))
+            week = _fields(rows, 8, "<i2").astype(np.int64)
             # the week is valid only with NAV-SOL flags bit 2 (WKNSET), NAV-TIMEGPS valid bit 1
-            if not p[11] & (0x04 if key == (0x01, 0x06) else 0x02):
-                week = 0
-        if week > 0:
-            out.append((int(index.start[i]), gpstime.gps_ns(week, tow_ns)))
-    return out
+            valid_bit = 0x04 if key == (0x01, 0x06) else 0x02
+            week[(rows[:, 11] & valid_bit) == 0] = 0
+        keep = week > 0
+        offsets.append(index.start[sel][keep])
+        times.append(week[keep] * gpstime.NS_PER_WEEK + tow_ns[keep])
+    if not offsets:
+        return []
+    off = np.concatenate(offsets)
+    order = np.argsort(off, kind="stable")
+    return list(zip(off[order].tolist(), np.concatenate(times)[order].tolist(), strict=True))
 
 
 def today_gps_week() -> int:
