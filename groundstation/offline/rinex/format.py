@@ -128,6 +128,17 @@ def matrix_rows(matrix: npt.NDArray[np.uint8]) -> list[str]:
 
 def sat_lines(obs: ObsSet, idx: npt.NDArray[np.int64], matrix: npt.NDArray[np.uint8]) -> str:
     """RINEX 3 satellite lines (``G05`` + fields + newline) of every measurement, one string."""
+    return sat_line_matrix(obs, idx, matrix).tobytes().decode("ascii")
+
+
+SAT_LINE_WIDTH = 68
+EPOCH_LINE_WIDTH_V3 = 36
+
+
+def sat_line_matrix(
+    obs: ObsSet, idx: npt.NDArray[np.int64], matrix: npt.NDArray[np.uint8]
+) -> npt.NDArray[np.uint8]:
+    """:func:`sat_lines` as an (N, 68) byte matrix."""
     n = int(idx.size)
     lines = np.empty((n, 68), dtype=np.uint8)
     sys_b = obs.sys[idx].astype("S1").view(np.uint8)
@@ -137,7 +148,35 @@ def sat_lines(obs: ObsSet, idx: npt.NDArray[np.int64], matrix: npt.NDArray[np.ui
     lines[:, 2] = _ZERO + prn % 10
     lines[:, 3:67] = matrix
     lines[:, 67] = ord("\n")
-    return lines.tobytes().decode("ascii")
+    return lines
+
+
+def epoch_line_matrix_v3(t_gps_ns: npt.NDArray[np.int64], n: npt.NDArray[np.int64]
+                         ) -> npt.NDArray[np.uint8]:
+    """``epoch_line(t, 0, n, True, [])`` of every row as an (N, 36) byte matrix (``n`` at
+    most 999)."""
+    t100 = (t_gps_ns + 50) // 100
+    minute = t100 // 600_000_000
+    s100 = t100 % 600_000_000
+    uniq, inv = np.unique(minute, return_inverse=True)
+    prefixes = np.frombuffer(
+        "".join(minute_prefix_v3(m) for m in uniq.tolist()).encode("ascii"), dtype=np.uint8
+    ).reshape(-1, 19)
+    out = np.empty((t_gps_ns.size, EPOCH_LINE_WIDTH_V3), dtype=np.uint8)
+    out[:, :19] = prefixes[inv.reshape(-1)]
+    x = s100
+    for c in (28, 27, 26, 25, 24, 23, 22, 20, 19):  # SS.fffffff, last digit first
+        q = x // 10
+        out[:, c] = _ZERO + (x - q * 10)
+        x = q
+    out[:, 21] = _DOT
+    out[:, 29:31] = _SPACE
+    out[:, 31] = _ZERO
+    out[:, 32] = np.where(n >= 100, _ZERO + n // 100, _SPACE)
+    out[:, 33] = np.where(n >= 10, _ZERO + n // 10 % 10, _SPACE)
+    out[:, 34] = _ZERO + n % 10
+    out[:, 35] = ord("\n")
+    return out
 
 
 def format_chunk_exact(a: float, b: float, c: float, d: float, ll: int, q: int) -> str:

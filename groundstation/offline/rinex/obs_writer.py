@@ -13,11 +13,11 @@ from groundstation import __version__
 from groundstation.offline.rinex.format import (
     epoch_fields,
     epoch_line,
+    epoch_line_matrix_v3,
     format_matrix,
     hl,
     matrix_rows,
-    minute_prefix_v3,
-    sat_lines,
+    sat_line_matrix,
     utc_now,
 )
 from groundstation.offline.rinex.observations import CODE_INDEX, SYSTEMS, ObsSet
@@ -151,7 +151,7 @@ def write_obs(
     idx = idx[order]
     rec_row_arr = mpos[idx]
     blank = " " * 64
-    ev = sorted(events_t_gps_ns)
+    ev = sorted(int(e) for e in events_t_gps_ns)
     ev_i = 0
     n_ev = 0
     lines: list[str] = []
@@ -161,37 +161,12 @@ def write_obs(
         label_prn = obs.prn[idx] - np.where(obs.sys[idx] == "S", 100, 0)
         fast = (v3 and all(len(t) == 4 for t in types_by_sys.values())
                 and bool(((label_prn >= 0) & (label_prn <= 99)).all()))
+        counts = np.diff(np.searchsorted(rec_row_arr, np.arange(t_rows.size + 1)))
+        # (an epoch of 1 000 satellites or more would take more columns for its count)
+        fast = fast and bool((counts <= 999).all())
         if fast:
-            # One signal per system (the common single-frequency case): a line per measurement,
-            # all built as one byte matrix (label, 64 field characters, newline).
-            # In blocks: the digit arrays of a 10-hour flight's 2 million measurements at once
-            # took 1 GB and more time in page faults than in formatting.
-            blocks = [idx[b : b + FORMAT_BLOCK] for b in range(0, idx.size, FORMAT_BLOCK)]
-            sat_text = "".join(sat_lines(obs, i, format_matrix(obs, i)) for i in blocks)
-            width = 3 + 64 + 1
-            bounds = np.searchsorted(rec_row_arr, np.arange(t_rows.size + 1)).tolist()
-            ev_arr = np.asarray(ev, dtype=np.int64)
-            ev_bounds = np.searchsorted(ev_arr, t_rows, side="right").tolist()
-            prev_ev = 0
-            # epoch_line(t, 0, n, True, []) of every row, its time fields split with numpy
-            t100 = (t_rows + 50) // 100
-            minutes = (t100 // 600_000_000).tolist()
-            whole_s = (t100 % 600_000_000 // 10_000_000).tolist()
-            frac_s = (t100 % 10_000_000).tolist()
-            for r in range(t_rows.size):
-                for e in ev[prev_ev : ev_bounds[r]]:
-                    lines.append(epoch_line(e, 5, 0, True, []))
-                n_ev += ev_bounds[r] - prev_ev
-                prev_ev = ev_bounds[r]
-                k0, k1 = bounds[r], bounds[r + 1]
-                if k1 > k0:
-                    lines.append(f"{minute_prefix_v3(minutes[r])}{whole_s[r]:02d}."
-                                 f"{frac_s[r]:07d}  0{k1 - k0:3d}\n")
-                    lines.append(sat_text[k0 * width : k1 * width])
-                if len(lines) > 50000:  # written as it goes: the text is as big as the file
-                    f.write("".join(lines))
-                    lines.clear()
-            ev_i = prev_ev
+            f.flush()  # the text before, then the epochs as bytes on the same buffer
+            ev_i = n_ev = _write_v3_single(f.buffer.write, obs, idx, counts, t_rows, ev)
         else:
             chunks = matrix_rows(format_matrix(obs, idx))
             rec_sys = obs.sys[idx].tolist()
@@ -249,6 +224,55 @@ def write_obs(
         last_t_gps_ns=int(t_rows[-1]) if t_rows.size else None,
         skipped_systems=skipped,
     )
+
+
+def _write_v3_single(
+    write: Callable[[bytes], object],
+    obs: ObsSet,
+    idx: npt.NDArray[np.int64],
+    counts: npt.NDArray[np.int64],
+    t_rows: npt.NDArray[np.int64],
+    ev: list[int],
+) -> int:
+    """The epochs of a RINEX 3 file with one signal per system (a line per measurement), as
+    bytes assembled with numpy; returns how many of the sorted events ``ev`` were written
+    (those up to the last epoch; the caller writes the rest).
+
+    Epoch lines (36 bytes) and satellite lines (68 bytes) are both whole 4-byte words, so a
+    block's text is assembled as words: the epoch lines at their places, the satellite lines
+    (in measurement order) in all the others. Event epochs go between the blocks.
+    """
+    bounds = np.concatenate(([0], np.cumsum(counts)))
+    ev_arr = np.asarray(ev, dtype=np.int64)
+    ev_bounds = np.searchsorted(ev_arr, t_rows, side="right")
+    # segments of rows: at most about FORMAT_BLOCK measurements, cut where events come between
+    cuts = {0, int(t_rows.size), *(np.flatnonzero(np.diff(ev_bounds)) + 1).tolist()}
+    cuts.update((np.searchsorted(bounds, np.arange(0, int(bounds[-1]), FORMAT_BLOCK),
+                                 side="right") - 1).tolist())
+    edges = sorted(c for c in cuts if 0 <= c <= t_rows.size)
+    prev_ev = 0
+    for a, b in zip(edges, edges[1:], strict=False):
+        for e in ev[prev_ev : int(ev_bounds[a])]:
+            write(epoch_line(e, 5, 0, True, []).encode("ascii"))
+        prev_ev = int(ev_bounds[a])
+        k0, k1 = int(bounds[a]), int(bounds[b])
+        n = counts[a:b]
+        rows = np.flatnonzero(n)
+        if rows.size == 0:
+            continue
+        head = epoch_line_matrix_v3(t_rows[a:b][rows], n[rows]).view("<u4")
+        sats = sat_line_matrix(obs, idx[k0:k1], format_matrix(obs, idx[k0:k1])).view("<u4")
+        hw, sw = head.shape[1], sats.shape[1]
+        size = hw + n[rows] * sw
+        start = np.cumsum(size) - size
+        words = np.empty(int(size.sum()), dtype="<u4")
+        is_head = np.zeros(words.size, dtype=bool)
+        pos = (start[:, None] + np.arange(hw)).reshape(-1)
+        is_head[pos] = True
+        words[pos] = head.reshape(-1)
+        words[~is_head] = sats.reshape(-1)
+        write(words.tobytes())
+    return prev_ev
 
 
 def _obs_header(
