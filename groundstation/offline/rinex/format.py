@@ -151,10 +151,11 @@ def sat_line_matrix(
     return lines
 
 
-def epoch_line_matrix_v3(t_gps_ns: npt.NDArray[np.int64], n: npt.NDArray[np.int64]
-                         ) -> npt.NDArray[np.uint8]:
-    """``epoch_line(t, 0, n, True, [])`` of every row as an (N, 36) byte matrix (``n`` at
-    most 999)."""
+def epoch_line_matrix_v3(
+    t_gps_ns: npt.NDArray[np.int64], n: npt.NDArray[np.int64], flag: npt.NDArray[np.int64]
+) -> npt.NDArray[np.uint8]:
+    """``epoch_line(t, flag, n, True, [])`` of every row as an (N, 36) byte matrix (``n`` at
+    most 999, ``flag`` one digit)."""
     t100 = (t_gps_ns + 50) // 100
     minute = t100 // 600_000_000
     s100 = t100 % 600_000_000
@@ -171,7 +172,7 @@ def epoch_line_matrix_v3(t_gps_ns: npt.NDArray[np.int64], n: npt.NDArray[np.int6
         x = q
     out[:, 21] = _DOT
     out[:, 29:31] = _SPACE
-    out[:, 31] = _ZERO
+    out[:, 31] = _ZERO + flag
     out[:, 32] = np.where(n >= 100, _ZERO + n // 100, _SPACE)
     out[:, 33] = np.where(n >= 10, _ZERO + n // 10 % 10, _SPACE)
     out[:, 34] = _ZERO + n % 10

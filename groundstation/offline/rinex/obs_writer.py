@@ -238,32 +238,34 @@ def _write_v3_single(
     bytes assembled with numpy; returns how many of the sorted events ``ev`` were written
     (those up to the last epoch; the caller writes the rest).
 
-    Epoch lines (36 bytes) and satellite lines (68 bytes) are both whole 4-byte words, so a
-    block's text is assembled as words: the epoch lines at their places, the satellite lines
-    (in measurement order) in all the others. Event epochs go between the blocks.
+    Epoch and event lines (36 bytes) and satellite lines (68 bytes) are all whole 4-byte
+    words, so a block's text is assembled as words: the epoch and event lines at their places,
+    the satellite lines (in measurement order) in all the others.
     """
     bounds = np.concatenate(([0], np.cumsum(counts)))
     ev_arr = np.asarray(ev, dtype=np.int64)
-    ev_bounds = np.searchsorted(ev_arr, t_rows, side="right")
-    # segments of rows: at most about FORMAT_BLOCK measurements, cut where events come between
-    cuts = {0, int(t_rows.size), *(np.flatnonzero(np.diff(ev_bounds)) + 1).tolist()}
-    cuts.update((np.searchsorted(bounds, np.arange(0, int(bounds[-1]), FORMAT_BLOCK),
-                                 side="right") - 1).tolist())
-    edges = sorted(c for c in cuts if 0 <= c <= t_rows.size)
-    prev_ev = 0
+    ev_bounds = np.searchsorted(ev_arr, t_rows, side="right")  # events at or before each row
+    ev_row = np.searchsorted(ev_bounds, np.arange(ev_arr.size), side="right")  # row it precedes
+    # blocks of rows of about FORMAT_BLOCK measurements
+    cuts = np.searchsorted(bounds, np.arange(0, int(bounds[-1]), FORMAT_BLOCK), side="right") - 1
+    edges = np.unique(np.concatenate(([0], cuts, [t_rows.size]))).tolist()
     for a, b in zip(edges, edges[1:], strict=False):
-        for e in ev[prev_ev : int(ev_bounds[a])]:
-            write(epoch_line(e, 5, 0, True, []).encode("ascii"))
-        prev_ev = int(ev_bounds[a])
         k0, k1 = int(bounds[a]), int(bounds[b])
-        n = counts[a:b]
-        rows = np.flatnonzero(n)
-        if rows.size == 0:
+        rows = a + np.flatnonzero(counts[a:b])
+        j0, j1 = np.searchsorted(ev_row, [a, b], side="left").tolist()
+        if rows.size == 0 and j1 == j0:
             continue
-        head = epoch_line_matrix_v3(t_rows[a:b][rows], n[rows]).view("<u4")
+        # an event goes before the epoch it precedes: keys 2r (event) and 2r + 1 (epoch r)
+        order = np.argsort(np.concatenate((2 * ev_row[j0:j1], 2 * rows + 1)), kind="stable")
+        n_ev = j1 - j0
+        t_items = np.concatenate((ev_arr[j0:j1], t_rows[rows]))[order]
+        n_items = np.concatenate((np.zeros(n_ev, dtype=np.int64), counts[rows]))[order]
+        flags = np.concatenate((np.full(n_ev, 5, dtype=np.int64),
+                                np.zeros(rows.size, dtype=np.int64)))[order]
+        head = epoch_line_matrix_v3(t_items, n_items, flags).view("<u4")
         sats = sat_line_matrix(obs, idx[k0:k1], format_matrix(obs, idx[k0:k1])).view("<u4")
         hw, sw = head.shape[1], sats.shape[1]
-        size = hw + n[rows] * sw
+        size = hw + n_items * sw
         start = np.cumsum(size) - size
         words = np.empty(int(size.sum()), dtype="<u4")
         is_head = np.zeros(words.size, dtype=bool)
@@ -272,7 +274,7 @@ def _write_v3_single(
         words[pos] = head.reshape(-1)
         words[~is_head] = sats.reshape(-1)
         write(words.tobytes())
-    return prev_ev
+    return int(ev_bounds[-1]) if t_rows.size else 0
 
 
 def _obs_header(
