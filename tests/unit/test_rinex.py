@@ -293,6 +293,7 @@ def test_vectorised_field_formatting_equals_python_formatting() -> None:
 
     rng = np.random.default_rng(3)
     edge = [0.0005, 0.0015, -0.0004, -0.0005, 2.0005, 999999999.9994, -99999999.9996, 1e-9,
+            999999999.9996, -999999999.9996, 99999999.9996, 9.9996,
             123456.7895, 0.5, -1.0, 20_000_000.0625, 21_345_678.12349999, 7.0]
     values = np.concatenate([
         np.array(edge),
