@@ -126,6 +126,17 @@ def matrix_rows(matrix: npt.NDArray[np.uint8]) -> list[str]:
     return [text[i : i + w] for i in range(0, len(text), w)]
 
 
+def letter_bytes(a: npt.NDArray[np.str_]) -> npt.NDArray[np.uint8]:
+    """The (ASCII) letter of each one-letter string as a byte, 0 for an empty string.
+
+    A view of the code points: ``astype("S1")`` encodes every string and took 0.4 s of a
+    10-hour flight's export.
+    """
+    if a.dtype.itemsize == 4:
+        return np.ascontiguousarray(a).view(np.uint32).astype(np.uint8)
+    return a.astype("S1").view(np.uint8)
+
+
 def sat_lines(obs: ObsSet, idx: npt.NDArray[np.int64], matrix: npt.NDArray[np.uint8]) -> str:
     """RINEX 3 satellite lines (``G05`` + fields + newline) of every measurement, one string."""
     return sat_line_matrix(obs, idx, matrix).tobytes().decode("ascii")
@@ -141,7 +152,7 @@ def sat_line_matrix(
     """:func:`sat_lines` as an (N, 68) byte matrix."""
     n = int(idx.size)
     lines = np.empty((n, 68), dtype=np.uint8)
-    sys_b = obs.sys[idx].astype("S1").view(np.uint8)
+    sys_b = letter_bytes(obs.sys[idx])
     prn = obs.prn[idx] - np.where(sys_b == ord("S"), 100, 0)
     lines[:, 0] = sys_b
     lines[:, 1] = _ZERO + prn // 10

@@ -16,6 +16,7 @@ from groundstation.offline.rinex.format import (
     epoch_line_matrix_v3,
     format_matrix,
     hl,
+    letter_bytes,
     matrix_rows,
     sat_line_matrix,
     utc_now,
@@ -53,12 +54,30 @@ class HeaderInfo:
 
 def _obs_types(obs: ObsSet) -> dict[str, list[str]]:
     out: dict[str, list[str]] = {}
-    pairs = set(zip(obs.sys.tolist(), obs.code.tolist(), strict=True))
+    pairs = _system_code_pairs(obs)
     for s in SYSTEMS:
         codes = sorted((c for (ss, c) in pairs if ss == s), key=lambda c: CODE_INDEX[c])
         if codes:
             out[s] = codes
     return out
+
+
+def _system_code_pairs(obs: ObsSet) -> set[tuple[str, str]]:
+    """The distinct (system, code) pairs of the measurements.
+
+    One-letter systems and two-letter ASCII codes (all of them today) are counted from their
+    code points (``bincount`` of a 21-bit key) instead of two Python lists of millions of
+    strings; anything else takes the plain way.
+    """
+    sys_a, code_a = obs.sys, obs.code
+    if sys_a.size and sys_a.dtype.itemsize == 4 and code_a.dtype.itemsize == 8:
+        s = np.ascontiguousarray(sys_a).view(np.uint32).astype(np.int64)
+        c = np.ascontiguousarray(code_a).view(np.uint32).reshape(-1, 2).astype(np.int64)
+        if int(s.max()) < 128 and int(c.max()) < 128:
+            keys = np.flatnonzero(np.bincount((s << 14) | (c[:, 0] << 7) | c[:, 1])).tolist()
+            return {(chr(k >> 14).rstrip("\0"), (chr(k >> 7 & 127) + chr(k & 127)).rstrip("\0"))
+                    for k in keys}
+    return set(zip(sys_a.tolist(), code_a.tolist(), strict=True))
 
 
 @dataclass(frozen=True, slots=True)
@@ -148,7 +167,7 @@ def write_obs(
     # Order: epoch, system, prn, code.
     rank_table = np.zeros(256, dtype=np.int64)
     rank_table[np.frombuffer(SYSTEMS.encode(), dtype=np.uint8)] = np.arange(len(SYSTEMS))
-    sys_rank = rank_table[obs.sys[idx].astype("S1").view(np.uint8)]
+    sys_rank = rank_table[letter_bytes(obs.sys[idx])]
     order = np.lexsort((obs.prn[idx], sys_rank, mpos[idx]))
     idx = idx[order]
     rec_row_arr = mpos[idx]
