@@ -235,7 +235,9 @@ def _decode_block(layout: L.Message, data: bytes | memoryview, index: FrameIndex
     offs = np.repeat(pstart + hsize, count) + k * msize
     mbytes = _rows(arr, offs, msize)
     meas = mbytes.reshape(-1).view(meas_dtype)
-    return RawBlock(layout.name, sel, header.copy(), meas.copy(), epoch, rejected)
+    # header and meas are views of arrays gathered above (fancy indexing copies), not of
+    # the recording: no further copy (the 10-hour flight's rows are 50 MB)
+    return RawBlock(layout.name, sel, header, meas, epoch, rejected)
 
 
 def decode_rawx(data: bytes | memoryview, index: FrameIndex) -> RawBlock:
