@@ -11,7 +11,6 @@ the same messages stays in :mod:`groundstation.offline.ephemeris`.
 
 from __future__ import annotations
 
-import bisect
 import datetime as dt
 import struct
 from dataclasses import dataclass, field
@@ -54,11 +53,6 @@ class MultiNav:
     hamming_errors: int = 0
     galileo_pages: int = 0
     crc_errors: int = 0
-
-
-def _payload(data: memoryview, index: FrameIndex, i: int) -> bytes:
-    s = int(index.start[i]) + 6
-    return bytes(data[s : s + int(index.length[i])])
 
 
 def _fields(rows: npt.NDArray[np.uint8], at: int, dtype: str
@@ -132,22 +126,28 @@ def collect_multi(
     glo = glonass.GlonassAssembler()
     gal = galileo.InavAssembler()
     bds = beidou.D1Assembler()
-    offsets = [o for o, _ in times]
-    mv = memoryview(data)
-    for i in index.select(RXM_SFRBX).tolist():
-        p = _payload(mv, index, i)
-        if len(p) < 8:
-            continue
-        gnss, sv, sig, freq, nwords = p[0], p[1], p[2], p[3], p[4]
-        if len(p) < 8 + 4 * nwords:
-            continue
-        words = struct.unpack_from(f"<{nwords}I", p, 8)
+    # The header bytes of every RXM-SFRBX with numpy; the loop sees only GLONASS, Galileo and
+    # BeiDou messages whose words are all there (GPS subframes are collect_ephemerides').
+    arr = np.frombuffer(data, dtype=np.uint8)
+    sel = index.select(RXM_SFRBX)
+    sel = sel[index.length[sel] >= 8]
+    p0 = index.start[sel] + 6
+    gnss_a = arr[p0].astype(np.int64)
+    nwords_a = arr[p0 + 4].astype(np.int64)
+    take = (index.length[sel] >= 8 + 4 * nwords_a) & np.isin(
+        gnss_a, (GNSS_GLONASS, GNSS_GALILEO, GNSS_BEIDOU))
+    sel, p0 = sel[take], p0[take]
+    # the receiver time stated last before each message (bisect over the time statements)
+    offsets = np.array([o for o, _ in times], dtype=np.int64)
+    last_time = np.searchsorted(offsets, index.start[sel], side="right") - 1
+    unpack = struct.unpack_from
+    for at, j in zip(p0.tolist(), last_time.tolist(), strict=True):
+        gnss, sv, sig, freq, nwords = data[at : at + 5]
         if gnss == GNSS_GLONASS and nwords >= 4 and 1 <= sv <= 27:
-            j = bisect.bisect_right(offsets, int(index.start[i])) - 1
             approx = times[j][1] if j >= 0 else times[0][1] if times else fallback_gps_ns
             if approx is None:
                 continue
-            string, frame_id = glonass.string_from_ublox(words)
+            string, frame_id = glonass.string_from_ublox(unpack("<4I", data, at + 8))
             before = glo.hamming_errors
             eph = glo.add(sv, string, frame_id, freq - 7, approx)
             if glo.hamming_errors == before:
@@ -157,12 +157,12 @@ def collect_multi(
         elif (gnss == GNSS_GALILEO and nwords >= 8 and 1 <= sv <= 36
               and sig not in (_GAL_FNAV_SIG, _GAL_E6_SIG)):
             result.galileo_pages += 1
-            gal_eph = gal.add(sv, galileo.page_from_ublox(words))
+            gal_eph = gal.add(sv, galileo.page_from_ublox(unpack("<8I", data, at + 8)))
             if gal_eph is not None:
                 result.kepler.append(gal_eph)
         elif (gnss == GNSS_BEIDOU and nwords >= 10 and 1 <= sv <= 63 and not beidou.is_geo(sv)
               and sig not in _BDS_CNAV_SIGS):
-            bds_eph = bds.add(sv, beidou.subframe_from_ublox(words))
+            bds_eph = bds.add(sv, beidou.subframe_from_ublox(unpack("<10I", data, at + 8)))
             if bds_eph is not None:
                 result.kepler.append(bds_eph)
     result.hamming_errors = glo.hamming_errors

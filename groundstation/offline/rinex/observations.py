@@ -162,7 +162,9 @@ def obs_from_rawx(block: RawBlock) -> ObsSet:
     cp = np.where(bds_geo, cp + 0.5, cp)
     new_row = np.cumsum(keep_epoch) - 1
     glo = sysl == "R"
-    fcn = {int(p): int(f) - 7 for p, f in zip(prn[glo], m["freqId"][glo], strict=True)}
+    # (the last frequency number seen per slot wins, as in a dict built item by item)
+    fcn = dict(zip(prn[glo].tolist(), (m["freqId"][glo].astype(np.int64) - 7).tolist(),
+                   strict=True))
     leap = np.where(h["recStat"] & L.RAWX_REC_STAT.mask("leapSec"), h["leapS"].astype(np.int64), -1)
     return ObsSet(
         t_gps_ns=(block.gps_week * gpstime.NS_PER_WEEK + block.tow_ns)[keep_epoch],
