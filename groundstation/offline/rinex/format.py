@@ -40,16 +40,18 @@ _POW10 = [10**k for k in range(13)]
 def f14_3(values: npt.NDArray[np.float64]) -> tuple[npt.NDArray[np.uint8], npt.NDArray[np.bool_]]:
     """``%14.3f`` of every value as an (N, 14) byte matrix, vectorised.
 
-    Exactness: the decimal rounding is decided on ``|v| * 1000``, which can be off by about one
-    unit in the last place; rows whose fraction lies within 1e-3 of a rounding tie are returned
-    in the second array so the caller formats them with Python's exact formatter. Only values
-    with ``|v| < 1e9`` are meant to be printed (14 columns).
+    Exactness: the decimal rounding is decided on ``|v| * 1000`` as computed, which is off the
+    exact product by at most half a unit in its last place (``|v| * 1000 * 2**-53``); the
+    floor and the fraction are exact. So the decision can be wrong only for a fraction within
+    that distance of one half: those rows (with a margin of 3.6x) are returned in the second
+    array so the caller formats them with Python's exact formatter. Only values with
+    ``|v| < 1e9`` are meant to be printed (14 columns).
     """
     a = np.abs(values)
     scaled = a * 1000.0
     fl = np.floor(scaled)
     frac = scaled - fl
-    unsure = np.abs(frac - 0.5) < 1e-3
+    unsure = np.abs(frac - 0.5) <= np.maximum(scaled, 1.0) * 4e-16
     ints = (fl + (frac > 0.5)).astype(np.int64)
     n = values.size
     out = np.empty((n, 14), dtype=np.uint8)
