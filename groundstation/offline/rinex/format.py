@@ -97,19 +97,20 @@ def format_matrix(obs: ObsSet, idx: npt.NDArray[np.int64]) -> npt.NDArray[np.uin
     ssi = np.clip(obs.cno_dbhz[idx] // 6, 1, 9).astype(np.int64)
     out = np.full((n, 64), _SPACE, dtype=np.uint8)
     exact = lli > 9
+    ssi_char = (_ZERO + ssi).astype(np.uint8)
+    # (copyto with a mask: no index arrays gathered and scattered per field)
     for j, v in enumerate(cols):
         v = np.asarray(v, dtype=np.float64)
         valid = (v != 0) & (v > -1e9) & (v < 1e9)
         digits, unsure = f14_3(np.where(valid, v, 0.0))
         exact |= unsure & valid
         block = out[:, 16 * j : 16 * j + 16]
-        block[valid, :14] = digits[valid]
-        if j == 0:
-            block[valid, 15] = (_ZERO + ssi[valid]).astype(np.uint8)
-        elif j == 1:
-            block[valid, 15] = (_ZERO + ssi[valid]).astype(np.uint8)
-            has = lli > 0
-            block[has, 14] = (_ZERO + np.minimum(lli[has], 9)).astype(np.uint8)
+        np.copyto(block[:, :14], digits, where=valid[:, None])
+        if j in (0, 1):
+            np.copyto(block[:, 15], ssi_char, where=valid)
+        if j == 1:
+            lli_char = (_ZERO + np.minimum(lli, 9)).astype(np.uint8)
+            np.copyto(block[:, 14], lli_char, where=lli > 0)
     if exact.any():
         pr, cp, do = (np.asarray(c, dtype=np.float64) for c in cols[:3])
         sn = obs.cno_dbhz[idx]
