@@ -504,8 +504,9 @@ def _candidate_arrays(
     claimed end, complete with a right checksum). Lengths and ends are 0 / ``start + 8`` where
     the header is not complete."""
     arr = np.frombuffer(buf, dtype=np.uint8, count=n)
-    seg = arr[lo:n]
-    c = np.flatnonzero((seg[:-1] == SYNC1) & (seg[1:] == SYNC2)).astype(np.int64) + lo
+    # every 0xB5 (one comparison over the data), then the second sync byte at those only
+    c = np.flatnonzero(arr[lo : n - 1] == SYNC1).astype(np.int64) + lo
+    c = c[arr[c + 1] == SYNC2]
     has_header = c + HEADER_LEN <= n
     length = np.zeros(c.size, dtype=np.int64)
     hc = c[has_header]
