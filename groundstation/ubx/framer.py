@@ -86,14 +86,9 @@ def crc24q(data: bytes | bytearray | memoryview) -> int:
 
 def _nmea_checksum_ok(m: re.Match[bytes]) -> bool:
     """Whether a sentence matched by ``_NMEA`` carries the XOR of its body."""
-    # XOR of all bytes: the body as one integer folded onto itself, halving each time
-    body = m.group(1)
-    x = int.from_bytes(body, "little")
-    width = len(body)
-    while width > 1:
-        half = (width + 1) // 2
-        x = (x & ((1 << (8 * half)) - 1)) ^ (x >> (8 * half))
-        width = half
+    x = 0
+    for b in m.group(1):
+        x ^= b
     return x == int(m.group(2), 16)
 
 
