@@ -186,8 +186,8 @@ class RawBlock:
         return RawBlock(
             self.source,
             self.frame[rows],
-            self.header[rows],
-            self.meas[keep_meas],
+            take_rows(self.header, rows),
+            take_rows(self.meas, keep_meas),
             new_row[self.epoch[keep_meas]],
             self.rejected,
         )
@@ -202,6 +202,21 @@ class RawBlock:
         if self.source == "RXM-RAWX":
             return np.rint(self.header["rcvTow"] * 1e9).astype(np.int64)
         return self.header["iTOW"].astype(np.int64) * 1_000_000
+
+
+def take_rows(rows: npt.NDArray[Any], which: npt.NDArray[Any]) -> npt.NDArray[Any]:
+    """``rows[which]`` (indices or a mask) of a structured array, copied as whole records.
+
+    numpy copies structured rows field by field under fancy indexing; through a void view of
+    the same bytes it is one copy per row (70 000 RXM-RAWX measurements: 6 ms -> 0.4 ms).
+    """
+    picked: npt.NDArray[Any]
+    if rows.dtype.names is None:
+        picked = rows[which]
+    else:
+        void = np.dtype((np.void, rows.dtype.itemsize))
+        picked = np.ascontiguousarray(rows).view(void)[which].view(rows.dtype)
+    return picked
 
 
 def _rows(arr: npt.NDArray[np.uint8], starts: IntArray, size: int) -> npt.NDArray[np.uint8]:
@@ -227,7 +242,7 @@ def _decode_block(layout: L.Message, data: bytes | memoryview, index: FrameIndex
     count = header[count_field].astype(np.int64)
     fits = index.length[sel] >= hsize + msize * count
     rejected = sel[~fits]
-    sel, pstart, header, count = sel[fits], pstart[fits], header[fits], count[fits]
+    sel, pstart, header, count = sel[fits], pstart[fits], take_rows(header, fits), count[fits]
     total = int(count.sum())
     epoch = np.repeat(np.arange(sel.size, dtype=np.int64), count)
     first = np.cumsum(count) - count
