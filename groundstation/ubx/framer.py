@@ -1,8 +1,9 @@
 """Sans-I/O UBX framer: bytes in, checksum-verified frames out, nothing intact ever lost.
 
-This module owns the resynchronising rule, once, in :func:`scan_ubx`; the streaming
-:class:`UbxFramer` (any chunking) and the bulk index of whole files
-(:func:`groundstation.ubx.fastraw.index_frames`) both call it. The rule:
+This module owns the resynchronising rule: :func:`scan_ubx` decides it candidate by candidate
+(the streaming :class:`UbxFramer`, any chunking), :func:`scan_ubx_arrays` decides the same on
+whole arrays (the bulk index of recordings, :mod:`groundstation.ubx.fastraw`);
+``tests/unit/test_framer_bulk.py`` holds the two equal. The rule:
 
 - a sync word starts a frame if its length is at most ``max_payload``, its checksum is right,
   and no other valid frame *ends* strictly inside it (a valid frame inside the claimed span
