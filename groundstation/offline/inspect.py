@@ -103,7 +103,8 @@ class Inspector:
     """Accumulates frames and produces a :class:`Summary`."""
 
     decoder: Decoder = field(default_factory=Decoder)
-    messages: Counter[str] = field(default_factory=Counter)
+    messages: Counter[tuple[int, int]] = field(default_factory=Counter)
+    """Frames by (class, id); named once in :meth:`summary`."""
     epoch_times: set[int] = field(default_factory=set)
     empty_epochs: int = 0
     epoch_sources: Counter[str] = field(default_factory=Counter)
@@ -114,7 +115,7 @@ class Inspector:
     undecodable: int = 0
 
     def add(self, frame: Frame) -> None:
-        self.messages[message_name(frame.cls, frame.id)] += 1
+        self.messages[frame.cls, frame.id] += 1
         record = self.decoder.decode(frame)
         if isinstance(record, RawEpoch):
             # A receiver without a time fix (week 0) or without measurements makes no epoch.
@@ -139,6 +140,12 @@ class Inspector:
         elif isinstance(record, UndecodedFrame):
             self.undecodable += 1
 
+    def _named_messages(self) -> Counter[str]:
+        named: Counter[str] = Counter()
+        for (cls, mid), n in self.messages.items():
+            named[message_name(cls, mid)] += n
+        return named
+
     def summary(self, stats: FramerStats, *, path: str = "", fmt: str = "") -> Summary:
         times = sorted(self.epoch_times)
         interval_ns = nominal_interval_ns(times)
@@ -147,7 +154,7 @@ class Inspector:
             path=path,
             format=fmt,
             bytes=stats.bytes_in,
-            messages=dict(sorted(self.messages.items())),
+            messages=dict(sorted(self._named_messages().items())),
             frames=stats.frames,
             damaged_frames=stats.damaged_frames,
             damage={
