@@ -14,15 +14,18 @@ from __future__ import annotations
 import datetime as dt
 import struct
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 import numpy.typing as npt
 from numpy.lib.stride_tricks import sliding_window_view
 
 from groundstation import gpstime
-from groundstation.gnss import beidou, galileo, glonass
-from groundstation.gnss.kepler import KeplerEphemeris
+from groundstation.gnss import glonass
 from groundstation.ubx.fastraw import FrameIndex
+
+if TYPE_CHECKING:
+    from groundstation.gnss.kepler import KeplerEphemeris
 
 RXM_SFRBX = (0x02, 0x13)
 GNSS_GALILEO = 2
@@ -124,26 +127,23 @@ def collect_multi(
     """
     result = MultiNav()
     glo = glonass.GlonassAssembler()
-    gal = galileo.InavAssembler()
-    bds = beidou.D1Assembler()
-    # The header bytes of every RXM-SFRBX with numpy; the loop sees only GLONASS, Galileo and
+    # The header bytes of every RXM-SFRBX with numpy; the loops see only GLONASS, Galileo and
     # BeiDou messages whose words are all there (GPS subframes are collect_ephemerides').
     arr = np.frombuffer(data, dtype=np.uint8)
     sel = index.select(RXM_SFRBX)
     sel = sel[index.length[sel] >= 8]
     p0 = index.start[sel] + 6
     gnss_a = arr[p0].astype(np.int64)
-    nwords_a = arr[p0 + 4].astype(np.int64)
-    take = (index.length[sel] >= 8 + 4 * nwords_a) & np.isin(
-        gnss_a, (GNSS_GLONASS, GNSS_GALILEO, GNSS_BEIDOU))
-    sel, p0 = sel[take], p0[take]
-    # the receiver time stated last before each message (bisect over the time statements)
+    fits = index.length[sel] >= 8 + 4 * arr[p0 + 4].astype(np.int64)
+    is_glo = fits & (gnss_a == GNSS_GLONASS)
+    is_kepler = fits & ((gnss_a == GNSS_GALILEO) | (gnss_a == GNSS_BEIDOU))
+    # the receiver time stated last before each GLONASS message (bisect over the statements)
     offsets = np.array([o for o, _ in times], dtype=np.int64)
-    last_time = np.searchsorted(offsets, index.start[sel], side="right") - 1
+    last_time = np.searchsorted(offsets, index.start[sel[is_glo]], side="right") - 1
     unpack = struct.unpack_from
-    for at, j in zip(p0.tolist(), last_time.tolist(), strict=True):
-        gnss, sv, sig, freq, nwords = data[at : at + 5]
-        if gnss == GNSS_GLONASS and nwords >= 4 and 1 <= sv <= 27:
+    for at, j in zip(p0[is_glo].tolist(), last_time.tolist(), strict=True):
+        sv, _sig, freq, nwords = data[at + 1 : at + 5]
+        if nwords >= 4 and 1 <= sv <= 27:
             approx = times[j][1] if j >= 0 else times[0][1] if times else fallback_gps_ns
             if approx is None:
                 continue
@@ -154,17 +154,26 @@ def collect_multi(
                 result.glonass_strings += 1
             if eph is not None:
                 result.glonass.append(eph)
-        elif (gnss == GNSS_GALILEO and nwords >= 8 and 1 <= sv <= 36
-              and sig not in (_GAL_FNAV_SIG, _GAL_E6_SIG)):
-            result.galileo_pages += 1
-            gal_eph = gal.add(sv, galileo.page_from_ublox(unpack("<8I", data, at + 8)))
-            if gal_eph is not None:
-                result.kepler.append(gal_eph)
-        elif (gnss == GNSS_BEIDOU and nwords >= 10 and 1 <= sv <= 63 and not beidou.is_geo(sv)
-              and sig not in _BDS_CNAV_SIGS):
-            bds_eph = bds.add(sv, beidou.subframe_from_ublox(unpack("<10I", data, at + 8)))
-            if bds_eph is not None:
-                result.kepler.append(bds_eph)
     result.hamming_errors = glo.hamming_errors
-    result.crc_errors = gal.crc_errors
+    if is_kepler.any():
+        # imported only for a recording that has Galileo or BeiDou: most have GPS and GLONASS
+        # only, and imports are part of every run's start-up
+        from groundstation.gnss import beidou, galileo
+
+        gal = galileo.InavAssembler()
+        bds = beidou.D1Assembler()
+        for at in p0[is_kepler].tolist():
+            gnss, sv, sig, _freq, nwords = data[at : at + 5]
+            if (gnss == GNSS_GALILEO and nwords >= 8 and 1 <= sv <= 36
+                    and sig not in (_GAL_FNAV_SIG, _GAL_E6_SIG)):
+                result.galileo_pages += 1
+                gal_eph = gal.add(sv, galileo.page_from_ublox(unpack("<8I", data, at + 8)))
+                if gal_eph is not None:
+                    result.kepler.append(gal_eph)
+            elif (gnss == GNSS_BEIDOU and nwords >= 10 and 1 <= sv <= 63
+                  and not beidou.is_geo(sv) and sig not in _BDS_CNAV_SIGS):
+                bds_eph = bds.add(sv, beidou.subframe_from_ublox(unpack("<10I", data, at + 8)))
+                if bds_eph is not None:
+                    result.kepler.append(bds_eph)
+        result.crc_errors = gal.crc_errors
     return result
