@@ -13,7 +13,7 @@ from typing import Any
 
 from groundstation import gpstime
 from groundstation.errors import InputError
-from groundstation.records import Frame, RawEpoch, TimeMark, UndecodedFrame
+from groundstation.records import Frame, RawEpoch, TimeMark, UndecodedFrame, sv_label
 from groundstation.rules.epochs import Gap, find_gaps, nominal_interval_ns
 from groundstation.rules.marks import track_marks
 from groundstation.storage.reading import Recording
@@ -103,18 +103,19 @@ class Inspector:
     """Accumulates frames and produces a :class:`Summary`."""
 
     decoder: Decoder = field(default_factory=Decoder)
-    messages: Counter[str] = field(default_factory=Counter)
+    messages: Counter[tuple[int, int]] = field(default_factory=Counter)
+    """Frames by (class, id); named once in :meth:`summary`."""
     epoch_times: set[int] = field(default_factory=set)
     empty_epochs: int = 0
     epoch_sources: Counter[str] = field(default_factory=Counter)
-    sats: set[str] = field(default_factory=set)
+    sats: set[tuple[int, int]] = field(default_factory=set)
     max_sats: int = 0
     unknown_slot: int = 0
     marks: list[TimeMark] = field(default_factory=list)
     undecodable: int = 0
 
     def add(self, frame: Frame) -> None:
-        self.messages[message_name(frame.cls, frame.id)] += 1
+        self.messages[frame.cls, frame.id] += 1
         record = self.decoder.decode(frame)
         if isinstance(record, RawEpoch):
             # A receiver without a time fix (week 0) or without measurements makes no epoch.
@@ -126,13 +127,24 @@ class Inspector:
             self.max_sats = max(self.max_sats, len(record.sats))
             # u-blox reports a GLONASS satellite whose slot it does not know yet as svId 255
             # ("R255"): a measurement, not a satellite to list.
-            known = [s for s in record.sats if (s.gnss, s.sv) != (GNSS_GLONASS, UNKNOWN_SV)]
-            self.unknown_slot += len(record.sats) - len(known)
-            self.sats.update(s.label for s in known)
+            # keyed by (gnss, sv), labelled once in summary(): a label per measurement was a
+            # tenth of inspect's time
+            ids = {(s.gnss, s.sv) for s in record.sats}
+            if (GNSS_GLONASS, UNKNOWN_SV) in ids:
+                ids.discard((GNSS_GLONASS, UNKNOWN_SV))
+                self.unknown_slot += sum(
+                    (s.gnss, s.sv) == (GNSS_GLONASS, UNKNOWN_SV) for s in record.sats)
+            self.sats |= ids
         elif isinstance(record, TimeMark):
             self.marks.append(record)
         elif isinstance(record, UndecodedFrame):
             self.undecodable += 1
+
+    def _named_messages(self) -> Counter[str]:
+        named: Counter[str] = Counter()
+        for (cls, mid), n in self.messages.items():
+            named[message_name(cls, mid)] += n
+        return named
 
     def summary(self, stats: FramerStats, *, path: str = "", fmt: str = "") -> Summary:
         times = sorted(self.epoch_times)
@@ -142,7 +154,7 @@ class Inspector:
             path=path,
             format=fmt,
             bytes=stats.bytes_in,
-            messages=dict(sorted(self.messages.items())),
+            messages=dict(sorted(self._named_messages().items())),
             frames=stats.frames,
             damaged_frames=stats.damaged_frames,
             damage={
@@ -163,7 +175,7 @@ class Inspector:
             gaps=tuple(gaps),
             missing_epochs=sum(g.missing_epochs for g in gaps),
             timemarks=summarise_marks(self.marks),
-            satellites=tuple(sorted(self.sats)),
+            satellites=tuple(sorted({sv_label(g, sv) for g, sv in self.sats})),
             max_sats_per_epoch=self.max_sats,
             unknown_slot_signals=self.unknown_slot,
         )

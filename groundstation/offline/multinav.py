@@ -11,17 +11,21 @@ the same messages stays in :mod:`groundstation.offline.ephemeris`.
 
 from __future__ import annotations
 
-import bisect
 import datetime as dt
 import struct
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
+import numpy.typing as npt
+from numpy.lib.stride_tricks import sliding_window_view
 
 from groundstation import gpstime
-from groundstation.gnss import beidou, galileo, glonass
-from groundstation.gnss.kepler import KeplerEphemeris
+from groundstation.gnss import glonass
 from groundstation.ubx.fastraw import FrameIndex
+
+if TYPE_CHECKING:
+    from groundstation.gnss.kepler import KeplerEphemeris
 
 RXM_SFRBX = (0x02, 0x13)
 GNSS_GALILEO = 2
@@ -54,40 +58,50 @@ class MultiNav:
     crc_errors: int = 0
 
 
-def _payload(data: memoryview, index: FrameIndex, i: int) -> bytes:
-    s = int(index.start[i]) + 6
-    return bytes(data[s : s + int(index.length[i])])
+def _fields(rows: npt.NDArray[np.uint8], at: int, dtype: str
+            ) -> npt.NDArray[np.int64]:
+    """One little-endian field at byte ``at`` of every payload row, as int64 (floats kept)."""
+    size = np.dtype(dtype).itemsize
+    return np.ascontiguousarray(rows[:, at : at + size]).view(dtype).ravel()
 
 
 def receiver_times(data: bytes | memoryview, index: FrameIndex) -> list[tuple[int, int]]:
     """(stream offset, GPS ns) of every message that states the receiver's GPS time with a
     valid week: RXM-RAWX, RXM-RAW, NAV-SOL, NAV-TIMEGPS (week 0 or not valid: skipped)."""
-    mv = memoryview(data)
-    out: list[tuple[int, int]] = []
-    wanted = {(0x02, 0x15), (0x02, 0x10), (0x01, 0x06), (0x01, 0x20)}
-    cls, ids = index.cls, index.id
-    sel = np.zeros(len(index), dtype=bool)
-    for c, m in wanted:
-        sel |= (cls == c) & (ids == m)
-    for i in np.flatnonzero(sel).tolist():
-        key = (int(cls[i]), int(ids[i]))
-        p = _payload(mv, index, i)
-        week, tow_ns = 0, 0
-        if key == (0x02, 0x15) and len(p) >= 16:
-            tow_s, week = struct.unpack_from("<dH", p, 0)
-            tow_ns = round(tow_s * 1e9)
-        elif key == (0x02, 0x10) and len(p) >= 8:
-            itow, week = struct.unpack_from("<ih", p, 0)
-            tow_ns = itow * 1_000_000
-        elif key in ((0x01, 0x06), (0x01, 0x20)) and len(p) >= 12:
-            itow, ftow, week = struct.unpack_from("<Iih", p, 0)
-            tow_ns = itow * 1_000_000 + ftow
+    arr = np.frombuffer(data, dtype=np.uint8)
+    offsets: list[npt.NDArray[np.int64]] = []
+    times: list[npt.NDArray[np.int64]] = []
+    for key, need in (((0x02, 0x15), 16), ((0x02, 0x10), 8), ((0x01, 0x06), 12),
+                      ((0x01, 0x20), 12)):
+        sel = index.select(key)
+        sel = sel[index.length[sel] >= need]
+        if sel.size == 0:
+            continue
+        rows = sliding_window_view(arr, need)[index.start[sel] + 6]
+        if key == (0x02, 0x15):
+            tow_s = _fields(rows, 0, "<f8")
+            week = _fields(rows, 8, "<u2").astype(np.int64)
+            finite = np.isfinite(tow_s)
+            week[~finite] = 0
+            tow_ns = np.rint(np.where(finite, tow_s, 0.0) * 1e9).astype(np.int64)
+        elif key == (0x02, 0x10):
+            tow_ns = _fields(rows, 0, "<i4").astype(np.int64) * 1_000_000
+            week = _fields(rows, 4, "<i2").astype(np.int64)
+        else:
+            tow_ns = (_fields(rows, 0, "<u4").astype(np.int64) * 1_000_000
+                      + _fields(rows, 4, "<i4"))
+            week = _fields(rows, 8, "<i2").astype(np.int64)
             # the week is valid only with NAV-SOL flags bit 2 (WKNSET), NAV-TIMEGPS valid bit 1
-            if not p[11] & (0x04 if key == (0x01, 0x06) else 0x02):
-                week = 0
-        if week > 0:
-            out.append((int(index.start[i]), gpstime.gps_ns(week, tow_ns)))
-    return out
+            valid_bit = 0x04 if key == (0x01, 0x06) else 0x02
+            week[(rows[:, 11] & valid_bit) == 0] = 0
+        keep = week > 0
+        offsets.append(index.start[sel][keep])
+        times.append(week[keep] * gpstime.NS_PER_WEEK + tow_ns[keep])
+    if not offsets:
+        return []
+    off = np.concatenate(offsets)
+    order = np.argsort(off, kind="stable")
+    return list(zip(off[order].tolist(), np.concatenate(times)[order].tolist(), strict=True))
 
 
 def today_gps_week() -> int:
@@ -113,41 +127,53 @@ def collect_multi(
     """
     result = MultiNav()
     glo = glonass.GlonassAssembler()
-    gal = galileo.InavAssembler()
-    bds = beidou.D1Assembler()
-    offsets = [o for o, _ in times]
-    mv = memoryview(data)
-    for i in index.select(RXM_SFRBX).tolist():
-        p = _payload(mv, index, i)
-        if len(p) < 8:
-            continue
-        gnss, sv, sig, freq, nwords = p[0], p[1], p[2], p[3], p[4]
-        if len(p) < 8 + 4 * nwords:
-            continue
-        words = struct.unpack_from(f"<{nwords}I", p, 8)
-        if gnss == GNSS_GLONASS and nwords >= 4 and 1 <= sv <= 27:
-            j = bisect.bisect_right(offsets, int(index.start[i])) - 1
+    # The header bytes of every RXM-SFRBX with numpy; the loops see only GLONASS, Galileo and
+    # BeiDou messages whose words are all there (GPS subframes are collect_ephemerides').
+    arr = np.frombuffer(data, dtype=np.uint8)
+    sel = index.select(RXM_SFRBX)
+    sel = sel[index.length[sel] >= 8]
+    p0 = index.start[sel] + 6
+    gnss_a = arr[p0].astype(np.int64)
+    fits = index.length[sel] >= 8 + 4 * arr[p0 + 4].astype(np.int64)
+    is_glo = fits & (gnss_a == GNSS_GLONASS)
+    is_kepler = fits & ((gnss_a == GNSS_GALILEO) | (gnss_a == GNSS_BEIDOU))
+    # the receiver time stated last before each GLONASS message (bisect over the statements)
+    offsets = np.array([o for o, _ in times], dtype=np.int64)
+    last_time = np.searchsorted(offsets, index.start[sel[is_glo]], side="right") - 1
+    unpack = struct.unpack_from
+    for at, j in zip(p0[is_glo].tolist(), last_time.tolist(), strict=True):
+        sv, _sig, freq, nwords = data[at + 1 : at + 5]
+        if nwords >= 4 and 1 <= sv <= 27:
             approx = times[j][1] if j >= 0 else times[0][1] if times else fallback_gps_ns
             if approx is None:
                 continue
-            string, frame_id = glonass.string_from_ublox(words)
+            string, frame_id = glonass.string_from_ublox(unpack("<4I", data, at + 8))
             before = glo.hamming_errors
             eph = glo.add(sv, string, frame_id, freq - 7, approx)
             if glo.hamming_errors == before:
                 result.glonass_strings += 1
             if eph is not None:
                 result.glonass.append(eph)
-        elif (gnss == GNSS_GALILEO and nwords >= 8 and 1 <= sv <= 36
-              and sig not in (_GAL_FNAV_SIG, _GAL_E6_SIG)):
-            result.galileo_pages += 1
-            gal_eph = gal.add(sv, galileo.page_from_ublox(words))
-            if gal_eph is not None:
-                result.kepler.append(gal_eph)
-        elif (gnss == GNSS_BEIDOU and nwords >= 10 and 1 <= sv <= 63 and not beidou.is_geo(sv)
-              and sig not in _BDS_CNAV_SIGS):
-            bds_eph = bds.add(sv, beidou.subframe_from_ublox(words))
-            if bds_eph is not None:
-                result.kepler.append(bds_eph)
     result.hamming_errors = glo.hamming_errors
-    result.crc_errors = gal.crc_errors
+    if is_kepler.any():
+        # imported only for a recording that has Galileo or BeiDou: most have GPS and GLONASS
+        # only, and imports are part of every run's start-up
+        from groundstation.gnss import beidou, galileo
+
+        gal = galileo.InavAssembler()
+        bds = beidou.D1Assembler()
+        for at in p0[is_kepler].tolist():
+            gnss, sv, sig, _freq, nwords = data[at : at + 5]
+            if (gnss == GNSS_GALILEO and nwords >= 8 and 1 <= sv <= 36
+                    and sig not in (_GAL_FNAV_SIG, _GAL_E6_SIG)):
+                result.galileo_pages += 1
+                gal_eph = gal.add(sv, galileo.page_from_ublox(unpack("<8I", data, at + 8)))
+                if gal_eph is not None:
+                    result.kepler.append(gal_eph)
+            elif (gnss == GNSS_BEIDOU and nwords >= 10 and 1 <= sv <= 63
+                  and not beidou.is_geo(sv) and sig not in _BDS_CNAV_SIGS):
+                bds_eph = bds.add(sv, beidou.subframe_from_ublox(unpack("<10I", data, at + 8)))
+                if bds_eph is not None:
+                    result.kepler.append(bds_eph)
+        result.crc_errors = gal.crc_errors
     return result

@@ -635,8 +635,7 @@ def satellites_from_recording(path: Path) -> SatelliteObs | None:
     from groundstation.offline import rinex
     from groundstation.ubx import fastraw
 
-    data = rinex.read_recording(path)
-    index = fastraw.index_frames(data)
+    data, index = rinex.read_frames(path)  # streaming: the frames only, not the whole input
     obs = rinex.obs_from_rawx(fastraw.decode_rawx(data, index))
     if obs.epoch.size == 0:
         obs = rinex.obs_from_raw(fastraw.decode_raw(data, index))

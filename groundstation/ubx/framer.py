@@ -1,8 +1,9 @@
 """Sans-I/O UBX framer: bytes in, checksum-verified frames out, nothing intact ever lost.
 
-This module owns the resynchronising rule, once, in :func:`scan_ubx`; the streaming
-:class:`UbxFramer` (any chunking) and the bulk index of whole files
-(:func:`groundstation.ubx.fastraw.index_frames`) both call it. The rule:
+This module owns the resynchronising rule: :func:`scan_ubx` decides it candidate by candidate
+(the streaming :class:`UbxFramer`, any chunking), :func:`scan_ubx_arrays` decides the same on
+whole arrays (the bulk index of recordings, :mod:`groundstation.ubx.fastraw`);
+``tests/unit/test_framer_bulk.py`` holds the two equal. The rule:
 
 - a sync word starts a frame if its length is at most ``max_payload``, its checksum is right,
   and no other valid frame *ends* strictly inside it (a valid frame inside the claimed span
@@ -159,18 +160,7 @@ _Candidates = tuple[list[int], list[int | None], list[bool], list[int], list[int
 
 def _candidates_np(buf: bytes | bytearray, lo: int, n: int, max_payload: int) -> _Candidates:
     """:func:`scan_ubx`'s candidates, found with numpy (long inputs)."""
-    arr = np.frombuffer(buf, dtype=np.uint8, count=n)
-    seg = arr[lo:n]
-    c = np.flatnonzero((seg[:-1] == SYNC1) & (seg[1:] == SYNC2)).astype(np.int64) + lo
-    has_header = c + HEADER_LEN <= n
-    length = np.zeros(c.size, dtype=np.int64)
-    hc = c[has_header]
-    length[has_header] = arr[hc + 4].astype(np.int64) | (arr[hc + 5].astype(np.int64) << 8)
-    e = c + OVERHEAD + length
-    complete = has_header & (length <= max_payload) & (e <= n)
-    ok = np.zeros(c.size, dtype=bool)
-    if complete.any():
-        ok[complete] = _checksums_ok(arr, c[complete], e[complete])
+    c, has_header, _length, e, ok = _candidate_arrays(buf, lo, n, max_payload)
     suffix_min = np.minimum.accumulate(e[ok][::-1])[::-1]
     ends: list[int | None] = list(e.tolist())
     for k in np.flatnonzero(~has_header).tolist():
@@ -498,3 +488,102 @@ def iter_frames(
     frames = framer.feed(data, t_host_ns)
     frames.extend(framer.flush(t_host_ns))
     return frames
+
+
+# -- the same rule on whole arrays (offline bulk reading) ---------------------------------------
+
+
+def _candidate_arrays(
+    buf: bytes | bytearray, lo: int, n: int, max_payload: int
+) -> tuple[IntArray, npt.NDArray[np.bool_], IntArray, IntArray, npt.NDArray[np.bool_]]:
+    """Every sync word of ``buf[lo:n]`` with numpy: (start, header complete, payload length,
+    claimed end, complete with a right checksum). Lengths and ends are 0 / ``start + 8`` where
+    the header is not complete."""
+    arr = np.frombuffer(buf, dtype=np.uint8, count=n)
+    # every 0xB5 (one comparison over the data), then the second sync byte at those only
+    c = np.flatnonzero(arr[lo : n - 1] == SYNC1).astype(np.int64) + lo
+    c = c[arr[c + 1] == SYNC2]
+    has_header = c + HEADER_LEN <= n
+    length = np.zeros(c.size, dtype=np.int64)
+    hc = c[has_header]
+    length[has_header] = arr[hc + 4].astype(np.int64) | (arr[hc + 5].astype(np.int64) << 8)
+    e = c + OVERHEAD + length
+    complete = has_header & (length <= max_payload) & (e <= n)
+    ok = np.zeros(c.size, dtype=bool)
+    if complete.any():
+        ok[complete] = _checksums_ok(arr, c[complete], e[complete])
+    return c, has_header, length, e, ok
+
+
+@dataclass(frozen=True, slots=True)
+class UbxScanArrays:
+    """What :func:`scan_ubx_arrays` decided: :class:`UbxScan` with numpy arrays."""
+
+    start: IntArray
+    length: IntArray
+    bad_checksum: int
+    too_long: int
+    truncated: int
+    hold: int
+
+
+def scan_ubx_arrays(
+    data: bytes | bytearray, lo: int, n: int, max_payload: int, *, final: bool
+) -> UbxScanArrays:
+    """:func:`scan_ubx`'s rule decided on whole arrays: the same frames, counts and ``hold``
+    for the same arguments, without a Python step per sync word (for whole recordings and
+    large blocks of them; ``tests/unit/test_framer_bulk.py`` holds the two to each other).
+
+    The loop of :func:`scan_ubx` reduces to three facts. A *clean* candidate (complete, right
+    checksum, no valid frame ending strictly inside it) is accepted unless it lies inside an
+    accepted frame; clean candidates' ends never decrease in stream order (a later clean one
+    that ended earlier would end inside the earlier one), so the accepted ones are the greedy
+    chain over clean candidates: all of them when none overlaps the one before (the usual
+    case, checked in one comparison), else one pass over the clean ones. A candidate inside an
+    accepted frame is payload and is not counted. Every other candidate is damage by the first
+    test of the loop it fails, or (not ``final``) undecided: ``hold`` is the first of those, and
+    nothing after it is decided.
+    """
+    c, has_header, length, e, ok = _candidate_arrays(data, lo, n, max_payload)
+    v_start = c[ok]
+    # suffix minimum of valid ends, padded so that "no valid frame after" compares as false
+    suffix_min = np.empty(v_start.size + 1, dtype=np.int64)
+    suffix_min[-1] = np.iinfo(np.int64).max
+    if v_start.size:
+        suffix_min[:-1] = np.minimum.accumulate(e[ok][::-1])[::-1]
+    inside = suffix_min[np.searchsorted(v_start, c, side="right")] < e
+    clean = ok & ~inside
+    cs, ce = c[clean], e[clean]
+    if cs.size > 1 and bool((cs[1:] < ce[:-1]).any()):
+        keep = []
+        pos = lo
+        for i, (s_, e_) in enumerate(zip(cs.tolist(), ce.tolist(), strict=True)):
+            if s_ >= pos:
+                keep.append(i)
+                pos = e_
+        cs, ce = cs[keep], ce[keep]
+    # candidates inside an accepted frame (not its own sync word) are payload
+    j = np.searchsorted(cs, c, side="right") - 1
+    jj = np.maximum(j, 0)
+    covered = (j >= 0) & (c < ce[jj]) if cs.size else np.zeros(c.size, dtype=bool)
+    live = ~covered  # accepted frames and damage / undecided candidates
+    accepted = live & clean
+    no_header = ~has_header
+    too_long = has_header & (length > max_payload)
+    past_end = has_header & ~too_long & ~inside & (e > n)
+    undecided = live & (no_header | past_end)
+    hold = n
+    if not final and undecided.any():
+        hold = int(c[np.argmax(undecided)])
+        before = c < hold
+        live &= before
+        accepted &= before
+        cs, ce = cs[cs < hold], ce[cs < hold]
+    damage = live & ~accepted
+    truncated = int((damage & (no_header | past_end)).sum()) if final else 0
+    n_long = int((damage & too_long).sum())
+    n_bad = int((damage & ~no_header & ~too_long & ~past_end).sum())
+    pos = int(ce[-1]) if ce.size else lo
+    if not final and hold == n and n > max(lo, pos) and data[n - 1] == SYNC1:
+        hold = n - 1  # may be the first half of a sync word
+    return UbxScanArrays(cs, ce - cs - OVERHEAD, n_bad, n_long, truncated, hold)

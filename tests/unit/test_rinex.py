@@ -159,6 +159,34 @@ def test_obs_v3_epochs_events_and_values(tmp_path: Path) -> None:
     assert all(len(line) <= 80 for line in text.split("END OF HEADER")[0].splitlines())
 
 
+@pytest.mark.parametrize("block", [1, 2, 1 << 16])
+def test_obs_v3_events_before_between_at_and_after_epochs_in_any_block(
+    tmp_path: Path, block: int, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The numpy-assembled epochs (obs_writer._write_v3_single): events before the first
+    epoch, between, at and after the last, blocks cut anywhere; text equal to the one
+    epoch_line and the satellite lines give one by one."""
+    from groundstation.offline.rinex import format as fmt
+    from groundstation.offline.rinex import obs_writer
+
+    monkeypatch.setattr(obs_writer, "FORMAT_BLOCK", block)
+    o = obs_of(rawx([[meas(5), meas(12)], [], [meas(5)], [meas(5), meas(7), meas(9)]]))
+    t = sorted(set(o.t_gps_ns.tolist()))
+    events = [t[0] - 5, t[0], t[1] + 1, t[1] + 2, t[-1], t[-1] + 10**9, t[-1] + 2 * 10**9]
+    text = _write(tmp_path, o, events, "3.04")
+    body = text.split("END OF HEADER")[1].split("\n", 1)[1]
+    expect: list[str] = []
+    rows = {r: o.epoch == r for r in range(o.t_gps_ns.size)}
+    for tt in sorted(set(events) | set(t)):
+        expect += [fmt.epoch_line(e, 5, 0, True, []) for e in events if e == tt]
+        for r, sel in rows.items():
+            if int(o.t_gps_ns[r]) == tt and sel.any():
+                idx = np.flatnonzero(sel)[np.argsort(o.prn[sel], kind="stable")]
+                expect.append(fmt.epoch_line(tt, 0, idx.size, True, []))
+                expect.append(fmt.sat_lines(o, idx, fmt.format_matrix(o, idx)))
+    assert body == "".join(expect)
+
+
 def test_obs_v211_layout(tmp_path: Path) -> None:
     sats = [meas(sv) for sv in range(1, 15)] + [meas(3, sig=3), meas(4, gnss=3)]
     o = obs_of(rawx([sats]))
@@ -265,6 +293,7 @@ def test_vectorised_field_formatting_equals_python_formatting() -> None:
 
     rng = np.random.default_rng(3)
     edge = [0.0005, 0.0015, -0.0004, -0.0005, 2.0005, 999999999.9994, -99999999.9996, 1e-9,
+            999999999.9996, 99999999.9996, 9.9996,
             123456.7895, 0.5, -1.0, 20_000_000.0625, 21_345_678.12349999, 7.0]
     values = np.concatenate([
         np.array(edge),

@@ -11,6 +11,7 @@ from groundstation.offline.rinex.convert import (
     RinexOptions,
     RinexResult,
     convert,
+    read_frames,
     read_recording,
 )
 from groundstation.offline.rinex.nav_writer import write_nav
@@ -29,6 +30,7 @@ __all__ = [
     "obs_from_raw",
     "obs_from_rawx",
     "read_obs3",
+    "read_frames",
     "read_recording",
     "write_nav",
     "write_obs",

@@ -40,7 +40,7 @@ from groundstation.ubx.fastraw import (
     decode_raw,
     decode_rawx,
     decode_timtm2,
-    index_frames,
+    index_chunks,
 )
 from groundstation.ubx.timemark import timemark_from_fields
 
@@ -95,6 +95,23 @@ def read_recording(path: Path, progress: ProgressFn | None = None) -> bytes:
         if progress is not None:
             progress("read", recording.progress)
     return b"".join(parts)
+
+
+def read_frames(path: Path, progress: ProgressFn | None = None) -> tuple[bytes, FrameIndex]:
+    """The valid UBX frames of a recording (a session's later parts too) and their index,
+    read streaming: memory holds one block of the input plus the frames, never the whole
+    input (a 2 GB log with nothing in it costs one block)."""
+    recording = Recording(path)
+
+    def on_block() -> None:
+        if progress is not None:
+            progress("read", recording.progress)
+
+    data, index = index_chunks(
+        (chunk for chunk, _t in recording.chunks(chunk_bytes=1 << 20)), on_block=on_block
+    )
+    on_block()
+    return data, index
 
 
 def _time_marks(
@@ -222,8 +239,7 @@ def convert(
     for suffix in (".gz", ".ubx", ".mcap", ".log"):
         if stem.endswith(suffix):
             stem = stem[: -len(suffix)]
-    data = read_recording(src, progress)
-    index = index_frames(data)
+    data, index = read_frames(src, progress)
     if progress is not None:
         progress("index", 1.0)
     block, obs, rejected = observations_of(data, index)

@@ -34,13 +34,19 @@ CSV_COLUMNS = (
 )
 
 
+def _tow_col(t: int) -> str:
+    tow_ns = gpstime.week_tow(t)[1]
+    return f"{tow_ns // 10**9}.{tow_ns % 10**9:09d}"
+
+
 def _gps_cols(t: int | None) -> tuple[str, str, str]:
     if t is None:
         return "", "", ""
-    week, tow_ns = gpstime.week_tow(t)
+    week = gpstime.week_tow(t)[0]
     unix_ns = gpstime.gps_to_unix_ns(t)
-    utc = gpstime.gps_to_datetime(t).strftime("%Y-%m-%dT%H:%M:%S")
-    return str(week), f"{tow_ns // 10**9}.{tow_ns % 10**9:09d}", f"{utc}.{unix_ns % 10**9:09d}Z"
+    d = gpstime.gps_to_datetime(t)
+    utc = f"{d.year:04d}-{d.month:02d}-{d.day:02d}T{d.hour:02d}:{d.minute:02d}:{d.second:02d}"
+    return str(week), _tow_col(t), f"{utc}.{unix_ns % 10**9:09d}Z"
 
 
 def marks_csv(
@@ -58,7 +64,7 @@ def marks_csv(
         t = mark_time_ns(m, edge, shutter_delay_ns)
         where = locate(t, epochs, interval) if t is not None else GapInfo(False, True, None)
         pulse = m.pulse_ns
-        ev = "" if t is None else _gps_cols(t)[1]
+        ev = "" if t is None else _tow_col(t)
         w.writerow(
             (
                 i,

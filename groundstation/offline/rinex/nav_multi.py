@@ -10,12 +10,14 @@ from __future__ import annotations
 
 import datetime as dt
 from collections.abc import Callable, Iterable
+from typing import TYPE_CHECKING
 
 from groundstation import gpstime
-from groundstation.gnss.beidou import bdt_datetime
 from groundstation.gnss.glonass import GlonassEphemeris
-from groundstation.gnss.kepler import KeplerEphemeris
 from groundstation.offline.multinav import MultiNav
+
+if TYPE_CHECKING:
+    from groundstation.gnss.kepler import KeplerEphemeris
 
 FieldFormat = Callable[[float], str]
 """A navigation value as its 19-character RINEX field."""
@@ -69,6 +71,8 @@ def kepler_record(e: KeplerEphemeris, f: FieldFormat) -> str:
     """One Galileo or BeiDou record (RINEX 3.04 tables A8 and A14; BeiDou on BDT)."""
     label = f"{e.system}{e.prn:02d}"
     if e.system == "C":
+        from groundstation.gnss.beidou import bdt_datetime  # only with BeiDou records
+
         head = _epoch_dt(label, bdt_datetime(e.week, e.toc_s))
     else:
         head = _epoch(label, round((e.week * 604_800 + e.toc_s) * gpstime.NS_PER_S))

@@ -13,11 +13,12 @@ from groundstation import __version__
 from groundstation.offline.rinex.format import (
     epoch_fields,
     epoch_line,
+    epoch_line_matrix_v3,
     format_matrix,
     hl,
+    letter_bytes,
     matrix_rows,
-    minute_prefix_v3,
-    sat_lines,
+    sat_line_matrix,
     utc_now,
 )
 from groundstation.offline.rinex.observations import CODE_INDEX, SYSTEMS, ObsSet
@@ -53,12 +54,30 @@ class HeaderInfo:
 
 def _obs_types(obs: ObsSet) -> dict[str, list[str]]:
     out: dict[str, list[str]] = {}
-    pairs = set(zip(obs.sys.tolist(), obs.code.tolist(), strict=True))
+    pairs = _system_code_pairs(obs)
     for s in SYSTEMS:
         codes = sorted((c for (ss, c) in pairs if ss == s), key=lambda c: CODE_INDEX[c])
         if codes:
             out[s] = codes
     return out
+
+
+def _system_code_pairs(obs: ObsSet) -> set[tuple[str, str]]:
+    """The distinct (system, code) pairs of the measurements.
+
+    One-letter systems and two-letter ASCII codes (all of them today) are counted from their
+    code points (``bincount`` of a 21-bit key) instead of two Python lists of millions of
+    strings; anything else takes the plain way.
+    """
+    sys_a, code_a = obs.sys, obs.code
+    if sys_a.size and sys_a.dtype.itemsize == 4 and code_a.dtype.itemsize == 8:
+        s = np.ascontiguousarray(sys_a).view(np.uint32).astype(np.int64)
+        c = np.ascontiguousarray(code_a).view(np.uint32).reshape(-1, 2).astype(np.int64)
+        if int(s.max()) < 128 and int(c.max()) < 128:
+            keys = np.flatnonzero(np.bincount((s << 14) | (c[:, 0] << 7) | c[:, 1])).tolist()
+            return {(chr(k >> 14).rstrip("\0"), (chr(k >> 7 & 127) + chr(k & 127)).rstrip("\0"))
+                    for k in keys}
+    return set(zip(sys_a.tolist(), code_a.tolist(), strict=True))
 
 
 @dataclass(frozen=True, slots=True)
@@ -111,7 +130,9 @@ def write_obs(
         raise ValueError(f"RINEX version must be one of {RINEX_VERSIONS}, not {version}")
     v3 = version == "3.04"
     rows = kept_epochs(obs)
-    dropped = int(np.unique(obs.epoch).size - rows.size)
+    # epochs with measurements, counted without np.unique (whose plain form imports numpy.ma,
+    # ~10 ms of start-up)
+    dropped = int(np.count_nonzero(np.bincount(obs.epoch.astype(np.int64))) - rows.size)
     types3 = _obs_types(obs)
     skipped: tuple[str, ...] = ()
     if v3:
@@ -146,12 +167,12 @@ def write_obs(
     # Order: epoch, system, prn, code.
     rank_table = np.zeros(256, dtype=np.int64)
     rank_table[np.frombuffer(SYSTEMS.encode(), dtype=np.uint8)] = np.arange(len(SYSTEMS))
-    sys_rank = rank_table[obs.sys[idx].astype("S1").view(np.uint8)]
+    sys_rank = rank_table[letter_bytes(obs.sys[idx])]
     order = np.lexsort((obs.prn[idx], sys_rank, mpos[idx]))
     idx = idx[order]
     rec_row_arr = mpos[idx]
     blank = " " * 64
-    ev = sorted(events_t_gps_ns)
+    ev = sorted(int(e) for e in events_t_gps_ns)
     ev_i = 0
     n_ev = 0
     lines: list[str] = []
@@ -161,37 +182,12 @@ def write_obs(
         label_prn = obs.prn[idx] - np.where(obs.sys[idx] == "S", 100, 0)
         fast = (v3 and all(len(t) == 4 for t in types_by_sys.values())
                 and bool(((label_prn >= 0) & (label_prn <= 99)).all()))
+        counts = np.diff(np.searchsorted(rec_row_arr, np.arange(t_rows.size + 1)))
+        # (an epoch of 1 000 satellites or more would take more columns for its count)
+        fast = fast and bool((counts <= 999).all())
         if fast:
-            # One signal per system (the common single-frequency case): a line per measurement,
-            # all built as one byte matrix (label, 64 field characters, newline).
-            # In blocks: the digit arrays of a 10-hour flight's 2 million measurements at once
-            # took 1 GB and more time in page faults than in formatting.
-            blocks = [idx[b : b + FORMAT_BLOCK] for b in range(0, idx.size, FORMAT_BLOCK)]
-            sat_text = "".join(sat_lines(obs, i, format_matrix(obs, i)) for i in blocks)
-            width = 3 + 64 + 1
-            bounds = np.searchsorted(rec_row_arr, np.arange(t_rows.size + 1)).tolist()
-            ev_arr = np.asarray(ev, dtype=np.int64)
-            ev_bounds = np.searchsorted(ev_arr, t_rows, side="right").tolist()
-            prev_ev = 0
-            # epoch_line(t, 0, n, True, []) of every row, its time fields split with numpy
-            t100 = (t_rows + 50) // 100
-            minutes = (t100 // 600_000_000).tolist()
-            whole_s = (t100 % 600_000_000 // 10_000_000).tolist()
-            frac_s = (t100 % 10_000_000).tolist()
-            for r in range(t_rows.size):
-                for e in ev[prev_ev : ev_bounds[r]]:
-                    lines.append(epoch_line(e, 5, 0, True, []))
-                n_ev += ev_bounds[r] - prev_ev
-                prev_ev = ev_bounds[r]
-                k0, k1 = bounds[r], bounds[r + 1]
-                if k1 > k0:
-                    lines.append(f"{minute_prefix_v3(minutes[r])}{whole_s[r]:02d}."
-                                 f"{frac_s[r]:07d}  0{k1 - k0:3d}\n")
-                    lines.append(sat_text[k0 * width : k1 * width])
-                if len(lines) > 50000:  # written as it goes: the text is as big as the file
-                    f.write("".join(lines))
-                    lines.clear()
-            ev_i = prev_ev
+            f.flush()  # the text before, then the epochs as bytes on the same buffer
+            ev_i = n_ev = _write_v3_single(f.buffer.write, obs, idx, counts, t_rows, ev)
         else:
             chunks = matrix_rows(format_matrix(obs, idx))
             rec_sys = obs.sys[idx].tolist()
@@ -249,6 +245,57 @@ def write_obs(
         last_t_gps_ns=int(t_rows[-1]) if t_rows.size else None,
         skipped_systems=skipped,
     )
+
+
+def _write_v3_single(
+    write: Callable[[bytes], object],
+    obs: ObsSet,
+    idx: npt.NDArray[np.int64],
+    counts: npt.NDArray[np.int64],
+    t_rows: npt.NDArray[np.int64],
+    ev: list[int],
+) -> int:
+    """The epochs of a RINEX 3 file with one signal per system (a line per measurement), as
+    bytes assembled with numpy; returns how many of the sorted events ``ev`` were written
+    (those up to the last epoch; the caller writes the rest).
+
+    Epoch and event lines (36 bytes) and satellite lines (68 bytes) are all whole 4-byte
+    words, so a block's text is assembled as words: the epoch and event lines at their places,
+    the satellite lines (in measurement order) in all the others.
+    """
+    bounds = np.concatenate(([0], np.cumsum(counts)))
+    ev_arr = np.asarray(ev, dtype=np.int64)
+    ev_bounds = np.searchsorted(ev_arr, t_rows, side="right")  # events at or before each row
+    ev_row = np.searchsorted(ev_bounds, np.arange(ev_arr.size), side="right")  # row it precedes
+    # blocks of rows of about FORMAT_BLOCK measurements
+    cuts = np.searchsorted(bounds, np.arange(0, int(bounds[-1]), FORMAT_BLOCK), side="right") - 1
+    edges = sorted({0, int(t_rows.size), *cuts.tolist()})
+    for a, b in zip(edges, edges[1:], strict=False):
+        k0, k1 = int(bounds[a]), int(bounds[b])
+        rows = a + np.flatnonzero(counts[a:b])
+        j0, j1 = np.searchsorted(ev_row, [a, b], side="left").tolist()
+        if rows.size == 0 and j1 == j0:
+            continue
+        # an event goes before the epoch it precedes: keys 2r (event) and 2r + 1 (epoch r)
+        order = np.argsort(np.concatenate((2 * ev_row[j0:j1], 2 * rows + 1)), kind="stable")
+        n_ev = j1 - j0
+        t_items = np.concatenate((ev_arr[j0:j1], t_rows[rows]))[order]
+        n_items = np.concatenate((np.zeros(n_ev, dtype=np.int64), counts[rows]))[order]
+        flags = np.concatenate((np.full(n_ev, 5, dtype=np.int64),
+                                np.zeros(rows.size, dtype=np.int64)))[order]
+        head = epoch_line_matrix_v3(t_items, n_items, flags).view("<u4")
+        sats = sat_line_matrix(obs, idx[k0:k1], format_matrix(obs, idx[k0:k1])).view("<u4")
+        hw, sw = head.shape[1], sats.shape[1]
+        size = hw + n_items * sw
+        start = np.cumsum(size) - size
+        words = np.empty(int(size.sum()), dtype="<u4")
+        is_head = np.zeros(words.size, dtype=bool)
+        pos = (start[:, None] + np.arange(hw)).reshape(-1)
+        is_head[pos] = True
+        words[pos] = head.reshape(-1)
+        words[~is_head] = sats.reshape(-1)
+        write(words.tobytes())
+    return int(ev_bounds[-1]) if t_rows.size else 0
 
 
 def _obs_header(

@@ -22,7 +22,7 @@ import numpy.typing as npt
 from groundstation import gpstime
 from groundstation.rules import phase
 from groundstation.ubx import layouts as L
-from groundstation.ubx.fastraw import RawBlock
+from groundstation.ubx.fastraw import RawBlock, take_rows
 
 SYSTEMS = "GRECJSI"
 """RINEX system letters, in the order systems are written."""
@@ -98,7 +98,7 @@ def obs_from_raw(block: RawBlock) -> ObsSet:
     is_sbas = sv >= 120
     ok = keep_epoch[block.epoch] & (((sv >= 1) & (sv <= 32)) | (is_sbas & (sv <= 158)))
     new_row = np.cumsum(keep_epoch) - 1
-    m = m[ok]
+    m = take_rows(m, ok)
     sv = sv[ok]
     n = int(ok.sum())
     raw_lli = phase.raw_lli(sv, m["lli"].astype(np.int64), m["cpMes"].astype(np.float64))
@@ -141,7 +141,7 @@ def obs_from_rawx(block: RawBlock) -> ObsSet:
     )
     ok = keep_epoch[block.epoch] & sat_ok & (code_i >= 0)
     idx = np.flatnonzero(ok)
-    m = m[idx]
+    m = take_rows(m, idx)
     ep = block.epoch[idx]
     sysl, prn, gnss, sv = sysl[idx], prn[idx], gnss[idx], sv[idx]
     code_i = code_i[idx]
@@ -162,7 +162,9 @@ def obs_from_rawx(block: RawBlock) -> ObsSet:
     cp = np.where(bds_geo, cp + 0.5, cp)
     new_row = np.cumsum(keep_epoch) - 1
     glo = sysl == "R"
-    fcn = {int(p): int(f) - 7 for p, f in zip(prn[glo], m["freqId"][glo], strict=True)}
+    # (the last frequency number seen per slot wins, as in a dict built item by item)
+    fcn = dict(zip(prn[glo].tolist(), (m["freqId"][glo].astype(np.int64) - 7).tolist(),
+                   strict=True))
     leap = np.where(h["recStat"] & L.RAWX_REC_STAT.mask("leapSec"), h["leapS"].astype(np.int64), -1)
     return ObsSet(
         t_gps_ns=(block.gps_week * gpstime.NS_PER_WEEK + block.tow_ns)[keep_epoch],
