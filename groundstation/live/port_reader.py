@@ -173,7 +173,7 @@ class PortReader:
                 if not data:
                     ready, _, _ = select.select([fd, self._stop_r], [], [], self._stall_s)
                     if self._stop_r in ready:
-                        return
+                        break
                     if not ready:
                         self._idle_check()  # a quiet line: is the device still there?
                         next_check = time.monotonic() + self._repoint_s
@@ -204,6 +204,10 @@ class PortReader:
                     self._idle_check()
                 if len(data) < self._read_size:
                     time.sleep(COALESCE_S)
+            # Stopping: what the port holds now was received before the stop; keep it.
+            while data := self._read(fd):
+                with self._lock:
+                    self._held.append((data, self._clock()))
         except DeviceVanished as err:
             self._fail(err)
         except Exception as err:  # never die silently: the loop side reconnects
