@@ -8,8 +8,8 @@ and at ~94 passes a second those passes, not the work they carry, were most of t
 
 - at once when the bytes it holds complete a TIM-TM2 frame (a camera mark: the subscribers'
   latency limit is issue 5's p99 < 20 ms), or
-- when the oldest bytes it holds are :data:`BATCH_S` old (the recorder and the monitor take
-  bursts of 100 ms anyway), or
+- when the oldest bytes it holds are :data:`BATCH_S` old, whether more bytes came meanwhile or
+  the line went quiet (the recorder and the monitor take bursts of 100 ms anyway), or
 - when the device fails (the error is handed over with the bytes read before it).
 
 Each read keeps its own host time; the loop side gets the reads as they were, in order. Nothing
@@ -167,22 +167,37 @@ class PortReader:
         offset = 0  # bytes read so far
         tail = b""  # the last bytes read, for a header cut between two reads
         next_check = time.monotonic() + self._repoint_s
+        quiet_since = time.monotonic()  # when the last bytes came
         try:
             while not self._stopping:
                 data = self._read(fd)  # after the pause, bytes are usually waiting
                 if not data:
-                    ready, _, _ = select.select([fd, self._stop_r], [], [], self._stall_s)
+                    # A pause in the flow: wait for bytes, but no longer than until what is
+                    # held is due (then it is handed over) or the stall check.
+                    now = time.monotonic()
+                    with self._lock:
+                        due = (self._held_since + BATCH_S if self._held and not self._woken
+                               else None)
+                    wait = self._stall_s if due is None else max(0.0, min(due - now,
+                                                                           self._stall_s))
+                    ready, _, _ = select.select([fd, self._stop_r], [], [], wait)
                     if self._stop_r in ready:
                         break
                     if not ready:
-                        self._idle_check()  # a quiet line: is the device still there?
-                        next_check = time.monotonic() + self._repoint_s
+                        now = time.monotonic()
+                        if due is not None and now >= due:
+                            with self._lock:
+                                self._announce()
+                        if now - quiet_since >= self._stall_s:
+                            quiet_since = now
+                            next_check = now + self._repoint_s
+                            self._idle_check()  # a quiet line: is the device still there?
                         continue
                     data = self._read(fd)
                     if not data:  # readable yet empty: the other end of the tty hung up
                         raise DeviceVanished("end of file on the device (hung up)")
                 t = self._clock()
-                now = time.monotonic()
+                now = quiet_since = time.monotonic()
                 # A mark's header in these bytes (or cut between the last read and these)?
                 seen = tail + data
                 at = seen.rfind(_MARK_HEADER)
