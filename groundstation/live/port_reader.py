@@ -45,6 +45,31 @@ class DeviceVanished(Exception):
     """The device failed or vanished (the message says how); the source reconnects."""
 
 
+class MarkWatch:
+    """Says when the bytes read so far complete a TIM-TM2 frame, however they were cut.
+
+    Only the header and the fixed length are looked at (no checksum): a false match costs an
+    early wake-up, a missed one up to :data:`BATCH_S` of a mark's latency."""
+
+    def __init__(self) -> None:
+        self._offset = 0  # bytes seen so far
+        self._tail = b""  # the last bytes seen, for a header cut between two reads
+        self._mark_end = -1  # stream offset at which a mark's frame is complete (-1: none)
+
+    def feed(self, data: bytes) -> bool:
+        """Add a read; True when a mark's frame is complete with it."""
+        seen = self._tail + data
+        at = seen.rfind(_MARK_HEADER)
+        if at >= 0:
+            self._mark_end = self._offset - len(self._tail) + at + _MARK_FRAME_LEN
+        self._offset += len(data)
+        self._tail = seen[-(len(_MARK_HEADER) - 1):]
+        if 0 <= self._mark_end <= self._offset:
+            self._mark_end = -1
+            return True
+        return False
+
+
 class PortReader:
     """Reads an open, non-blocking serial fd in a daemon thread (see the module docstring).
 
@@ -117,8 +142,9 @@ class PortReader:
         """
         assert self._ready is not None
         while True:
-            await self._ready.wait()
-            self._ready.clear()
+            if self._error is None:  # after a failure, nothing more will be announced
+                await self._ready.wait()
+                self._ready.clear()
             with self._lock:
                 held, self._held = self._held, []
                 self._held_since = 0.0
@@ -163,9 +189,7 @@ class PortReader:
 
     def _run(self) -> None:
         fd = self._fd
-        pending_mark_end = -1  # stream offset at which a mark's frame is complete
-        offset = 0  # bytes read so far
-        tail = b""  # the last bytes read, for a header cut between two reads
+        marks = MarkWatch()
         next_check = time.monotonic() + self._repoint_s
         quiet_since = time.monotonic()  # when the last bytes came
         try:
@@ -198,21 +222,12 @@ class PortReader:
                         raise DeviceVanished("end of file on the device (hung up)")
                 t = self._clock()
                 now = quiet_since = time.monotonic()
-                # A mark's header in these bytes (or cut between the last read and these)?
-                seen = tail + data
-                at = seen.rfind(_MARK_HEADER)
-                if at >= 0:
-                    pending_mark_end = offset - len(tail) + at + _MARK_FRAME_LEN
-                offset += len(data)
-                tail = seen[-(len(_MARK_HEADER) - 1):]
+                mark = marks.feed(data)
                 with self._lock:
                     if not self._held:
                         self._held_since = now
                     self._held.append((data, t))
-                    if 0 <= pending_mark_end <= offset:
-                        pending_mark_end = -1
-                        self._announce()
-                    elif now - self._held_since >= BATCH_S:
+                    if mark or now - self._held_since >= BATCH_S:
                         self._announce()
                 if now >= next_check:
                     next_check = now + self._repoint_s
