@@ -260,6 +260,8 @@ class SerialSource:
                 self._leftover.extend(reader.stop())
                 with contextlib.suppress(Exception):
                     port.close()
+            while self._leftover:  # the device went away: what was read before still counts
+                yield self._leftover.pop(0)
             await self.state.wait_before_retry(s.reconnect_min_s, s.reconnect_max_s)
 
 
