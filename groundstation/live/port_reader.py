@@ -111,8 +111,6 @@ class PortReader:
         self._loop: asyncio.AbstractEventLoop | None = None
         self._ready: asyncio.Event | None = None
         self._thread: threading.Thread | None = None
-        self.wakeups = 0
-        """How often the loop was woken (for tests and benchmarks)."""
 
     def start(self) -> None:
         """Start reading; batches are announced to the running event loop."""
@@ -122,7 +120,10 @@ class PortReader:
         self._thread.start()
 
     def stop(self) -> list[Chunk]:
-        """Stop the thread (it is woken at once) and return the reads not yet taken."""
+        """Stop the thread and return the reads not yet taken (with what the port held).
+
+        Blocks the caller for at most one pause (:data:`COALESCE_S`): the thread is woken at
+        once when it waits for bytes."""
         self._stopping = True
         os.write(self._stop_w, b"x")
         if self._thread is not None:
@@ -166,7 +167,6 @@ class PortReader:
         """Wake the loop once for everything held now (the lock is held by the caller)."""
         if not self._woken and self._loop is not None:
             self._woken = True
-            self.wakeups += 1
             try:
                 self._loop.call_soon_threadsafe(self._wake)
             except RuntimeError:
