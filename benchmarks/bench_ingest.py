@@ -48,13 +48,26 @@ def cpu_seconds(pid: int) -> float:
     return (utime + stime) / os.sysconf("SC_CLK_TCK")
 
 
-def wakeups(pid: int) -> int:
-    """Voluntary context switches of the process's main thread: how often it went to sleep
-    and was woken (each costs far more CPU on a busy machine than the work it wakes for)."""
-    for line in Path(f"/proc/{pid}/task/{pid}/status").read_text().splitlines():
+def wakeups(pid: int, tid: int | None = None) -> int:
+    """Voluntary context switches of one thread (default: the process's main thread, the
+    event loop): how often it went to sleep and was woken (each costs far more CPU on a busy
+    machine than the work it wakes for)."""
+    for line in Path(f"/proc/{pid}/task/{tid or pid}/status").read_text().splitlines():
         if line.startswith("voluntary_ctxt_switches"):
             return int(line.split()[1])
     return 0
+
+
+def thread_cpu(pid: int) -> dict[int, float]:
+    """CPU seconds of each thread of ``pid`` (the serial reader thread is one of them)."""
+    out: dict[int, float] = {}
+    for task in Path(f"/proc/{pid}/task").iterdir():
+        try:
+            fields = (task / "stat").read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue  # a thread that just ended
+        out[int(task.name)] = (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    return out
 
 
 def bench_serial(seconds: float, data: bytes) -> dict[str, float]:
@@ -69,6 +82,7 @@ def bench_serial(seconds: float, data: bytes) -> dict[str, float]:
         )
         time.sleep(2.0)  # imports and port open
         cpu0, t0, w0 = cpu_seconds(proc.pid), time.monotonic(), wakeups(proc.pid)
+        threads0 = thread_cpu(proc.pid)
         sent = 0
         piece = 64
         while (now := time.monotonic()) - t0 < seconds:
@@ -78,6 +92,7 @@ def bench_serial(seconds: float, data: bytes) -> dict[str, float]:
                 sent += os.write(master, chunk)
             time.sleep(0.005)
         cpu1, t1, w1 = cpu_seconds(proc.pid), time.monotonic(), wakeups(proc.pid)
+        threads1 = thread_cpu(proc.pid)
         proc.send_signal(signal.SIGTERM)
         rc = proc.wait(timeout=30)
         os.close(master)
@@ -85,7 +100,12 @@ def bench_serial(seconds: float, data: bytes) -> dict[str, float]:
         ubx = next(Path(tmp).glob("*.ubx")).stat().st_size
     return {"wall_s": t1 - t0, "cpu_s": cpu1 - cpu0, "cpu_pct": 100 * (cpu1 - cpu0) / (t1 - t0),
             "bytes_sent": sent, "bytes_recorded": ubx, "exit": rc,
-            "wakeups_per_s": (w1 - w0) / (t1 - t0)}
+            "wakeups_per_s": (w1 - w0) / (t1 - t0),
+            "main_thread_pct": 100 * (threads1.get(proc.pid, 0.0) - threads0.get(proc.pid, 0.0))
+            / (t1 - t0),
+            "busiest_other_thread_pct": 100 * max(
+                (c - threads0.get(tid, 0.0) for tid, c in threads1.items() if tid != proc.pid),
+                default=0.0) / (t1 - t0)}
 
 
 def bench_file(megabytes: float, data: bytes) -> dict[str, float]:
@@ -115,7 +135,9 @@ def main() -> int:
           f"{platform.python_version()}, {os.cpu_count()} CPUs; stream: {what}")
     s = bench_serial(args.seconds, data)
     print(f"serial 115200 baud: {s['cpu_pct']:.1f} % CPU ({s['cpu_s']:.2f} s CPU over "
-          f"{s['wall_s']:.1f} s wall, {s['wakeups_per_s']:.0f} wake-ups/s), "
+          f"{s['wall_s']:.1f} s wall, {s['wakeups_per_s']:.0f} wake-ups/s of the event loop; "
+          f"event loop thread {s['main_thread_pct']:.1f} %, busiest other thread (the serial "
+          f"reader) {s['busiest_other_thread_pct']:.1f} %), "
           f"{int(s['bytes_sent'])} bytes sent, "
           f"{int(s['bytes_recorded'])} recorded, exit {int(s['exit'])}")
     f = bench_file(args.file_mb, data)

@@ -3,7 +3,7 @@
 Every port is opened the same way: 8N1, no flow control, exclusively (pyserial's ``flock``), so
 two processes never read the same radio (each would get a random half of the bytes). A port
 held by another process raises :class:`PortInUse` naming the holder. Two users: the daemon's
-:class:`~groundstation.live.sources.SerialSource` (non-blocking, on the event loop) and
+:class:`~groundstation.live.sources.SerialSource` (non-blocking, read by its own thread) and
 ``groundstation configure`` through :class:`SerialLink` (blocking reads with a short timeout).
 pyserial's own exception is an :class:`OSError`, so callers catch that and never import serial.
 """

@@ -238,6 +238,10 @@ class Pipeline:
         finally:
             with contextlib.suppress(Exception):
                 await chunks.aclose()  # type: ignore[attr-defined]
+            drain = getattr(self.source, "drain", None)  # reads a source held at the stop
+            if callable(drain):
+                for chunk, t_host_ns in drain():
+                    self.ingest(chunk, t_host_ns)
             # Bytes still waiting in the framer: recover what frames they hold.
             self._decode(self.framer.flush(self._clock()))
             log.info("source %s stopped (%s)", self.source.name, self.stopped_by)

@@ -25,8 +25,9 @@ log = logging.getLogger("groundstation.recorder")
 
 LINGER_S = 0.1
 """How long the sink waits for more items once one has arrived (then until the next item, at
-most twice this: ``fanout.LINGER_LATE``): at 115 200 baud the source delivers a chunk every
-10 ms, and writing them in bursts costs a fraction of a wake-up each. Durability is the flush
+most twice this: ``fanout.LINGER_LATE``): at 115 200 baud the serial source hands over its
+reads every 100 ms (a mark at once), and writing them in bursts costs a fraction of a wake-up
+each. Durability is the flush
 interval's business (0.5 s by default), which this is well below."""
 
 

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import functools
 import logging
 import os
 import random
@@ -37,6 +38,7 @@ from groundstation.config import (
     TcpSourceSettings,
 )
 from groundstation.errors import ConfigError, SourceError
+from groundstation.live.port_reader import DeviceVanished, PortReader
 from groundstation.pacing import LINK_BYTES_PER_S, Pacer, link_time_ns
 from groundstation.records import Event
 from groundstation.serialport import Port, PortInUse, open_port
@@ -55,7 +57,9 @@ class Source(Protocol):
     behind (a file can wait; a radio cannot, its bytes would be lost). A source may also
     offer ``claim()``, which the pipeline calls before it creates any file: it takes what the
     source needs exclusively and raises :class:`~groundstation.errors.SourceError` when that
-    is impossible (a serial port held by another daemon).
+    is impossible (a serial port held by another daemon); and ``drain()``, which the pipeline
+    calls once the source stopped: the ``(chunk, t_host_ns)`` it had read but not yet yielded
+    (the serial source's reader thread holds up to 100 ms of reads).
     """
 
     @property
@@ -65,10 +69,6 @@ class Source(Protocol):
     def can_wait(self) -> bool: ...
 
     def chunks(self) -> AsyncIterator[tuple[bytes, int]]: ...
-
-
-class DeviceVanished(Exception):
-    """The device went away; the source reconnects."""
 
 
 def backoff_delay_s(attempt: int, min_s: float, max_s: float, rand: Callable[[], float]) -> float:
@@ -138,15 +138,10 @@ class _Reconnecting:
         await asyncio.sleep(delay)
 
 
-COALESCE_S = 0.01
-"""After a short read, let the port gather bytes this long before reading again: at 115 200
-baud a USB adapter or a pty delivers a few dozen bytes every few milliseconds, and one read
-(and one pass through the pipeline) per 20 ms instead of per delivery is what keeps the
-daemon's CPU near 3 % of a core; 20 ms is far below anything the monitor or a subscriber
-notices, and the kernel's tty buffer holds it even at 921 600 baud."""
-
 class SerialSource:
-    """A serial port (8N1) read without blocking the event loop (``loop.add_reader``).
+    """A serial port (8N1), read by a thread of its own that hands the event loop batches of
+    reads (:class:`~groundstation.live.port_reader.PortReader`: a mark at once, the rest every
+    100 ms).
 
     Args:
         settings: port, baud, read size, backoff and stall-check interval.
@@ -171,6 +166,7 @@ class SerialSource:
         self._log = logging.getLogger("groundstation.serial")
         self.state = _Reconnecting(self.name, self._log, on_event, clock, rand)
         self._claimed: Port | None = None
+        self._leftover: list[tuple[bytes, int]] = []
 
     def _open(self) -> Port:
         port = open_port(self.settings.port, self.settings.baud, timeout_s=0)
@@ -215,56 +211,18 @@ class SerialSource:
             raise DeviceVanished(f"{self.settings.port} now names another device "
                                  f"(rdev {now.st_rdev:#x}, was {held.st_rdev:#x}): reopening")
 
-    async def _read(self, fd: int) -> bytes:
-        """One read as soon as the fd is readable; raises DeviceVanished on loss."""
-        loop = asyncio.get_running_loop()
-        s = self.settings
-        try:  # after the coalescing pause bytes are usually waiting: no readiness round trip
-            data = os.read(fd, s.read_size_bytes)
-        except BlockingIOError:
-            pass  # nothing there yet: wait for readiness below
-        except OSError as err:
-            raise DeviceVanished(f"{os.strerror(err.errno or 0)} (errno {err.errno})") from err
-        else:
-            if data:
-                return data  # (end of file is reported by the path below)
-        while True:
-            fut: asyncio.Future[bytes] = loop.create_future()
+    def _idle_check(self, fd: int) -> None:
+        """On the reader thread: raise DeviceVanished when the device node is gone (USB
+        unplugged) or the path now names another device."""
+        if not os.path.exists(self.settings.port):
+            raise DeviceVanished(f"{self.settings.port} no longer exists")
+        self._check_same_device(fd)
 
-            def readable(fut: asyncio.Future[bytes] = fut) -> None:
-                if fut.done():
-                    return
-                try:
-                    fut.set_result(os.read(fd, s.read_size_bytes))
-                except BlockingIOError:
-                    return  # woken with nothing to read: wait for the next readiness
-                except OSError as err:
-                    fut.set_exception(err)
-
-            loop.add_reader(fd, readable)
-            try:
-                try:
-                    async with asyncio.timeout(s.stall_check_s):
-                        data = await fut
-                except TimeoutError:
-                    if not fut.done() or fut.cancelled():
-                        # Quiet line: fine, unless the device node is gone (USB unplugged)
-                        # or the path now names another device.
-                        if not os.path.exists(s.port):
-                            raise DeviceVanished(f"{s.port} no longer exists") from None
-                        self._check_same_device(fd)
-                        continue
-                    # The timer fired in the loop iteration in which readable() read a
-                    # chunk (a busy loop): the chunk is in the future; dropping it lost bytes.
-                    data = fut.result()
-            except OSError as err:
-                raise DeviceVanished(f"{os.strerror(err.errno or 0)} (errno {err.errno})") \
-                    from err
-            finally:
-                loop.remove_reader(fd)
-            if not data:  # a tty whose other end hung up reads as end of file
-                raise DeviceVanished("end of file on the device (hung up)")
-            return data
+    def drain(self) -> list[tuple[bytes, int]]:
+        """The reads the thread made but the pipeline has not taken, once the source stopped
+        (the pipeline ingests them before it flushes the framer)."""
+        held, self._leftover = self._leftover, []
+        return held
 
     async def chunks(self) -> AsyncIterator[tuple[bytes, int]]:
         s = self.settings
@@ -282,22 +240,28 @@ class SerialSource:
                 await self.state.wait_before_retry(s.reconnect_min_s, s.reconnect_max_s)
                 continue
             self.state.up()
+            fd = port.fileno()
+            reader = PortReader(
+                fd, read_size=s.read_size_bytes, clock=self._clock,
+                idle_check=functools.partial(self._idle_check, fd), stall_check_s=s.stall_check_s,
+                repoint_check_s=REPOINT_CHECK_S,
+            )
+            reader.start()
+            held: list[tuple[bytes, int]] = []
             try:
-                fd = port.fileno()
-                next_check = time.monotonic() + REPOINT_CHECK_S
                 while True:
-                    data = await self._read(fd)
-                    yield data, self._clock()
-                    if time.monotonic() >= next_check:
-                        next_check = time.monotonic() + REPOINT_CHECK_S
-                        self._check_same_device(fd)
-                    if len(data) < s.read_size_bytes:
-                        await asyncio.sleep(COALESCE_S)
+                    held = await reader.batch()
+                    while held:
+                        yield held.pop(0)
             except DeviceVanished as err:
                 self.state.lost(str(err))
-            finally:
+            finally:  # what was read is never lost: the pipeline takes it through drain()
+                self._leftover.extend(held)
+                self._leftover.extend(reader.stop())
                 with contextlib.suppress(Exception):
                     port.close()
+            while self._leftover:  # the device went away: what was read before still counts
+                yield self._leftover.pop(0)
             await self.state.wait_before_retry(s.reconnect_min_s, s.reconnect_max_s)
 
 

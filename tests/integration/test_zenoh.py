@@ -74,6 +74,10 @@ def test_marks_status_and_late_joiner(tmp_path: Path, pty: Pty, daemons: list[Da
         # mark 3 was written in epoch 6: falling edge 40 ms + 6000 ns after it
         assert marks[3]["falling_t_gps_ns"] == WEEK * 604_800 * 10**9 + (TOW0_MS + 1240) * 10**6 \
             + 6000
+        # the status after the last mark (the monitor states it at its next 1 s tick, once the
+        # burst holding the mark reached it: up to a few hundred ms after the subscriber)
+        wait_until(lambda: col.of("status")[-1]["marks"]["marks"] == 20,  # type: ignore[index]
+                   timeout_s=5)
         statuses = col.of("status")
         times = [int(s["t_host_ns"]) for s in statuses]  # type: ignore[call-overload]
         gaps = [(b - a) / 1e9 for a, b in zip(times, times[1:], strict=False)]
