@@ -1,0 +1,159 @@
+"""The rover's observed dynamics and the Kalman acceleration noise derived from them.
+
+RTKLIB's kinematic filter carries position, velocity and acceleration, and lets the acceleration
+wander as a random walk of ``stats-prnaccelh`` (east, north) and ``stats-prnaccelv`` (up) m/s^2
+per sqrt(s). No single pair suits every platform (measured in ``options.py`` and
+``benchmarks/RESULTS.md``): a walk with a GNSS pole agrees best with RTKLIB's reference at
+demo5's built-in 0.1 / 0.01, while a multicopter's climb needs at least 0.05 vertical to avoid
+wrong fixes. So the default solve first measures how the rover moved (a forward-only pass of
+the same engine, :func:`observed_dynamics`) and then sets the noise from that
+(:func:`process_noise`). This module owns both rules; ``engine.run_engine`` runs the pass.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from groundstation.geodesy import ecef_to_llh, enu_rotation
+
+FloatArray = npt.NDArray[np.float64]
+
+BASELINE_S = 4.0
+"""Half-width of the second difference that gives the acceleration. Over +-4 s a fixed
+position's centimetre noise contributes ~1.5 mm/s^2 and a walker's steps (about 2 Hz) and an
+airframe's vibration average out: what remains is the sustained acceleration of a manoeuvre
+(a 0.5 m/s^2 half-sine climb ramp of 4.7 s reads 0.3 m/s^2), which is what the filter's
+dynamics model has to follow; the jolts within are the measurements' business."""
+
+EXCEEDED_S = 10.0
+"""The statistic: the acceleration the rover exceeded for this many seconds of the pass in total.
+A time, not a percentile, so that one climb in an hour-long flight counts as much as in a
+ten-minute one, while a few wrong fixes of the pass (a few epochs each) cannot set it."""
+
+GAIN = 0.22
+"""Noise per observed acceleration, 1/sqrt(s): q = GAIN * A, i.e. the filter's acceleration random
+walk reaches the observed acceleration A (1 sigma) in 1 / GAIN^2 = 21 s. Calibrated, not
+derived: from the reference's fixed positions the real 2018-10-09 walk has A_v = 0.050 m/s^2
+and needs q_v <= ~0.012 to agree with RTKLIB's reference to 2 cm; from the truth the simulated
+multicopter has A_v = 0.252 and needs q_v >= 0.05 to avoid wrong fixes in its climb. Any gain
+in 0.20-0.24 serves both; 0.22 is the middle (the margin is thin: benchmarks/RESULTS.md)."""
+
+FLOOR = (0.1, 0.01)
+"""Lowest noise, horizontal / vertical: demo5's built-in values, the stiffest RTKLIB ships; a rover
+that barely moves (a walk on flat ground, a static test) gets them. Stiffer would trust the
+dynamics model more than a measurement the pass cannot resolve (its noise is ~0.002 m/s^2)."""
+
+CEILING = (3.0, 1.0)
+"""Highest noise: demo5's published M8T settings for cars; a first pass full of wrong fixes
+(metre jumps) must not leave the filter with no dynamics model at all."""
+
+MIN_SPAN_S = 120.0
+"""Fewer usable seconds than this (e.g. a pass that never fixed) and nothing is derived."""
+
+_TOL_MS = 20  # epoch times match within this (receivers stamp 999.999 ms apart, 1 Hz or 5 Hz)
+
+
+@dataclass(frozen=True, slots=True)
+class Dynamics:
+    """What a pass says about the rover's motion.
+
+    Attributes:
+        accel_h_m_s2: horizontal acceleration exceeded for :data:`EXCEEDED_S` s (norm of E, N).
+        accel_v_m_s2: the same for the vertical.
+        peak_h_m_s2: largest horizontal acceleration seen (for the report).
+        peak_v_m_s2: largest vertical acceleration seen.
+        seconds: how much of the pass the statistic covers (epochs with both neighbours usable).
+        epochs: how many such epochs.
+    """
+
+    accel_h_m_s2: float
+    accel_v_m_s2: float
+    peak_h_m_s2: float
+    peak_v_m_s2: float
+    seconds: float
+    epochs: int
+
+    def as_dict(self) -> dict[str, float | int]:
+        return {
+            "accel_h_m_s2": round(self.accel_h_m_s2, 4),
+            "accel_v_m_s2": round(self.accel_v_m_s2, 4),
+            "peak_h_m_s2": round(self.peak_h_m_s2, 4),
+            "peak_v_m_s2": round(self.peak_v_m_s2, 4),
+            "seconds": round(self.seconds, 1),
+            "epochs": self.epochs,
+        }
+
+
+def accelerations(
+    t_gps_ns: npt.NDArray[np.int64], ecef_m: FloatArray, usable: npt.NDArray[np.bool_],
+    baseline_s: float = BASELINE_S,
+) -> tuple[FloatArray, FloatArray, float]:
+    """Horizontal and vertical acceleration at every usable epoch whose neighbours +-baseline are
+    usable too: ``(p(t+h) - 2 p(t) + p(t-h)) / h^2`` in the local east/north/up frame.
+
+    Returns:
+        (|a| horizontal, |a| vertical, epoch interval in s), the arrays in epoch order.
+    """
+    t = np.round(np.asarray(t_gps_ns, dtype=np.float64) / 1e6).astype(np.int64)
+    ok = np.asarray(usable, dtype=bool)
+    if t.size < 3 or not ok.any():
+        return np.zeros(0), np.zeros(0), 0.0
+    lat, lon, _ = ecef_to_llh(*(float(v) for v in ecef_m[int(np.argmax(ok))]))
+    enu = np.asarray(ecef_m, dtype=np.float64) @ np.asarray(enu_rotation(lat, lon)).T
+    h_ms = int(round(baseline_s * 1000))
+    last = t.size - 1
+    jp = np.minimum(np.searchsorted(t, t + h_ms - _TOL_MS), last)
+    jm = np.minimum(np.searchsorted(t, t - h_ms - _TOL_MS), last)
+    good = (
+        ok & ok[jp] & ok[jm]
+        & (np.abs(t[jp] - t - h_ms) <= _TOL_MS) & (np.abs(t[jm] - t + h_ms) <= _TOL_MS)
+    )
+    a = (enu[jp[good]] - 2.0 * enu[good] + enu[jm[good]]) / (baseline_s * baseline_s)
+    dt = float(np.median(np.diff(t))) / 1000.0
+    return np.hypot(a[:, 0], a[:, 1]), np.abs(a[:, 2]), dt
+
+
+def exceeded_for(values: FloatArray, dt_s: float, seconds: float = EXCEEDED_S) -> float:
+    """The value that ``values`` (one per epoch of ``dt_s``) exceed for ``seconds`` in total."""
+    k = max(1, math.ceil(seconds / dt_s)) if dt_s > 0 else 1
+    ordered = np.sort(values)[::-1]
+    return float(ordered[min(k, ordered.size) - 1])
+
+
+def observed_dynamics(
+    t_gps_ns: npt.NDArray[np.int64], ecef_m: FloatArray, usable: npt.NDArray[np.bool_],
+) -> Dynamics | None:
+    """The rover's acceleration statistics from a solution's usable (fixed) epochs.
+
+    Returns:
+        None when fewer than :data:`MIN_SPAN_S` seconds have usable neighbours.
+    """
+    ah, av, dt = accelerations(t_gps_ns, ecef_m, usable)
+    if ah.size == 0 or ah.size * dt < MIN_SPAN_S:
+        return None
+    return Dynamics(
+        exceeded_for(ah, dt), exceeded_for(av, dt), float(ah.max()), float(av.max()),
+        ah.size * dt, int(ah.size),
+    )
+
+
+def process_noise(dyn: Dynamics) -> tuple[float, float]:
+    """(``stats-prnaccelh``, ``stats-prnaccelv``) for the observed dynamics:
+    ``clamp(GAIN * A, FLOOR, CEILING)`` per axis, rounded to two significant digits."""
+    out = []
+    for acc, lo, hi in zip((dyn.accel_h_m_s2, dyn.accel_v_m_s2), FLOOR, CEILING, strict=True):
+        q = min(max(GAIN * acc, lo), hi)
+        out.append(float(f"{q:.2g}"))
+    return out[0], out[1]
+
+
+FORMULA = (
+    f"q = clamp({GAIN:g} * A, floor {FLOOR[0]:g} / {FLOOR[1]:g}, ceiling {CEILING[0]:g} / "
+    f"{CEILING[1]:g}) m/s^2/sqrt(s), A = the acceleration (second difference over "
+    f"+-{BASELINE_S:g} s) exceeded for {EXCEEDED_S:g} s of a forward pass's fixed epochs"
+)
+"""The rule in one line, for engine.json and the report."""
