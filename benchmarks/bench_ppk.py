@@ -219,6 +219,11 @@ def evaluate(ds: Dataset, label: str, engine_name: str, cond: bool, interp: str,
         assert isinstance(tot, dict)
         row["engine"] += (f" [hidden {tot['hidden_found']}, repaired {tot['repaired']}, "
                           f"flagged {tot['flagged']}]")
+    if run.dynamics and isinstance(run.dynamics.get("used"), dict):
+        used, meas = run.dynamics["used"], run.dynamics.get("measured")
+        row["engine"] += (" {q " + " / ".join(str(v) for v in used.values())
+                          + (f" from A {meas['accel_h_m_s2']:.2f} / {meas['accel_v_m_s2']:.3f}"
+                             if isinstance(meas, dict) else "") + "}")
     return row
 
 

@@ -54,9 +54,6 @@ CEILING = (3.0, 1.0)
 MIN_SPAN_S = 120.0
 """Fewer usable seconds than this (e.g. a pass that never fixed) and nothing is derived."""
 
-_TOL_MS = 20  # epoch times match within this (receivers stamp 999.999 ms apart, 1 Hz or 5 Hz)
-
-
 @dataclass(frozen=True, slots=True)
 class Dynamics:
     """What a pass says about the rover's motion.
@@ -88,32 +85,41 @@ class Dynamics:
         }
 
 
+def _nearest(t: npt.NDArray[np.int64], target: npt.NDArray[np.int64]) -> npt.NDArray[np.intp]:
+    """Index of the element of sorted ``t`` nearest to each ``target``."""
+    hi = np.clip(np.searchsorted(t, target), 1, t.size - 1)
+    lo = hi - 1
+    return np.where(np.abs(t[hi] - target) < np.abs(t[lo] - target), hi, lo)
+
+
 def accelerations(
     t_gps_ns: npt.NDArray[np.int64], ecef_m: FloatArray, usable: npt.NDArray[np.bool_],
     baseline_s: float = BASELINE_S,
 ) -> tuple[FloatArray, FloatArray, float]:
-    """Horizontal and vertical acceleration at every usable epoch whose neighbours +-baseline are
-    usable too: ``(p(t+h) - 2 p(t) + p(t-h)) / h^2`` in the local east/north/up frame.
+    """Horizontal and vertical acceleration at every usable epoch from the usable epochs nearest
+    to +-``baseline_s`` (accepted within a quarter of it, so a radio gap there costs nothing):
+    the second difference ``2 ((p+ - p) / h+ - (p - p-) / h-) / (h+ + h-)`` in the local
+    east/north/up frame.
 
     Returns:
-        (|a| horizontal, |a| vertical, epoch interval in s), the arrays in epoch order.
+        (|a| horizontal, |a| vertical, median epoch interval in s), in epoch order.
     """
-    t = np.round(np.asarray(t_gps_ns, dtype=np.float64) / 1e6).astype(np.int64)
     ok = np.asarray(usable, dtype=bool)
-    if t.size < 3 or not ok.any():
+    if int(ok.sum()) < 3:
         return np.zeros(0), np.zeros(0), 0.0
-    lat, lon, _ = ecef_to_llh(*(float(v) for v in ecef_m[int(np.argmax(ok))]))
-    enu = np.asarray(ecef_m, dtype=np.float64) @ np.asarray(enu_rotation(lat, lon)).T
-    h_ms = int(round(baseline_s * 1000))
-    last = t.size - 1
-    jp = np.minimum(np.searchsorted(t, t + h_ms - _TOL_MS), last)
-    jm = np.minimum(np.searchsorted(t, t - h_ms - _TOL_MS), last)
-    good = (
-        ok & ok[jp] & ok[jm]
-        & (np.abs(t[jp] - t - h_ms) <= _TOL_MS) & (np.abs(t[jm] - t + h_ms) <= _TOL_MS)
-    )
-    a = (enu[jp[good]] - 2.0 * enu[good] + enu[jm[good]]) / (baseline_s * baseline_s)
-    dt = float(np.median(np.diff(t))) / 1000.0
+    t = np.asarray(t_gps_ns, dtype=np.int64)[ok]
+    xyz = np.asarray(ecef_m, dtype=np.float64)[ok]
+    lat, lon, _ = ecef_to_llh(*(float(v) for v in xyz[0]))
+    enu = xyz @ np.asarray(enu_rotation(lat, lon)).T
+    h_ns = int(round(baseline_s * 1e9))
+    jp, jm = _nearest(t, t + h_ns), _nearest(t, t - h_ns)
+    hp = (t[jp] - t) / 1e9
+    hm = (t - t[jm]) / 1e9
+    good = (np.abs(hp - baseline_s) <= baseline_s / 4) & (np.abs(hm - baseline_s) <= baseline_s / 4)
+    hp, hm = hp[good, None], hm[good, None]
+    p0 = enu[good]
+    a = 2.0 * ((enu[jp[good]] - p0) / hp - (p0 - enu[jm[good]]) / hm) / (hp + hm)
+    dt = float(np.median(np.diff(np.asarray(t_gps_ns, dtype=np.int64)))) / 1e9
     return np.hypot(a[:, 0], a[:, 1]), np.abs(a[:, 2]), dt
 
 
