@@ -12,7 +12,6 @@ the same engine, :func:`observed_dynamics`) and then sets the noise from that
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -37,11 +36,10 @@ ten-minute one, while a few wrong fixes of the pass (a few epochs each) cannot s
 GAIN = 0.24
 """Noise per observed acceleration, 1/sqrt(s): q = GAIN * A, i.e. the filter's acceleration random
 walk reaches the observed acceleration A (1 sigma) in 1 / GAIN^2 = 17 s. Calibrated, not
-derived, on two flights (benchmarks/RESULTS.md): the real 2018-10-09 walk (A_v 0.059 m/s^2 from
+derived, on two flights (benchmarks/RESULTS.md): the real 2018-10-09 walk (A_v 0.055 m/s^2 from
 our forward pass) agrees with RTKLIB's reference to 2 cm at p95 up to q_v ~0.016 (0.018: 2.05
-cm); the simulated multicopter (A_v 0.24) leaves wrong fixes in its climb below ~0.048 (0.044:
-one, 0.036: five). Gains of 0.20-0.27 serve both; 0.24 leans to the looser side, because a
-wrong fix costs a photo its position and a looser filter only a few millimetres."""
+cm); the simulated multicopter (A_v 0.26) leaves wrong fixes in its climb below ~0.048 (0.044:
+one, 0.036: five). Gains of 0.19-0.29 serve both; 0.24 is the middle."""
 
 
 FLOOR = (0.1, 0.01)
@@ -52,6 +50,10 @@ dynamics model more than a measurement the pass cannot resolve (its noise is ~0.
 CEILING = (3.0, 1.0)
 """Highest noise: demo5's published M8T settings for cars; a first pass full of wrong fixes
 (metre jumps) must not leave the filter with no dynamics model at all."""
+
+MAX_WEIGHT_S = 1.0
+"""Longest time one sample stands for (a 1 Hz receiver's epoch; across a longer gap nothing is
+known of the motion)."""
 
 MIN_SPAN_S = 120.0
 """Fewer usable seconds than this (e.g. a pass that never fixed) and nothing is derived."""
@@ -97,18 +99,20 @@ def _nearest(t: npt.NDArray[np.int64], target: npt.NDArray[np.int64]) -> npt.NDA
 def accelerations(
     t_gps_ns: npt.NDArray[np.int64], ecef_m: FloatArray, usable: npt.NDArray[np.bool_],
     baseline_s: float = BASELINE_S,
-) -> tuple[FloatArray, FloatArray, float]:
+) -> tuple[FloatArray, FloatArray, FloatArray]:
     """Horizontal and vertical acceleration at every usable epoch from the usable epochs nearest
     to +-``baseline_s`` (accepted within a quarter of it, so a radio gap there costs nothing):
     the second difference ``2 ((p+ - p) / h+ - (p - p-) / h-) / (h+ + h-)`` in the local
     east/north/up frame.
 
     Returns:
-        (|a| horizontal, |a| vertical, median epoch interval in s), in epoch order.
+        (|a| horizontal, |a| vertical, seconds each sample stands for), in epoch order. A sample
+        stands for half the time to each neighbouring sample, at most :data:`MAX_WEIGHT_S`: where
+        epochs are lost (radio gaps, float epochs) the remaining ones cover the time.
     """
     ok = np.asarray(usable, dtype=bool)
     if int(ok.sum()) < 3:
-        return np.zeros(0), np.zeros(0), 0.0
+        return np.zeros(0), np.zeros(0), np.zeros(0)
     t = np.asarray(t_gps_ns, dtype=np.int64)[ok]
     xyz = np.asarray(ecef_m, dtype=np.float64)[ok]
     lat, lon, _ = ecef_to_llh(*(float(v) for v in xyz[0]))
@@ -121,15 +125,21 @@ def accelerations(
     hp, hm = hp[good, None], hm[good, None]
     p0 = enu[good]
     a = 2.0 * ((enu[jp[good]] - p0) / hp - (p0 - enu[jm[good]]) / hm) / (hp + hm)
-    dt = float(np.median(np.diff(np.asarray(t_gps_ns, dtype=np.int64)))) / 1e9
-    return np.hypot(a[:, 0], a[:, 1]), np.abs(a[:, 2]), dt
+    ts = t[good] / 1e9
+    if ts.size < 2:
+        return np.zeros(0), np.zeros(0), np.zeros(0)
+    half = np.diff(ts) / 2
+    weight = np.minimum(np.concatenate([half[:1], half]) + np.concatenate([half, half[-1:]]),
+                        MAX_WEIGHT_S)
+    return np.hypot(a[:, 0], a[:, 1]), np.abs(a[:, 2]), weight
 
 
-def exceeded_for(values: FloatArray, dt_s: float, seconds: float = EXCEEDED_S) -> float:
-    """The value that ``values`` (one per epoch of ``dt_s``) exceed for ``seconds`` in total."""
-    k = max(1, math.ceil(seconds / dt_s)) if dt_s > 0 else 1
-    ordered = np.sort(values)[::-1]
-    return float(ordered[min(k, ordered.size) - 1])
+def exceeded_for(values: FloatArray, weight_s: FloatArray, seconds: float = EXCEEDED_S) -> float:
+    """The value that ``values`` (each standing for ``weight_s`` seconds) exceed for ``seconds``
+    in total."""
+    order = np.argsort(values)[::-1]
+    k = int(np.searchsorted(np.cumsum(weight_s[order]), seconds))
+    return float(values[order[min(k, order.size - 1)]])
 
 
 def observed_dynamics(
@@ -140,12 +150,12 @@ def observed_dynamics(
     Returns:
         None when fewer than :data:`MIN_SPAN_S` seconds have usable neighbours.
     """
-    ah, av, dt = accelerations(t_gps_ns, ecef_m, usable)
-    if ah.size == 0 or ah.size * dt < MIN_SPAN_S:
+    ah, av, w = accelerations(t_gps_ns, ecef_m, usable)
+    if ah.size == 0 or float(w.sum()) < MIN_SPAN_S:
         return None
     return Dynamics(
-        exceeded_for(ah, dt), exceeded_for(av, dt), float(ah.max()), float(av.max()),
-        ah.size * dt, int(ah.size),
+        exceeded_for(ah, w), exceeded_for(av, w), float(ah.max()), float(av.max()),
+        float(w.sum()), int(ah.size),
     )
 
 
