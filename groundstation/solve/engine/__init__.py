@@ -213,7 +213,9 @@ def derive_dynamics(
     ):
         return opts, None, []
     if all(k in user_keys for k in ACCEL_KEYS):
-        return opts, None, ["acceleration noise: the user's values (not derived)"]
+        used = {k: opts[k] for k in ACCEL_KEYS}
+        return opts, {"measured": None, "used": used, "user": list(ACCEL_KEYS)}, [
+            "acceleration noise: the user's values (not derived)"]
     if progress is not None:
         progress("dynamics (forward pass)", 0.0)
     t0 = time.perf_counter()
@@ -232,7 +234,9 @@ def derive_dynamics(
         note = (f"acceleration noise: the default {opts[ACCEL_KEYS[0]]} / {opts[ACCEL_KEYS[1]]} "
                 f"m/s^2 (the forward pass fixed too few epochs to measure the dynamics)")
         return opts, {"measured": None, "used": {k: opts[k] for k in ACCEL_KEYS}}, [note]
-    derived = dict(zip(ACCEL_KEYS, (f"{q:g}" for q in dy.process_noise(dyn)), strict=True))
+    constant = (float(engine.defaults[ACCEL_KEYS[0]]), float(engine.defaults[ACCEL_KEYS[1]]))
+    derived = dict(zip(ACCEL_KEYS, (f"{q:g}" for q in dy.process_noise(dyn, constant)),
+                       strict=True))
     for key, value in derived.items():
         if key not in user_keys:
             opts[key] = value
@@ -249,7 +253,9 @@ def derive_dynamics(
         f"(horizontal / vertical) from the rover's observed dynamics: "
         f"{dyn.accel_h_m_s2:.3f} / {dyn.accel_v_m_s2:.3f} m/s^2 sustained for "
         f"{dy.EXCEEDED_S:g} s (peaks {dyn.peak_h_m_s2:.2f} / {dyn.peak_v_m_s2:.2f}) over "
-        f"{dyn.seconds:.0f} s of a forward pass's fixed epochs"
+        f"{dyn.seconds:.0f} s ({dyn.coverage:.0%}) of a forward pass's fixed epochs"
+        + (f", too little to go below the constant {constant[0]:g} / {constant[1]:g}"
+           if dyn.coverage < dy.MIN_COVERAGE else "")
         + ("; the user's values kept for " + ", ".join(kept) if kept else "")
     )
     return opts, info, [note]
