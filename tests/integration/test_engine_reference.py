@@ -90,20 +90,27 @@ def test_pyrtklib5_reproduces_rtklib_reference(
     assert fixed.sum() > 0.45 * len(ref) and d.max() <= 0.001
 
 
-def _against_reference(
+def _solve_1009(
     shared_data: Path, tmp_path: Path, overrides: dict[str, str]
-) -> tuple[engine.EngineRun, int, int, float, str]:
-    """Our default (+ overrides) on convbin's RINEX of 2018-10-09; fixed counts, p95, summary."""
+) -> engine.EngineRun:
+    """Our default (+ overrides) on convbin's RINEX of 2018-10-09."""
     rover, base, _ = CASES["jd_20181009_kin_vs_M8Pbase_svin"]
     for f in (rover, base):
         for ext in ("obs", "nav"):
             if not (tmp_path / f"{f}.{ext}").exists():
                 _unzip(shared_data / RINEX / f"{f}.{ext}.gz", tmp_path)
-    run = engine.run_engine(
+    return engine.run_engine(
         "demo5", tmp_path / f"{rover}.obs", tmp_path / f"{base}.obs", BASE_1009_XYZ,
         tmp_path / ("work" + "".join(f"_{k}={v}" for k, v in overrides.items())),
         overrides=overrides,
     )
+
+
+def _against_reference(
+    shared_data: Path, tmp_path: Path, overrides: dict[str, str]
+) -> tuple[engine.EngineRun, int, int, float, str]:
+    """Our default (+ overrides) on convbin's RINEX of 2018-10-09; fixed counts, p95, summary."""
+    run = _solve_1009(shared_data, tmp_path, overrides)
     ours = read_pos(run.pos_path)
     ref = read_pos(shared_data / POS / "jd_20181009_kin_vs_M8Pbase_svin.pos.gz")
     _, i, j = np.intersect1d(_epochs_ms(ours), _epochs_ms(ref), return_indices=True)
@@ -163,3 +170,13 @@ def test_the_users_acceleration_noise_wins(shared_data: Path, tmp_path: Path) ->
     derived = run.dynamics["derived"]
     assert isinstance(derived, dict)
     assert run.options["stats-prnaccelh"] == derived["stats-prnaccelh"]
+
+
+def test_no_measurable_dynamics_keeps_the_constant(shared_data: Path, tmp_path: Path) -> None:
+    """A forward pass without a solution (satellites masked below 60 deg): the constant default,
+    and the solve goes on."""
+    run = _solve_1009(shared_data, tmp_path, {"pos1-elmask": "60"})
+    assert run.dynamics is not None and run.dynamics["measured"] is None
+    assert run.options["stats-prnaccelh"] == eo.UBLOX_L1_5HZ["stats-prnaccelh"]
+    assert run.options["stats-prnaccelv"] == eo.UBLOX_L1_5HZ["stats-prnaccelv"]
+    assert "acceleration noise: the default 0.3 / 0.05 m/s^2 (the forward pass failed)" in run.notes

@@ -224,15 +224,21 @@ def derive_dynamics(
         job.work_dir / "dynamics", job.timeout_s,
     )
     first.work_dir.mkdir(parents=True, exist_ok=True)
-    run = engine.run(first)
-    traj = read_pos(run.pos_path)
-    dyn = dy.observed_dynamics(traj.t_gps_ns, traj.ecef_m, traj.quality == Q_FIX)
+    try:
+        traj = read_pos(engine.run(first).pos_path)
+    except GroundstationError as err:  # the main solve may still work: keep the constant
+        log.warning("dynamics pass failed: %s", err)
+        traj = None
+    dyn = (dy.observed_dynamics(traj.t_gps_ns, traj.ecef_m, traj.quality == Q_FIX)
+           if traj is not None else None)
     wall = time.perf_counter() - t0
     if progress is not None:
         progress("dynamics (forward pass)", 1.0)
-    if dyn is None:
+    if traj is None or dyn is None:
+        why = ("the forward pass failed" if traj is None
+               else "the forward pass fixed too few epochs to measure the dynamics")
         note = (f"acceleration noise: the default {opts[ACCEL_KEYS[0]]} / {opts[ACCEL_KEYS[1]]} "
-                f"m/s^2 (the forward pass fixed too few epochs to measure the dynamics)")
+                f"m/s^2 ({why})")
         return opts, {"measured": None, "used": {k: opts[k] for k in ACCEL_KEYS}}, [note]
     constant = (float(engine.defaults[ACCEL_KEYS[0]]), float(engine.defaults[ACCEL_KEYS[1]]))
     derived = dict(zip(ACCEL_KEYS, (f"{q:g}" for q in dy.process_noise(dyn, constant)),
