@@ -212,7 +212,9 @@ def _positions(
     s: SolveSettings, rec: FlightRecords, notes: list[str], progress: Progress | None
 ) -> positions.Trajectory:
     """Stage 2: the antenna's trajectory from the chosen position source (a .pos file, RTKLIB
-    against the base, or the receiver's own fix)."""
+    against the base, or the receiver's own fix). An engine run has stages of its own
+    (``engine.run_engine``): RINEX and phase conditioning, "dynamics" (a forward pass measures
+    the rover's accelerations and sets the filter's acceleration noise), the solve."""
     src = positions.get_source(s.source_name())
     opts = positions.SourceOptions(
         flight=s.flight, positions=s.positions, base=s.base, base_ecef_m=s.base_ecef_m,

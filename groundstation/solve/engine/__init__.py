@@ -4,7 +4,9 @@ Engines are registered by name in :data:`ENGINES`. :func:`run_engine` is the one
 it converts recordings to RINEX, resolves the options (engine defaults < ``--rtk-conf`` <
 ``--base-xyz`` < ``--rtk-opt``, each checked against the engine's own option table), runs the
 engine and writes, next to the ``.pos``, ``engine.json`` with the engine's name, version and
-full option set; the same goes into the ``.pos`` header.
+full option set; the same goes into the ``.pos`` header. Between conversion and the solve, the
+"dynamics" stage (:func:`derive_dynamics`) sets the filter's acceleration noise from a
+forward-only pass when the user has not set it.
 """
 
 from __future__ import annotations
@@ -16,6 +18,8 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, ClassVar, Protocol
+
+import numpy as np
 
 from groundstation import jsonio
 from groundstation.errors import ConfigError, GroundstationError
@@ -66,6 +70,8 @@ class EngineRun:
     notes: tuple[str, ...] = field(default_factory=tuple)
     conditioning: dict[str, object] | None = None
     """What the phase conditioning did to the rover (None when it did not run)."""
+    dynamics: dict[str, object] | None = None
+    """The rover's measured dynamics and the acceleration noise chosen (None: not derived)."""
 
 
 class Engine(Protocol):
@@ -178,6 +184,89 @@ def _to_rinex(
     return res.obs_path, [res.nav_path] if res.ephemerides or res.other_ephemerides else []
 
 
+ACCEL_KEYS = ("stats-prnaccelh", "stats-prnaccelv")
+"""The filter's acceleration process noise, horizontal / vertical (:mod:`.dynamics`)."""
+
+
+def derive_dynamics(
+    engine: Engine, job: EngineJob, user_keys: set[str], progress: Progress | None = None,
+) -> tuple[dict[str, str], dict[str, object] | None, list[str]]:
+    """The "dynamics" stage: the acceleration noise from how the rover moved.
+
+    A forward-only pass of the same engine with the same options gives the rover's fixed
+    positions; :func:`dynamics.observed_dynamics` measures the accelerations there and
+    :func:`dynamics.process_noise` turns them into ``stats-prnaccelh`` / ``stats-prnaccelv``.
+    A value the user gave (``--rtk-conf`` or ``--rtk-opt``) always wins. Nothing is done for an
+    engine whose defaults do not set these keys (b34), for a non-kinematic mode or with the
+    dynamics model off (the keys are unused then), or when the user set both.
+
+    Returns:
+        (the options to solve with, what was measured and chosen or None, notes).
+    """
+    from groundstation.solve.engine import dynamics as dy
+    from groundstation.solve.positions import Q_FIX, read_pos  # positions imports this module
+
+    opts = dict(job.options)
+    if (
+        not all(k in engine.defaults for k in ACCEL_KEYS)
+        or opts.get("pos1-posmode") != "kinematic" or opts.get("pos1-dynamics") != "on"
+    ):
+        return opts, None, []
+    if all(k in user_keys for k in ACCEL_KEYS):
+        used = {k: opts[k] for k in ACCEL_KEYS}
+        return opts, {"measured": None, "used": used, "user": list(ACCEL_KEYS)}, [
+            "acceleration noise: the user's values (not derived)"]
+    if progress is not None:
+        progress("dynamics (forward pass)", 0.0)
+    t0 = time.perf_counter()
+    first = EngineJob(
+        job.rover_obs, job.base_obs, job.nav, {**opts, "pos1-soltype": "forward"},
+        job.work_dir / "dynamics", job.timeout_s,
+    )
+    first.work_dir.mkdir(parents=True, exist_ok=True)
+    try:
+        traj = read_pos(engine.run(first).pos_path)
+    except GroundstationError as err:  # the main solve may still work: keep the constant
+        log.warning("dynamics pass failed: %s", err)
+        traj = None
+    dyn = (dy.observed_dynamics(traj.t_gps_ns, traj.ecef_m, traj.quality == Q_FIX)
+           if traj is not None else None)
+    wall = time.perf_counter() - t0
+    if progress is not None:
+        progress("dynamics (forward pass)", 1.0)
+    if traj is None or dyn is None:
+        why = ("the forward pass failed" if traj is None
+               else "the forward pass fixed too few epochs to measure the dynamics")
+        note = (f"acceleration noise: the default {opts[ACCEL_KEYS[0]]} / {opts[ACCEL_KEYS[1]]} "
+                f"m/s^2 ({why})")
+        return opts, {"measured": None, "used": {k: opts[k] for k in ACCEL_KEYS}}, [note]
+    constant = (float(engine.defaults[ACCEL_KEYS[0]]), float(engine.defaults[ACCEL_KEYS[1]]))
+    derived = dict(zip(ACCEL_KEYS, (f"{q:g}" for q in dy.process_noise(dyn, constant)),
+                       strict=True))
+    for key, value in derived.items():
+        if key not in user_keys:
+            opts[key] = value
+    used = {k: opts[k] for k in ACCEL_KEYS}
+    kept = sorted(k for k in ACCEL_KEYS if k in user_keys)
+    info: dict[str, object] = {
+        "measured": dyn.as_dict(), "derived": derived, "used": used, "user": kept,
+        "formula": dy.FORMULA,
+        "pass_fixed": int(np.sum(traj.quality == Q_FIX)), "pass_epochs": len(traj),
+        "pass_wall_s": round(wall, 3),
+    }
+    note = (
+        f"acceleration noise {used[ACCEL_KEYS[0]]} / {used[ACCEL_KEYS[1]]} m/s^2/sqrt(s) "
+        f"(horizontal / vertical) from the rover's observed dynamics: "
+        f"{dyn.accel_h_m_s2:.3f} / {dyn.accel_v_m_s2:.3f} m/s^2 sustained for "
+        f"{dy.EXCEEDED_S:g} s (peaks {dyn.peak_h_m_s2:.2f} / {dyn.peak_v_m_s2:.2f}) over "
+        f"{dyn.seconds:.0f} s ({dyn.coverage:.0%}) of a forward pass's fixed epochs"
+        + (f", too little to go below the constant {constant[0]:g} / {constant[1]:g}"
+           if dyn.coverage < dy.MIN_COVERAGE else "")
+        + ("; the user's values kept for " + ", ".join(kept) if kept else "")
+    )
+    return opts, info, [note]
+
+
 def run_engine(
     engine_name: str,
     rover: Path,
@@ -190,12 +279,15 @@ def run_engine(
     progress: Progress | None = None,
     timeout_s: float = 3600.0,
     condition: bool = True,
+    dynamics: bool = True,
 ) -> EngineRun:
     """Convert rover and base to RINEX if needed, run the engine, record how.
 
     With ``condition`` the rover's carrier phase is conditioned on the way to RINEX
     (:mod:`groundstation.solve.conditioning`: hidden slips found, slips repaired or flagged,
-    half cycles resolved); what it did goes into ``engine.json`` and the run's notes.
+    half cycles resolved); what it did goes into ``engine.json`` and the run's notes. With
+    ``dynamics`` the acceleration noise comes from the rover's observed motion
+    (:func:`derive_dynamics`) unless the user set it.
 
     Raises:
         ConfigError: unknown engine, option key or value.
@@ -222,6 +314,14 @@ def run_engine(
     if not nav:
         raise EngineError("no navigation data (ephemerides) in the rover or base recording")
     job = EngineJob(rover_obs, base_obs, nav, opts, work_dir, timeout_s)
+    dyn_info: dict[str, object] | None = None
+    if dynamics:
+        user_keys = set(overrides or {})
+        if conf is not None:
+            user_keys |= set(eo.read_conf(conf, engine.option_table()))
+        opts, dyn_info, dyn_notes = derive_dynamics(engine, job, user_keys, progress)
+        notes.extend(dyn_notes)
+        job = EngineJob(rover_obs, base_obs, nav, opts, work_dir, timeout_s)
     t0 = time.perf_counter()
     if progress is not None:
         progress(engine.name, 0.0)
@@ -256,12 +356,13 @@ def run_engine(
         "options": run.options,
         "notes": [*notes, *run.notes],
         "conditioning": cond,
+        "dynamics": dyn_info,
     }
     run.info_path.write_bytes(jsonio.dumps(info, indent=1) + b"\n")
     _stamp_header(run.pos_path, run.engine, run.version, run.options)
     return EngineRun(
         run.engine, run.version, run.pos_path, run.info_path, run.options, wall,
-        (*notes, *run.notes), cond,
+        (*notes, *run.notes), cond, dyn_info,
     )
 
 
@@ -274,6 +375,7 @@ def _stamp_header(pos: Path, engine: str, version: str, opts: Mapping[str, str])
 
 
 __all__ = [
+    "ACCEL_KEYS",
     "DEFAULT_ENGINE",
     "ENGINES",
     "Engine",
@@ -281,6 +383,7 @@ __all__ = [
     "EngineJob",
     "EngineRun",
     "ToolMissingError",
+    "derive_dynamics",
     "get_engine",
     "resolve_options",
     "run_engine",

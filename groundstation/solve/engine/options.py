@@ -312,9 +312,14 @@ UBLOX_L1_5HZ: dict[str, str] = {
     #   built-in options, forward only; 0.05 / 0.01: 2.01 cm, 0.2 / 0.01: 2.20 cm, 0.1 / 0.02:
     #   2.15 cm).
     # No single pair gives both the 2 cm agreement and a clean multicopter flight; the vertical
-    # 0.01 that the walk likes cannot follow a climb. This default is for the LEA-6T on a
-    # multicopter (the 0.05 vertical is what the descent needs); a ground rover may set
-    # --rtk-opt stats-prnaccelh=0.1 --rtk-opt stats-prnaccelv=0.01.
+    # 0.01 that the walk likes cannot follow a climb. So these two are only the constant the
+    # solve starts from: run_engine's "dynamics" stage (engine/dynamics.py) replaces them by
+    # values derived from the rover's observed accelerations (walk: 0.16 / 0.013, 1826 fixed,
+    # 1.95 cm; simulated multicopter: 0.33 / 0.06, no wrong fix), unless the user set them.
+    # The forward pass that measures runs with them; they stay in force where nothing can be
+    # measured (a pass with too few fixes) and as the lower bound when the pass saw under 75 %
+    # of the flight. 0.3 / 0.05 keeps the
+    # multicopter safe, the platform this default is for.
     "stats-prnaccelh": "0.3",
     "stats-prnaccelv": "0.05",
     "stats-prnbias": "0.0001",
