@@ -263,12 +263,12 @@ def test_the_real_flight_solves_as_well_from_our_navigation_files(
        convbin's nav files: same quality on every epoch, fixed and float positions within
        0.1 mm (before this
        work our nav had no GLONASS: 1626 fixed, 7.9 cm p95).
-    2. From our RINEX alone (``run_engine`` on the .ubx files): 1831 fixed epochs (convbin's
-       RINEX: 1826) and 2.85 cm p95 against the demo5 reference where both are fixed (convbin's:
-       2.38 cm). The difference comes from the 76 base epochs we recover after damaged frames and
-       convbin loses (README "frames after damage"): without them our RINEX gives convbin's
-       1826 / 2.38 cm exactly; with them the solution moves near those epochs, where the
-       reference (made without them) cannot agree.
+    2. From our RINEX alone (``run_engine`` on the .ubx files, acceleration noise set from the
+       measured dynamics): 1839 fixed epochs (convbin's RINEX: 1826) and 2.18 cm p95 against
+       the demo5 reference where both are fixed (convbin's: 1.95 cm). The difference comes from
+       the 76 base epochs we recover after damaged frames and convbin loses (README "frames
+       after damage"): the solution moves near those epochs, where the reference (made without
+       them) cannot agree.
     """
     ref_dir = shared_data / "reference" / "convbin_rinex"
     conv = {ext: {s: gzip.decompress((ref_dir / f"{s}.{ext}.gz").read_bytes()).decode()
