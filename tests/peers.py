@@ -1,17 +1,20 @@
 """Real peers for integration tests: a pty pair that can be unplugged, the daemon as a
-real process with its stderr collected, and :func:`wait_until`, the one way a test waits for
+real process with its stderr collected, a CLI process in its own working directory
+(:class:`CliProc`, with :func:`cli_env`), and :func:`wait_until`, the one way a test waits for
 something to happen (a condition with a timeout, never a fixed sleep)."""
 
 from __future__ import annotations
 
+import os
 import signal
 import socket
 import subprocess
 import sys
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from pathlib import Path
+from typing import TypeVar
 
 from groundstation.live.fanout import Inbox, InboxClosed
 from groundstation.records import Event, Status
@@ -19,22 +22,25 @@ from groundstation.sim.ptylink import PtyLink
 
 REPO = Path(__file__).resolve().parents[1]
 
+T = TypeVar("T")
+
 
 def wait_until(
-    cond: Callable[[], object], timeout_s: float = 10.0, what: str = "condition",
+    cond: Callable[[], T], timeout_s: float = 10.0, what: str = "condition",
     poll_s: float = 0.02,
-) -> None:
-    """Return as soon as ``cond()`` is true; fail naming ``what`` after ``timeout_s``.
+) -> T:
+    """Return ``cond()``'s value as soon as it is true; fail naming ``what`` after ``timeout_s``.
 
     Polls every ``poll_s``: the things tests wait for (a file's size, a message on the bus, a
     line on stderr) have no notification to block on, and the poll keeps the wait short
     where a fixed sleep would have to assume the slowest machine.
     """
     deadline = time.monotonic() + timeout_s
-    while not cond():
+    while not (got := cond()):
         if time.monotonic() >= deadline:
             raise AssertionError(f"{what} not met within {timeout_s:g} s")
         time.sleep(poll_s)
+    return got
 
 
 def free_port() -> int:
@@ -43,6 +49,64 @@ def free_port() -> int:
         s.bind(("127.0.0.1", 0))
         port: int = s.getsockname()[1]
         return port
+
+
+def cli_env(**settings: str) -> dict[str, str]:
+    """The environment of a CLI process a test starts: this one's without any
+    ``GROUNDSTATION_*`` setting (the test names every setting it means), the repository on
+    ``PYTHONPATH`` (the process runs in its own directory), then ``settings``."""
+    env = {k: v for k, v in os.environ.items() if not k.startswith("GROUNDSTATION_")}
+    env["PYTHONPATH"] = str(REPO)
+    env.update(settings)
+    return env
+
+
+class CliProc:
+    """``python -m groundstation.cli *argv`` in its own working directory ``cwd`` (made if
+    missing), its stdout and stderr in ``stdout.txt`` and ``stderr.txt`` there.
+
+    Files rather than pipes: a long-running process never blocks on a full pipe, and what it
+    said stays readable after a failure. ``env`` adds settings to :func:`cli_env`;
+    ``wait_s`` is how long :meth:`wait_for` waits unless told otherwise.
+    """
+
+    def __init__(self, cwd: Path, *argv: str, env: Mapping[str, str] | None = None,
+                 wait_s: float = 60.0) -> None:
+        cwd.mkdir(parents=True, exist_ok=True)
+        self.cwd = cwd
+        self.wait_s = wait_s
+        self.out_path = cwd / "stdout.txt"
+        self.err_path = cwd / "stderr.txt"
+        with self.out_path.open("w") as out, self.err_path.open("w") as err:
+            self.proc = subprocess.Popen(
+                [sys.executable, "-m", "groundstation.cli", *argv], cwd=cwd,
+                env=cli_env(**(env or {})), stdout=out, stderr=err,
+            )
+
+    def stderr(self) -> str:
+        """All the process wrote on stderr so far."""
+        return self.err_path.read_text(errors="replace")
+
+    def wait_for(self, text: str, timeout_s: float | None = None) -> None:
+        """Return once ``text`` is on stderr; fail with its stderr if the process exits first
+        or ``timeout_s`` (default ``wait_s``) passes."""
+        try:
+            wait_until(lambda: text in self.stderr() or self.proc.poll() is not None,
+                       self.wait_s if timeout_s is None else timeout_s,
+                       f"{text!r} in {self.cwd.name}'s stderr", poll_s=0.1)
+        except AssertionError as e:
+            raise AssertionError(f"{e}:\n{self.stderr()}") from None
+        assert text in self.stderr(), f"{self.cwd.name} exited early:\n{self.stderr()}"
+
+    def stop(self) -> None:
+        """SIGTERM and wait (20 s, then SIGKILL); nothing if it has exited already."""
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGTERM)
+            try:
+                self.proc.wait(timeout=20)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait(timeout=10)
 
 
 class Pty(PtyLink):

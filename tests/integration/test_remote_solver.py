@@ -18,19 +18,18 @@ Separate processes in separate working directories, real Zenoh on loopback, free
 from __future__ import annotations
 
 import json
-import os
 import shutil
 import signal
-import subprocess
-import sys
 import threading
-import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import pytest
-from peers import REPO, free_port
+from peers import CliProc, free_port, wait_until
 
+from groundstation import messages
 from groundstation.bus import Bus, decode, key, open_bus
 from groundstation.config import ZenohSettings
 from groundstation.storage import reading
@@ -38,43 +37,12 @@ from groundstation.storage.transfer import sha256_file
 
 WAIT_S = 120.0  # generous: the shared 2-core machine
 
-
-def _env() -> dict[str, str]:
-    env = {k: v for k, v in os.environ.items() if not k.startswith("GROUNDSTATION_")}
-    env["PYTHONPATH"] = str(REPO)
-    return env
+T = TypeVar("T")
 
 
-class Proc:
-    """A CLI process in its own working directory, stderr to a file."""
-
-    def __init__(self, cwd: Path, *argv: str) -> None:
-        cwd.mkdir(parents=True, exist_ok=True)
-        self.err_path = cwd / "stderr.txt"
-        self.proc = subprocess.Popen(
-            [sys.executable, "-m", "groundstation.cli", *argv], cwd=cwd, env=_env(),
-            stdout=(cwd / "stdout.txt").open("w"), stderr=self.err_path.open("w"))
-
-    def stderr(self) -> str:
-        return self.err_path.read_text(errors="replace")
-
-    def wait_for(self, text: str, timeout_s: float = WAIT_S) -> None:
-        deadline = time.monotonic() + timeout_s
-        while time.monotonic() < deadline:
-            if text in self.stderr():
-                return
-            assert self.proc.poll() is None, f"exited early:\n{self.stderr()}"
-            time.sleep(0.1)
-        raise AssertionError(f"no {text!r} within {timeout_s} s:\n{self.stderr()}")
-
-    def stop(self) -> None:
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGTERM)
-            try:
-                self.proc.wait(timeout=20)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait(timeout=10)
+def _proc(cwd: Path, *argv: str) -> CliProc:
+    """A :class:`CliProc` that waits for its lines as long as this module's processes need."""
+    return CliProc(cwd, *argv, wait_s=WAIT_S)
 
 
 class Solutions:
@@ -93,14 +61,59 @@ class Solutions:
         return done[-1] if done else None
 
 
-def _until(check: Any, what: str, timeout_s: float = WAIT_S) -> Any:
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        got = check()
-        if got:
-            return got
-        time.sleep(0.2)
-    raise AssertionError(f"{what} not within {timeout_s:g} s")
+def _until(check: Callable[[], T | None], what: str, timeout_s: float = WAIT_S) -> T:
+    """:func:`wait_until` with this module's generous timeout: ``check()``'s value once true."""
+    got = wait_until(check, timeout_s, what, poll_s=0.2)
+    assert got is not None
+    return got
+
+
+class Sessions:
+    """Every ``session`` message of the rover, parsed."""
+
+    def __init__(self, bus: Bus) -> None:
+        self.lock = threading.Lock()
+        self.items: list[dict[str, Any]] = []
+        bus.subscribe(key("rover", "session"), self.on)
+
+    def on(self, _key: str, payload: bytes) -> None:
+        with self.lock:
+            self.items.append(messages.parse(payload, "session"))
+
+    def first(self, which: Callable[[dict[str, Any]], object]) -> dict[str, Any] | None:
+        with self.lock:
+            return next((m for m in self.items if which(m)), None)
+
+
+@contextmanager
+def _rover_on_simulator(tmp_path: Path, top: str = "", more: str = "",
+                        zenoh: str = "") -> Iterator[tuple[CliProc, Bus, Sessions]]:
+    """The simulator streaming on TCP (in ``sim/``) and ``groundstation run`` recording it in
+    ``A/`` (its ``rover.toml``: top-level keys ``top``, tables ``more``, ``[zenoh]`` keys
+    ``zenoh``) and listening on a free endpoint; this process a client of it, keeping the
+    rover's session messages. Yields the daemon, the bus and the messages; stops both."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    sim_port = free_port()
+    procs: list[CliProc] = []
+    bus: Bus | None = None
+    try:
+        procs.append(_proc(tmp_path / "sim", "simulate", "--tcp", str(sim_port), "--duration",
+                           "600", "--speed", "1"))
+        a_dir = tmp_path / "A"
+        a_dir.mkdir()
+        (a_dir / "rover.toml").write_text(
+            f'station = "rover"\n{top}[source]\naddress = "127.0.0.1:{sim_port}"\n{more}'
+            f'[zenoh]\nlisten = ["{endpoint}"]\n{zenoh}')
+        daemon = _proc(a_dir, "run", "--config", "rover.toml")
+        procs.append(daemon)
+        daemon.wait_for("publishing on Zenoh")
+        bus = open_bus(ZenohSettings(mode="client", listen=(), connect=(endpoint,)))
+        yield daemon, bus, Sessions(bus)
+    finally:
+        if bus is not None:
+            bus.close()
+        for p in reversed(procs):
+            p.stop()
 
 
 @pytest.mark.slow
@@ -112,14 +125,14 @@ def test_a_remote_solver_fetches_the_recording_through_the_router_and_solves_it(
     router_dir.mkdir()
     (router_dir / "router.toml").write_text(
         f'listen = ["{endpoint}"]\n[access]\nenabled = true\nlocal = true\n')
-    procs: list[Proc] = []
+    procs: list[CliProc] = []
     bus: Bus | None = None
     try:
-        router = Proc(router_dir, "router", "--config", "router.toml")
+        router = _proc(router_dir, "router", "--config", "router.toml")
         procs.append(router)
         router.wait_for("router listening")
         # the station: a flight long enough for the solver to start while it flies
-        demo = Proc(a_dir, "demo", "--station", "rover", "--no-view", "--flight", "120",
+        demo = _proc(a_dir, "demo", "--station", "rover", "--no-view", "--flight", "120",
                     "--speed", "6", "--seed", "6", "--out-dir", "flights",
                     "--zenoh-listen", endpoint, "--serve-after", "300")
         procs.append(demo)
@@ -140,7 +153,7 @@ def test_a_remote_solver_fetches_the_recording_through_the_router_and_solves_it(
             f'base_xyz = [{xyz}]\nlever_arm = [0.16, -0.03, 0.57]\n')
         bus = open_bus(ZenohSettings(mode="client", listen=(), connect=(endpoint,)))
         sols = Solutions(bus)
-        solver = Proc(b_dir, "solver", "--config", "solver.toml")
+        solver = _proc(b_dir, "solver", "--config", "solver.toml")
         procs.append(solver)
         solver.wait_for("listening on groundstation/*/session")
 
@@ -182,40 +195,14 @@ def test_each_rotated_part_is_served_while_the_daemon_records(tmp_path: Path) ->
     """``groundstation run`` on the simulator's TCP stream, a new file every 5 s: each closed
     part appears in ``recordings[]`` and is fetched byte-identical while the daemon goes on
     recording; the part being written is refused."""
-    from groundstation import messages
     from groundstation.solve.fetch import Fetcher, remote_for
     from groundstation.storage import transfer
 
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
-    sim_port = free_port()
-    procs: list[Proc] = []
-    bus: Bus | None = None
-    sessions: list[dict[str, Any]] = []
-    lock = threading.Lock()
-    try:
-        procs.append(Proc(tmp_path / "sim", "simulate", "--tcp", str(sim_port), "--duration",
-                          "600", "--speed", "1"))
-        a_dir = tmp_path / "A"
-        a_dir.mkdir()
-        (a_dir / "rover.toml").write_text(
-            f'station = "rover"\n[source]\naddress = "127.0.0.1:{sim_port}"\n'
-            f'[recorder]\nrotate_duration_s = 5\n[zenoh]\nlisten = ["{endpoint}"]\n')
-        daemon = Proc(a_dir, "run", "--config", "rover.toml")
-        procs.append(daemon)
-        daemon.wait_for("publishing on Zenoh")
-        bus = open_bus(ZenohSettings(mode="client", listen=(), connect=(endpoint,)))
-
-        def on_session(_key: str, payload: bytes) -> None:
-            with lock:
-                sessions.append(messages.parse(payload, "session"))
-
-        bus.subscribe(key("rover", "session"), on_session)
-
-        def served() -> dict[str, Any] | None:
-            with lock:
-                return next((m for m in sessions if m.get("recordings")), None)
-
-        msg = _until(served, "a session message listing a closed part", 60)
+    a_dir = tmp_path / "A"
+    with _rover_on_simulator(tmp_path, more="[recorder]\nrotate_duration_s = 5\n") as (
+            daemon, bus, sessions):
+        msg = _until(lambda: sessions.first(lambda m: m.get("recordings")),
+                     "a session message listing a closed part", 60)
         assert msg["state"] == "started"
         first = msg["recordings"][0]
         assert first["name"] == Path(msg["files"][0]).name
@@ -233,11 +220,6 @@ def test_each_rotated_part_is_served_while_the_daemon_records(tmp_path: Path) ->
         assert got.read_bytes() == on_disk.read_bytes()
         assert sha256_file(on_disk) == first["sha256"]
         assert daemon.proc.poll() is None  # still recording
-    finally:
-        if bus is not None:
-            bus.close()
-        for p in reversed(procs):
-            p.stop()
 
 
 @pytest.mark.slow
@@ -245,39 +227,12 @@ def test_after_the_session_the_daemon_serves_until_told_to_stop(tmp_path: Path) 
     """``run`` with ``duration_s`` and ``serve_after_s``: the session ends, the last file is
     announced ``finished`` with its SHA-256 and served; nobody fetches it, so the daemon
     waits, and a SIGTERM then ends it at once, cleanly."""
-    from groundstation import messages
-
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
-    sim_port = free_port()
-    procs: list[Proc] = []
-    bus: Bus | None = None
-    sessions: list[dict[str, Any]] = []
-    lock = threading.Lock()
-    try:
-        procs.append(Proc(tmp_path / "sim", "simulate", "--tcp", str(sim_port), "--duration",
-                          "600", "--speed", "1"))
-        a_dir = tmp_path / "A"
-        a_dir.mkdir()
-        (a_dir / "rover.toml").write_text(
-            f'station = "rover"\nduration_s = 4\n[source]\naddress = "127.0.0.1:{sim_port}"\n'
-            f'[zenoh]\nlisten = ["{endpoint}"]\nserve_after_s = 600\n')
-        daemon = Proc(a_dir, "run", "--config", "rover.toml")
-        procs.append(daemon)
-        daemon.wait_for("publishing on Zenoh")
-        bus = open_bus(ZenohSettings(mode="client", listen=(), connect=(endpoint,)))
-
-        def on_session(_key: str, payload: bytes) -> None:
-            with lock:
-                sessions.append(messages.parse(payload, "session"))
-
-        bus.subscribe(key("rover", "session"), on_session)
+    a_dir = tmp_path / "A"
+    with _rover_on_simulator(tmp_path, top="duration_s = 4\n", zenoh="serve_after_s = 600\n") as (
+            daemon, _bus, sessions):
         daemon.wait_for("serving 1 recording file(s) for up to 600 s")
-
-        def finished() -> dict[str, Any] | None:
-            with lock:
-                return next((m for m in sessions if m.get("state") == "finished"), None)
-
-        msg = _until(finished, "the finished session message", 30)
+        msg = _until(lambda: sessions.first(lambda m: m.get("state") == "finished"),
+                     "the finished session message", 30)
         (mcap,) = (a_dir / "flights").glob("rover_*.mcap")
         assert msg["recordings"] == [{"name": mcap.name, "size": mcap.stat().st_size,
                                       "sha256": sha256_file(mcap), "chunk_bytes": 262144}]
@@ -285,11 +240,6 @@ def test_after_the_session_the_daemon_serves_until_told_to_stop(tmp_path: Path) 
         daemon.proc.send_signal(signal.SIGTERM)
         assert daemon.proc.wait(timeout=20) == 0, daemon.stderr()
         assert "Traceback" not in daemon.stderr()
-    finally:
-        if bus is not None:
-            bus.close()
-        for p in reversed(procs):
-            p.stop()
 
 
 @pytest.mark.slow
@@ -325,16 +275,16 @@ def test_over_mutual_tls_a_solver_fetches_and_another_station_cannot(tmp_path: P
                                       tls_ca=ca / "ca.pem", tls_certificate=ca / f"{name}.pem",
                                       tls_private_key=ca / f"{name}.key"))
 
-    procs: list[Proc] = []
+    procs: list[CliProc] = []
     buses: list[Bus] = []
     try:
-        router = Proc(router_dir, "router", "--config", "router.toml")
+        router = _proc(router_dir, "router", "--config", "router.toml")
         procs.append(router)
         router.wait_for("router listening")
         (b_dir / "base").mkdir(parents=True)
         base = b_dir / "base" / "base.ubx"  # the base's stream, on the solver's side
         truth_path = tmp_path / "truth.json"
-        procs.append(Proc(tmp_path / "sim", "simulate", "--tcp", str(sim_port), "--duration",
+        procs.append(_proc(tmp_path / "sim", "simulate", "--tcp", str(sim_port), "--duration",
                           "120", "--speed", "6", "--seed", "6", "--faults", "default",
                           "--base-out", str(base), "--truth", str(truth_path)))
         # truth and base are written before it listens
@@ -348,14 +298,14 @@ def test_over_mutual_tls_a_solver_fetches_and_another_station_cannot(tmp_path: P
         observer = as_party("solver")
         buses.append(observer)
         sols = Solutions(observer)
-        solver = Proc(b_dir, "solver", "--config", "solver.toml")
+        solver = _proc(b_dir, "solver", "--config", "solver.toml")
         procs.append(solver)
         solver.wait_for("listening on groundstation/*/session")
         a_dir.mkdir()
         (a_dir / "rover.toml").write_text(
             f'station = "rover"\nduration_s = 26\n[source]\naddress = "127.0.0.1:{sim_port}"\n'
             + tls_zenoh("rover") + "serve_after_s = 300\n")
-        daemon = Proc(a_dir, "run", "--config", "rover.toml")
+        daemon = _proc(a_dir, "run", "--config", "rover.toml")
         procs.append(daemon)
         daemon.wait_for("serving 1 recording file(s)")
         (mcap,) = (a_dir / "flights").glob("rover_*.mcap")
