@@ -42,10 +42,19 @@ SATS = [(3, 0), (7, 0), (11, 2), (19, 0), (23, 0), (27, 0)]
 
 
 class Feeder:
-    """Writes 5 Hz epochs into a pty in a thread until stopped (the old device keeps talking)."""
+    """A simulated receiver on a pty: 5 Hz epochs written in a thread until closed (the old
+    device keeps talking); keeps every piece it wrote, in order.
 
-    def __init__(self, link: PtyLink) -> None:
+    ``period_s`` is the pause between epochs: 0.2 is real time, 0.02 ten times that (so a
+    rotation holds many). ``marks``: a time mark with every fifth epoch.
+    """
+
+    def __init__(self, link: PtyLink, period_s: float = 0.2, marks: bool = False) -> None:
         self.link = link
+        self.period_s = period_s
+        self.marks = marks
+        self.sent: list[bytes] = []
+        self.lock = threading.Lock()  # a piece is written and counted at once
         self.stop = threading.Event()
         self.thread = threading.Thread(target=self.run, daemon=True)
         self.thread.start()
@@ -53,12 +62,16 @@ class Feeder:
     def run(self) -> None:
         k = 0
         while not self.stop.is_set():
-            try:
-                self.link.write(epoch_with_mark(k, None, SATS, WEEK, TOW0_MS))
-            except OSError:
-                return
+            mark = k // 5 if self.marks and k % 5 == 0 else None
+            data = epoch_with_mark(k, mark, SATS, WEEK, TOW0_MS)
+            with self.lock:
+                try:
+                    self.link.write(data)
+                except OSError:
+                    return
+                self.sent.append(data)
             k += 1
-            time.sleep(0.2)
+            time.sleep(self.period_s)
 
     def close(self) -> None:
         self.stop.set()
@@ -112,36 +125,6 @@ def test_repointed_device_path_is_reopened_and_recorded_within_3_s(
         new.close()
 
 
-class CountingFeeder:
-    """A simulated receiver on a pty: 5 Hz epochs with a mark every fifth, written at 50 Hz
-    (ten times real time, so a rotation holds many); keeps every piece it wrote, in order."""
-
-    def __init__(self, link: PtyLink) -> None:
-        self.link = link
-        self.sent: list[bytes] = []
-        self.lock = threading.Lock()  # a piece is written and counted at once
-        self.stop = threading.Event()
-        self.thread = threading.Thread(target=self.run, daemon=True)
-        self.thread.start()
-
-    def run(self) -> None:
-        k = 0
-        while not self.stop.is_set():
-            data = epoch_with_mark(k, k // 5 if k % 5 == 0 else None, SATS, WEEK, TOW0_MS)
-            with self.lock:
-                try:
-                    self.link.write(data)
-                except OSError:
-                    return
-                self.sent.append(data)
-            k += 1
-            time.sleep(0.02)
-
-    def close(self) -> None:
-        self.stop.set()
-        self.thread.join(timeout=5)
-
-
 def _frames(data: bytes) -> list[bytes]:
     return [f.raw for f in UbxFramer().feed(data, 0)]
 
@@ -165,7 +148,7 @@ def test_out_dir_deleted_mid_session_alerts_and_loses_nothing_after(
     if bus is not None:
         for leaf in ("event", "session"):
             bus.subscribe(key("vd", leaf), lambda _k, payload: seen.append(decode(payload)))
-    feeder = CountingFeeder(pty)
+    feeder = Feeder(pty, period_s=0.02, marks=True)
     try:
         wait_until(lambda: len(feeder.sent) > 100 and len(list(out.glob("*.mcap"))) >= 1
                    + rotate, timeout_s=20, what="a recording under way")
