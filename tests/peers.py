@@ -1,7 +1,8 @@
 """Real peers for integration tests: a pty pair that can be unplugged, the daemon as a
 real process with its stderr collected, a CLI process in its own working directory
-(:class:`CliProc`, with :func:`cli_env`), and :func:`wait_until`, the one way a test waits for
-something to happen (a condition with a timeout, never a fixed sleep)."""
+(:class:`CliProc`, with :func:`cli_env`), the messages a bus delivers (:class:`Received`),
+and :func:`wait_until`, the one way a test waits for something to happen (a condition with a
+timeout, never a fixed sleep)."""
 
 from __future__ import annotations
 
@@ -14,8 +15,9 @@ import threading
 import time
 from collections.abc import Callable, Mapping
 from pathlib import Path
-from typing import TypeVar
+from typing import Any, TypeVar
 
+from groundstation.bus import Bus, decode
 from groundstation.live.fanout import Inbox, InboxClosed
 from groundstation.records import Event, Status
 from groundstation.sim.ptylink import PtyLink
@@ -161,6 +163,36 @@ class Daemon:
         if self.proc.poll() is None:
             self.proc.kill()
             self.proc.wait(timeout=10)
+
+
+def _every(_message: dict[str, Any]) -> bool:
+    return True
+
+
+class Received:
+    """Every message a bus delivers on ``key_expr``, parsed by ``parse``, with its arrival time
+    (monotonic), in order; read from the test's thread while the bus's thread adds."""
+
+    def __init__(self, bus: Bus, key_expr: str,
+                 parse: Callable[[bytes], dict[str, Any]] = decode) -> None:
+        self._parse = parse
+        self._lock = threading.Lock()
+        self._items: list[tuple[float, dict[str, Any]]] = []
+        bus.subscribe(key_expr, self._on)
+
+    def _on(self, _key: str, payload: bytes) -> None:
+        with self._lock:
+            self._items.append((time.monotonic(), self._parse(payload)))
+
+    def timed(self, which: Callable[[dict[str, Any]], object] = _every,
+              ) -> list[tuple[float, dict[str, Any]]]:
+        """The messages ``which`` accepts (default: all), each with its arrival time."""
+        with self._lock:
+            return [(t, m) for t, m in self._items if which(m)]
+
+    def all(self, which: Callable[[dict[str, Any]], object] = _every) -> list[dict[str, Any]]:
+        """The messages ``which`` accepts (default: all)."""
+        return [m for _, m in self.timed(which)]
 
 
 class EventCollector:

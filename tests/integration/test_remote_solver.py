@@ -20,14 +20,13 @@ from __future__ import annotations
 import json
 import shutil
 import signal
-import threading
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, TypeVar
 
 import pytest
-from peers import CliProc, free_port, wait_until
+from peers import CliProc, Received, free_port, wait_until
 
 from groundstation import messages
 from groundstation.bus import Bus, decode, key, open_bus
@@ -45,20 +44,10 @@ def _proc(cwd: Path, *argv: str) -> CliProc:
     return CliProc(cwd, *argv, wait_s=WAIT_S)
 
 
-class Solutions:
-    def __init__(self, bus: Bus) -> None:
-        self.lock = threading.Lock()
-        self.items: list[dict[str, Any]] = []
-        bus.subscribe(key("*", "solution"), self.on)
-
-    def on(self, _key: str, payload: bytes) -> None:
-        with self.lock:
-            self.items.append(decode(payload))
-
-    def final(self) -> dict[str, Any] | None:
-        with self.lock:
-            done = [m for m in self.items if m.get("status") not in ("solving", None)]
-        return done[-1] if done else None
+def _final(sols: Received) -> dict[str, Any] | None:
+    """The last solution message that is a verdict (not "solving"), if any yet."""
+    done = sols.all(lambda m: m.get("status") not in ("solving", None))
+    return done[-1] if done else None
 
 
 def _until(check: Callable[[], T | None], what: str, timeout_s: float = WAIT_S) -> T:
@@ -68,26 +57,9 @@ def _until(check: Callable[[], T | None], what: str, timeout_s: float = WAIT_S) 
     return got
 
 
-class Sessions:
-    """Every ``session`` message of the rover, parsed."""
-
-    def __init__(self, bus: Bus) -> None:
-        self.lock = threading.Lock()
-        self.items: list[dict[str, Any]] = []
-        bus.subscribe(key("rover", "session"), self.on)
-
-    def on(self, _key: str, payload: bytes) -> None:
-        with self.lock:
-            self.items.append(messages.parse(payload, "session"))
-
-    def first(self, which: Callable[[dict[str, Any]], object]) -> dict[str, Any] | None:
-        with self.lock:
-            return next((m for m in self.items if which(m)), None)
-
-
 @contextmanager
 def _rover_on_simulator(tmp_path: Path, top: str = "", more: str = "",
-                        zenoh: str = "") -> Iterator[tuple[CliProc, Bus, Sessions]]:
+                        zenoh: str = "") -> Iterator[tuple[CliProc, Bus, Received]]:
     """The simulator streaming on TCP (in ``sim/``) and ``groundstation run`` recording it in
     ``A/`` (its ``rover.toml``: top-level keys ``top``, tables ``more``, ``[zenoh]`` keys
     ``zenoh``) and listening on a free endpoint; this process a client of it, keeping the
@@ -108,7 +80,8 @@ def _rover_on_simulator(tmp_path: Path, top: str = "", more: str = "",
         procs.append(daemon)
         daemon.wait_for("publishing on Zenoh")
         bus = open_bus(ZenohSettings(mode="client", listen=(), connect=(endpoint,)))
-        yield daemon, bus, Sessions(bus)
+        yield daemon, bus, Received(bus, key("rover", "session"),
+                                      lambda p: messages.parse(p, "session"))
     finally:
         if bus is not None:
             bus.close()
@@ -152,14 +125,14 @@ def test_a_remote_solver_fetches_the_recording_through_the_router_and_solves_it(
             f'[stations.rover]\nbase = "{b_dir / "base"}/{{stem}}_base.ubx"\n'
             f'base_xyz = [{xyz}]\nlever_arm = [0.16, -0.03, 0.57]\n')
         bus = open_bus(ZenohSettings(mode="client", listen=(), connect=(endpoint,)))
-        sols = Solutions(bus)
+        sols = Received(bus, key("*", "solution"))
         solver = _proc(b_dir, "solver", "--config", "solver.toml")
         procs.append(solver)
         solver.wait_for("listening on groundstation/*/session")
 
         # the flight ends; the daemon announces the finished file with its SHA-256 and serves it
         demo.wait_for("serving 1 recording file(s)")
-        final = _until(sols.final, "a final solution")
+        final = _until(lambda: _final(sols), "a final solution")
         assert final["status"] == "ok", (final, solver.stderr())
         (mcap,) = (a_dir / "flights").glob("rover_*.mcap")
         fetched = b_dir / "solutions" / "rover" / mcap.name
@@ -201,8 +174,8 @@ def test_each_rotated_part_is_served_while_the_daemon_records(tmp_path: Path) ->
     a_dir = tmp_path / "A"
     with _rover_on_simulator(tmp_path, more="[recorder]\nrotate_duration_s = 5\n") as (
             daemon, bus, sessions):
-        msg = _until(lambda: sessions.first(lambda m: m.get("recordings")),
-                     "a session message listing a closed part", 60)
+        msg = _until(lambda: sessions.all(lambda m: m.get("recordings")),
+                     "a session message listing a closed part", 60)[0]
         assert msg["state"] == "started"
         first = msg["recordings"][0]
         assert first["name"] == Path(msg["files"][0]).name
@@ -231,8 +204,8 @@ def test_after_the_session_the_daemon_serves_until_told_to_stop(tmp_path: Path) 
     with _rover_on_simulator(tmp_path, top="duration_s = 4\n", zenoh="serve_after_s = 600\n") as (
             daemon, _bus, sessions):
         daemon.wait_for("serving 1 recording file(s) for up to 600 s")
-        msg = _until(lambda: sessions.first(lambda m: m.get("state") == "finished"),
-                     "the finished session message", 30)
+        msg = _until(lambda: sessions.all(lambda m: m.get("state") == "finished"),
+                     "the finished session message", 30)[0]
         (mcap,) = (a_dir / "flights").glob("rover_*.mcap")
         assert msg["recordings"] == [{"name": mcap.name, "size": mcap.stat().st_size,
                                       "sha256": sha256_file(mcap), "chunk_bytes": 262144}]
@@ -297,7 +270,7 @@ def test_over_mutual_tls_a_solver_fetches_and_another_station_cannot(tmp_path: P
             f'base = "{base}"\nbase_xyz = [{xyz}]\n' + tls_zenoh("solver"))
         observer = as_party("solver")
         buses.append(observer)
-        sols = Solutions(observer)
+        sols = Received(observer, key("*", "solution"))
         solver = _proc(b_dir, "solver", "--config", "solver.toml")
         procs.append(solver)
         solver.wait_for("listening on groundstation/*/session")
@@ -323,7 +296,7 @@ def test_over_mutual_tls_a_solver_fetches_and_another_station_cannot(tmp_path: P
         for _ in range(3):
             assert intruder.ask(selector, params, 1.0)() == []
 
-        final = _until(sols.final, "a final solution")
+        final = _until(lambda: _final(sols), "a final solution")
         assert final["status"] == "ok", (final, solver.stderr())
         fetched = b_dir / "solutions" / "rover" / mcap.name
         assert final["flight"] == str(fetched)

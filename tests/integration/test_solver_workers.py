@@ -20,9 +20,9 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from peers import CliProc, cli_env, free_port, wait_until
+from peers import CliProc, Received, cli_env, free_port, wait_until
 
-from groundstation.bus import Bus, decode, encode, key, open_bus
+from groundstation.bus import Bus, encode, key, open_bus
 from groundstation.config import ZenohSettings
 from groundstation.sim.ptylink import PtyLink
 from groundstation.storage import reading
@@ -30,27 +30,19 @@ from groundstation.storage import reading
 WAIT_S = 60.0  # generous: the shared 2-core machine
 
 
-class Solutions:
+class Solutions(Received):
     """Every ``solution`` message on the bus, with its arrival time."""
 
     def __init__(self, bus: Bus) -> None:
-        self.lock = threading.Lock()
-        self.items: list[tuple[float, dict[str, Any]]] = []
-        bus.subscribe(key("*", "solution"), self.on)
-
-    def on(self, _key: str, payload: bytes) -> None:
-        with self.lock:
-            self.items.append((time.monotonic(), decode(payload)))
+        super().__init__(bus, key("*", "solution"))
 
     def of(self, status: str, session_id: str | None = None) -> list[dict[str, Any]]:
-        with self.lock:
-            return [m for _, m in self.items if m.get("status") == status
-                    and (session_id is None or m.get("session_id") == session_id)]
+        return self.all(lambda m: m.get("status") == status
+                        and (session_id is None or m.get("session_id") == session_id))
 
     def when(self, status: str, session_id: str) -> list[tuple[float, dict[str, Any]]]:
-        with self.lock:
-            return [(t, m) for t, m in self.items
-                    if m.get("status") == status and m.get("session_id") == session_id]
+        return self.timed(lambda m: m.get("status") == status
+                          and m.get("session_id") == session_id)
 
 
 def _demo(cwd: Path, station: str, seed: int) -> subprocess.Popen[str]:
