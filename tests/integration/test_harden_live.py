@@ -23,7 +23,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from peers import REPO, Daemon, Pty, free_port, wait_until
+from peers import REPO, Daemon, Pty, Received, free_port, wait_until
 from poison import POISON
 from streams import epoch_with_mark
 
@@ -224,26 +224,17 @@ def test_two_daemons_with_one_station_name_both_alert(
         d2.wait_for("publishing on Zenoh", timeout_s=20)
         feeders = [Feeder(pty), Feeder(second)]
         bus = open_bus(ZenohSettings(listen=(), connect=(e1, e2)))
-        seen: list[dict[str, Any]] = []
-        lock = threading.Lock()
-
-        def on(_k: str, payload: bytes) -> None:
-            with lock:
-                seen.append(decode(payload))
-
-        bus.subscribe(key("dup", "**"), on)
+        got = Received(bus, key("dup", "**"))
         try:
             def conflicts() -> set[str]:
-                with lock:
-                    return {m["data"]["instance"] for m in seen
-                            if m.get("type") == "event" and m.get("kind") == "station.conflict"}
+                return {m["data"]["instance"] for m in got.all()
+                        if m.get("type") == "event" and m.get("kind") == "station.conflict"}
 
             def alerted() -> set[str]:
                 """The daemons (by their out dir) whose status carries the alert."""
-                with lock:
-                    return {Path(str((m.get("recording") or {}).get("file"))).parent.name
-                            for m in seen if m.get("type") == "status"
-                            and any("station_conflict" in a for a in m.get("alerts") or [])}
+                return {Path(str((m.get("recording") or {}).get("file"))).parent.name
+                        for m in got.all() if m.get("type") == "status"
+                        and any("station_conflict" in a for a in m.get("alerts") or [])}
 
             # both daemons may have raised the event before this subscriber joined: the
             # alert in every status is what the views show
@@ -252,10 +243,9 @@ def test_two_daemons_with_one_station_name_both_alert(
             assert "another daemon publishes as station 'dup'" in d1.stderr + d2.stderr
 
             def session_ids() -> dict[str, object]:
-                with lock:
-                    return {Path(str((m.get("recording") or {}).get("file"))).parent.name:
-                            m.get("session_id") for m in seen if m.get("type") == "status"
-                            and m.get("session_id")}
+                return {Path(str((m.get("recording") or {}).get("file"))).parent.name:
+                        m.get("session_id") for m in got.all() if m.get("type") == "status"
+                        and m.get("session_id")}
 
             # one station name, two sessions: never one id for both
             wait_until(lambda: {"o1", "o2"} <= set(session_ids()), timeout_s=10)
