@@ -188,7 +188,8 @@ class Received:
               ) -> list[tuple[float, dict[str, Any]]]:
         """The messages ``which`` accepts (default: all), each with its arrival time."""
         with self._lock:
-            return [(t, m) for t, m in self._items if which(m)]
+            items = list(self._items)
+        return [(t, m) for t, m in items if which(m)]
 
     def all(self, which: Callable[[dict[str, Any]], object] = _every) -> list[dict[str, Any]]:
         """The messages ``which`` accepts (default: all)."""
