@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import socket
 import subprocess
 import sys
 import tempfile
@@ -24,19 +23,15 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))  # peers
+
+from peers import free_port  # noqa: E402
 
 from groundstation.bus import open_bus  # noqa: E402
 from groundstation.config import ZenohSettings  # noqa: E402
 from groundstation.live.serve import RecordingServer  # noqa: E402
 from groundstation.solve.fetch import Fetcher, Remote  # noqa: E402
 from groundstation.storage.transfer import sha256_file  # noqa: E402
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port: int = s.getsockname()[1]
-        return port
 
 
 def main() -> None:

@@ -24,7 +24,6 @@ import argparse
 import asyncio
 import random
 import shutil
-import socket
 import struct
 import sys
 import tempfile
@@ -39,16 +38,12 @@ from groundstation.sim.stream import SimConfig, simulate
 from groundstation.ubx import layouts as L
 from groundstation.ubx.build import build_frame
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))  # peers
+from peers import free_port  # noqa: E402
+
 MS_PER_WEEK = 604_800_000
 LATENCY_NS = 40_000_000  # UART + radio, as the simulator's output latency
 READ_NS = 100_000_000  # one serial read per 100 ms of bytes
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port: int = s.getsockname()[1]
-        return port
 
 
 def rss_kb() -> int:

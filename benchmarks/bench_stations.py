@@ -29,7 +29,6 @@ import argparse
 import os
 import shutil
 import signal
-import socket
 import statistics
 import subprocess
 import sys
@@ -41,15 +40,11 @@ from pathlib import Path
 from groundstation.bus import decode, key, open_bus
 from groundstation.config import ZenohSettings
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))  # peers
+from peers import cli_env, free_port  # noqa: E402
+
 REPO = Path(__file__).resolve().parents[1]
 TICKS = os.sysconf("SC_CLK_TCK")
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port: int = s.getsockname()[1]
-        return port
 
 
 def cpu_s(pid: int) -> float:
@@ -60,10 +55,8 @@ def cpu_s(pid: int) -> float:
 
 def start(cwd: Path, *argv: str) -> subprocess.Popen[bytes]:
     cwd.mkdir(parents=True, exist_ok=True)
-    env = {k: v for k, v in os.environ.items() if not k.startswith("GROUNDSTATION_")}
-    env["PYTHONPATH"] = str(REPO)
     return subprocess.Popen([sys.executable, "-m", "groundstation.cli", "-q", *argv], cwd=cwd,
-                            env=env, stdout=subprocess.DEVNULL,
+                            env=cli_env(), stdout=subprocess.DEVNULL,
                             stderr=(cwd / "stderr.txt").open("w"))
 
 

@@ -10,7 +10,6 @@ from __future__ import annotations
 import argparse
 import os
 import signal
-import socket
 import statistics
 import subprocess
 import sys
@@ -23,6 +22,9 @@ from pathlib import Path
 from groundstation.bus import decode, key, open_bus
 from groundstation.config import ZenohSettings
 from groundstation.ubx import layouts as L
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))  # peers
+from peers import free_port  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 WEEK, TOW0_MS = 2300, 300_000_000
@@ -47,9 +49,7 @@ def main() -> int:
     ap.add_argument("--marks", type=int, default=600)
     ap.add_argument("--rate", type=float, default=10.0, help="marks per second")
     args = ap.parse_args()
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        endpoint = f"tcp/127.0.0.1:{s.getsockname()[1]}"
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
     master, slave = os.openpty()
     tty.setraw(slave)
     out = tempfile.mkdtemp(prefix="gs-latency-")

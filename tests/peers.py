@@ -1,40 +1,48 @@
 """Real peers for integration tests: a pty pair that can be unplugged, the daemon as a
-real process with its stderr collected, and :func:`wait_until`, the one way a test waits for
-something to happen (a condition with a timeout, never a fixed sleep)."""
+real process with its stderr collected, a CLI process in its own working directory
+(:class:`CliProc`, with :func:`cli_env`), the messages a bus delivers (:class:`Received`),
+and :func:`wait_until`, the one way a test waits for something to happen (a condition with a
+timeout, never a fixed sleep)."""
 
 from __future__ import annotations
 
+import os
 import signal
 import socket
 import subprocess
 import sys
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from pathlib import Path
+from typing import Any, TypeVar
 
+from groundstation.bus import Bus, decode
 from groundstation.live.fanout import Inbox, InboxClosed
 from groundstation.records import Event, Status
 from groundstation.sim.ptylink import PtyLink
 
 REPO = Path(__file__).resolve().parents[1]
 
+T = TypeVar("T")
+
 
 def wait_until(
-    cond: Callable[[], object], timeout_s: float = 10.0, what: str = "condition",
+    cond: Callable[[], T], timeout_s: float = 10.0, what: str = "condition",
     poll_s: float = 0.02,
-) -> None:
-    """Return as soon as ``cond()`` is true; fail naming ``what`` after ``timeout_s``.
+) -> T:
+    """Return ``cond()``'s value as soon as it is true; fail naming ``what`` after ``timeout_s``.
 
     Polls every ``poll_s``: the things tests wait for (a file's size, a message on the bus, a
     line on stderr) have no notification to block on, and the poll keeps the wait short
     where a fixed sleep would have to assume the slowest machine.
     """
     deadline = time.monotonic() + timeout_s
-    while not cond():
+    while not (got := cond()):
         if time.monotonic() >= deadline:
             raise AssertionError(f"{what} not met within {timeout_s:g} s")
         time.sleep(poll_s)
+    return got
 
 
 def free_port() -> int:
@@ -43,6 +51,64 @@ def free_port() -> int:
         s.bind(("127.0.0.1", 0))
         port: int = s.getsockname()[1]
         return port
+
+
+def cli_env(**settings: str) -> dict[str, str]:
+    """The environment of a CLI process a test starts: this one's without any
+    ``GROUNDSTATION_*`` setting (the test names every setting it means), the repository on
+    ``PYTHONPATH`` (the process runs in its own directory), then ``settings``."""
+    env = {k: v for k, v in os.environ.items() if not k.startswith("GROUNDSTATION_")}
+    env["PYTHONPATH"] = str(REPO)
+    env.update(settings)
+    return env
+
+
+class CliProc:
+    """``python -m groundstation.cli *argv`` in its own working directory ``cwd`` (made if
+    missing), its stdout and stderr in ``stdout.txt`` and ``stderr.txt`` there.
+
+    Files rather than pipes: a long-running process never blocks on a full pipe, and what it
+    said stays readable after a failure. ``env`` adds settings to :func:`cli_env`;
+    ``wait_s`` is how long :meth:`wait_for` waits unless told otherwise.
+    """
+
+    def __init__(self, cwd: Path, *argv: str, env: Mapping[str, str] | None = None,
+                 wait_s: float = 60.0) -> None:
+        cwd.mkdir(parents=True, exist_ok=True)
+        self.cwd = cwd
+        self.wait_s = wait_s
+        self.out_path = cwd / "stdout.txt"
+        self.err_path = cwd / "stderr.txt"
+        with self.out_path.open("w") as out, self.err_path.open("w") as err:
+            self.proc = subprocess.Popen(
+                [sys.executable, "-m", "groundstation.cli", *argv], cwd=cwd,
+                env=cli_env(**(env or {})), stdout=out, stderr=err,
+            )
+
+    def stderr(self) -> str:
+        """All the process wrote on stderr so far."""
+        return self.err_path.read_text(errors="replace")
+
+    def wait_for(self, text: str, timeout_s: float | None = None) -> None:
+        """Return once ``text`` is on stderr; fail with its stderr if the process exits first
+        or ``timeout_s`` (default ``wait_s``) passes."""
+        try:
+            wait_until(lambda: text in self.stderr() or self.proc.poll() is not None,
+                       self.wait_s if timeout_s is None else timeout_s,
+                       f"{text!r} in {self.cwd.name}'s stderr", poll_s=0.1)
+        except AssertionError as e:
+            raise AssertionError(f"{e}:\n{self.stderr()}") from None
+        assert text in self.stderr(), f"{self.cwd.name} exited early:\n{self.stderr()}"
+
+    def stop(self) -> None:
+        """SIGTERM and wait (20 s, then SIGKILL); nothing if it has exited already."""
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGTERM)
+            try:
+                self.proc.wait(timeout=20)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait(timeout=10)
 
 
 class Pty(PtyLink):
@@ -97,6 +163,37 @@ class Daemon:
         if self.proc.poll() is None:
             self.proc.kill()
             self.proc.wait(timeout=10)
+
+
+def _every(_message: dict[str, Any]) -> bool:
+    return True
+
+
+class Received:
+    """Every message a bus delivers on ``key_expr``, parsed by ``parse``, with its arrival time
+    (monotonic), in order; read from the test's thread while the bus's thread adds."""
+
+    def __init__(self, bus: Bus, key_expr: str,
+                 parse: Callable[[bytes], dict[str, Any]] = decode) -> None:
+        self._parse = parse
+        self._lock = threading.Lock()
+        self._items: list[tuple[float, dict[str, Any]]] = []
+        bus.subscribe(key_expr, self._on)
+
+    def _on(self, _key: str, payload: bytes) -> None:
+        with self._lock:
+            self._items.append((time.monotonic(), self._parse(payload)))
+
+    def timed(self, which: Callable[[dict[str, Any]], object] = _every,
+              ) -> list[tuple[float, dict[str, Any]]]:
+        """The messages ``which`` accepts (default: all), each with its arrival time."""
+        with self._lock:
+            items = list(self._items)
+        return [(t, m) for t, m in items if which(m)]
+
+    def all(self, which: Callable[[dict[str, Any]], object] = _every) -> list[dict[str, Any]]:
+        """The messages ``which`` accepts (default: all)."""
+        return [m for _, m in self.timed(which)]
 
 
 class EventCollector:

@@ -3,6 +3,8 @@ ionosphere of the same shape, Saastamoinen troposphere."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -15,7 +17,19 @@ KLOBUCHAR_ALPHA_DEFAULT = (1.1175870895385742e-08, 7.450580596923828e-09,
 KLOBUCHAR_BETA_DEFAULT = (90112.0, 0.0, -196608.0, -65536.0)
 
 
-def _klobuchar_terms(
+def _series_daytime(amp: FloatArray, x: FloatArray) -> FloatArray:
+    """The broadcast model's daytime term: the cosine's 4th-order series, cut off at
+    ``|x| = 1.57`` as IS-GPS-200 has it."""
+    return np.where(np.abs(x) < 1.57, amp * (1.0 - x * x / 2.0 + x**4 / 24.0), 0.0)
+
+
+def _cosine_daytime(amp: FloatArray, x: FloatArray) -> FloatArray:
+    """The daytime term of a continuous ionosphere: the cosine itself, zero where it is."""
+    return np.where(np.abs(x) < np.pi / 2, amp * np.cos(x), 0.0)
+
+
+def _klobuchar_shaped_delay_m(
+    daytime: Callable[[FloatArray, FloatArray], FloatArray],
     alpha: tuple[float, float, float, float],
     beta: tuple[float, float, float, float],
     lat_deg: float,
@@ -23,9 +37,11 @@ def _klobuchar_terms(
     az_deg: ArrayLike,
     el_deg: ArrayLike,
     tow_s: ArrayLike,
-) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """Obliquity factor, daytime amplitude (s) and phase (rad) of the broadcast model at the
-    ionospheric pierce point, per IS-GPS-200 20.3.3.5.2.5."""
+) -> FloatArray:
+    """L1 ionospheric group delay (m) of the broadcast model's shape, per IS-GPS-200
+    20.3.3.5.2.5: pierce point, obliquity factor, daytime amplitude and period as the standard
+    has them; the night-time constant 5 ns plus ``daytime(amp, x)`` (``amp`` in s, ``x`` the
+    phase in rad), times the obliquity."""
     phi_u = lat_deg / 180.0
     lam_u = lon_deg / 180.0
     az = np.radians(np.asarray(az_deg, dtype=np.float64))
@@ -39,7 +55,8 @@ def _klobuchar_terms(
     amp = np.maximum(sum(a * phi_m**n for n, a in enumerate(alpha)), 0.0)
     per = np.maximum(sum(b * phi_m**n for n, b in enumerate(beta)), 72000.0)
     x = 2.0 * np.pi * (t - 50400.0) / per
-    return np.asarray(f, dtype=np.float64), np.asarray(amp, dtype=np.float64), x
+    day = daytime(np.asarray(amp, dtype=np.float64), np.asarray(x, dtype=np.float64))
+    return np.asarray(f * (5e-9 + day) * C_M_S, dtype=np.float64)
 
 
 def klobuchar_delay_m(
@@ -58,13 +75,8 @@ def klobuchar_delay_m(
     That is right for a receiver's correction model and wrong for a "true" ionosphere (see
     :func:`smooth_ionosphere_delay_m`).
     """
-    f, amp, x = _klobuchar_terms(alpha, beta, lat_deg, lon_deg, az_deg, el_deg, tow_s)
-    delay = np.where(
-        np.abs(x) < 1.57,
-        f * (5e-9 + amp * (1.0 - x * x / 2.0 + x**4 / 24.0)),
-        f * 5e-9,
-    )
-    return np.asarray(delay * C_M_S, dtype=np.float64)
+    return _klobuchar_shaped_delay_m(
+        _series_daytime, alpha, beta, lat_deg, lon_deg, az_deg, el_deg, tow_s)
 
 
 def smooth_ionosphere_delay_m(
@@ -87,9 +99,8 @@ def smooth_ionosphere_delay_m(
     Same pierce point, obliquity, amplitude and period as :func:`klobuchar_delay_m`; the two
     differ by at most 2 % of the daytime delay (the series' remainder near the cut-off).
     """
-    f, amp, x = _klobuchar_terms(alpha, beta, lat_deg, lon_deg, az_deg, el_deg, tow_s)
-    day = np.where(np.abs(x) < np.pi / 2, amp * np.cos(x), 0.0)
-    return np.asarray(f * (5e-9 + day) * C_M_S, dtype=np.float64)
+    return _klobuchar_shaped_delay_m(
+        _cosine_daytime, alpha, beta, lat_deg, lon_deg, az_deg, el_deg, tow_s)
 
 
 def saastamoinen_delay_m(

@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import pytest
-from peers import REPO
+from peers import cli_env
 from streams import flight_stream
 
 TIMEOUT_S = 30
@@ -267,8 +267,7 @@ def test_the_table_is_large_and_every_command_is_in_it() -> None:
 
 @pytest.mark.parametrize("case", CASES, ids=[k.id for k in CASES])
 def test_bad_input(case: Case, workspace: Path) -> None:
-    env = {k: v for k, v in os.environ.items() if not k.startswith("GROUNDSTATION_")}
-    env.update(PYTHONPATH=str(REPO), **case.env)
+    env = cli_env(**case.env)
     before = _snapshot(workspace)
     try:
         proc = subprocess.run(

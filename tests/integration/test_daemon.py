@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 from mcap.reader import make_reader
 from mcap.stream_reader import StreamReader
-from peers import Daemon, Pty
+from peers import Daemon, Pty, cli_env
 
 from groundstation.ubx.build import build_frame
 
@@ -200,7 +200,7 @@ def test_bad_configuration_exits_2_naming_the_key(
 ) -> None:
     cfg = tmp_path / "gs.toml"
     cfg.write_text(toml)
-    env = {k: v for k, v in os.environ.items() if not k.startswith("GROUNDSTATION_")}
+    env = cli_env()
     proc = subprocess.run(
         [sys.executable, "-m", "groundstation.cli", "run", "--config", str(cfg), *args],
         cwd=REPO, capture_output=True, text=True, timeout=30, env=env,

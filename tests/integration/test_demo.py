@@ -4,12 +4,11 @@ from __future__ import annotations
 
 import asyncio
 import json
-import os
 import subprocess
 import sys
 from pathlib import Path
 
-from peers import REPO
+from peers import REPO, cli_env
 
 from groundstation.live.demo import DemoOptions, run_demo
 from groundstation.offline.inspect import inspect_path
@@ -68,11 +67,6 @@ def test_a_demo_stopped_early_reads_every_byte_written(tmp_path: Path) -> None:
     assert sidecar.read_bytes() == result.sim.rover_bytes[: result.bytes_written]
 
 
-def _env(**settings: str) -> dict[str, str]:
-    env = {k: v for k, v in os.environ.items() if not k.startswith("GROUNDSTATION_")}
-    return {**env, **settings}
-
-
 def test_demo_reads_the_environment_like_every_command(tmp_path: Path) -> None:
     """``GROUNDSTATION_*`` goes through the one resolver: defaults < file < environment <
     options; a bad variable exits 2 naming it, in one line."""
@@ -81,7 +75,7 @@ def test_demo_reads_the_environment_like_every_command(tmp_path: Path) -> None:
         [sys.executable, "-m", "groundstation.cli", "demo", "--flight", "60", "--speed", "max",
          "--no-zenoh"],
         cwd=tmp_path, capture_output=True, text=True, timeout=120, check=False,
-        env=_env(GROUNDSTATION_STATION="envst", GROUNDSTATION_RECORDER_OUT_DIR=str(out)),
+        env=cli_env(GROUNDSTATION_STATION="envst", GROUNDSTATION_RECORDER_OUT_DIR=str(out)),
     )
     assert proc.returncode == 0, proc.stderr
     (mcap,) = out.glob("envst_*.mcap")
@@ -91,7 +85,7 @@ def test_demo_reads_the_environment_like_every_command(tmp_path: Path) -> None:
         proc = subprocess.run(
             [sys.executable, "-m", "groundstation.cli", "demo", "--speed", "max", "--no-zenoh"],
             cwd=tmp_path, capture_output=True, text=True, timeout=60, check=False,
-            env=_env(**{var: value}),
+            env=cli_env(**{var: value}),
         )
         assert proc.returncode == 2, proc.stderr
         assert var in proc.stderr and len(proc.stderr.strip().splitlines()) == 1, proc.stderr

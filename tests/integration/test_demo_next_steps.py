@@ -7,30 +7,22 @@ meant nothing to a solver whose working directory is elsewhere).
 
 from __future__ import annotations
 
-import os
 import shlex
 import subprocess
 import sys
-import threading
-import time
 from pathlib import Path
 
-from peers import REPO, Daemon, free_port
+from peers import CliProc, Daemon, cli_env, free_port, wait_until
 
 BASE_XYZ = "4146349.2471, 612312.5498, 4791750.8505"
 """The simulator's base (its default site), as the demo's truth file gives it."""
-
-
-def _env() -> dict[str, str]:
-    return {**os.environ,
-            "PYTHONPATH": os.pathsep.join((str(REPO), os.environ.get("PYTHONPATH", "")))}
 
 
 def test_demo_photos_and_its_next_solve_line(tmp_path: Path) -> None:
     demo = subprocess.run(
         [sys.executable, "-m", "groundstation.cli", "demo", "--flight", "120", "--speed", "max",
          "--no-zenoh", "--no-view", "--photos", "photos"],
-        cwd=tmp_path, env=_env(), capture_output=True, text=True, timeout=300, check=False)
+        cwd=tmp_path, env=cli_env(), capture_output=True, text=True, timeout=300, check=False)
     assert demo.returncode == 0, demo.stderr
     jpegs = sorted((tmp_path / "photos").glob("*.JPG")) + sorted(
         (tmp_path / "photos").glob("*.jpg"))
@@ -39,7 +31,7 @@ def test_demo_photos_and_its_next_solve_line(tmp_path: Path) -> None:
     words = shlex.split(line.removeprefix("next: "))
     assert "--base-xyz" in words and "<" not in line  # filled in, not a placeholder
     proc = subprocess.run([sys.executable, "-m", "groundstation.cli", *words[1:],
-                           "--no-progress"], cwd=tmp_path, env=_env(), capture_output=True,
+                           "--no-progress"], cwd=tmp_path, env=cli_env(), capture_output=True,
                           text=True, timeout=300, check=False)
     assert proc.returncode == 0, proc.stderr
     assert f"{len(jpegs)} positioned" in proc.stdout or "positioned" in proc.stdout
@@ -59,35 +51,21 @@ def test_solver_in_another_directory_solves_the_demo_session(
         f'[zenoh]\nconnect = ["{endpoint}"]\nlisten = []\n\n'
         f'[stations.demo]\nbase = "{{dir}}/{{stem}}_base.ubx"\nbase_xyz = [{BASE_XYZ}]\n',
         encoding="utf-8")
-    demo = subprocess.Popen(
-        [sys.executable, "-m", "groundstation.cli", "demo", "--flight", "120", "--speed", "4",
-         "--zenoh-listen", endpoint, "--no-view"],  # records to the relative flights/
-        cwd=field, env=_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    demo_err: list[str] = []
-    assert demo.stderr is not None
-    pump = threading.Thread(target=lambda: demo_err.extend(demo.stderr or []), daemon=True)
-    pump.start()
-    deadline = time.monotonic() + 60
-    while not any("demo: publishing on Zenoh" in x for x in demo_err):
-        assert time.monotonic() < deadline and demo.poll() is None, "".join(demo_err)
-        time.sleep(0.05)
-    solver = subprocess.Popen(
-        [sys.executable, "-m", "groundstation.cli", "solver", "--config", str(conf)],
-        cwd=office, env=_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    solver_err: list[str] = []
-    assert solver.stderr is not None
-    threading.Thread(target=lambda: solver_err.extend(solver.stderr or []), daemon=True).start()
+    demo = CliProc(field, "demo", "--flight", "120", "--speed", "4", "--zenoh-listen", endpoint,
+                   "--no-view")  # records to the relative flights/
     try:
-        assert demo.wait(timeout=180) == 0, "".join(demo_err)
-        deadline = time.monotonic() + 120
-        while time.monotonic() < deadline and not any(
-                " solved in " in x or "failed" in x for x in solver_err):
-            time.sleep(0.2)
+        demo.wait_for("demo: publishing on Zenoh")
+        solver = CliProc(office, "solver", "--config", str(conf))
+        try:
+            assert demo.proc.wait(timeout=180) == 0, demo.stderr()
+            wait_until(lambda: " solved in " in solver.stderr() or "failed" in solver.stderr(),
+                       120, "the solver's verdict", poll_s=0.2)
+        finally:
+            solver.stop()
     finally:
-        solver.terminate()
-        solver.wait(timeout=30)
-    said = "".join(solver_err)
-    (solved,) = [x for x in solver_err if " solved in " in x]
+        demo.stop()
+    said = solver.stderr()
+    (solved,) = [x for x in said.splitlines() if " solved in " in x]
     assert f"{field}/flights/demo_" in solved and "0 positioned" not in solved, said
     (out_dir,) = (office / "solutions" / "demo").iterdir()
     assert (out_dir / "cameras.csv").is_file() and (out_dir / "geo.txt").is_file()

@@ -10,11 +10,35 @@ import subprocess
 import time
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 from peers import Daemon, Pty
 from streams import flight_stream
 from test_daemon import generated_stream, one, raw_from_mcap, start, wait_for_size
+
+
+def _write_slowly(pty: Pty, data: bytes) -> None:
+    """``data`` in 1152-byte pieces every 0.1 s (what 115200 baud delivers)."""
+    for i in range(0, len(data), 1152):
+        pty.write(data[i : i + 1152])
+        time.sleep(0.1)
+
+
+def _frames_clear_it(
+    d: Daemon, pty: Pty, out: Path, written: int
+) -> tuple[bytes, list[dict[str, Any]]]:
+    """After ``written`` bytes of noise with the alert raised: a flight's frames clear it; the
+    daemon stops cleanly. Returns the recorded bytes and the ``no_frames`` alert events."""
+    stream, _ = flight_stream(50)
+    _write_slowly(pty, stream)
+    wait_for_size(one(out, "t_*.ubx"), written + len(stream))
+    d.wait_for("(was: no valid frames")  # the new frames reached the monitor
+    rc, _ = d.stop(signal.SIGTERM)
+    assert rc == 0, d.stderr
+    raw, _, events = raw_from_mcap(one(out, "t_*.mcap"))
+    return raw, [e for e in events if isinstance(e["data"], dict)
+                 and e["data"].get("alert") == "no_frames"]
 
 
 def test_wrong_baud_raises_no_valid_frames_and_frames_clear_it(
@@ -27,22 +51,10 @@ def test_wrong_baud_raises_no_valid_frames_and_frames_clear_it(
     # What a UART at the wrong rate delivers: bytes, but random ones (a pty has no baud rate).
     rng = random.Random(9)
     noise = bytes(rng.randrange(256) for _ in range(3 * 11520))
-    for i in range(0, len(noise), 1152):
-        pty.write(noise[i : i + 1152])
-        time.sleep(0.1)
+    _write_slowly(pty, noise)
     d.wait_for("no valid frames", timeout_s=3.0)
-    stream, _ = flight_stream(50)
-    for i in range(0, len(stream), 1152):
-        pty.write(stream[i : i + 1152])
-        time.sleep(0.1)
-    wait_for_size(one(out, "t_*.ubx"), len(noise) + len(stream))
-    d.wait_for("(was: no valid frames")  # the new frames reached the monitor
-    rc, _ = d.stop(signal.SIGTERM)
-    assert rc == 0, d.stderr
-    raw, _, events = raw_from_mcap(one(out, "t_*.mcap"))
-    assert raw == noise + stream
-    alerts = [e for e in events if isinstance(e["data"], dict)
-              and e["data"].get("alert") == "no_frames"]
+    raw, alerts = _frames_clear_it(d, pty, out, len(noise))
+    assert raw == noise + flight_stream(50)[0]
     assert [e["kind"] for e in alerts] == ["alert.raised", "alert.cleared"]
     msg = str(alerts[0]["message"])
     assert msg.startswith("no valid frames for ")
@@ -190,16 +202,6 @@ def test_no_frames_alert_stays_raised_through_noise_with_stray_frames(
         written += len(chunk)
         time.sleep(0.1)
     d.wait_for("no valid frames", timeout_s=1.0)
-    stream, _ = flight_stream(50)
-    for i in range(0, len(stream), 1152):
-        pty.write(stream[i : i + 1152])
-        time.sleep(0.1)
-    wait_for_size(one(out, "t_*.ubx"), written + len(stream))
-    d.wait_for("(was: no valid frames")
-    rc, _ = d.stop(signal.SIGTERM)
-    assert rc == 0, d.stderr
-    _, _, events = raw_from_mcap(one(out, "t_*.mcap"))
-    alerts = [e for e in events if isinstance(e["data"], dict)
-              and e["data"].get("alert") == "no_frames"]
+    _, alerts = _frames_clear_it(d, pty, out, written)
     assert [e["kind"] for e in alerts] == ["alert.raised", "alert.cleared"], [
         (e["kind"], e["message"]) for e in alerts]

@@ -23,7 +23,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from peers import REPO, Daemon, Pty, free_port, wait_until
+from peers import REPO, Daemon, Pty, Received, free_port, wait_until
 from poison import POISON
 from streams import epoch_with_mark
 
@@ -42,10 +42,19 @@ SATS = [(3, 0), (7, 0), (11, 2), (19, 0), (23, 0), (27, 0)]
 
 
 class Feeder:
-    """Writes 5 Hz epochs into a pty in a thread until stopped (the old device keeps talking)."""
+    """A simulated receiver on a pty: 5 Hz epochs written in a thread until closed (the old
+    device keeps talking); keeps every piece it wrote, in order.
 
-    def __init__(self, link: PtyLink) -> None:
+    ``period_s`` is the pause between epochs: 0.2 is real time, 0.02 ten times that (so a
+    rotation holds many). ``marks``: a time mark with every fifth epoch.
+    """
+
+    def __init__(self, link: PtyLink, period_s: float = 0.2, marks: bool = False) -> None:
         self.link = link
+        self.period_s = period_s
+        self.marks = marks
+        self.sent: list[bytes] = []
+        self.lock = threading.Lock()  # a piece is written and counted at once
         self.stop = threading.Event()
         self.thread = threading.Thread(target=self.run, daemon=True)
         self.thread.start()
@@ -53,12 +62,16 @@ class Feeder:
     def run(self) -> None:
         k = 0
         while not self.stop.is_set():
-            try:
-                self.link.write(epoch_with_mark(k, None, SATS, WEEK, TOW0_MS))
-            except OSError:
-                return
+            mark = k // 5 if self.marks and k % 5 == 0 else None
+            data = epoch_with_mark(k, mark, SATS, WEEK, TOW0_MS)
+            with self.lock:
+                try:
+                    self.link.write(data)
+                except OSError:
+                    return
+                self.sent.append(data)
             k += 1
-            time.sleep(0.2)
+            time.sleep(self.period_s)
 
     def close(self) -> None:
         self.stop.set()
@@ -112,36 +125,6 @@ def test_repointed_device_path_is_reopened_and_recorded_within_3_s(
         new.close()
 
 
-class CountingFeeder:
-    """A simulated receiver on a pty: 5 Hz epochs with a mark every fifth, written at 50 Hz
-    (ten times real time, so a rotation holds many); keeps every piece it wrote, in order."""
-
-    def __init__(self, link: PtyLink) -> None:
-        self.link = link
-        self.sent: list[bytes] = []
-        self.lock = threading.Lock()  # a piece is written and counted at once
-        self.stop = threading.Event()
-        self.thread = threading.Thread(target=self.run, daemon=True)
-        self.thread.start()
-
-    def run(self) -> None:
-        k = 0
-        while not self.stop.is_set():
-            data = epoch_with_mark(k, k // 5 if k % 5 == 0 else None, SATS, WEEK, TOW0_MS)
-            with self.lock:
-                try:
-                    self.link.write(data)
-                except OSError:
-                    return
-                self.sent.append(data)
-            k += 1
-            time.sleep(0.02)
-
-    def close(self) -> None:
-        self.stop.set()
-        self.thread.join(timeout=5)
-
-
 def _frames(data: bytes) -> list[bytes]:
     return [f.raw for f in UbxFramer().feed(data, 0)]
 
@@ -165,7 +148,7 @@ def test_out_dir_deleted_mid_session_alerts_and_loses_nothing_after(
     if bus is not None:
         for leaf in ("event", "session"):
             bus.subscribe(key("vd", leaf), lambda _k, payload: seen.append(decode(payload)))
-    feeder = CountingFeeder(pty)
+    feeder = Feeder(pty, period_s=0.02, marks=True)
     try:
         wait_until(lambda: len(feeder.sent) > 100 and len(list(out.glob("*.mcap"))) >= 1
                    + rotate, timeout_s=20, what="a recording under way")
@@ -241,26 +224,17 @@ def test_two_daemons_with_one_station_name_both_alert(
         d2.wait_for("publishing on Zenoh", timeout_s=20)
         feeders = [Feeder(pty), Feeder(second)]
         bus = open_bus(ZenohSettings(listen=(), connect=(e1, e2)))
-        seen: list[dict[str, Any]] = []
-        lock = threading.Lock()
-
-        def on(_k: str, payload: bytes) -> None:
-            with lock:
-                seen.append(decode(payload))
-
-        bus.subscribe(key("dup", "**"), on)
+        got = Received(bus, key("dup", "**"))
         try:
             def conflicts() -> set[str]:
-                with lock:
-                    return {m["data"]["instance"] for m in seen
-                            if m.get("type") == "event" and m.get("kind") == "station.conflict"}
+                return {m["data"]["instance"] for m in got.all()
+                        if m.get("type") == "event" and m.get("kind") == "station.conflict"}
 
             def alerted() -> set[str]:
                 """The daemons (by their out dir) whose status carries the alert."""
-                with lock:
-                    return {Path(str((m.get("recording") or {}).get("file"))).parent.name
-                            for m in seen if m.get("type") == "status"
-                            and any("station_conflict" in a for a in m.get("alerts") or [])}
+                return {Path(str((m.get("recording") or {}).get("file"))).parent.name
+                        for m in got.all() if m.get("type") == "status"
+                        and any("station_conflict" in a for a in m.get("alerts") or [])}
 
             # both daemons may have raised the event before this subscriber joined: the
             # alert in every status is what the views show
@@ -269,10 +243,9 @@ def test_two_daemons_with_one_station_name_both_alert(
             assert "another daemon publishes as station 'dup'" in d1.stderr + d2.stderr
 
             def session_ids() -> dict[str, object]:
-                with lock:
-                    return {Path(str((m.get("recording") or {}).get("file"))).parent.name:
-                            m.get("session_id") for m in seen if m.get("type") == "status"
-                            and m.get("session_id")}
+                return {Path(str((m.get("recording") or {}).get("file"))).parent.name:
+                        m.get("session_id") for m in got.all() if m.get("type") == "status"
+                        and m.get("session_id")}
 
             # one station name, two sessions: never one id for both
             wait_until(lambda: {"o1", "o2"} <= set(session_ids()), timeout_s=10)

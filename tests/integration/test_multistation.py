@@ -12,64 +12,23 @@ them again.
 
 from __future__ import annotations
 
-import os
-import signal
 import subprocess
 import sys
 import time
 import urllib.request
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
-from peers import REPO, free_port
+from peers import CliProc, cli_env, free_port, wait_until
 
 from groundstation import jsonio
 
 WAIT_S = 60.0  # generous: the shared 2-core machine
 
 
-def _env() -> dict[str, str]:
-    env = {k: v for k, v in os.environ.items() if not k.startswith("GROUNDSTATION_")}
-    env["PYTHONPATH"] = str(REPO)
-    return env
-
-
-class Proc:
-    """A CLI process in its own working directory, stderr to a file."""
-
-    def __init__(self, cwd: Path, *argv: str) -> None:
-        cwd.mkdir(parents=True, exist_ok=True)
-        self.err_path = cwd / "stderr.txt"
-        self.out_path = cwd / "stdout.txt"
-        self.proc = subprocess.Popen(
-            [sys.executable, "-m", "groundstation.cli", *argv], cwd=cwd, env=_env(),
-            stdout=self.out_path.open("w"), stderr=self.err_path.open("w"),
-        )
-
-    def stderr(self) -> str:
-        return self.err_path.read_text(errors="replace")
-
-    def wait_for(self, text: str, timeout_s: float = WAIT_S) -> None:
-        deadline = time.monotonic() + timeout_s
-        while time.monotonic() < deadline:
-            if text in self.stderr():
-                return
-            assert self.proc.poll() is None, f"exited early:\n{self.stderr()}"
-            time.sleep(0.1)
-        raise AssertionError(f"no {text!r} within {timeout_s} s:\n{self.stderr()}")
-
-    def stop(self) -> None:
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGTERM)
-            try:
-                self.proc.wait(timeout=20)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait(timeout=10)
-
-
-def daemon(tmp: Path, station: str, endpoint: str) -> Proc:
-    return Proc(tmp / station, "demo", "--station", station, "--no-view", "--flight", "900",
+def daemon(tmp: Path, station: str, endpoint: str) -> CliProc:
+    return CliProc(tmp / station, "demo", "--station", station, "--no-view", "--flight", "900",
                 "--zenoh-listen", endpoint)
 
 
@@ -80,18 +39,16 @@ def watch_sees(tmp: Path, station: str, endpoint: str) -> bool:
     out = subprocess.run(
         [sys.executable, "-m", "groundstation.cli", "watch", "--station", station,
          "--connect", endpoint, "--duration", "4"],
-        cwd=cwd, env=_env(), capture_output=True, text=True, timeout=60,
+        cwd=cwd, env=cli_env(), capture_output=True, text=True, timeout=60,
     )
     assert out.returncode == 0, out.stderr
     return f"session {station}_" in out.stdout and "LINK" in out.stdout
 
 
-def eventually(check: object, timeout_s: float = WAIT_S) -> None:
-    assert callable(check)
-    deadline = time.monotonic() + timeout_s
-    while not check():
-        assert time.monotonic() < deadline, f"{check} never true"
-        time.sleep(0.5)
+def eventually(check: Callable[[], object]) -> None:
+    """:func:`wait_until` with this module's generous timeout; polls at 0.5 s (some checks
+    start a process)."""
+    wait_until(check, WAIT_S, "eventually", poll_s=0.5)
 
 
 def dashboard_stations(port: int) -> dict[str, bool]:
@@ -107,7 +64,7 @@ def dashboard_stations(port: int) -> dict[str, bool]:
 def test_daemons_with_the_same_settings_are_all_visible_and_survive_the_first(
         tmp_path: Path) -> None:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    procs: list[Proc] = []
+    procs: list[CliProc] = []
     try:
         rover = daemon(tmp_path, "rover", endpoint)
         procs.append(rover)
@@ -124,8 +81,8 @@ def test_daemons_with_the_same_settings_are_all_visible_and_survive_the_first(
         eventually(lambda: watch_sees(tmp_path, "rover", endpoint))
 
         web = free_port()
-        dash = Proc(tmp_path / "dashboard", "dashboard", "--port", str(web), "--connect",
-                    endpoint, "--duration", "120")
+        dash = CliProc(tmp_path / "dashboard", "dashboard", "--port", str(web), "--connect",
+                       endpoint, "--duration", "120")
         procs.append(dash)
         want = {"rover": True, "base": True, "spare": True}
         eventually(lambda: dashboard_stations(web) == want)

@@ -5,7 +5,6 @@ mid-fetch, a damaged chunk, a corrupted ``.part`` and crafted queries."""
 
 from __future__ import annotations
 
-import os
 import random
 import subprocess
 import sys
@@ -15,7 +14,7 @@ from collections.abc import Iterator, Mapping
 from pathlib import Path
 
 import pytest
-from peers import REPO, free_port, wait_until
+from peers import cli_env, free_port, wait_until
 
 from groundstation import messages
 from groundstation.bus import Bus, Reply, encode, open_bus
@@ -261,10 +260,8 @@ def test_session_message_recordings_are_checked() -> None:
 
 def _router(cwd: Path, endpoint: str) -> subprocess.Popen[bytes]:
     cwd.mkdir(parents=True, exist_ok=True)
-    env = {k: v for k, v in os.environ.items() if not k.startswith("GROUNDSTATION_")}
-    env["PYTHONPATH"] = str(REPO)
     return subprocess.Popen([sys.executable, "-m", "groundstation.cli", "router", "--listen",
-                             endpoint], cwd=cwd, env=env, stdout=subprocess.DEVNULL,
+                             endpoint], cwd=cwd, env=cli_env(), stdout=subprocess.DEVNULL,
                             stderr=(cwd / "stderr.txt").open("ab"))
 
 

@@ -18,19 +18,16 @@ Separate processes in separate working directories, real Zenoh on loopback, free
 from __future__ import annotations
 
 import json
-import os
 import shutil
 import signal
-import subprocess
-import sys
-import threading
-import time
+from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import pytest
-from peers import REPO, free_port
+from peers import CliProc, Received, free_port, wait_until
 
+from groundstation import messages
 from groundstation.bus import Bus, decode, key, open_bus
 from groundstation.config import ZenohSettings
 from groundstation.storage import reading
@@ -38,263 +35,199 @@ from groundstation.storage.transfer import sha256_file
 
 WAIT_S = 120.0  # generous: the shared 2-core machine
 
-
-def _env() -> dict[str, str]:
-    env = {k: v for k, v in os.environ.items() if not k.startswith("GROUNDSTATION_")}
-    env["PYTHONPATH"] = str(REPO)
-    return env
+T = TypeVar("T")
 
 
-class Proc:
-    """A CLI process in its own working directory, stderr to a file."""
+class Running:
+    """A test's processes and bus sessions, ended together when the test ends."""
 
-    def __init__(self, cwd: Path, *argv: str) -> None:
-        cwd.mkdir(parents=True, exist_ok=True)
-        self.err_path = cwd / "stderr.txt"
-        self.proc = subprocess.Popen(
-            [sys.executable, "-m", "groundstation.cli", *argv], cwd=cwd, env=_env(),
-            stdout=(cwd / "stdout.txt").open("w"), stderr=self.err_path.open("w"))
+    def __init__(self) -> None:
+        self.procs: list[CliProc] = []
+        self.buses: list[Bus] = []
 
-    def stderr(self) -> str:
-        return self.err_path.read_text(errors="replace")
+    def start(self, cwd: Path, *argv: str) -> CliProc:
+        """``groundstation *argv`` in ``cwd``, waiting for its lines as long as this module's
+        processes need."""
+        self.procs.append(CliProc(cwd, *argv, wait_s=WAIT_S))
+        return self.procs[-1]
 
-    def wait_for(self, text: str, timeout_s: float = WAIT_S) -> None:
-        deadline = time.monotonic() + timeout_s
-        while time.monotonic() < deadline:
-            if text in self.stderr():
-                return
-            assert self.proc.poll() is None, f"exited early:\n{self.stderr()}"
-            time.sleep(0.1)
-        raise AssertionError(f"no {text!r} within {timeout_s} s:\n{self.stderr()}")
+    def keep(self, bus: Bus) -> Bus:
+        self.buses.append(bus)
+        return bus
 
-    def stop(self) -> None:
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGTERM)
-            try:
-                self.proc.wait(timeout=20)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait(timeout=10)
+    def close(self) -> None:
+        """The buses closed, then the processes stopped, the last started first."""
+        for bus in self.buses:
+            bus.close()
+        for p in reversed(self.procs):
+            p.stop()
 
 
-class Solutions:
-    def __init__(self, bus: Bus) -> None:
-        self.lock = threading.Lock()
-        self.items: list[dict[str, Any]] = []
-        bus.subscribe(key("*", "solution"), self.on)
-
-    def on(self, _key: str, payload: bytes) -> None:
-        with self.lock:
-            self.items.append(decode(payload))
-
-    def final(self) -> dict[str, Any] | None:
-        with self.lock:
-            done = [m for m in self.items if m.get("status") not in ("solving", None)]
-        return done[-1] if done else None
+@pytest.fixture
+def running() -> Iterator[Running]:
+    r = Running()
+    try:
+        yield r
+    finally:
+        r.close()
 
 
-def _until(check: Any, what: str, timeout_s: float = WAIT_S) -> Any:
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        got = check()
-        if got:
-            return got
-        time.sleep(0.2)
-    raise AssertionError(f"{what} not within {timeout_s:g} s")
+def _final(sols: Received) -> dict[str, Any] | None:
+    """The last solution message that is a verdict (not "solving"), if any yet."""
+    done = sols.all(lambda m: m.get("status") not in ("solving", None))
+    return done[-1] if done else None
+
+
+def _until(check: Callable[[], T | None], what: str, timeout_s: float = WAIT_S) -> T:
+    """:func:`wait_until` with this module's generous timeout: ``check()``'s value once true."""
+    got = wait_until(check, timeout_s, what, poll_s=0.2)
+    assert got is not None
+    return got
+
+
+def _rover_on_simulator(running: Running, tmp_path: Path, top: str = "", more: str = "",
+                        zenoh: str = "") -> tuple[CliProc, Bus, Received]:
+    """The simulator streaming on TCP (in ``sim/``) and ``groundstation run`` recording it in
+    ``A/`` (its ``rover.toml``: top-level keys ``top``, tables ``more``, ``[zenoh]`` keys
+    ``zenoh``) and listening on a free endpoint; this process a client of it, keeping the
+    rover's session messages. Returns the daemon, the bus and the messages."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    sim_port = free_port()
+    running.start(tmp_path / "sim", "simulate", "--tcp", str(sim_port), "--duration", "600",
+                  "--speed", "1")
+    a_dir = tmp_path / "A"
+    a_dir.mkdir()
+    (a_dir / "rover.toml").write_text(
+        f'station = "rover"\n{top}[source]\naddress = "127.0.0.1:{sim_port}"\n{more}'
+        f'[zenoh]\nlisten = ["{endpoint}"]\n{zenoh}')
+    daemon = running.start(a_dir, "run", "--config", "rover.toml")
+    daemon.wait_for("publishing on Zenoh")
+    bus = running.keep(open_bus(ZenohSettings(mode="client", listen=(), connect=(endpoint,))))
+    return daemon, bus, Received(bus, key("rover", "session"),
+                                 lambda p: messages.parse(p, "session"))
 
 
 @pytest.mark.slow
 def test_a_remote_solver_fetches_the_recording_through_the_router_and_solves_it(
-        tmp_path: Path) -> None:
+        tmp_path: Path, running: Running) -> None:
     port = free_port()
     endpoint = f"tcp/127.0.0.1:{port}"
     router_dir, a_dir, b_dir = tmp_path / "router", tmp_path / "A", tmp_path / "B"
     router_dir.mkdir()
     (router_dir / "router.toml").write_text(
         f'listen = ["{endpoint}"]\n[access]\nenabled = true\nlocal = true\n')
-    procs: list[Proc] = []
-    bus: Bus | None = None
-    try:
-        router = Proc(router_dir, "router", "--config", "router.toml")
-        procs.append(router)
-        router.wait_for("router listening")
-        # the station: a flight long enough for the solver to start while it flies
-        demo = Proc(a_dir, "demo", "--station", "rover", "--no-view", "--flight", "120",
-                    "--speed", "6", "--seed", "6", "--out-dir", "flights",
-                    "--zenoh-listen", endpoint, "--serve-after", "300")
-        procs.append(demo)
-        demo.wait_for("is taken: joined it")  # the router holds the endpoint
-        truth_path = _until(lambda: next((a_dir / "flights").glob("*.truth.json"), None),
-                            "the demo's truth file")
-        base_path = next((a_dir / "flights").glob("*_base.ubx"))
-        truth = json.loads(truth_path.read_text())
-        # the base station's stream reaches the solver's machine by other means (base pairing
-        # over the bus is another change): a copy in B
-        (b_dir / "base").mkdir(parents=True)
-        shutil.copy(base_path, b_dir / "base" / base_path.name)
-        xyz = ", ".join(f"{v:.4f}" for v in truth["base"]["ecef_m"])
-        (b_dir / "solver.toml").write_text(
-            f'out_root = "{b_dir / "solutions"}"\nrecording_roots = ["{b_dir / "flights"}"]\n'
-            f'[zenoh]\nconnect = ["{endpoint}"]\nlisten = []\n'
-            f'[stations.rover]\nbase = "{b_dir / "base"}/{{stem}}_base.ubx"\n'
-            f'base_xyz = [{xyz}]\nlever_arm = [0.16, -0.03, 0.57]\n')
-        bus = open_bus(ZenohSettings(mode="client", listen=(), connect=(endpoint,)))
-        sols = Solutions(bus)
-        solver = Proc(b_dir, "solver", "--config", "solver.toml")
-        procs.append(solver)
-        solver.wait_for("listening on groundstation/*/session")
+    router = running.start(router_dir, "router", "--config", "router.toml")
+    router.wait_for("router listening")
+    # the station: a flight long enough for the solver to start while it flies
+    demo = running.start(a_dir, "demo", "--station", "rover", "--no-view", "--flight", "120",
+                         "--speed", "6", "--seed", "6", "--out-dir", "flights",
+                         "--zenoh-listen", endpoint, "--serve-after", "300")
+    demo.wait_for("is taken: joined it")  # the router holds the endpoint
+    truth_path = _until(lambda: next((a_dir / "flights").glob("*.truth.json"), None),
+                        "the demo's truth file")
+    base_path = next((a_dir / "flights").glob("*_base.ubx"))
+    truth = json.loads(truth_path.read_text())
+    # the base station's stream reaches the solver's machine by other means (base pairing
+    # over the bus is another change): a copy in B
+    (b_dir / "base").mkdir(parents=True)
+    shutil.copy(base_path, b_dir / "base" / base_path.name)
+    xyz = ", ".join(f"{v:.4f}" for v in truth["base"]["ecef_m"])
+    (b_dir / "solver.toml").write_text(
+        f'out_root = "{b_dir / "solutions"}"\nrecording_roots = ["{b_dir / "flights"}"]\n'
+        f'[zenoh]\nconnect = ["{endpoint}"]\nlisten = []\n'
+        f'[stations.rover]\nbase = "{b_dir / "base"}/{{stem}}_base.ubx"\n'
+        f'base_xyz = [{xyz}]\nlever_arm = [0.16, -0.03, 0.57]\n')
+    bus = running.keep(open_bus(ZenohSettings(mode="client", listen=(), connect=(endpoint,))))
+    sols = Received(bus, key("*", "solution"))
+    solver = running.start(b_dir, "solver", "--config", "solver.toml")
+    solver.wait_for("listening on groundstation/*/session")
 
-        # the flight ends; the daemon announces the finished file with its SHA-256 and serves it
-        demo.wait_for("serving 1 recording file(s)")
-        final = _until(sols.final, "a final solution")
-        assert final["status"] == "ok", (final, solver.stderr())
-        (mcap,) = (a_dir / "flights").glob("rover_*.mcap")
-        fetched = b_dir / "solutions" / "rover" / mcap.name
-        assert final["flight"] == str(fetched)
-        assert fetched.read_bytes() == mcap.read_bytes()
-        assert sha256_file(fetched) == sha256_file(mcap)
-        assert not fetched.with_name(fetched.name + ".part").exists()
-        assert "SHA-256 verified" in solver.stderr()
-        n_marks = len(truth["exposures"])
-        assert final["counts"]["marks"] == n_marks
-        assert final["quality"]["fixed_fraction"] > 0.9
-        assert Path(final["out_dir"]).parent == b_dir / "solutions" / "rover"
-        assert not any(a_dir.rglob("cameras.csv"))  # nothing written on the station's side
-        # the daemon saw its file sent in full and stopped serving by itself
-        demo.wait_for("every recording file was sent in full")
-        assert demo.proc.wait(timeout=60) == 0, demo.stderr()
+    # the flight ends; the daemon announces the finished file with its SHA-256 and serves it
+    demo.wait_for("serving 1 recording file(s)")
+    final = _until(lambda: _final(sols), "a final solution")
+    assert final["status"] == "ok", (final, solver.stderr())
+    (mcap,) = (a_dir / "flights").glob("rover_*.mcap")
+    fetched = b_dir / "solutions" / "rover" / mcap.name
+    assert final["flight"] == str(fetched)
+    assert fetched.read_bytes() == mcap.read_bytes()
+    assert sha256_file(fetched) == sha256_file(mcap)
+    assert not fetched.with_name(fetched.name + ".part").exists()
+    assert "SHA-256 verified" in solver.stderr()
+    n_marks = len(truth["exposures"])
+    assert final["counts"]["marks"] == n_marks
+    assert final["quality"]["fixed_fraction"] > 0.9
+    assert Path(final["out_dir"]).parent == b_dir / "solutions" / "rover"
+    assert not any(a_dir.rglob("cameras.csv"))  # nothing written on the station's side
+    # the daemon saw its file sent in full and stopped serving by itself
+    demo.wait_for("every recording file was sent in full")
+    assert demo.proc.wait(timeout=60) == 0, demo.stderr()
 
-        # a late joiner asks for the latest solution
-        replies = bus.get(key("rover", "q/solution"), timeout_s=10.0)
-        late = [decode(p) for _, p in replies]
-        assert [m["status"] for m in late] == ["ok"]
-        assert late[0]["flight"] == str(fetched) and late[0]["counts"] == final["counts"]
-        assert "Traceback" not in solver.stderr() + demo.stderr() + router.stderr()
-    finally:
-        if bus is not None:
-            bus.close()
-        for p in reversed(procs):
-            p.stop()
+    # a late joiner asks for the latest solution
+    replies = bus.get(key("rover", "q/solution"), timeout_s=10.0)
+    late = [decode(p) for _, p in replies]
+    assert [m["status"] for m in late] == ["ok"]
+    assert late[0]["flight"] == str(fetched) and late[0]["counts"] == final["counts"]
+    assert "Traceback" not in solver.stderr() + demo.stderr() + router.stderr()
 
 
 @pytest.mark.slow
-def test_each_rotated_part_is_served_while_the_daemon_records(tmp_path: Path) -> None:
+def test_each_rotated_part_is_served_while_the_daemon_records(
+        tmp_path: Path, running: Running) -> None:
     """``groundstation run`` on the simulator's TCP stream, a new file every 5 s: each closed
     part appears in ``recordings[]`` and is fetched byte-identical while the daemon goes on
     recording; the part being written is refused."""
-    from groundstation import messages
     from groundstation.solve.fetch import Fetcher, remote_for
     from groundstation.storage import transfer
 
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
-    sim_port = free_port()
-    procs: list[Proc] = []
-    bus: Bus | None = None
-    sessions: list[dict[str, Any]] = []
-    lock = threading.Lock()
-    try:
-        procs.append(Proc(tmp_path / "sim", "simulate", "--tcp", str(sim_port), "--duration",
-                          "600", "--speed", "1"))
-        a_dir = tmp_path / "A"
-        a_dir.mkdir()
-        (a_dir / "rover.toml").write_text(
-            f'station = "rover"\n[source]\naddress = "127.0.0.1:{sim_port}"\n'
-            f'[recorder]\nrotate_duration_s = 5\n[zenoh]\nlisten = ["{endpoint}"]\n')
-        daemon = Proc(a_dir, "run", "--config", "rover.toml")
-        procs.append(daemon)
-        daemon.wait_for("publishing on Zenoh")
-        bus = open_bus(ZenohSettings(mode="client", listen=(), connect=(endpoint,)))
-
-        def on_session(_key: str, payload: bytes) -> None:
-            with lock:
-                sessions.append(messages.parse(payload, "session"))
-
-        bus.subscribe(key("rover", "session"), on_session)
-
-        def served() -> dict[str, Any] | None:
-            with lock:
-                return next((m for m in sessions if m.get("recordings")), None)
-
-        msg = _until(served, "a session message listing a closed part", 60)
-        assert msg["state"] == "started"
-        first = msg["recordings"][0]
-        assert first["name"] == Path(msg["files"][0]).name
-        assert len(msg["files"]) >= 2  # the part being written is listed, not served
-        current = Path(msg["files"][-1]).name
-        assert current not in {r["name"] for r in msg["recordings"]}
-        remote = remote_for("rover", msg, Path(msg["files"][0]), tmp_path / "B", None)
-        assert remote is not None
-        # asked at once: the part being written has most of its 5 s ahead of it
-        refused = bus.ask(remote.key_expr, transfer.Request(current, 0, 10).parameters())()
-        assert len(refused) == 1 and refused[0].error
-        assert b"not a finished file" in refused[0].payload
-        got = Fetcher(bus).fetch(remote)
-        on_disk = a_dir / "flights" / first["name"]
-        assert got.read_bytes() == on_disk.read_bytes()
-        assert sha256_file(on_disk) == first["sha256"]
-        assert daemon.proc.poll() is None  # still recording
-    finally:
-        if bus is not None:
-            bus.close()
-        for p in reversed(procs):
-            p.stop()
+    a_dir = tmp_path / "A"
+    daemon, bus, sessions = _rover_on_simulator(running, tmp_path,
+                                                more="[recorder]\nrotate_duration_s = 5\n")
+    msg = _until(lambda: sessions.all(lambda m: m.get("recordings")),
+                 "a session message listing a closed part", 60)[0]
+    assert msg["state"] == "started"
+    first = msg["recordings"][0]
+    assert first["name"] == Path(msg["files"][0]).name
+    assert len(msg["files"]) >= 2  # the part being written is listed, not served
+    current = Path(msg["files"][-1]).name
+    assert current not in {r["name"] for r in msg["recordings"]}
+    remote = remote_for("rover", msg, Path(msg["files"][0]), tmp_path / "B", None)
+    assert remote is not None
+    # asked at once: the part being written has most of its 5 s ahead of it
+    refused = bus.ask(remote.key_expr, transfer.Request(current, 0, 10).parameters())()
+    assert len(refused) == 1 and refused[0].error
+    assert b"not a finished file" in refused[0].payload
+    got = Fetcher(bus).fetch(remote)
+    on_disk = a_dir / "flights" / first["name"]
+    assert got.read_bytes() == on_disk.read_bytes()
+    assert sha256_file(on_disk) == first["sha256"]
+    assert daemon.proc.poll() is None  # still recording
 
 
 @pytest.mark.slow
-def test_after_the_session_the_daemon_serves_until_told_to_stop(tmp_path: Path) -> None:
+def test_after_the_session_the_daemon_serves_until_told_to_stop(
+        tmp_path: Path, running: Running) -> None:
     """``run`` with ``duration_s`` and ``serve_after_s``: the session ends, the last file is
     announced ``finished`` with its SHA-256 and served; nobody fetches it, so the daemon
     waits, and a SIGTERM then ends it at once, cleanly."""
-    from groundstation import messages
-
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
-    sim_port = free_port()
-    procs: list[Proc] = []
-    bus: Bus | None = None
-    sessions: list[dict[str, Any]] = []
-    lock = threading.Lock()
-    try:
-        procs.append(Proc(tmp_path / "sim", "simulate", "--tcp", str(sim_port), "--duration",
-                          "600", "--speed", "1"))
-        a_dir = tmp_path / "A"
-        a_dir.mkdir()
-        (a_dir / "rover.toml").write_text(
-            f'station = "rover"\nduration_s = 4\n[source]\naddress = "127.0.0.1:{sim_port}"\n'
-            f'[zenoh]\nlisten = ["{endpoint}"]\nserve_after_s = 600\n')
-        daemon = Proc(a_dir, "run", "--config", "rover.toml")
-        procs.append(daemon)
-        daemon.wait_for("publishing on Zenoh")
-        bus = open_bus(ZenohSettings(mode="client", listen=(), connect=(endpoint,)))
-
-        def on_session(_key: str, payload: bytes) -> None:
-            with lock:
-                sessions.append(messages.parse(payload, "session"))
-
-        bus.subscribe(key("rover", "session"), on_session)
-        daemon.wait_for("serving 1 recording file(s) for up to 600 s")
-
-        def finished() -> dict[str, Any] | None:
-            with lock:
-                return next((m for m in sessions if m.get("state") == "finished"), None)
-
-        msg = _until(finished, "the finished session message", 30)
-        (mcap,) = (a_dir / "flights").glob("rover_*.mcap")
-        assert msg["recordings"] == [{"name": mcap.name, "size": mcap.stat().st_size,
-                                      "sha256": sha256_file(mcap), "chunk_bytes": 262144}]
-        assert daemon.proc.poll() is None  # still serving: nobody fetched it
-        daemon.proc.send_signal(signal.SIGTERM)
-        assert daemon.proc.wait(timeout=20) == 0, daemon.stderr()
-        assert "Traceback" not in daemon.stderr()
-    finally:
-        if bus is not None:
-            bus.close()
-        for p in reversed(procs):
-            p.stop()
+    a_dir = tmp_path / "A"
+    daemon, _, sessions = _rover_on_simulator(running, tmp_path, top="duration_s = 4\n",
+                                              zenoh="serve_after_s = 600\n")
+    daemon.wait_for("serving 1 recording file(s) for up to 600 s")
+    msg = _until(lambda: sessions.all(lambda m: m.get("state") == "finished"),
+                 "the finished session message", 30)[0]
+    (mcap,) = (a_dir / "flights").glob("rover_*.mcap")
+    assert msg["recordings"] == [{"name": mcap.name, "size": mcap.stat().st_size,
+                                  "sha256": sha256_file(mcap), "chunk_bytes": 262144}]
+    assert daemon.proc.poll() is None  # still serving: nobody fetched it
+    daemon.proc.send_signal(signal.SIGTERM)
+    assert daemon.proc.wait(timeout=20) == 0, daemon.stderr()
+    assert "Traceback" not in daemon.stderr()
 
 
 @pytest.mark.slow
 @pytest.mark.skipif(shutil.which("openssl") is None, reason="needs the openssl CLI")
-def test_over_mutual_tls_a_solver_fetches_and_another_station_cannot(tmp_path: Path) -> None:
+def test_over_mutual_tls_a_solver_fetches_and_another_station_cannot(
+        tmp_path: Path, running: Running) -> None:
     """The same through a router that admits by certificate only (mutual TLS, access control,
     no loopback exception): the rover daemon (``run``, certificate ``rover``) serves its
     recording, the solver (certificate ``solver``) fetches, verifies and solves it; a party
@@ -325,66 +258,53 @@ def test_over_mutual_tls_a_solver_fetches_and_another_station_cannot(tmp_path: P
                                       tls_ca=ca / "ca.pem", tls_certificate=ca / f"{name}.pem",
                                       tls_private_key=ca / f"{name}.key"))
 
-    procs: list[Proc] = []
-    buses: list[Bus] = []
-    try:
-        router = Proc(router_dir, "router", "--config", "router.toml")
-        procs.append(router)
-        router.wait_for("router listening")
-        (b_dir / "base").mkdir(parents=True)
-        base = b_dir / "base" / "base.ubx"  # the base's stream, on the solver's side
-        truth_path = tmp_path / "truth.json"
-        procs.append(Proc(tmp_path / "sim", "simulate", "--tcp", str(sim_port), "--duration",
-                          "120", "--speed", "6", "--seed", "6", "--faults", "default",
-                          "--base-out", str(base), "--truth", str(truth_path)))
-        # truth and base are written before it listens
-        _until(lambda: "listening on tcp://" in (tmp_path / "sim" / "stdout.txt").read_text(),
-               "the simulator listening")
-        truth = json.loads(truth_path.read_text())
-        xyz = ", ".join(f"{v:.4f}" for v in truth["base"]["ecef_m"])
-        (b_dir / "solver.toml").write_text(
-            f'out_root = "{b_dir / "solutions"}"\nrecording_roots = ["{b_dir / "flights"}"]\n'
-            f'base = "{base}"\nbase_xyz = [{xyz}]\n' + tls_zenoh("solver"))
-        observer = as_party("solver")
-        buses.append(observer)
-        sols = Solutions(observer)
-        solver = Proc(b_dir, "solver", "--config", "solver.toml")
-        procs.append(solver)
-        solver.wait_for("listening on groundstation/*/session")
-        a_dir.mkdir()
-        (a_dir / "rover.toml").write_text(
-            f'station = "rover"\nduration_s = 26\n[source]\naddress = "127.0.0.1:{sim_port}"\n'
-            + tls_zenoh("rover") + "serve_after_s = 300\n")
-        daemon = Proc(a_dir, "run", "--config", "rover.toml")
-        procs.append(daemon)
-        daemon.wait_for("serving 1 recording file(s)")
-        (mcap,) = (a_dir / "flights").glob("rover_*.mcap")
-        info = reading.part_info(mcap)  # the id carries a random token the name does not
-        assert info is not None
-        sid = info.session_id
-        # a solver's certificate is answered; another station's is not (the router drops it)
-        selector = f"groundstation/rover/q/recording/{sid}"
-        params = transfer.Request(mcap.name, 0, 1000).parameters()
-        (answer,) = observer.ask(selector, params, 5.0)()
-        assert not answer.error and answer.payload == mcap.read_bytes()[:1000]
-        intruder = as_party("base")
-        buses.append(intruder)
-        _until(lambda: intruder.connections() > 0, "the intruder connected", 30)
-        for _ in range(3):
-            assert intruder.ask(selector, params, 1.0)() == []
+    router = running.start(router_dir, "router", "--config", "router.toml")
+    router.wait_for("router listening")
+    (b_dir / "base").mkdir(parents=True)
+    base = b_dir / "base" / "base.ubx"  # the base's stream, on the solver's side
+    truth_path = tmp_path / "truth.json"
+    running.start(tmp_path / "sim", "simulate", "--tcp", str(sim_port), "--duration", "120",
+                  "--speed", "6", "--seed", "6", "--faults", "default", "--base-out", str(base),
+                  "--truth", str(truth_path))
+    # truth and base are written before it listens
+    _until(lambda: "listening on tcp://" in (tmp_path / "sim" / "stdout.txt").read_text(),
+           "the simulator listening")
+    truth = json.loads(truth_path.read_text())
+    xyz = ", ".join(f"{v:.4f}" for v in truth["base"]["ecef_m"])
+    (b_dir / "solver.toml").write_text(
+        f'out_root = "{b_dir / "solutions"}"\nrecording_roots = ["{b_dir / "flights"}"]\n'
+        f'base = "{base}"\nbase_xyz = [{xyz}]\n' + tls_zenoh("solver"))
+    observer = running.keep(as_party("solver"))
+    sols = Received(observer, key("*", "solution"))
+    solver = running.start(b_dir, "solver", "--config", "solver.toml")
+    solver.wait_for("listening on groundstation/*/session")
+    a_dir.mkdir()
+    (a_dir / "rover.toml").write_text(
+        f'station = "rover"\nduration_s = 26\n[source]\naddress = "127.0.0.1:{sim_port}"\n'
+        + tls_zenoh("rover") + "serve_after_s = 300\n")
+    daemon = running.start(a_dir, "run", "--config", "rover.toml")
+    daemon.wait_for("serving 1 recording file(s)")
+    (mcap,) = (a_dir / "flights").glob("rover_*.mcap")
+    info = reading.part_info(mcap)  # the id carries a random token the name does not
+    assert info is not None
+    sid = info.session_id
+    # a solver's certificate is answered; another station's is not (the router drops it)
+    selector = f"groundstation/rover/q/recording/{sid}"
+    params = transfer.Request(mcap.name, 0, 1000).parameters()
+    (answer,) = observer.ask(selector, params, 5.0)()
+    assert not answer.error and answer.payload == mcap.read_bytes()[:1000]
+    intruder = running.keep(as_party("base"))
+    _until(lambda: intruder.connections() > 0, "the intruder connected", 30)
+    for _ in range(3):
+        assert intruder.ask(selector, params, 1.0)() == []
 
-        final = _until(sols.final, "a final solution")
-        assert final["status"] == "ok", (final, solver.stderr())
-        fetched = b_dir / "solutions" / "rover" / mcap.name
-        assert final["flight"] == str(fetched)
-        assert fetched.read_bytes() == mcap.read_bytes()
-        assert final["counts"]["marks"] == len(truth["exposures"])
-        daemon.wait_for("every recording file was sent in full")
-        late = [decode(p) for _, p in observer.get(key("rover", "q/solution"), 10.0)]
-        assert [m["status"] for m in late] == ["ok"]
-        assert "Traceback" not in solver.stderr() + daemon.stderr() + router.stderr()
-    finally:
-        for b in buses:
-            b.close()
-        for p in reversed(procs):
-            p.stop()
+    final = _until(lambda: _final(sols), "a final solution")
+    assert final["status"] == "ok", (final, solver.stderr())
+    fetched = b_dir / "solutions" / "rover" / mcap.name
+    assert final["flight"] == str(fetched)
+    assert fetched.read_bytes() == mcap.read_bytes()
+    assert final["counts"]["marks"] == len(truth["exposures"])
+    daemon.wait_for("every recording file was sent in full")
+    late = [decode(p) for _, p in observer.get(key("rover", "q/solution"), 10.0)]
+    assert [m["status"] for m in late] == ["ok"]
+    assert "Traceback" not in solver.stderr() + daemon.stderr() + router.stderr()

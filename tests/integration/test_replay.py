@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import asyncio
 import json
-import os
 import re
 import subprocess
 import sys
@@ -13,7 +12,7 @@ from collections import Counter
 from pathlib import Path
 
 import pytest
-from peers import EventCollector
+from peers import EventCollector, cli_env
 
 from groundstation import jsonio
 from groundstation.live.demo import DemoOptions, run_demo
@@ -132,12 +131,10 @@ def test_replay_reads_the_environment_like_every_command(tmp_path: Path) -> None
 
     path = tmp_path / "flight.ubx"
     path.write_bytes(simulate(SimConfig(duration_s=60, seed=2, with_base=False)).rover_bytes)
-    env = {k: v for k, v in os.environ.items() if not k.startswith("GROUNDSTATION_")}
-
     def replay(**settings: str) -> subprocess.CompletedProcess[str]:
         return subprocess.run(
             [sys.executable, "-m", "groundstation.cli", "replay", str(path)],
-            capture_output=True, text=True, timeout=120, check=False, env={**env, **settings})
+            capture_output=True, text=True, timeout=120, check=False, env=cli_env(**settings))
 
     proc = replay(GROUNDSTATION_ZENOH_ENABLED="false", GROUNDSTATION_MONITOR_ENABLED="no")
     assert proc.returncode == 0, proc.stderr

@@ -11,17 +11,18 @@ unrelated CAs.
 
 from __future__ import annotations
 
-import os
 import re
 import shutil
 import subprocess
 import sys
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import TypeVar
 
 import pytest
-from peers import REPO, free_port
+from peers import REPO, CliProc, cli_env, free_port, wait_until
 
 from groundstation.bus import Bus, open_bus
 from groundstation.config import ZenohSettings
@@ -29,6 +30,8 @@ from groundstation.config import ZenohSettings
 pytestmark = pytest.mark.skipif(shutil.which("openssl") is None, reason="needs the openssl CLI")
 
 WAIT_S = 60.0
+
+T = TypeVar("T")
 
 
 def recipe() -> str:
@@ -45,10 +48,33 @@ def make_ca(where: Path) -> Path:
     return where
 
 
-def _env() -> dict[str, str]:
-    env = {k: v for k, v in os.environ.items() if not k.startswith("GROUNDSTATION_")}
-    env["PYTHONPATH"] = str(REPO)
-    return env
+def tls_router(cwd: Path, ca: Path, listen: str) -> CliProc:
+    """``groundstation router`` in ``cwd``, set by the environment alone: listening on
+    ``listen``, mutual TLS with the certificates of ``ca`` (:func:`make_ca`), access control
+    on with ``solver`` the solvers' common name."""
+    return CliProc(cwd, "router", env={
+        "GROUNDSTATION_ROUTER_LISTEN": listen,
+        "GROUNDSTATION_ROUTER_TLS_CA": str(ca / "ca.pem"),
+        "GROUNDSTATION_ROUTER_TLS_CERTIFICATE": str(ca / "router.pem"),
+        "GROUNDSTATION_ROUTER_TLS_PRIVATE_KEY": str(ca / "router.key"),
+        "GROUNDSTATION_ROUTER_ACCESS_ENABLED": "true",
+        "GROUNDSTATION_ROUTER_ACCESS_SOLVERS": "solver",
+    })
+
+
+def when_up(router: CliProc, connect: Callable[[], T]) -> T:
+    """``connect()``'s result once it succeeds (the router takes a while to listen); fails with
+    the router's stderr if the router exits meanwhile."""
+    def attempt() -> T | None:
+        assert router.proc.poll() is None, router.stderr()
+        try:
+            return connect()
+        except Exception:  # not listening yet: the next attempt may succeed
+            return None
+
+    got = wait_until(attempt, WAIT_S, "the router up", poll_s=0.2)
+    assert got is not None
+    return got
 
 
 class Observer:
@@ -104,15 +130,12 @@ def client(tmp: Path, endpoint: str, ca: Path, cert: Path | None, tag: str,
     key = cert.with_suffix(".key") if cert else None
     return subprocess.run(
         [sys.executable, "-c", CLIENT, endpoint, str(ca), str(cert or ""), str(key or ""), tag,
-         *keys], cwd=cwd, env=_env(), capture_output=True, text=True, timeout=60)
+         *keys], cwd=cwd, env=cli_env(), capture_output=True, text=True, timeout=60)
 
 
-def wait(check: object, timeout_s: float = WAIT_S) -> None:
-    assert callable(check)
-    deadline = time.monotonic() + timeout_s
-    while not check():
-        assert time.monotonic() < deadline, "timed out"
-        time.sleep(0.2)
+def wait(check: Callable[[], object]) -> None:
+    """:func:`wait_until` with this module's generous timeout."""
+    wait_until(check, WAIT_S, "the condition", poll_s=0.2)
 
 
 def test_recipe_makes_x509_v3_certificates(tmp_path: Path) -> None:
@@ -146,37 +169,19 @@ solvers = ["solver"]
 cert_common_names = ["rover"]
 [stations.base]
 """)
-    procs: list[subprocess.Popen[str]] = []
+    procs: list[CliProc] = []
     try:
-        router = subprocess.Popen(
-            [sys.executable, "-m", "groundstation.cli", "router", "--config", "router.toml"],
-            cwd=rdir, env=_env(), stdout=subprocess.DEVNULL,
-            stderr=(rdir / "stderr.txt").open("w"), text=True)
+        router = CliProc(rdir, "router", "--config", "router.toml")
         procs.append(router)
-        obs: Observer | None = None
-
-        def observer_up() -> bool:
-            nonlocal obs
-            assert router.poll() is None, (rdir / "stderr.txt").read_text()
-            try:
-                obs = Observer(local)
-            except Exception:
-                return False
-            return True
-
-        wait(observer_up)
-        assert obs is not None
+        obs = when_up(router, lambda: Observer(local))
         time.sleep(0.5)
 
         # a real daemon with the rover certificate publishes its status through TLS
         sim_port = free_port()
-        sdir, ddir = tmp_path / "sim", tmp_path / "rover"
-        sdir.mkdir()
+        ddir = tmp_path / "rover"
         ddir.mkdir()
-        procs.append(subprocess.Popen(
-            [sys.executable, "-m", "groundstation.cli", "simulate", "--tcp", str(sim_port),
-             "--duration", "600", "--speed", "1"], cwd=sdir, env=_env(),
-            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, text=True))
+        procs.append(CliProc(tmp_path / "sim", "simulate", "--tcp", str(sim_port),
+                             "--duration", "600", "--speed", "1"))
         (ddir / "rover.toml").write_text(f"""
 station = "rover"
 [source]
@@ -189,10 +194,7 @@ tls_ca = "{ca / 'ca.pem'}"
 tls_certificate = "{ca / 'rover.pem'}"
 tls_private_key = "{ca / 'rover.key'}"
 """)
-        procs.append(subprocess.Popen(
-            [sys.executable, "-m", "groundstation.cli", "run", "--config", "rover.toml"],
-            cwd=ddir, env=_env(), stdout=subprocess.DEVNULL,
-            stderr=(ddir / "stderr.txt").open("w"), text=True))
+        procs.append(CliProc(ddir, "run", "--config", "rover.toml"))
         wait(lambda: "groundstation/rover/status" in obs.seen())
 
         # the same CN from another CA: refused at the handshake, nothing arrives
@@ -232,50 +234,22 @@ tls_private_key = "{ca / 'rover.key'}"
         obs.bus.close()
     finally:
         for p in procs:
-            if p.poll() is None:
-                p.terminate()
-                try:
-                    p.wait(timeout=15)
-                except subprocess.TimeoutExpired:
-                    p.kill()
-                    p.wait(timeout=5)
+            p.stop()
 
 
 def test_solver_certificate_reads_every_station(tmp_path: Path) -> None:
     ca = make_ca(tmp_path / "ca")
     tls_port, tcp_port = free_port(), free_port()
-    rdir = tmp_path / "router"
-    rdir.mkdir()
-    env = _env() | {
-        "GROUNDSTATION_ROUTER_LISTEN": f"tls/127.0.0.1:{tls_port},tcp/127.0.0.1:{tcp_port}",
-        "GROUNDSTATION_ROUTER_TLS_CA": str(ca / "ca.pem"),
-        "GROUNDSTATION_ROUTER_TLS_CERTIFICATE": str(ca / "router.pem"),
-        "GROUNDSTATION_ROUTER_TLS_PRIVATE_KEY": str(ca / "router.key"),
-        "GROUNDSTATION_ROUTER_ACCESS_ENABLED": "true",
-        "GROUNDSTATION_ROUTER_ACCESS_SOLVERS": "solver",
-    }
-    router = subprocess.Popen([sys.executable, "-m", "groundstation.cli", "router"], cwd=rdir,
-                              env=env, stdout=subprocess.DEVNULL,
-                              stderr=(rdir / "stderr.txt").open("w"), text=True)
+    router = tls_router(tmp_path / "router", ca,
+                        f"tls/127.0.0.1:{tls_port},tcp/127.0.0.1:{tcp_port}")
     solver: Bus | None = None
     local: Bus | None = None
     try:
         got: list[str] = []
-
-        def up() -> bool:
-            nonlocal solver
-            assert router.poll() is None, (rdir / "stderr.txt").read_text()
-            try:
-                solver = open_bus(ZenohSettings(
-                    mode="client", listen=(), connect=(f"tls/localhost:{tls_port}",),
-                    tls_ca=ca / "ca.pem", tls_certificate=ca / "solver.pem",
-                    tls_private_key=ca / "solver.key"))
-            except Exception:
-                return False
-            return True
-
-        wait(up)
-        assert solver is not None
+        solver = when_up(router, lambda: open_bus(ZenohSettings(
+            mode="client", listen=(), connect=(f"tls/localhost:{tls_port}",),
+            tls_ca=ca / "ca.pem", tls_certificate=ca / "solver.pem",
+            tls_private_key=ca / "solver.key")))
         solver.subscribe("groundstation/**", lambda k, p: got.append(k))
         local = open_bus(ZenohSettings(mode="client", listen=(),
                                        connect=(f"tcp/127.0.0.1:{tcp_port}",)))
@@ -294,8 +268,7 @@ def test_solver_certificate_reads_every_station(tmp_path: Path) -> None:
         for b in (solver, local):
             if b is not None:
                 b.close()
-        router.terminate()
-        router.wait(timeout=15)
+        router.stop()
 
 
 def test_router_bad_configuration_exits_2_naming_the_key(tmp_path: Path) -> None:
@@ -307,7 +280,7 @@ def test_router_bad_configuration_exits_2_naming_the_key(tmp_path: Path) -> None
     ]
     for extra, name in cases:
         out = subprocess.run([sys.executable, "-m", "groundstation.cli", "router"],
-                             cwd=tmp_path, env=_env() | extra, capture_output=True, text=True,
+                             cwd=tmp_path, env=cli_env(**extra), capture_output=True, text=True,
                              timeout=60)
         assert out.returncode == 2, (extra, out.stderr)
         assert name in out.stderr and "Traceback" not in out.stderr, out.stderr

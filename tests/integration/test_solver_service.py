@@ -11,16 +11,15 @@ import re
 import shutil
 import subprocess
 import sys
-import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import pytest
-from peers import REPO, Daemon, free_port
+from peers import REPO, Daemon, Received, free_port, wait_until
 
-from groundstation.bus import Bus, decode, encode, key, open_bus
+from groundstation.bus import Bus, encode, key, open_bus
 from groundstation.config import ZenohSettings
 
 
@@ -39,31 +38,27 @@ def flight(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
     return {"mcap": Path(paths["MCAP"]), "truth": truth}
 
 
-class Solutions:
-    def __init__(self, bus: Bus) -> None:
-        self.lock = threading.Lock()
-        self.items: list[tuple[float, str, dict[str, Any]]] = []
-        bus.subscribe(key("*", "solution"), self.on)
+class Solutions(Received):
+    """Every ``solution`` message on the bus, with its arrival time."""
 
-    def on(self, k: str, payload: bytes) -> None:
-        with self.lock:
-            self.items.append((time.monotonic(), k, decode(payload)))
+    def __init__(self, bus: Bus) -> None:
+        super().__init__(bus, key("*", "solution"))
 
     def wait(self, session_id: str, status: str, timeout_s: float = 60.0) -> dict[str, Any]:
-        deadline = time.monotonic() + timeout_s
-        while time.monotonic() < deadline:
-            with self.lock:
-                for _, _, m in self.items:
-                    if m.get("session_id") == session_id and m.get("status") == status:
-                        return m
-            time.sleep(0.05)
-        with self.lock:
-            seen = [(k, m.get("session_id"), m.get("status")) for _, k, m in self.items]
-        raise AssertionError(f"no {status} solution for {session_id}; got {seen}")
+        """The first ``status`` solution of the session; fails listing what came instead."""
+        def found() -> list[dict[str, Any]]:
+            return self.all(lambda m: m.get("session_id") == session_id
+                            and m.get("status") == status)
 
-    def of(self, session_id: str) -> list[tuple[float, str, dict[str, Any]]]:
-        with self.lock:
-            return [it for it in self.items if it[2].get("session_id") == session_id]
+        try:
+            return wait_until(found, timeout_s, poll_s=0.05)[0]
+        except AssertionError:
+            seen = [(m.get("station"), m.get("session_id"), m.get("status"))
+                    for m in self.all()]
+            raise AssertionError(f"no {status} solution for {session_id}; got {seen}") from None
+
+    def of(self, session_id: str) -> list[tuple[float, dict[str, Any]]]:
+        return self.timed(lambda m: m.get("session_id") == session_id)
 
 
 def session(bus: Bus, station: str, session_id: str, files: list[str],
@@ -122,8 +117,8 @@ def test_finished_session_is_solved_and_published(
     skipped = sols.wait("s2", "skipped", timeout_s=10)
     ok = sols.wait("s1", "ok", timeout_s=90)
     # The service stayed responsive: bravo's answer came while alpha was being solved.
-    t = {m["status"]: ts for ts, _, m in sols.of("s1")}
-    (t_skip,) = [ts for ts, _, _ in sols.of("s2")]
+    t = {m["status"]: ts for ts, m in sols.of("s1")}
+    (t_skip,) = [ts for ts, _ in sols.of("s2")]
     assert t["solving"] < t_skip < t["ok"]
     assert "no base configured for station 'bravo'" in skipped["reason"]
     assert skipped["schema"] == 1 and skipped["type"] == "solution"
@@ -147,7 +142,7 @@ def test_finished_session_is_solved_and_published(
     assert any("lever arm" in n for n in ok["notes"])
     # Solved once, whatever the repeats; nothing for the started state.
     time.sleep(0.5)
-    assert [m["status"] for _, _, m in sols.of("s1")] == ["solving", "ok"]
+    assert [m["status"] for _, m in sols.of("s1")] == ["solving", "ok"]
     rc, out = d.stop()
     assert rc == 0
     assert "solver: stopped: 1 solved, 0 failed, " in out
@@ -218,8 +213,8 @@ def test_crafted_sessions_are_refused_and_a_recording_is_solved_once(
     assert "already solved" in skipped["reason"]
     time.sleep(1.0)
     assert not sols.of("c4")
-    assert [m["status"] for _, _, m in sols.of("r1")] == ["solving", "ok"]
-    assert [m["status"] for _, _, m in sols.of("r2")] in (["solving", "skipped"], [])
+    assert [m["status"] for _, m in sols.of("r1")] == ["solving", "ok"]
+    assert [m["status"] for _, m in sols.of("r2")] in (["solving", "skipped"], [])
     # nothing written outside out_root, nothing added next to the refused recording
     assert sorted(p.name for p in elsewhere.iterdir()) == before
     assert sorted(p.name for p in (tmp / "solutions").iterdir()) == ["alpha"]

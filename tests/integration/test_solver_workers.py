@@ -9,7 +9,6 @@ real (the demo5 engine on short simulated flights).
 from __future__ import annotations
 
 import json
-import os
 import re
 import signal
 import subprocess
@@ -21,9 +20,9 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from peers import REPO, free_port, wait_until
+from peers import CliProc, Received, cli_env, free_port, wait_until
 
-from groundstation.bus import Bus, decode, encode, key, open_bus
+from groundstation.bus import Bus, encode, key, open_bus
 from groundstation.config import ZenohSettings
 from groundstation.sim.ptylink import PtyLink
 from groundstation.storage import reading
@@ -31,63 +30,19 @@ from groundstation.storage import reading
 WAIT_S = 60.0  # generous: the shared 2-core machine
 
 
-def _env() -> dict[str, str]:
-    env = {k: v for k, v in os.environ.items() if not k.startswith("GROUNDSTATION_")}
-    env["PYTHONPATH"] = str(REPO)
-    return env
-
-
-class Proc:
-    """A CLI process in its own working directory, stderr to a file."""
-
-    def __init__(self, cwd: Path, *argv: str) -> None:
-        cwd.mkdir(parents=True, exist_ok=True)
-        self.cwd = cwd
-        self.err_path = cwd / "stderr.txt"
-        self.proc = subprocess.Popen(
-            [sys.executable, "-m", "groundstation.cli", *argv], cwd=cwd, env=_env(),
-            stdout=(cwd / "stdout.txt").open("w"), stderr=self.err_path.open("w"),
-        )
-
-    def stderr(self) -> str:
-        return self.err_path.read_text(errors="replace")
-
-    def wait_for(self, text: str, timeout_s: float = WAIT_S) -> None:
-        wait_until(lambda: text in self.stderr() or self.proc.poll() is not None, timeout_s,
-                   f"{text!r} in {self.cwd.name}'s stderr")
-        assert text in self.stderr(), f"{self.cwd.name} exited early:\n{self.stderr()}"
-
-    def stop(self) -> None:
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGTERM)
-            try:
-                self.proc.wait(timeout=20)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait(timeout=10)
-
-
-class Solutions:
+class Solutions(Received):
     """Every ``solution`` message on the bus, with its arrival time."""
 
     def __init__(self, bus: Bus) -> None:
-        self.lock = threading.Lock()
-        self.items: list[tuple[float, dict[str, Any]]] = []
-        bus.subscribe(key("*", "solution"), self.on)
-
-    def on(self, _key: str, payload: bytes) -> None:
-        with self.lock:
-            self.items.append((time.monotonic(), decode(payload)))
+        super().__init__(bus, key("*", "solution"))
 
     def of(self, status: str, session_id: str | None = None) -> list[dict[str, Any]]:
-        with self.lock:
-            return [m for _, m in self.items if m.get("status") == status
-                    and (session_id is None or m.get("session_id") == session_id)]
+        return self.all(lambda m: m.get("status") == status
+                        and (session_id is None or m.get("session_id") == session_id))
 
     def when(self, status: str, session_id: str) -> list[tuple[float, dict[str, Any]]]:
-        with self.lock:
-            return [(t, m) for t, m in self.items
-                    if m.get("status") == status and m.get("session_id") == session_id]
+        return self.timed(lambda m: m.get("status") == status
+                          and m.get("session_id") == session_id)
 
 
 def _demo(cwd: Path, station: str, seed: int) -> subprocess.Popen[str]:
@@ -96,7 +51,7 @@ def _demo(cwd: Path, station: str, seed: int) -> subprocess.Popen[str]:
         [sys.executable, "-m", "groundstation.cli", "demo", "--flight", "60", "--speed", "max",
          "--out-dir", "flights", "--no-zenoh", "--no-view", "--faults", "none", "--seed",
          str(seed), "--station", station],
-        cwd=cwd, env=_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        cwd=cwd, env=cli_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 
 @pytest.fixture(scope="module")
@@ -134,17 +89,17 @@ def _worker_config(path: Path, endpoint: str, flights: list[dict[str, Any]]) -> 
 @pytest.fixture
 def bus_and_workers(
     tmp_path: Path, flights: list[dict[str, Any]]
-) -> Iterator[tuple[Bus, Solutions, list[Proc]]]:
+) -> Iterator[tuple[Bus, Solutions, list[CliProc]]]:
     """The test's bus (the meeting point) and two solver workers, each in its own directory
     with its own output root, both answering."""
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     bus = open_bus(ZenohSettings(listen=(endpoint,)))
     sols = Solutions(bus)
-    workers: list[Proc] = []
+    workers: list[CliProc] = []
     try:
         for name in ("worker-a", "worker-b"):
             conf = _worker_config(tmp_path / name / "solver.toml", endpoint, flights)
-            workers.append(Proc(tmp_path / name, "solver", "--config", str(conf)))
+            workers.append(CliProc(tmp_path / name, "solver", "--config", str(conf)))
         for w in workers:
             w.wait_for("listening on groundstation/*/session")
         # Subscriptions travel asynchronously: knock until both workers answer one knock.
@@ -183,7 +138,12 @@ def _announce(bus: Bus, flights: list[dict[str, Any]]) -> list[str]:
 
 
 def _solved_once(sols: Solutions, sids: list[str]) -> dict[str, str]:
-    """Each session's one ``ok`` (asserted: exactly one): session -> the worker that solved it."""
+    """Each session's one ``ok`` (asserted: exactly one), once every session has one and a
+    second solve has had time to show: session -> the worker that solved it."""
+    wait_until(lambda: {m["session_id"] for m in sols.of("ok")} >= set(sids), 120,
+               f"{len(sids)} solutions")
+    # A second solve would follow its claim's release within a few seconds: wait for quiet.
+    time.sleep(3.0)
     out = {}
     for sid in sids:
         oks = sols.of("ok", sid)
@@ -194,14 +154,10 @@ def _solved_once(sols: Solutions, sids: list[str]) -> dict[str, str]:
 
 @pytest.mark.slow
 def test_two_workers_solve_six_sessions_once_each(
-    bus_and_workers: tuple[Bus, Solutions, list[Proc]], flights: list[dict[str, Any]]
+    bus_and_workers: tuple[Bus, Solutions, list[CliProc]], flights: list[dict[str, Any]]
 ) -> None:
     bus, sols, workers = bus_and_workers
     sids = _announce(bus, flights)
-    wait_until(lambda: {m["session_id"] for m in sols.of("ok")} >= set(sids), 120,
-               "six solutions")
-    # A second solve would follow its claim's release within a few seconds: wait for quiet.
-    time.sleep(3.0)
     by = _solved_once(sols, sids)
     assert not [m for m in sols.of("failed") if m["session_id"] in sids]
     assert len(set(by.values())) == 2, f"one worker did everything: {by}"
@@ -216,7 +172,7 @@ def test_two_workers_solve_six_sessions_once_each(
 
 @pytest.mark.slow
 def test_a_killed_worker_is_replaced_and_every_session_is_solved_once(
-    bus_and_workers: tuple[Bus, Solutions, list[Proc]], flights: list[dict[str, Any]]
+    bus_and_workers: tuple[Bus, Solutions, list[CliProc]], flights: list[dict[str, Any]]
 ) -> None:
     bus, sols, workers = bus_and_workers
     sids = _announce(bus, flights)
@@ -235,9 +191,6 @@ def test_a_killed_worker_is_replaced_and_every_session_is_solved_once(
     wait_until(lambda: [t for t, m in sols.when("solving", victim_sid)
                         if m["worker"] != victim_id and t > killed_at], 30,
                "the killed worker's job taken up")
-    wait_until(lambda: {m["session_id"] for m in sols.of("ok")} >= set(sids), 120,
-               "six solutions")
-    time.sleep(3.0)
     by = _solved_once(sols, sids)
     assert by[victim_sid] != victim_id
     assert "vanished; taking it up" in survivor.stderr()
@@ -256,7 +209,7 @@ def test_rover_and_base_daemons_are_paired_by_the_solver(tmp_path: Path) -> None
         [sys.executable, "-m", "groundstation.cli", "simulate", "--out", "rover.ubx",
          "--base-out", "base.ubx", "--truth", "truth.json", "--duration", "60", "--speed",
          "max", "--faults", "none", "--seed", "4"],
-        cwd=sim, env=_env(), capture_output=True, text=True, timeout=120, check=False)
+        cwd=sim, env=cli_env(), capture_output=True, text=True, timeout=120, check=False)
     assert made.returncode == 0, made.stderr
     truth = json.loads((sim / "truth.json").read_text())
     endpoint = f"tcp/127.0.0.1:{free_port()}"
@@ -269,16 +222,16 @@ def test_rover_and_base_daemons_are_paired_by_the_solver(tmp_path: Path) -> None
         f'"{tmp_path / "rover" / "flights"}"]\nbase_wait_s = 60\n\n'
         f'[zenoh]\nconnect = ["{endpoint}"]\n\n'
         f'[stations.rover]\nbase = "station:base"\nbase_xyz = [{xyz}]\n')
-    procs: list[Proc] = []
+    procs: list[CliProc] = []
     watcher: Bus | None = None
     radio = PtyLink(tmp_path / "ttyBASE")
     try:
         # The base receiver on a serial port (a pty): it keeps recording after its data ends.
-        base = Proc(tmp_path / "base", "run", "--port", radio.path, "--station", "base",
-                    "--zenoh-listen", endpoint)
+        base = CliProc(tmp_path / "base", "run", "--port", radio.path, "--station", "base",
+                       "--zenoh-listen", endpoint)
         procs.append(base)
         base.wait_for("publishing on Zenoh")
-        solver = Proc(tmp_path / "solver", "solver", "--config", str(conf))
+        solver = CliProc(tmp_path / "solver", "solver", "--config", str(conf))
         procs.append(solver)
         solver.wait_for("listening on groundstation/*/session")
         watcher = open_bus(ZenohSettings(mode="client", listen=(), connect=(endpoint,)))
@@ -287,8 +240,8 @@ def test_rover_and_base_daemons_are_paired_by_the_solver(tmp_path: Path) -> None
         piece = 1000  # 15 kB/s: the base's 60 s of data in about 10 s, longer than the rover
         radio.start_feed(((i * 1_000_000_000 // 15, data[i * piece:(i + 1) * piece])
                           for i in range((len(data) + piece - 1) // piece)), speed=1.0)
-        rover = Proc(tmp_path / "rover", "run", "--file", str(sim / "rover.ubx"), "--rate",
-                     "24000", "--station", "rover", "--zenoh-listen", endpoint)
+        rover = CliProc(tmp_path / "rover", "run", "--file", str(sim / "rover.ubx"), "--rate",
+                        "24000", "--station", "rover", "--zenoh-listen", endpoint)
         procs.append(rover)
         rover.wait_for("is taken: joined it")
         bus = watcher
@@ -375,37 +328,18 @@ def test_simultaneous_claims_go_to_the_smallest_worker_and_a_vanished_one_is_tak
 def test_solver_claims_pass_the_routers_access_control(tmp_path: Path) -> None:
     """Two workers with the solver certificate, through ``groundstation router`` with mutual
     TLS and access control: each sees the other's claim, and its end."""
-    from test_router_tls import make_ca  # the recipe of docs/security.md, run once
+    # the recipe of docs/security.md, run once, and the router that test module starts
+    from test_router_tls import make_ca, tls_router, when_up
 
     ca = make_ca(tmp_path / "ca")
     tls_port = free_port()
-    rdir = tmp_path / "router"
-    rdir.mkdir()
-    env = _env() | {
-        "GROUNDSTATION_ROUTER_LISTEN": f"tls/127.0.0.1:{tls_port}",
-        "GROUNDSTATION_ROUTER_TLS_CA": str(ca / "ca.pem"),
-        "GROUNDSTATION_ROUTER_TLS_CERTIFICATE": str(ca / "router.pem"),
-        "GROUNDSTATION_ROUTER_TLS_PRIVATE_KEY": str(ca / "router.key"),
-        "GROUNDSTATION_ROUTER_ACCESS_ENABLED": "true",
-        "GROUNDSTATION_ROUTER_ACCESS_SOLVERS": "solver",
-    }
-    router = subprocess.Popen([sys.executable, "-m", "groundstation.cli", "router"], cwd=rdir,
-                              env=env, stdout=subprocess.DEVNULL,
-                              stderr=(rdir / "stderr.txt").open("w"), text=True)
+    router = tls_router(tmp_path / "router", ca, f"tls/127.0.0.1:{tls_port}")
     settings = ZenohSettings(mode="client", listen=(), connect=(f"tls/localhost:{tls_port}",),
                              tls_ca=ca / "ca.pem", tls_certificate=ca / "solver.pem",
                              tls_private_key=ca / "solver.key")
     buses: list[Bus] = []
     try:
-        def up() -> bool:
-            assert router.poll() is None, (rdir / "stderr.txt").read_text()
-            try:
-                buses.append(open_bus(settings))
-            except Exception:
-                return False
-            return True
-
-        wait_until(up, WAIT_S, "the router up")
+        buses.append(when_up(router, lambda: open_bus(settings)))
         buses.append(open_bus(settings))
         a, b = buses
         seen: list[tuple[str, bool]] = []
@@ -421,5 +355,4 @@ def test_solver_claims_pass_the_routers_access_control(tmp_path: Path) -> None:
     finally:
         for bus in buses:
             bus.close()
-        router.terminate()
-        router.wait(timeout=15)
+        router.stop()

@@ -14,7 +14,7 @@ import time
 from pathlib import Path
 
 import pytest
-from peers import REPO, Daemon, Pty, free_port, wait_until
+from peers import REPO, Daemon, Pty, Received, free_port, wait_until
 from streams import epoch_with_mark
 
 from groundstation.bus import Bus, decode, key, open_bus
@@ -26,19 +26,14 @@ TOW0_MS = 400_000_000
 SATS = [(3, 0), (7, 0), (11, 2), (19, 0), (23, 0), (27, 0)]
 
 
-class Collector:
-    def __init__(self, bus: Bus) -> None:
-        self.lock = threading.Lock()
-        self.items: list[tuple[float, str, dict[str, object]]] = []
-        bus.subscribe(key(STATION, "**"), self.on)
+class Collector(Received):
+    """Every message of the station, by its type."""
 
-    def on(self, k: str, payload: bytes) -> None:
-        with self.lock:
-            self.items.append((time.monotonic(), k, decode(payload)))
+    def __init__(self, bus: Bus) -> None:
+        super().__init__(bus, key(STATION, "**"))
 
     def of(self, kind: str) -> list[dict[str, object]]:
-        with self.lock:
-            return [m for _, _, m in self.items if m.get("type") == kind]
+        return self.all(lambda m: m.get("type") == kind)
 
 
 def start_daemon(tmp_path: Path, pty: Pty, daemons: list[Daemon], endpoint: str) -> Daemon:

@@ -14,7 +14,7 @@ import time
 from pathlib import Path
 
 import pytest
-from peers import REPO, free_port
+from peers import cli_env, free_port
 
 from groundstation.bus import open_bus
 from groundstation.config import CLIENT_ZENOH, ZenohSettings
@@ -68,8 +68,7 @@ def test_a_client_session_listens_nowhere_and_a_listener_is_seen() -> None:
 ], ids=lambda a: a[0])
 def test_client_commands_listen_only_where_configured(argv: list[str], tmp_path: Path) -> None:
     assert CLIENT_ZENOH.listen == ()
-    env = {k: v for k, v in os.environ.items() if not k.startswith("GROUNDSTATION_")}
-    env["PYTHONPATH"] = str(REPO)
+    env = cli_env()
     endpoint = f"tcp/127.0.0.1:{free_port()}"  # nobody there: the client keeps trying
     proc = subprocess.Popen(
         [sys.executable, "-m", "groundstation.cli", *argv, "--connect", endpoint],
