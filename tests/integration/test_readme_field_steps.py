@@ -1,8 +1,9 @@
 """The README's field steps, run verbatim, with a pty standing in for the Wi232 radio.
 
 The commands are read out of README.md's "In the field" section (numbered steps 1 to 3), so the
-README cannot drift from what works. Two substitutions only: ``/dev/wi232`` is the pty's path,
-and ``groundstation`` is this tree's ``python -m groundstation.cli``. The Zenoh endpoint is
+README cannot drift from what works. Three substitutions only: ``/dev/wi232`` is the pty's path,
+``FLIGHT`` the recording the daemon named at its end, and ``groundstation`` is this tree's
+``python -m groundstation.cli``. The Zenoh endpoint is
 moved off the default port through the environment (``GROUNDSTATION_ZENOH_LISTEN``,
 ``GROUNDSTATION_WATCH_ZENOH_CONNECT``), so the commands stay as written while other tests run.
 The ``solve`` line holds placeholders (BASE.ubx, X,Y,Z, DIR) and is solved elsewhere
@@ -93,7 +94,9 @@ def test_readme_field_steps_run_verbatim(tmp_path: Path, pty: Pty) -> None:
                 proc.communicate(timeout=10)
     (mcap,) = (tmp_path / "flights").glob("rover_*.mcap")
     for command in (inspect_cmd, rinex_cmd):
-        words = command.split()
+        assert "FLIGHT" in command, command
+        assert mcap.name in out + err, out  # the daemon names the flight at its end
+        words = command.replace("FLIGHT", str(mcap.relative_to(tmp_path))).split()
         assert words[0] == "groundstation"
         shell = " ".join([shlex.quote(sys.executable), "-m", "groundstation.cli", *words[1:]])
         done = subprocess.run(shell, shell=True, cwd=tmp_path, env=env, text=True,
