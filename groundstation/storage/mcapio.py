@@ -280,14 +280,12 @@ class _MessageAppender:
         if offset + 31 + len(data) > self._chunk_size:
             self.finalize()
 
-    def finalize(self, *, inline: bool = False) -> None:
+    def finalize(self) -> None:
         """Close the chunk in progress, as ``Writer.__finalize_chunk`` does (the chunk record,
         its message indexes and its chunk index, the same bytes), with each record packed by
-        ``struct`` at once instead of field by field. A full chunk is handed to the background
-        writer if there is one (compressed and written there); otherwise, or with ``inline``
-        (a flush, once the background writer is drained), it is written here, in the
-        library's two writes. So a slow stream, whose chunks are closed by flushes, never
-        wakes the thread.
+        ``struct`` at once instead of field by field. With a background writer the chunk is
+        handed to it (compressed and written there); otherwise written here, in the library's
+        two writes.
 
         Raises:
             OSError: a chunk handed to the background writer earlier could not be written.
@@ -304,7 +302,7 @@ class _MessageAppender:
             if self._index_messages else [],
         )
         cb.reset()  # clears the dict of indexes; the lists of entries stay with ``sealed``
-        if self.background is not None and not inline:
+        if self.background is not None:
             self.background.submit(sealed)
         else:
             self._flush_records()  # nothing is waiting there; the library's order, to be sure
@@ -395,7 +393,7 @@ before the recorder waits for it."""
 
 
 class _BackgroundChunks:
-    """A thread that compresses and writes the full chunks of one file, so the recorder's
+    """A thread that compresses and writes the closed chunks of one file, so the recorder's
     thread goes on with the next records meanwhile (compression and ``write`` release the
     interpreter lock: on a second core they cost the pipeline nothing).
 
@@ -592,8 +590,8 @@ class McapFileWriter:
         """Close the chunk in progress and flush the file (no fsync)."""
         if not self._finished:
             if self._appender is not None:
+                self._appender.finalize()
                 self._drain()
-                self._appender.finalize(inline=True)
             self._writer.flush()  # type: ignore[no-untyped-call]
 
     @property
@@ -616,8 +614,8 @@ class McapFileWriter:
         self._finished = True
         try:
             if self._appender is not None:
+                self._appender.finalize()
                 self._drain()
-                self._appender.finalize(inline=True)
             self._writer.finish()  # type: ignore[no-untyped-call]
         finally:
             self._stop_background()
