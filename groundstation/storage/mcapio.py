@@ -24,7 +24,6 @@ import itertools
 import logging
 import os
 import struct
-import threading
 import zlib
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
@@ -229,7 +228,6 @@ class _MessageAppender:
         self._zstd = (zstandard.ZstdCompressor(level=3)
                       if compression == CompressionType.ZSTD else None)
         self._data_crcs: bool = getattr(writer, _PRIVATE + "enable_data_crcs")
-        self.background: _BackgroundChunks | None = None
 
     @classmethod
     def make(cls, writer: Writer) -> _MessageAppender | None:
@@ -282,195 +280,49 @@ class _MessageAppender:
 
     def finalize(self) -> None:
         """Close the chunk in progress, as ``Writer.__finalize_chunk`` does (the chunk record,
-        its message indexes and its chunk index, the same bytes), with each record packed by
-        ``struct`` at once instead of field by field. With a background writer the chunk is
-        handed to it (compressed and written there); otherwise written here, in the library's
-        two writes.
-
-        Raises:
-            OSError: a chunk handed to the background writer earlier could not be written.
-        """
+        its message indexes and its chunk index, the same bytes in the same two writes), with
+        each record packed by ``struct`` at once instead of field by field."""
         cb = self._builder
         if cb.num_messages == 0:
             return
         self._stats.chunk_count += 1
-        data = cb.end()
-        sealed = _SealedChunk(
-            data, cb.message_start_time, cb.message_end_time,
-            zlib.crc32(data) if self._crcs else 0,
-            [(cid, index.records) for cid, index in cb.message_indices.items()]
-            if self._index_messages else [],
-        )
-        cb.reset()  # clears the dict of indexes; the lists of entries stay with ``sealed``
-        if self.background is not None:
-            self.background.submit(sealed)
-        else:
-            self._flush_records()  # nothing is waiting there; the library's order, to be sure
-            self.write_chunks([sealed], [self._compress(data)], whole=False)
-
-    def _compress(self, data: bytes) -> bytes:
+        chunk_data = cb.end()
         if self._zstd is not None:
-            return self._zstd.compress(data)
-        if self._compression == "lz4":
-            return bytes(lz4.frame.compress(data))
-        return data
-
-    def compress_all(self, chunks: list[_SealedChunk]) -> list[bytes]:
-        """Every chunk's compressed data; zstd in one call for several chunks (one release of
-        the interpreter lock instead of one per chunk: a thread that takes the lock back after
-        each call waits up to the switch interval, 5 ms, behind a busy main thread)."""
-        if self._zstd is not None and len(chunks) > 1:
-            out = self._zstd.multi_compress_to_buffer([c.data for c in chunks])
-            return [out[i].tobytes() for i in range(len(chunks))]
-        return [self._compress(c.data) for c in chunks]
-
-    def write_chunks(self, chunks: list[_SealedChunk], compressed: list[bytes], *,
-                     whole: bool) -> None:
-        """Write sealed chunks and their message indexes, and keep their chunk indexes.
-
-        Args:
-            chunks: the chunks, in order.
-            compressed: their compressed data.
-            whole: all in one ``write`` (the background writer: one release of the lock);
-                else each chunk record, then its indexes, as the library writes them.
-        """
+            compressed = self._zstd.compress(chunk_data)
+        elif self._compression == "lz4":
+            compressed = lz4.frame.compress(chunk_data)
+        else:
+            compressed = chunk_data
         name = self._compression.encode()
-        pos = self._stream.tell()
-        out = bytearray()
-        for chunk, packed in zip(chunks, compressed, strict=True):
-            record = _CHUNK_HEAD.pack(
-                _CHUNK_OPCODE, 8 + 8 + 8 + 4 + 4 + len(name) + 8 + len(packed), chunk.start,
-                chunk.end, len(chunk.data), chunk.crc, len(name),
-            ) + name + _U64.pack(len(packed)) + packed
-            offsets: dict[int, int] = {}
-            indexes = bytearray()
-            index_start = pos + len(record)
-            for cid, entries in chunk.indexes:
+        start, end = cb.message_start_time, cb.message_end_time
+        head = _CHUNK_HEAD.pack(
+            _CHUNK_OPCODE, 8 + 8 + 8 + 4 + 4 + len(name) + 8 + len(compressed), start, end,
+            len(chunk_data), zlib.crc32(chunk_data) if self._crcs else 0, len(name),
+        )
+        self._flush_records()  # nothing is waiting there; the library's order, to be sure
+        chunk_start = self._stream.tell()
+        self._stream.write(head + name + _U64.pack(len(compressed)) + compressed)
+        chunk_length = self._stream.tell() - chunk_start
+        offsets: dict[int, int] = {}
+        indexes = bytearray()
+        if self._index_messages:
+            index_start = chunk_start + chunk_length
+            for cid, index in cb.message_indices.items():
                 offsets[cid] = index_start + len(indexes)
+                entries = index.records
                 indexes += _INDEX_HEAD.pack(_INDEX_OPCODE, 6 + 16 * len(entries), cid,
                                             16 * len(entries))
-                indexes += struct.pack(f"<{2 * len(entries)}Q",
-                                       *itertools.chain.from_iterable(entries))
-            if whole:
-                out += record
-                out += indexes
-            else:
-                self._stream.write(record)
-                if indexes:
-                    self._stream.write(indexes)
-            self._chunk_indices.append(ChunkIndex(
-                message_start_time=chunk.start, message_end_time=chunk.end,
-                chunk_start_offset=pos, chunk_length=len(record),
-                message_index_offsets=offsets, message_index_length=len(indexes),
-                compression=self._compression, compressed_size=len(packed),
-                uncompressed_size=len(chunk.data),
-            ))
-            pos += len(record) + len(indexes)
-        if out:
-            self._stream.write(out)
-
-
-@dataclass(slots=True)
-class _SealedChunk:
-    """A closed chunk waiting to be compressed and written."""
-
-    data: bytes
-    start: int
-    end: int
-    crc: int
-    indexes: list[tuple[int, list[tuple[int, int]]]]
-
-    @property
-    def nbytes(self) -> int:
-        """At least what the chunk and its indexes take in the file (uncompressed data, the
-        records' fixed parts and 16 bytes per index entry)."""
-        return len(self.data) + 64 + sum(15 + 16 * len(e) for _, e in self.indexes)
-
-
-BACKGROUND_QUEUE_CHUNKS = 32
-"""How many closed chunks may wait for the background writer (2 MB at the default chunk size)
-before the recorder waits for it."""
-
-
-class _BackgroundChunks:
-    """A thread that compresses and writes the closed chunks of one file, so the recorder's
-    thread goes on with the next records meanwhile (compression and ``write`` release the
-    interpreter lock: on a second core they cost the pipeline nothing).
-
-    It takes whatever chunks are waiting at once (one compression call, one ``write``). A
-    failure is kept and raised on the recorder's thread by the next :meth:`submit` or
-    :meth:`drain`; the chunks after it are not written (the file is abandoned and cut back to
-    its last flush, whose messages the recorder still holds)."""
-
-    def __init__(self, appender: _MessageAppender) -> None:
-        self._appender = appender
-        self._cond = threading.Condition()
-        self._queue: collections.deque[_SealedChunk] = collections.deque()
-        self._busy = 0  # chunks submitted and not yet written (or skipped)
-        self.queued_bytes = 0
-        """The uncompressed size of the chunks not yet written: more than they will take."""
-        self._error: BaseException | None = None
-        self._stopping = False
-        self._thread: threading.Thread | None = None  # started with the first chunk
-
-    def _raise_error(self) -> None:
-        err = self._error
-        if err is not None:
-            raise err
-
-    def submit(self, chunk: _SealedChunk) -> None:
-        with self._cond:
-            self._raise_error()
-            while self._busy >= BACKGROUND_QUEUE_CHUNKS and self._error is None:
-                self._cond.wait()
-            self._raise_error()
-            self._queue.append(chunk)
-            self._busy += 1
-            self.queued_bytes += chunk.nbytes
-            self._cond.notify_all()
-        if self._thread is None:
-            self._thread = threading.Thread(target=self._run, name="mcap-writer", daemon=True)
-            self._thread.start()
-
-    def drain(self) -> None:
-        """Wait until every submitted chunk is written.
-
-        Raises:
-            OSError: a chunk could not be written.
-        """
-        with self._cond:
-            while self._busy:
-                self._cond.wait()
-            self._raise_error()
-
-    def stop(self) -> None:
-        """Let the thread write what is queued (unless it failed) and end; never raises."""
-        with self._cond:
-            self._stopping = True
-            self._cond.notify_all()
-        if self._thread is not None:
-            self._thread.join()
-
-    def _run(self) -> None:
-        while True:
-            with self._cond:
-                while not self._queue and not self._stopping:
-                    self._cond.wait()
-                if not self._queue:
-                    return
-                batch = list(self._queue)
-                self._queue.clear()
-                failed = self._error is not None
-            if not failed:
-                try:
-                    self._appender.write_chunks(batch, self._appender.compress_all(batch),
-                                                whole=True)
-                except BaseException as err:  # noqa: BLE001 - raised on the recorder's thread
-                    self._error = err
-            with self._cond:
-                self._busy -= len(batch)
-                self.queued_bytes -= sum(c.nbytes for c in batch)
-                self._cond.notify_all()
+                indexes += struct.pack(f"<{2 * len(entries)}Q", *itertools.chain.from_iterable(
+                    entries))
+            if indexes:
+                self._stream.write(indexes)
+        self._chunk_indices.append(ChunkIndex(
+            message_start_time=start, message_end_time=end, chunk_start_offset=chunk_start,
+            chunk_length=chunk_length, message_index_offsets=offsets,
+            message_index_length=len(indexes), compression=self._compression,
+            compressed_size=len(compressed), uncompressed_size=len(chunk_data),
+        ))
+        cb.reset()
 
 
 class McapFileWriter:
@@ -486,10 +338,6 @@ class McapFileWriter:
         packed_index: keep the chunk indexes packed (:class:`PackedChunkIndexes`): the writer
             holds one per chunk until :meth:`finish`, and a live recorder closes a chunk at
             every flush. Skipped, with a debug log, if the mcap library changed its internals.
-        background: compress and write closed chunks on a thread of the file's own
-            (:class:`_BackgroundChunks`); :meth:`flush` and :meth:`finish` wait for it, and a
-            write failure there is raised by the next :meth:`add`, :meth:`flush` or
-            :meth:`finish`. The bytes are the same. Used only with the own message path.
 
     Raises:
         FileExistsError: if ``path`` exists (recordings are never overwritten).
@@ -505,7 +353,6 @@ class McapFileWriter:
         library: str = "groundstation",
         file: WritableFile | None = None,
         packed_index: bool = True,
-        background: bool = False,
     ) -> None:
         self.path = path
         self._file: WritableFile = file if file is not None else ExactFile(path)
@@ -523,8 +370,6 @@ class McapFileWriter:
                 log.debug("mcap writer internals changed: chunk indexes not packed")
         self._writer.start(profile="", library=library)
         self._appender = _MessageAppender.make(self._writer)
-        if background and self._appender is not None:
-            self._appender.background = _BackgroundChunks(self._appender)
         self._schemas: dict[str, int] = {}
         self._channels: dict[ChannelSpec, int] = {}
         self._finished = False
@@ -541,7 +386,6 @@ class McapFileWriter:
         """The channel id for ``spec``, registering schema and channel on first use."""
         cid = self._channels.get(spec)
         if cid is None:
-            self._drain()  # the library may close a chunk here and writes it itself
             schema_id = 0
             if spec.schema_name:
                 key = spec.schema_name + "\0" + spec.schema_data.decode()
@@ -570,42 +414,19 @@ class McapFileWriter:
         self.data_bytes += len(data)
 
     def add_metadata(self, name: str, data: dict[str, str]) -> None:
-        self._drain()  # the library writes the record straight to the file
         self._writer.add_metadata(name, data)
-
-    def _drain(self) -> None:
-        """Wait for the background writer (if any) to write every chunk handed to it.
-
-        Raises:
-            OSError: one of them could not be written.
-        """
-        if self._appender is not None and self._appender.background is not None:
-            self._appender.background.drain()
-
-    def _stop_background(self) -> None:
-        if self._appender is not None and self._appender.background is not None:
-            self._appender.background.stop()
 
     def flush(self) -> None:
         """Close the chunk in progress and flush the file (no fsync)."""
         if not self._finished:
             if self._appender is not None:
                 self._appender.finalize()
-                self._drain()
             self._writer.flush()  # type: ignore[no-untyped-call]
 
     @property
     def size_bytes(self) -> int:
-        """Bytes written to the file so far, excluding the chunk in progress. With a
-        background writer, plus the uncompressed size of the closed chunks it has not written
-        yet (more than they will take: a size-rotated file is never larger than it would be
-        written inline); exact after :meth:`flush`."""
-        queued = 0
-        if self._appender is not None and self._appender.background is not None:
-            # read before the position: a batch written in between is counted twice, never
-            # missed
-            queued = self._appender.background.queued_bytes
-        return self._file.tell() + queued
+        """Bytes written to the file so far (excluding the chunk in progress)."""
+        return self._file.tell()
 
     def finish(self) -> None:
         """Write the summary and footer and close the file; safe to call twice."""
@@ -615,10 +436,8 @@ class McapFileWriter:
         try:
             if self._appender is not None:
                 self._appender.finalize()
-                self._drain()
             self._writer.finish()  # type: ignore[no-untyped-call]
         finally:
-            self._stop_background()
             self._file.close()
 
     def abandon(self, good_size: int) -> None:
@@ -626,7 +445,6 @@ class McapFileWriter:
         the last successful :meth:`flush`, a record boundary) and close it without a summary.
         What remains reads like the file of a killed writer, minus the torn tail."""
         self._finished = True
-        self._stop_background()  # it writes nothing more (it failed, or what it holds is cut)
         try:
             os.truncate(self.path, good_size)
         except OSError as err:
@@ -638,14 +456,12 @@ class McapFileWriter:
         """Close without a summary, leaving the path alone: the file was deleted or replaced
         under the writer, so whatever the path names now is not this writer's to cut."""
         self._finished = True
-        self._stop_background()
         with contextlib.suppress(OSError):
             self._file.close()
 
     def discard(self) -> None:
         """Close and delete a file this writer created and that holds nothing needed."""
         self._finished = True
-        self._stop_background()
         with contextlib.suppress(OSError):
             self._file.close()
         with contextlib.suppress(OSError):

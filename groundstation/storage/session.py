@@ -228,7 +228,7 @@ class SessionRecorder:
                 created.append(ubx)
             mcap = McapFileWriter(
                 path, chunk_size_bytes=self.chunk_size_bytes, compression=self.compression,
-                library=f"groundstation {__version__}", file=mcap_file, background=True,
+                library=f"groundstation {__version__}", file=mcap_file,
             )
             previous = self._files[-1].name if self._files else ""
             mcap.add_metadata(
