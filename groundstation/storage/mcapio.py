@@ -204,9 +204,11 @@ _MESSAGE_FIXED = 22  # channel(2) + sequence(4) + log_time(8) + publish_time(8)
 
 class _MessageAppender:
     """``Writer.add_message`` for chunked files, in one struct pack instead of about a dozen
-    calls (the record, the index entry and the statistics exactly as the library keeps them;
-    the file is byte for byte the same, ``tests/unit/test_mcapio.py``). A live recorder adds a
-    message per raw chunk and per record, and the library's path was a third of its time.
+    calls (the record, the index entry and the statistics exactly as the library keeps them),
+    and the chunk's closing (:meth:`finalize`, used for full chunks, flushes and the finish).
+    The file is byte for byte the library's (``tests/unit/test_mcapio.py``). A live recorder
+    adds a message per raw chunk and per record, and the library's path was a third of its
+    time.
 
     Made only when the writer's internals are the ones this was written against (mcap 1.x);
     otherwise :meth:`make` returns ``None`` and the library's own path is used."""
