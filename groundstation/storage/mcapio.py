@@ -20,14 +20,18 @@ from __future__ import annotations
 import collections
 import contextlib
 import errno
+import itertools
 import logging
 import os
 import struct
+import zlib
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, BinaryIO, Protocol
 
+import lz4.frame  # type: ignore[import-untyped]
+import zstandard
 from mcap.data_stream import RecordBuilder
 from mcap.reader import make_reader
 from mcap.records import (
@@ -41,7 +45,7 @@ from mcap.records import (
     Schema,
 )
 from mcap.stream_reader import StreamReader
-from mcap.writer import CompressionType, Writer
+from mcap.writer import CompressionType, IndexType, Writer
 
 from groundstation import jsonio
 
@@ -187,15 +191,24 @@ _CHUNK_INDEXES_ATTR = "_Writer__chunk_indices"  # mcap 1.x; checked before it is
 
 _MESSAGE_HEAD = struct.Struct("<BQHIQQ")  # opcode, record length, channel, sequence, times
 _MESSAGE_OPCODE = 0x05
+_CHUNK_HEAD = struct.Struct("<BQQQQII")  # opcode, length, times, size, CRC, name length
+_CHUNK_OPCODE = 0x06
+_INDEX_HEAD = struct.Struct("<BQHI")  # opcode, record length, channel, entries length
+_INDEX_OPCODE = 0x07
+_U64 = struct.Struct("<Q")
+_COMPRESSION_NAMES = {CompressionType.ZSTD: "zstd", CompressionType.LZ4: "lz4",
+                      CompressionType.NONE: ""}
 _PRIVATE = "_Writer__"  # the name-mangled prefix of mcap.writer.Writer's private attributes
 _MESSAGE_FIXED = 22  # channel(2) + sequence(4) + log_time(8) + publish_time(8)
 
 
 class _MessageAppender:
     """``Writer.add_message`` for chunked files, in one struct pack instead of about a dozen
-    calls (the record, the index entry and the statistics exactly as the library keeps them;
-    the file is byte for byte the same, ``tests/unit/test_mcapio.py``). A live recorder adds a
-    message per raw chunk and per record, and the library's path was a third of its time.
+    calls (the record, the index entry and the statistics exactly as the library keeps them),
+    and the chunk's closing (:meth:`finalize`, used for full chunks, flushes and the finish).
+    The file is byte for byte the library's (``tests/unit/test_mcapio.py``). A live recorder
+    adds a message per raw chunk and per record, and the library's path was a third of its
+    time.
 
     Made only when the writer's internals are the ones this was written against (mcap 1.x);
     otherwise :meth:`make` returns ``None`` and the library's own path is used."""
@@ -204,7 +217,19 @@ class _MessageAppender:
         self._stats = getattr(writer, _PRIVATE + "statistics")
         self._builder = getattr(writer, _PRIVATE + "chunk_builder")
         self._chunk_size: int = getattr(writer, _PRIVATE + "chunk_size")
-        self._finalize = getattr(writer, _PRIVATE + "finalize_chunk")
+        self._stream = getattr(writer, _PRIVATE + "stream")
+        self._flush_records = getattr(writer, _PRIVATE + "flush")
+        self._chunk_indices = getattr(writer, _CHUNK_INDEXES_ATTR)
+        self._crcs: bool = getattr(writer, _PRIVATE + "enable_crcs")
+        self._index_messages = bool(getattr(writer, _PRIVATE + "index_types") & IndexType.MESSAGE)
+        compression = getattr(writer, _PRIVATE + "compression")
+        self._compression = _COMPRESSION_NAMES[compression]
+        # One compressor for the file: ``zstandard.compress`` (the library's call) makes a new
+        # one per chunk, whose set-up cost more than compressing a chunk of records. Same
+        # parameters (level 3), same frames (checked in the tests).
+        self._zstd = (zstandard.ZstdCompressor(level=3)
+                      if compression == CompressionType.ZSTD else None)
+        self._data_crcs: bool = getattr(writer, _PRIVATE + "enable_data_crcs")
 
     @classmethod
     def make(cls, writer: Writer) -> _MessageAppender | None:
@@ -214,8 +239,13 @@ class _MessageAppender:
             ok = (builder is not None and isinstance(builder.record_writer, RecordBuilder)
                   and hasattr(builder.record_writer, "_buffer")
                   and isinstance(builder.message_indices, dict)
-                  and hasattr(appender._stats, "channel_message_counts"))
-        except AttributeError:
+                  and hasattr(appender._stats, "channel_message_counts")
+                  and hasattr(appender._stats, "chunk_count")
+                  and hasattr(builder, "reset") and hasattr(appender._stream, "tell")
+                  and callable(appender._flush_records)
+                  and appender._compression is not None
+                  and not appender._data_crcs)  # a data CRC is kept by the library's writes
+        except (AttributeError, KeyError):
             ok = False
         if not ok:
             log.debug("mcap writer internals changed: the library's add_message is used")
@@ -248,7 +278,53 @@ class _MessageAppender:
                                      sequence, log_time, publish_time))
         buf.write(data)
         if offset + 31 + len(data) > self._chunk_size:
-            self._finalize()
+            self.finalize()
+
+    def finalize(self) -> None:
+        """Close the chunk in progress, as ``Writer.__finalize_chunk`` does (the chunk record,
+        its message indexes and its chunk index, the same bytes in the same two writes), with
+        each record packed by ``struct`` at once instead of field by field."""
+        cb = self._builder
+        if cb.num_messages == 0:
+            return
+        self._stats.chunk_count += 1
+        chunk_data = cb.end()
+        if self._zstd is not None:
+            compressed = self._zstd.compress(chunk_data)
+        elif self._compression == "lz4":
+            compressed = lz4.frame.compress(chunk_data)
+        else:
+            compressed = chunk_data
+        name = self._compression.encode()
+        start, end = cb.message_start_time, cb.message_end_time
+        head = _CHUNK_HEAD.pack(
+            _CHUNK_OPCODE, 8 + 8 + 8 + 4 + 4 + len(name) + 8 + len(compressed), start, end,
+            len(chunk_data), zlib.crc32(chunk_data) if self._crcs else 0, len(name),
+        )
+        self._flush_records()  # nothing is waiting there; the library's order, to be sure
+        chunk_start = self._stream.tell()
+        self._stream.write(head + name + _U64.pack(len(compressed)) + compressed)
+        chunk_length = self._stream.tell() - chunk_start
+        offsets: dict[int, int] = {}
+        indexes = bytearray()
+        if self._index_messages:
+            index_start = chunk_start + chunk_length
+            for cid, index in cb.message_indices.items():
+                offsets[cid] = index_start + len(indexes)
+                entries = index.records
+                indexes += _INDEX_HEAD.pack(_INDEX_OPCODE, 6 + 16 * len(entries), cid,
+                                            16 * len(entries))
+                indexes += struct.pack(f"<{2 * len(entries)}Q", *itertools.chain.from_iterable(
+                    entries))
+            if indexes:
+                self._stream.write(indexes)
+        self._chunk_indices.append(ChunkIndex(
+            message_start_time=start, message_end_time=end, chunk_start_offset=chunk_start,
+            chunk_length=chunk_length, message_index_offsets=offsets,
+            message_index_length=len(indexes), compression=self._compression,
+            compressed_size=len(compressed), uncompressed_size=len(chunk_data),
+        ))
+        cb.reset()
 
 
 class McapFileWriter:
@@ -345,6 +421,8 @@ class McapFileWriter:
     def flush(self) -> None:
         """Close the chunk in progress and flush the file (no fsync)."""
         if not self._finished:
+            if self._appender is not None:
+                self._appender.finalize()
             self._writer.flush()  # type: ignore[no-untyped-call]
 
     @property
@@ -358,6 +436,8 @@ class McapFileWriter:
             return
         self._finished = True
         try:
+            if self._appender is not None:
+                self._appender.finalize()
             self._writer.finish()  # type: ignore[no-untyped-call]
         finally:
             self._file.close()

@@ -1,5 +1,6 @@
-"""The MCAP writer's own message path (``storage/mcapio._MessageAppender``) writes the same file,
-byte for byte, as the ``mcap`` library's ``add_message``."""
+"""The MCAP writer's own message and chunk path (``storage/mcapio._MessageAppender``: messages,
+chunk records, message indexes, chunk indexes) writes the same file, byte for byte, as the
+``mcap`` library's ``add_message`` and chunk finalisation, for every compression."""
 
 from __future__ import annotations
 
@@ -9,11 +10,12 @@ from pathlib import Path
 from groundstation.storage.mcapio import ChannelSpec, McapFileWriter, iter_messages, json_channel
 
 
-def _write(path: Path, library_path: bool, chunk_size: int) -> int:
+def _write(path: Path, library_path: bool, chunk_size: int, compression: str = "zstd") -> int:
     rng = random.Random(7)
     raw = ChannelSpec("/ubx/raw", "ubx")
     js = json_channel("/gnss/epoch", {"title": "RawEpoch", "type": "object"})
-    w = McapFileWriter(path, chunk_size_bytes=chunk_size, compression="zstd")
+    late = json_channel("/events", {"title": "Event", "type": "object"})
+    w = McapFileWriter(path, chunk_size_bytes=chunk_size, compression=compression)
     if library_path:
         w._appender = None  # the library's add_message, as when its internals change
     else:
@@ -22,6 +24,8 @@ def _write(path: Path, library_path: bool, chunk_size: int) -> int:
     for i in range(3000):
         t += rng.randrange(-5_000_000, 20_000_000)  # log times out of order now and then
         spec = raw if rng.random() < 0.5 else js
+        if i > 1500 and rng.random() < 0.1:
+            spec = late  # a channel registered in the middle of a chunk
         data = bytes(rng.randrange(256) for _ in range(rng.randrange(0, 300)))
         w.add(spec, data, t, t + rng.randrange(10**9))
         if i % 700 == 0:
@@ -31,8 +35,11 @@ def _write(path: Path, library_path: bool, chunk_size: int) -> int:
 
 
 def test_own_message_path_writes_the_librarys_bytes(tmp_path: Path) -> None:
-    for chunk_size in (1024, 64 * 1024):
-        fast, lib = tmp_path / f"fast{chunk_size}.mcap", tmp_path / f"lib{chunk_size}.mcap"
-        assert _write(fast, False, chunk_size) == _write(lib, True, chunk_size) == 3000
-        assert fast.read_bytes() == lib.read_bytes()
-        assert sum(1 for _ in iter_messages(fast)) == 3000
+    for compression in ("zstd", "lz4", "none"):
+        for chunk_size in (1024, 64 * 1024):
+            name = f"{compression}{chunk_size}.mcap"
+            fast, lib = tmp_path / f"fast-{name}", tmp_path / f"lib-{name}"
+            assert (_write(fast, False, chunk_size, compression)
+                    == _write(lib, True, chunk_size, compression) == 3000)
+            assert fast.read_bytes() == lib.read_bytes(), name
+            assert sum(1 for _ in iter_messages(fast)) == 3000
