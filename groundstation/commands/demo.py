@@ -156,7 +156,8 @@ def _print_summary(result: Any, photos: Path | None = None) -> None:
           f"{s.garbage_bytes:,} garbage bytes, {s.records:,} records")
     if st is not None:
         for line in status_lines(st, injected_lost_epochs=len(injected["epochs_lost_tow_ms"]),
-                                 exposures=len(truth["exposures"])):
+                                 exposures=len(truth["exposures"]),
+                                 at="at the end of the flight"):
             print(line)
     for path in s.files:
         print(f"  MCAP:        {path}")

@@ -39,6 +39,8 @@ def run(args: argparse.Namespace) -> int:
     print(f"replayed {args.input}: {summary.bytes_in:,} bytes, {summary.frames:,} frames, "
           f"{summary.records:,} records, {summary.events} events ({summary.stopped_by})")
     if st is not None:
-        for line in status_lines(st):
+        at = ("at the end of the recording" if summary.stopped_by == "end of source"
+              else "where the replay stopped")
+        for line in status_lines(st, at=at):
             print(line)
     return 0

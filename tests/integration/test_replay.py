@@ -197,3 +197,22 @@ def test_replay_of_a_ubx_file_keeps_the_pace_of_its_data(tmp_path: Path) -> None
     first = gps_to_unix_ns(sink.epochs[0])
     assert first <= sink.chunks[0] < first + 10**9
     assert sink.chunks[-1] == gps_to_unix_ns(sink.epochs[-1])
+
+
+def test_replay_summary_says_the_satellites_are_those_at_the_end_of_the_recording(
+        shared_data: Path) -> None:
+    """The real rover of 2018-10-09 flies with ~22 satellites (89 % fixed) but its last minute
+    holds 6-9 with at most 2 clean phases (the receiver was carried away): the summary at
+    ``--speed max`` showed "7 tracked, 0 PPK-ready" as if it were the flight's. That state is
+    real (the monitor runs on data time whatever the speed); the summary now says when."""
+    rover = (shared_data / "real" / "jdesbonnet__GNSS_RTK_data" / "20181009"
+             / "rover-20181009-1221.ubx.gz")
+    proc = subprocess.run(
+        [sys.executable, "-m", "groundstation.cli", "replay", str(rover), "--no-zenoh"],
+        capture_output=True, text=True, timeout=300, check=False, env=cli_env(),
+    )
+    assert proc.returncode == 0, proc.stderr
+    line = next(ln for ln in proc.stdout.splitlines() if "PPK-ready" in ln)
+    assert line.strip().startswith("at the end of the recording: "), line
+    tracked = int(re.search(r"(\d+) satellites tracked", line).group(1))  # type: ignore[union-attr]
+    assert tracked < 12  # the end of the file, not the flight's ~22
