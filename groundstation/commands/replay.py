@@ -43,4 +43,6 @@ def run(args: argparse.Namespace) -> int:
               else "where the replay stopped")
         for line in status_lines(st, at=at):
             print(line)
-    return 0
+    from groundstation.cli import EXIT_INTERRUPTED, INTERRUPTS
+
+    return EXIT_INTERRUPTED if summary.stopped_by in INTERRUPTS else 0

@@ -226,6 +226,6 @@ def test_a_dashboard_port_in_use_is_a_runtime_failure_in_one_line(tmp_path: Path
             cwd=tmp_path)
     assert proc.returncode == 1, proc.stderr
     lines = [ln for ln in proc.stderr.splitlines() if "groundstation dashboard" in ln]
-    assert lines == [f"groundstation dashboard: error: port {port} is in use on 127.0.0.1 "
-                     "(another dashboard?); choose another with --port"], proc.stderr
+    assert lines == [(f"groundstation dashboard: error: port {port} is in use on 127.0.0.1 "
+                      "(another dashboard?); choose another with --port")], proc.stderr
     assert "Traceback" not in proc.stderr
