@@ -79,6 +79,12 @@ def _add_log_options(parser: argparse.ArgumentParser, default: object) -> None:
     )
 
 
+def _sentence(text: str) -> str:
+    """A command's one-line help as its description: first letter up, the rest as written
+    (``str.capitalize`` lowercased "MCAP", "RINEX", "Zenoh" and "xN")."""
+    return f"{text[:1].upper()}{text[1:]}." if text else ""
+
+
 def build_parser(argv: Sequence[str]) -> argparse.ArgumentParser:
     parser = OneLineParser(
         prog="groundstation",
@@ -103,7 +109,7 @@ def build_parser(argv: Sequence[str]) -> argparse.ArgumentParser:
         example = "\n".join(f"  {line}" for line in EXAMPLES.get(name, "").splitlines())
         p = sub.add_parser(
             name, help=HELP.get(name, ""),
-            description=HELP.get(name, "").capitalize() + ".",
+            description=_sentence(HELP.get(name, "")),
             epilog=f"example:\n{example}" if example else None,
             formatter_class=HelpFormatter,
         )
