@@ -3,8 +3,9 @@
 Exit statuses (every command, README "Commands"): 0 success; 1 a runtime failure (a device,
 the disk or Zenoh failing); 2 bad input or configuration (a bad option, key, variable, station
 name or configuration file, the message naming it; an input file that cannot be used; an output
-that would replace an input or a recording); 130 interrupted. Every failure is one line on
-stderr, never a traceback (``-vv`` adds the traceback of an unexpected one to the log).
+that would replace an input or a recording); 130 interrupted (:data:`EXIT_INTERRUPTED`: not
+for the commands that run until stopped). Every failure is one line on stderr, never a
+traceback (``-vv`` adds the traceback of an unexpected one to the log).
 """
 
 from __future__ import annotations
@@ -24,6 +25,12 @@ from groundstation.errors import ConfigError, GroundstationError, InputError
 EXIT_OK = 0
 EXIT_FAILURE = 1
 EXIT_CONFIG = 2
+EXIT_INTERRUPTED = 130
+"""Ctrl-C or SIGTERM ended a command that ends by itself (``demo``, ``replay``, the offline
+commands). For the commands that run until stopped (``run``, ``watch``, ``dashboard``,
+``solver``, ``router``) Ctrl-C is the normal end: status 0."""
+INTERRUPTS = frozenset({"SIGINT", "SIGTERM"})
+"""The pipeline's ``stopped_by`` when a signal ended it."""
 
 
 class OneLineParser(argparse.ArgumentParser):
@@ -72,6 +79,12 @@ def _add_log_options(parser: argparse.ArgumentParser, default: object) -> None:
     )
 
 
+def _sentence(text: str) -> str:
+    """A command's one-line help as its description: first letter up, the rest as written
+    (``str.capitalize`` lowercased "MCAP", "RINEX", "Zenoh" and "xN")."""
+    return f"{text[:1].upper()}{text[1:]}." if text else ""
+
+
 def build_parser(argv: Sequence[str]) -> argparse.ArgumentParser:
     parser = OneLineParser(
         prog="groundstation",
@@ -81,7 +94,10 @@ def build_parser(argv: Sequence[str]) -> argparse.ArgumentParser:
         "--station rover\n  groundstation COMMAND --help\n\n"
         "exit status: 0 ok, 1 runtime failure (device, disk, Zenoh) or a run that gave no "
         "result, 2 bad input or configuration (the message names the option, key, variable or "
-        "file; an input that cannot be used), 130 interrupted",
+        "file; an input that cannot be used), 130 interrupted (Ctrl-C or SIGTERM) for the "
+        "commands that end by themselves (demo, replay, inspect, rinex, solve, simulate, "
+        "configure); run, watch, dashboard, solver and router run until stopped: Ctrl-C is "
+        "their normal end (0)",
         formatter_class=HelpFormatter,
     )
     parser.add_argument("--version", action="version", version=f"groundstation {__version__}")
@@ -93,7 +109,7 @@ def build_parser(argv: Sequence[str]) -> argparse.ArgumentParser:
         example = "\n".join(f"  {line}" for line in EXAMPLES.get(name, "").splitlines())
         p = sub.add_parser(
             name, help=HELP.get(name, ""),
-            description=HELP.get(name, "").capitalize() + ".",
+            description=_sentence(HELP.get(name, "")),
             epilog=f"example:\n{example}" if example else None,
             formatter_class=HelpFormatter,
         )
@@ -133,7 +149,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return EXIT_OK
     except KeyboardInterrupt:
         print(f"groundstation {args.command}: interrupted", file=sys.stderr)
-        return 130
+        return EXIT_INTERRUPTED
     except Exception as err:
         status, line = failure(err)
         if status == EXIT_FAILURE and line.startswith("internal error"):

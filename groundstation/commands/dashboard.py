@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import errno
 import logging
 import signal
 import threading
@@ -11,7 +12,7 @@ from typing import TYPE_CHECKING
 
 from groundstation.commands.options import add_config, add_zenoh_client, layer
 from groundstation.config import DASHBOARD, resolve, zenoh_settings
-from groundstation.errors import ConfigError
+from groundstation.errors import ConfigError, GroundstationError
 
 if TYPE_CHECKING:
     from groundstation.view.dashboard import DashboardSettings
@@ -67,6 +68,10 @@ def run(args: argparse.Namespace) -> int:
     try:
         dashboard = Dashboard(settings)
     except OSError as err:
+        if err.errno == errno.EADDRINUSE:  # a runtime condition (exit 1), not a bad setting
+            raise GroundstationError(
+                f"port {settings.port} is in use on {settings.bind} (another dashboard?); "
+                "choose another with --port") from err
         where = f"{settings.bind}:{settings.port}"
         raise ConfigError("port", f"cannot serve on {where}: {err}") from err
     stop = threading.Event()

@@ -77,7 +77,8 @@ def run(args: argparse.Namespace) -> int:
             print(f"demo: publishing on Zenoh {', '.join(endpoints)} (watch it from another "
                   f"terminal: groundstation watch --station {info['station']}{connect})",
                   file=sys.stderr, flush=True)
-        print("demo: Ctrl-C ends it cleanly", file=sys.stderr, flush=True)
+        print("demo: Ctrl-C stops it early (files closed cleanly; exit status 130)",
+              file=sys.stderr, flush=True)
 
     interactive = sys.stdout.isatty() and not args.no_view
     if interactive:
@@ -86,7 +87,9 @@ def run(args: argparse.Namespace) -> int:
         result = asyncio.run(run_demo(opts, on_payload=lambda k, p: None, ready=ready))
     photos = _write_photos(result, args.photos) if args.photos is not None else None
     _print_summary(result, photos)
-    return 0
+    from groundstation.cli import EXIT_INTERRUPTED, INTERRUPTS
+
+    return EXIT_INTERRUPTED if result.summary.stopped_by in INTERRUPTS else 0
 
 
 CAMERA_CLOCK_ERROR_S = -(1 * 3600 + 51 * 60 + 2.6)
@@ -156,7 +159,8 @@ def _print_summary(result: Any, photos: Path | None = None) -> None:
           f"{s.garbage_bytes:,} garbage bytes, {s.records:,} records")
     if st is not None:
         for line in status_lines(st, injected_lost_epochs=len(injected["epochs_lost_tow_ms"]),
-                                 exposures=len(truth["exposures"])):
+                                 exposures=len(truth["exposures"]),
+                                 at="at the end of the flight"):
             print(line)
     for path in s.files:
         print(f"  MCAP:        {path}")
@@ -168,7 +172,10 @@ def _print_summary(result: Any, photos: Path | None = None) -> None:
         print(f"  photos:      {photos} ({len(truth['exposures'])} JPEGs)")
     if result.endpoint:
         print(f"  Zenoh:       groundstation/{result.station}/** on {result.endpoint}")
-    if s.files:
+    if s.files and not s.frames_by_type.get("TIM-TM2"):  # no "next: ... solve" that fails
+        print(f"the flight was cut short ({s.stopped_by} after {s.duration_s:.1f} s) before "
+              "its first time mark: nothing to solve; let the demo run to its end")
+    elif s.files:
         print(f"next: groundstation inspect {s.files[0]}")
         xyz = ",".join(f"{v:.4f}" for v in truth["base"]["ecef_m"])
         photo_opt = f" --photos {photos}" if photos is not None else ""

@@ -39,6 +39,10 @@ def run(args: argparse.Namespace) -> int:
     print(f"replayed {args.input}: {summary.bytes_in:,} bytes, {summary.frames:,} frames, "
           f"{summary.records:,} records, {summary.events} events ({summary.stopped_by})")
     if st is not None:
-        for line in status_lines(st):
+        at = ("at the end of the recording" if summary.stopped_by == "end of source"
+              else "where the replay stopped")
+        for line in status_lines(st, at=at):
             print(line)
-    return 0
+    from groundstation.cli import EXIT_INTERRUPTED, INTERRUPTS
+
+    return EXIT_INTERRUPTED if summary.stopped_by in INTERRUPTS else 0

@@ -24,7 +24,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("input", help="recording: .ubx, .ubx.gz, raw log or .mcap")
     parser.add_argument("-o", "--out-dir", required=True, metavar="DIR", help="output directory")
     parser.add_argument(
-        "--rinex", choices=rinex.RINEX_VERSIONS, default="3.04", help="RINEX version (3.04)"
+        "--rinex", choices=rinex.RINEX_VERSIONS, default="3.04", help="RINEX version"
     )
     parser.add_argument(
         "--marks",
@@ -37,6 +37,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--shutter-delay-ms",
         type=float,
         default=0.0,
+        metavar="MS",
         help="added to every event time (camera shutter lag after the hot-shoe edge)",
     )
     parser.add_argument("--marker", default=None, help="MARKER NAME (default: input stem)")

@@ -4,7 +4,12 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import dataclasses
+import difflib
+import glob
+import os
 import sys
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -90,20 +95,64 @@ def _print_summary(summary: RunSummary) -> None:
         print(f"  lost {path} (deleted while recording)")
 
 
+SERIAL_GLOBS = ("/dev/ttyUSB*", "/dev/ttyACM*", "/dev/ttyAMA*", "/dev/serial/by-id/*")
+"""Where a receiver's serial port usually is (USB adapters, CDC-ACM, a Raspberry Pi's UART)."""
+
+
+def missing_port_line(port: str, present: Sequence[str] | None = None) -> str:
+    """One line for a serial device that does not exist, naming the nearest of the ``present``
+    ones (default: those :data:`SERIAL_GLOBS` find)."""
+    if present is None:
+        present = sorted({p for g in SERIAL_GLOBS for p in glob.glob(g)})
+    near = difflib.get_close_matches(port, present, n=3, cutoff=0.0)
+    hint = (f"existing: {', '.join(near)}" if near
+            else "no serial device present: none of " + ", ".join(SERIAL_GLOBS))
+    return (f"groundstation run: {port} does not exist ({hint}); waiting for it to be "
+            "plugged in, Ctrl-C to stop")
+
+
+def _remove_empty(summary: RunSummary) -> tuple[RunSummary, list[str]]:
+    """Remove the files of a session whose device never appeared: they hold only the
+    pipeline's own statuses and events, and empty files beside real flights mislead."""
+    lines = []
+    for path in (*summary.files, *summary.sidecars):
+        try:
+            path.unlink(missing_ok=True)
+        except OSError as err:
+            lines.append(f"  could not remove {path}: {err}")
+            continue
+        lines.append(f"  removed {path} (nothing received)")
+    return dataclasses.replace(summary, files=(), sidecars=()), lines
+
+
 def run(args: argparse.Namespace) -> int:
     settings = load_settings(args.config, overrides=overrides_from_args(args))
     if settings.source.kind == "file":
         from groundstation.offline.inspect import require_ubx_frames
 
         require_ubx_frames(settings.source.path)
+    port = getattr(settings.source, "port", None)
+    missing = (settings.source.kind == "serial" and isinstance(port, str)
+               and not os.path.exists(port))
+    if missing:
+        print(missing_port_line(str(port)), file=sys.stderr, flush=True)
 
     def on_file(path: Path) -> None:
         print(f"recording to {path}", flush=True)
 
     summary = asyncio.run(run_daemon(settings, handle_signals=True, on_file=on_file))
+    empty = summary.bytes_in == 0
+    removed: list[str] = []
+    if empty and missing and summary.outages == 0:
+        # The device never appeared (an outage is counted when it does, after the start's
+        # "cannot open"). A device that was there and stayed silent keeps its files: they
+        # hold the session's events (an operator's acknowledgement, the alerts).
+        summary, removed = _remove_empty(summary)
     _print_summary(summary)
+    for line in removed:
+        print(line)
     sys.stdout.flush()
-    if summary.bytes_in == 0:
+    if empty:
         # Not "0 outages" and exit 0: a session that received nothing is a failure to say.
         src = settings.source
         where = {"serial": lambda: f"serial port {getattr(src, 'port', '?')}",

@@ -3,8 +3,9 @@
 The recording is read by the same :class:`~groundstation.live.sources.FileSource` as ``run
 --file``: an MCAP re-emits its ``/ubx/raw`` chunks with their original host times and the
 monitor runs on those times, so it reaches the status and events the live daemon recorded for
-the same bytes; a ``.ubx``/``.ubx.gz`` file has no reception times, so its chunks are timed as a
-115200-baud link would have delivered them. ``speed`` paces those times.
+the same bytes; a ``.ubx``/``.ubx.gz`` file has no reception times, so its chunks take the
+data's own time (the UTC of its latest measurement epoch, :class:`~groundstation.live.sources.
+DataTimes`). ``speed`` paces those times (1: as recorded).
 
 Each replay is a session of its own for the views: its id (:func:`replay_session_id`) is new
 on every run (so a view drops the previous run's marks even when the same recording is replayed

@@ -6,8 +6,13 @@ from groundstation.records import Status
 
 
 def status_lines(st: Status, *, injected_lost_epochs: int | None = None,
-                 exposures: int | None = None) -> list[str]:
-    """Link, marks and satellites in three lines; the simulator's figures when given."""
+                 exposures: int | None = None, at: str = "at the end") -> list[str]:
+    """Link, marks and satellites in three lines; the simulator's figures when given.
+
+    The link and marks lines count the whole run; the satellites and alerts are the state
+    ``at`` its last data (``"at the end of the recording"``): a recording whose receiver was
+    carried indoors at the end ends with few satellites even when its flight was clean.
+    """
     link, marks = st.link, st.marks
     sim_link = (f"; simulator injected {injected_lost_epochs}"
                 if injected_lost_epochs is not None else "")
@@ -19,6 +24,6 @@ def status_lines(st: Status, *, injected_lost_epochs: int | None = None,
         (f"  marks: {marks.marks} received, {marks.missed} missed, {marks.duplicates} "
          f"duplicates, "
         f"{marks.in_dropout} inside dropouts{sim_marks}"),
-        (f"  satellites: {st.tracked} tracked, {st.ppk_ready} PPK-ready; alerts: "
-        f"{'; '.join(st.alerts) or 'none'}"),
+        (f"  {at}: {st.tracked} satellites tracked, {st.ppk_ready} PPK-ready; alerts: "
+         f"{'; '.join(st.alerts) or 'none'}"),
     ]

@@ -205,3 +205,27 @@ def test_no_frames_alert_stays_raised_through_noise_with_stray_frames(
     _, alerts = _frames_clear_it(d, pty, out, written)
     assert [e["kind"] for e in alerts] == ["alert.raised", "alert.cleared"], [
         (e["kind"], e["message"]) for e in alerts]
+
+
+def test_a_dashboard_port_in_use_is_a_runtime_failure_in_one_line(tmp_path: Path) -> None:
+    """A busy web port is a condition of the machine, not a bad setting: exit 1 (it was 2,
+    "configuration error: port: ... [Errno 98]"), one line that says what to do."""
+    import socket
+    import sys
+
+    from peers import cli_env
+
+    with socket.socket() as held:
+        held.bind(("127.0.0.1", 0))
+        held.listen()
+        port = held.getsockname()[1]
+        proc = subprocess.run(
+            [sys.executable, "-m", "groundstation.cli", "dashboard", "--port", str(port),
+             "--duration", "5"],
+            capture_output=True, text=True, timeout=60, check=False, env=cli_env(),
+            cwd=tmp_path)
+    assert proc.returncode == 1, proc.stderr
+    lines = [ln for ln in proc.stderr.splitlines() if "groundstation dashboard" in ln]
+    assert lines == [(f"groundstation dashboard: error: port {port} is in use on 127.0.0.1 "
+                      "(another dashboard?); choose another with --port")], proc.stderr
+    assert "Traceback" not in proc.stderr

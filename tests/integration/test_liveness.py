@@ -58,11 +58,18 @@ def test_missing_port_at_start_is_an_alert_and_a_clear_line(
     daemon = Daemon("--port", str(tmp_path / "nonexistent"), "--station", "gone", "--no-zenoh",
                     "--out-dir", str(tmp_path), "--duration", "4")
     daemons.append(daemon)
+    # at once, one line (it used to show only at exit): the device does not exist
+    daemon.wait_for(f"groundstation run: {tmp_path / 'nonexistent'} does not exist (",
+                    timeout_s=10.0)
     daemon.wait_for("alert: source down:", timeout_s=10.0)
     daemon.proc.wait(timeout=30)
     daemon.wait_for("groundstation run: error: no data received from the serial port")
     assert daemon.proc.returncode == 1
     assert "cannot open" in daemon.stderr and "Traceback" not in daemon.stderr
+    # no empty recording is left behind, and the summary says so
+    assert not list(tmp_path.glob("gone_*")), list(tmp_path.iterdir())
+    assert daemon.proc.stdout is not None
+    assert "(nothing received)" in daemon.proc.stdout.read()
 
 
 def test_an_acknowledgement_travels_to_the_daemon_and_back(

@@ -16,8 +16,9 @@ from peers import EventCollector, cli_env
 
 from groundstation import jsonio
 from groundstation.live.demo import DemoOptions, run_demo
-from groundstation.live.fanout import Overflow, SinkSpec
+from groundstation.live.fanout import Inbox, InboxClosed, Overflow, SinkSpec
 from groundstation.live.replay import run_replay
+from groundstation.records import RawChunk, RawEpoch
 from groundstation.storage import iter_messages
 
 DATA_EVENTS = ("link.dropout", "sat.slip", "sat.half_cycle_set", "sat.half_cycle_cleared",
@@ -145,3 +146,100 @@ def test_replay_reads_the_environment_like_every_command(tmp_path: Path) -> None
     proc = replay(GROUNDSTATION_MONITR_ENABLED="no")
     assert proc.returncode == 2 and "GROUNDSTATION_MONITR_ENABLED" in proc.stderr, proc.stderr
     assert len(proc.stderr.strip().splitlines()) == 1, proc.stderr
+
+
+class _ChunkTimes:
+    """A pipeline sink that keeps the raw chunks' times and the epochs' GPS times."""
+
+    name = "chunk-times"
+    accepts = frozenset((RawChunk, RawEpoch))
+
+    def __init__(self) -> None:
+        self.chunks: list[int] = []
+        self.epochs: list[int] = []
+
+    async def consume(self, inbox: Inbox, publish: object) -> None:
+        while True:
+            try:
+                items = await inbox.get_all()
+            except InboxClosed:
+                return
+            for item in items:
+                if isinstance(item, RawChunk):
+                    self.chunks.append(item.t_host_ns)
+                elif isinstance(item, RawEpoch):
+                    self.epochs.append(item.t_gps_ns)
+
+
+def test_replay_of_a_ubx_file_keeps_the_pace_of_its_data(tmp_path: Path) -> None:
+    """A ``.ubx`` holds no reception times: ``--speed N`` paces it on its own GPS time, so
+    ``N`` seconds of data come through in about one second (it was paced as a 115 200-baud
+    link: a 1 Hz rover went ~5 times too fast at ``--speed 1``), and the chunks carry that
+    time (the UTC of the epochs) for the monitor."""
+    from groundstation.gpstime import gps_to_unix_ns
+    from groundstation.sim.stream import SimConfig, simulate
+
+    sim = simulate(SimConfig(duration_s=14, seed=5, with_base=False))
+    path = tmp_path / "short.ubx"
+    path.write_bytes(sim.rover_bytes)
+    sink = _ChunkTimes()
+    speed = 10.0
+    t0 = time.monotonic()
+    summary, _ = asyncio.run(run_replay(path, speed=speed, sinks=(
+        SinkSpec(sink, 100_000, Overflow.NEVER_DROP),)))
+    wall_s = time.monotonic() - t0
+    assert summary.bytes_in == len(sim.rover_bytes)
+    span_s = (sink.epochs[-1] - sink.epochs[0]) / 1e9
+    assert span_s > 10
+    ratio = span_s / wall_s  # data seconds per wall second: about the speed
+    assert speed / 2 < ratio < speed * 1.2, (span_s, wall_s)
+    # the chunks' times are the data's (UTC of its epochs), not today's
+    first = gps_to_unix_ns(sink.epochs[0])
+    assert first <= sink.chunks[0] < first + 10**9
+    assert sink.chunks[-1] == gps_to_unix_ns(sink.epochs[-1])
+
+
+def test_replay_summary_says_the_satellites_are_those_at_the_end_of_the_recording(
+        shared_data: Path) -> None:
+    """The real rover of 2018-10-09 flies with ~22 satellites (89 % fixed) but its last minute
+    holds 6-9 with at most 2 clean phases (the receiver was carried away): the summary at
+    ``--speed max`` showed "7 tracked, 0 PPK-ready" as if it were the flight's. That state is
+    real (the monitor runs on data time whatever the speed); the summary now says when."""
+    rover = (shared_data / "real" / "jdesbonnet__GNSS_RTK_data" / "20181009"
+             / "rover-20181009-1221.ubx.gz")
+    proc = subprocess.run(
+        [sys.executable, "-m", "groundstation.cli", "replay", str(rover), "--no-zenoh"],
+        capture_output=True, text=True, timeout=300, check=False, env=cli_env(),
+    )
+    assert proc.returncode == 0, proc.stderr
+    line = next(ln for ln in proc.stdout.splitlines() if "PPK-ready" in ln)
+    assert line.strip().startswith("at the end of the recording: "), line
+    tracked = int(re.search(r"(\d+) satellites tracked", line).group(1))  # type: ignore[union-attr]
+    assert tracked < 12  # the end of the file, not the flight's ~22
+
+
+def test_an_interrupted_replay_prints_its_summary_and_exits_130(tmp_path: Path) -> None:
+    """``replay`` ends by itself, so Ctrl-C is an interruption (README: 130), unlike the
+    daemon's normal end; the summary still comes, its satellites "where the replay stopped"."""
+    import signal
+
+    from groundstation.sim.stream import SimConfig, simulate
+
+    sim = simulate(SimConfig(duration_s=120, seed=2, with_base=False))
+    path = tmp_path / "flight.ubx"
+    path.write_bytes(sim.rover_bytes)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "groundstation.cli", "replay", str(path), "--speed", "1",
+         "--no-zenoh"], env=cli_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+        text=True)
+    try:
+        time.sleep(3.0)
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 130, err
+    assert "(SIGINT)" in out and "where the replay stopped: " in out, out
+    assert "Traceback" not in err

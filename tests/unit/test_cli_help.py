@@ -46,3 +46,28 @@ def test_verbose_after_the_command_counts() -> None:
     assert build_parser(argv).parse_args(argv).verbose in (1, 2)
     argv = ["inspect", "x", "-vv"]
     assert build_parser(argv).parse_args(argv).verbose == 2
+
+
+@pytest.mark.parametrize("name", sorted(COMMANDS))
+def test_description_keeps_the_case_of_the_one_line_help(name: str) -> None:
+    """``str.capitalize`` made "Mcap/.ubx -> rinex 2.11/3.04 obs" and "(to zenoh), at xn"."""
+    from groundstation.commands import HELP
+
+    parser = build_parser([name])
+    (subs,) = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+    text = HELP[name]
+    assert subs.choices[name].description == text[0].upper() + text[1:] + "."
+
+
+@pytest.mark.parametrize("name", sorted(COMMANDS))
+def test_no_default_said_twice_and_placeholders_name_units(
+        name: str, capsys: pytest.CaptureFixture[str]) -> None:
+    parser = build_parser([name])
+    with pytest.raises(SystemExit):
+        parser.parse_args([name, "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    import re
+
+    twice = re.search(r"\(([^()\s]+)\) \(default: \1\)", text)  # "(3.04) (default: 3.04)"
+    assert twice is None, twice
+    assert "SHUTTER_DELAY_MS" not in text

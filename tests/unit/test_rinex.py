@@ -324,3 +324,21 @@ def test_lost_falling_record_is_recovered_from_the_rising_record() -> None:
     marks = mk.build_marks(recs)
     assert [m.pulse_ns for m in marks] == [14_000_000] * 3
     assert [m.lost_before for m in marks] == [0, 0, 0]
+
+
+def test_long_header_comments_go_on_over_several_comment_lines(tmp_path: Path) -> None:
+    """A COMMENT's text is 60 characters: a longer one (the LLI legend) was cut off at
+    "half cycle unr"; it is wrapped at spaces now, every other header line unchanged."""
+    from groundstation.offline.rinex.format import wrap_comment
+
+    src = tmp_path / "flight.ubx"
+    src.write_bytes(rawx([[meas(5)], [meas(5, lock_ms=10200)], [meas(5, lock_ms=10400)]]))
+    res = rinex.convert(src, tmp_path / "out")
+    header = res.obs_path.read_text().split("END OF HEADER")[0].splitlines()
+    comments = [ln[:60].rstrip() for ln in header if ln[60:].strip() == "COMMENT"]
+    assert all(len(ln) == 80 for ln in header if ln[60:].strip() == "COMMENT")
+    text = " ".join(comments)
+    assert "LLI bit 0 slip, bit 1 half cycle unresolved" in text, comments
+    assert "events (flag 5): falling edge + shutter delay 0 ms" in text, comments
+    assert wrap_comment("short") == ["short"] and wrap_comment("") == [""]
+    assert all(len(p) <= 60 for p in wrap_comment("word " * 40))

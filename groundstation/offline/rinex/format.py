@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import datetime as dt
 import functools
+import textwrap
 
 import numpy as np
 import numpy.typing as npt
@@ -14,6 +15,14 @@ from groundstation.offline.rinex.observations import ObsSet
 
 def hl(content: str, label: str) -> str:
     return f"{content:<60.60s}{label:<20s}\n"
+
+
+def wrap_comment(text: str) -> list[str]:
+    """A COMMENT's text as lines of at most 60 characters (a header line's content field):
+    unchanged when it fits, else wrapped at spaces (``hl`` cut it off mid-word)."""
+    if len(text) <= 60:
+        return [text]
+    return textwrap.wrap(text, 60, break_on_hyphens=False) or [text[:60]]
 
 
 def utc_now() -> str:

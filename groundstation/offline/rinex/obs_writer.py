@@ -20,6 +20,7 @@ from groundstation.offline.rinex.format import (
     matrix_rows,
     sat_line_matrix,
     utc_now,
+    wrap_comment,
 )
 from groundstation.offline.rinex.observations import CODE_INDEX, SYSTEMS, ObsSet
 
@@ -316,8 +317,9 @@ def _obs_header(
                  "RINEX VERSION / TYPE"))
     h.append(hl(f"{'groundstation ' + __version__:<20.20s}{'':<20s}{utc_now():<20s}",
                  "PGM / RUN BY / DATE"))
-    for c in info.comments:
-        h.append(hl(c, "COMMENT"))
+    for c in info.comments:  # a long comment goes on over several COMMENT lines
+        for part in wrap_comment(c):
+            h.append(hl(part, "COMMENT"))
     h.append(hl(info.marker, "MARKER NAME"))
     if v3:
         h.append(hl(info.marker_type, "MARKER TYPE"))
