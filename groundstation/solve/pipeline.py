@@ -277,6 +277,12 @@ def _solve(s: SolveSettings, progress: Progress | None) -> SolveResult:
     traj = _positions(s, rec, notes, progress)
     times, mp = _positions_at_marks(s, traj, marks, notes, progress)
     photo_list, match, recon = _photos(s, times, progress)
+    if s.photos is None:
+        notes.append(f"no photos given: marks named {outputs.MARK_NAME_PREFIX}NNNN (the "
+                     "receiver's mark count) in geo.txt, reference.csv, pix4d.csv")
+    jumps = report.lost_marks(marks)
+    if jumps:
+        notes.append(report.lost_marks_text(jumps))
     cams = _cameras(s, marks, mp, traj, photo_list, match, notes)
     files = outputs.write_all(cams.output(traj, mp, notes), s.out_dir)
     report_files, report_notes = _report(s, traj, marks, mp, photo_list, match, cams, notes)
@@ -504,6 +510,8 @@ def _cameras(
         lat, lon = proj.inverse(cam[:, 0], cam[:, 1])
     else:
         lat, lon = cam[:, 1], cam[:, 0]
+    # Without photos every mark is exported under its name (mark_0031), for pairing by hand.
+    names = outputs.mark_names([m.number for m in marks]) if s.photos is None else None
     rows: list[outputs.CameraRow] = []
     for i, (name, k) in enumerate(entries):
         sd = mp.sd_enu_m[k] if k >= 0 else np.full(3, np.nan)
@@ -519,6 +527,7 @@ def _cameras(
             omega_deg=float(opk[i, 0]), phi_deg=float(opk[i, 1]), kappa_deg=float(opk[i, 2]),
             attitude=attitude[i],
             antenna_x_m=float(ant_x[i]), antenna_y_m=float(ant_y[i]), antenna_h_m=float(ant_h[i]),
+            mark_name=names[k] if names is not None and k >= 0 else "",
         ))
     return _Cameras(tuple(rows), epsg, proj, traj_llh, mark_llh, cam, lever_est)
 
@@ -556,6 +565,7 @@ def _report(
         track_t_gps_ns=traj.t_gps_ns, track_x_m=te if proj.projected else traj_llh[:, 1],
         track_y_m=tn if proj.projected else traj_llh[:, 0], track_quality=traj.quality,
         photos_total=len(photo_list), photos_unmatched=unmatched,
+        photos_given=s.photos is not None, lost_marks=report.lost_marks(marks),
         orphan_marks=match.orphan_marks if match else (),
         clock_offset_s=match.offset_s if match else None,
         pair_window_s=match.tolerance_s if match else None,
