@@ -178,6 +178,8 @@ def _validate(s: SolveSettings) -> None:
     # The inputs' contents, before anything is created: a JPEG or a text file given as the
     # flight or the base gets inspect's verdict, not a later "no camera marks" or half a run.
     require_ubx_frames(s.flight)
+    if s.positions is not None:
+        positions.check_pos_file(s.positions)
     if s.base is not None:
         if is_rinex_obs_name(s.base):
             _require_rinex_obs(s.base)

@@ -155,7 +155,7 @@ CASES: list[Case] = [
       "corrupt gzip"),
     c("solve-positions-fifo", "solve good.ubx --positions fifo --out o", 2, "not a regular"),
     c("solve-positions-corrupt-gzip", "solve good.ubx --positions corrupt.pos.gz --out o", 2,
-      "damaged gzip", logs=True),
+      "damaged gzip"),
     c("solve-eo-fifo", "solve good.ubx --positions x.pos --eo fifo --out o", 2,
       "not a regular file"),
     c("solve-positions-missing", "solve good.ubx --positions nope.pos --out o", 2,
@@ -178,6 +178,8 @@ CASES: list[Case] = [
       "notes.txt: no UBX frames in this file"),
     c("solve-base-not-rinex", f"solve good.ubx --base bad.obs --base-xyz {BASE_XYZ} --out o", 2,
       "not a RINEX observation file"),
+    c("solve-positions-jpeg", "solve good.ubx --positions X/a.jpg --out o", 2,
+      "not an RTKLIB .pos text file"),
     c("solve-out-in-proc", "solve good.ubx --positions x.pos --out-dir /proc/nope", 2,
       "--out-dir: cannot create /proc/nope"),
     # failures after the output directory was created leave nothing behind (the snapshot)
