@@ -21,6 +21,7 @@ from typing import NoReturn
 from groundstation import __version__
 from groundstation.commands import COMMANDS, EXAMPLES, HELP
 from groundstation.errors import ConfigError, GroundstationError, InputError
+from groundstation.invocation import examples
 
 EXIT_OK = 0
 EXIT_FAILURE = 1
@@ -90,8 +91,9 @@ def build_parser(argv: Sequence[str]) -> argparse.ArgumentParser:
         prog="groundstation",
         description="Ground station and post-flight solver for UAV photogrammetry "
         "with a u-blox L1 receiver over a radio link.",
-        epilog="examples:\n  groundstation demo\n  groundstation run --port /dev/wi232 "
-        "--station rover\n  groundstation COMMAND --help\n\n"
+        epilog=examples("examples:\n  groundstation demo\n  groundstation run --port "
+                        "/dev/wi232 --station rover\n  groundstation COMMAND --help")
+        + "\n\n"
         "exit status: 0 ok, 1 runtime failure (device, disk, Zenoh) or a run that gave no "
         "result, 2 bad input or configuration (the message names the option, key, variable or "
         "file; an input that cannot be used), 130 interrupted (Ctrl-C or SIGTERM) for the "
@@ -106,7 +108,8 @@ def build_parser(argv: Sequence[str]) -> argparse.ArgumentParser:
     # Only the chosen subcommand's module is imported (Zenoh, the simulator ... are heavy).
     wanted = next((a for a in argv if a in COMMANDS), None)
     for name in COMMANDS:
-        example = "\n".join(f"  {line}" for line in EXAMPLES.get(name, "").splitlines())
+        example = "\n".join(f"  {line}" for line in
+                            examples(EXAMPLES.get(name, "")).splitlines())
         p = sub.add_parser(
             name, help=HELP.get(name, ""),
             description=_sentence(HELP.get(name, "")),

@@ -14,6 +14,9 @@ must never replace one of its own inputs nor an existing recording. The rules:
 Paths are compared resolved (symbolic links and ``..`` followed), so another spelling of the
 same file is the same file. Every refusal is a :class:`~groundstation.errors.ConfigError` naming
 the option (exit status 2), raised before anything is created.
+
+After those checks (and the inputs' own), :func:`make_output_dir` creates the directory: one that
+cannot be created (``/proc/x``, no permission, a file on the way) is a ``ConfigError`` too.
 """
 
 from __future__ import annotations
@@ -97,6 +100,23 @@ def check_output_dir(out_dir: Path, inputs: Iterable[Path | None] = (), *, key: 
         if not name.endswith("/") and is_recording(out_dir / name):
             raise ConfigError(key, f"{out_dir / name} is an existing recording: refusing to "
                                    "replace it")
+
+
+def make_output_dir(out: Path, key: str = "--out-dir") -> bool:
+    """Create the output directory (after every check); True if it did not exist (so that a
+    failed run can remove it again).
+
+    Raises:
+        ConfigError: naming ``key``: it cannot be created (``/proc/x``, no permission, a file
+            on the way).
+    """
+    if out.is_dir():
+        return False
+    try:
+        out.mkdir(parents=True)
+    except OSError as err:
+        raise ConfigError(key, f"cannot create {out}: {err.strerror or err}") from err
+    return True
 
 
 def _written(rel: str, writes: Collection[str]) -> bool:

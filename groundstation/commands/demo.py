@@ -12,6 +12,7 @@ from groundstation.commands.options import add_config, add_zenoh_daemon, layer
 from groundstation.commands.simulate import add_profile_arguments, parse_speed
 from groundstation.config import DAEMON, DEFAULT_ENDPOINT
 from groundstation.errors import ConfigError
+from groundstation.invocation import command
 from groundstation.view.summary import status_lines
 
 NAME = "demo"
@@ -74,8 +75,10 @@ def run(args: argparse.Namespace) -> int:
         if info["zenoh"]:
             endpoints = info["zenoh"]
             connect = "" if endpoints == [DEFAULT_ENDPOINT] else f" --connect {endpoints[0]}"
+            watch = command("watch", "--station", info["station"],
+                            *(("--connect", endpoints[0]) if connect else ()))
             print(f"demo: publishing on Zenoh {', '.join(endpoints)} (watch it from another "
-                  f"terminal: groundstation watch --station {info['station']}{connect})",
+                  f"terminal: {watch})",
                   file=sys.stderr, flush=True)
         print("demo: Ctrl-C stops it early (files closed cleanly; exit status 130)",
               file=sys.stderr, flush=True)
@@ -176,9 +179,9 @@ def _print_summary(result: Any, photos: Path | None = None) -> None:
         print(f"the flight was cut short ({s.stopped_by} after {s.duration_s:.1f} s) before "
               "its first time mark: nothing to solve; let the demo run to its end")
     elif s.files:
-        print(f"next: groundstation inspect {s.files[0]}")
+        print(f"next: {command('inspect', str(s.files[0]))}")
         xyz = ",".join(f"{v:.4f}" for v in truth["base"]["ecef_m"])
-        photo_opt = f" --photos {photos}" if photos is not None else ""
-        print(f"next: groundstation solve {s.files[0]} --base {result.base_path} "
-              f"--base-xyz {xyz}{photo_opt} --out-dir {Path(s.files[0]).with_suffix('')}"
-              "_solution")
+        photo_opt = ("--photos", str(photos)) if photos is not None else ()
+        print("next: " + command(
+            "solve", str(s.files[0]), "--base", str(result.base_path), "--base-xyz", xyz,
+            *photo_opt, "--out-dir", f"{Path(s.files[0]).with_suffix('')}_solution"))

@@ -10,7 +10,7 @@ from pathlib import Path
 
 from groundstation.errors import ConfigError
 from groundstation.offline import rinex
-from groundstation.outpaths import check_output_dir
+from groundstation.outpaths import check_output_dir, make_output_dir
 from groundstation.rules.marks import MARK_EDGES
 from groundstation.storage.reading import Recording
 
@@ -47,21 +47,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default="auto",
         help="progress on stderr (auto: for inputs over 4 MiB on a terminal or not)",
     )
-
-
-def _make_dir(out: Path) -> bool:
-    """Create the output directory (after every check); True if it did not exist.
-
-    Raises:
-        ConfigError: it cannot be created (``/proc/x``, no permission, a file on the way).
-    """
-    if out.is_dir():
-        return False
-    try:
-        out.mkdir(parents=True)
-    except OSError as err:
-        raise ConfigError("--out-dir", f"cannot create {out}: {err.strerror or err}") from err
-    return True
 
 
 class _Progress:
@@ -102,7 +87,7 @@ def run(args: argparse.Namespace) -> int:
     if args.progress == "auto":
         show = recording.size_bytes >= PROGRESS_MIN_BYTES
     out = Path(args.out_dir)
-    created = _make_dir(out)
+    created = make_output_dir(out, "--out-dir")
     prog = _Progress() if show else None
     try:
         res = rinex.convert(args.input, args.out_dir, opts, prog)

@@ -15,7 +15,7 @@ from groundstation.gpstime import NS_PER_S
 from groundstation.live.monitor_alerts import Alerts
 from groundstation.live.monitor_link import LINK_HISTORY_NS, Link
 from groundstation.records import Event, MarkStatus, TimeMark
-from groundstation.rules.marks import Mark, MarkTracker, mark_number
+from groundstation.rules.marks import Mark, MarkTracker, count_jump
 
 MAX_PULSE_MS = 10_000  # a longer "pulse" pairs edges of different exposures
 EPOCH_SLOTS_KEPT = 4096
@@ -58,9 +58,9 @@ class Marks:
         self.last_mark = m
         if recovered:
             self.recovered += 1
-        if mark.lost_before:
-            number = mark_number(m)
-            last = (number - mark.lost_before - 1) & 0xFFFF
+        jump = count_jump(mark)
+        if jump is not None:
+            last, number = jump
             self._last_missed_ns = now_ns
             events.append(Event(
                 kinds.MARK_MISSED, now_ns, f"{mark.lost_before} time mark(s) missed "

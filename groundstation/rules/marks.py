@@ -38,6 +38,9 @@ class Mark:
         utc_valid: the receiver said UTC was valid.
         acc_ns: accuracy estimate (ns).
         lost_before: marks lost just before this one, from jumps of ``count``.
+        number: the pulse's number in the receiver's count (:func:`mark_number`: ``count``
+            itself once the rising edge is counted, so a mark whose rising-edge record was
+            lost has the number it would have had); -1 when not made by the rule.
     """
 
     falling_t_gps_ns: int | None
@@ -50,6 +53,7 @@ class Mark:
     utc_valid: bool
     acc_ns: int
     lost_before: int = 0
+    number: int = -1
 
     @property
     def pulse_ns(self) -> int | None:
@@ -63,6 +67,15 @@ def mark_number(record: TimeMark) -> int:
     record that carries the pulse's rising edge, ``count + 1`` on a falling-edge-only record
     (the receiver's counter counts rising edges)."""
     return record.count if record.new_rising else (record.count + 1) & 0xFFFF
+
+
+def count_jump(mark: Mark) -> tuple[int, int] | None:
+    """``(last number before, this number)`` of the jump in the receiver's count before a mark
+    that follows missed ones (``lost_before`` > 0), else None: "count 29 -> 31" is one missed
+    mark, number 30."""
+    if not mark.lost_before or mark.number < 0:
+        return None
+    return (mark.number - mark.lost_before - 1) & 0xFFFF, mark.number
 
 
 @dataclass(frozen=True, slots=True)
@@ -182,7 +195,7 @@ class MarkTracker:
 
 def _make(r: TimeMark, f: int | None, ri: int | None, lost: int) -> Mark:
     return Mark(f, ri, r.count, r.channel, r.flags, r.time_base, r.valid, r.utc_valid, r.acc_ns,
-                lost)
+                lost, mark_number(r))
 
 
 def track_marks(records: Iterable[TimeMark]) -> tuple[list[Mark], MarkTracker]:

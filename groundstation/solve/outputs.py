@@ -77,6 +77,8 @@ class CameraRow:
         omega_deg, phi_deg, kappa_deg: attitude used for the lever arm (NaN if none).
         attitude: ``eo`` (from the EO file), ``nadir-track`` (assumed) or ``none``.
         antenna_x_m, antenna_y_m, antenna_h_m: antenna position before the lever arm.
+        mark_name: without photos, the name the mark's row carries in the photogrammetry
+            exports (:func:`mark_names`); "" otherwise.
     """
 
     photo: str
@@ -100,14 +102,38 @@ class CameraRow:
     antenna_x_m: float = math.nan
     antenna_y_m: float = math.nan
     antenna_h_m: float = math.nan
+    mark_name: str = ""
 
     @property
     def positioned(self) -> bool:
         return math.isfinite(self.x_m) and math.isfinite(self.lat_deg)
 
     @property
+    def label(self) -> str:
+        """The image name in the photogrammetry exports: the photo, or the mark's name."""
+        return self.photo or self.mark_name
+
+    @property
     def flag_text(self) -> str:
         return ";".join(flag_names(self.flags))
+
+
+MARK_NAME_PREFIX = "mark_"
+
+
+def mark_names(numbers: Sequence[int]) -> list[str]:
+    """Names of marks exported without photos: ``mark_`` and the receiver's pulse number
+    (``mark_0031``), so that a mark the receiver missed leaves a gap in the names instead of
+    shifting every later one against the camera's image numbers. A number seen again (the
+    receiver restarted and counts from 1 again) gets ``_2``, ``_3``, ... so names stay unique.
+    """
+    seen: dict[str, int] = {}
+    out = []
+    for n in numbers:
+        name = f"{MARK_NAME_PREFIX}{n:04d}"
+        seen[name] = seen.get(name, 0) + 1
+        out.append(name if seen[name] == 1 else f"{name}_{seen[name]}")
+    return out
 
 
 @dataclass(frozen=True, slots=True)
@@ -193,7 +219,9 @@ def cameras_csv(out: SolveOutput) -> str:
 
 
 def _photo_rows(out: SolveOutput) -> list[CameraRow]:
-    return [r for r in out.rows if r.photo and r.positioned]
+    """The rows of the photogrammetry exports: positioned photos, or (without photos)
+    positioned marks by their names."""
+    return [r for r in out.rows if r.label and r.positioned]
 
 
 def geo_txt(out: SolveOutput) -> str:
@@ -209,13 +237,13 @@ def geo_txt(out: SolveOutput) -> str:
     lines = [f"EPSG:{out.epsg}"]
     nd = 3 if out.projected else 9
     for r in _photo_rows(out):
-        if not r.photo or any(c.isspace() for c in r.photo) or r.photo.startswith("#"):
-            lines.append(f"# not listed (whitespace or '#' in the name): {r.photo!r}")
+        if any(c.isspace() for c in r.label) or r.label.startswith("#"):
+            lines.append(f"# not listed (whitespace or '#' in the name): {r.label!r}")
             continue
         horz = max(r.sd_e_m, r.sd_n_m)
         yaw = (90.0 - r.kappa_deg) % 360.0 if math.isfinite(r.kappa_deg) else 0.0
         lines.append(
-            f"{r.photo} {r.x_m:.{nd}f} {r.y_m:.{nd}f} {r.h_m:.3f} {yaw:.2f} 0 0 "
+            f"{r.label} {r.x_m:.{nd}f} {r.y_m:.{nd}f} {r.h_m:.3f} {yaw:.2f} 0 0 "
             f"{_f(horz, 3) or '0'} {_f(r.sd_u_m, 3) or '0'}"
         )
     return "\n".join(lines) + "\n"
@@ -236,7 +264,7 @@ def reference_csv(out: SolveOutput) -> str:
     nd = 3 if out.projected else 9
     for r in _photo_rows(out):
         w.writerow([
-            text_cell(r.photo), _f(r.x_m, nd), _f(r.y_m, nd), _f(r.h_m, 3),
+            text_cell(r.label), _f(r.x_m, nd), _f(r.y_m, nd), _f(r.h_m, 3),
             _f(r.sd_e_m, 3), _f(r.sd_n_m, 3), _f(r.sd_u_m, 3),
             _f(r.omega_deg, 4), _f(r.phi_deg, 4), _f(r.kappa_deg, 4),
         ])
@@ -259,7 +287,7 @@ def pix4d_csv(out: SolveOutput) -> str:
     nd = 3 if out.projected else 9
     for r in _photo_rows(out):
         w.writerow([
-            text_cell(r.photo), _f(r.y_m, nd), _f(r.x_m, nd), _f(r.h_m, 3),
+            text_cell(r.label), _f(r.y_m, nd), _f(r.x_m, nd), _f(r.h_m, 3),
             _f(max(r.sd_e_m, r.sd_n_m), 3), _f(r.sd_u_m, 3),
         ])
     return buf.getvalue()

@@ -2,33 +2,47 @@
 
 :func:`solve` is what ``groundstation solve`` and the solver service call; it takes resolved
 :class:`SolveSettings` and an optional progress callback and returns a :class:`SolveResult`.
+
+Every input is checked (its content too: a flight or base without UBX frames is refused as
+``inspect`` refuses it) before the output directory is created; a run that fails after that
+leaves no half outputs (:func:`_undone_on_failure`).
 """
 
 from __future__ import annotations
 
+import contextlib
+import gzip
 import logging
 import math
-from collections.abc import Callable
+import os
+import shutil
+import zlib
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 import numpy.typing as npt
 
+from groundstation import outpaths
 from groundstation.errors import ConfigError, InputError
 from groundstation.geodesy import ecef_to_llh, enu_rotation
+from groundstation.offline.inspect import require_ubx_frames
 from groundstation.records import NavSolution, TimeMark
 from groundstation.rules.marks import Mark, build_marks
 from groundstation.solve import interpolate as mi
 from groundstation.solve import leverarm, outputs, photos, positions, report
-from groundstation.solve.engine import DEFAULT_ENGINE
-from groundstation.storage.reading import Recording
+from groundstation.solve.engine import DEFAULT_ENGINE, is_rinex_obs_name
+from groundstation.storage.reading import Recording, check_regular
 from groundstation.ubx.decode import NAV_POSLLH, NAV_PVT, NAV_SOL, TIM_TM2, Decoder
 from groundstation.ubx.framer import UbxFramer
 
 log = logging.getLogger("groundstation.solve")
 
 Progress = Callable[[str, float], None]
+FAILED_NAME = "SOLVE_FAILED.txt"
+"""Left in an output directory that existed when a run failed after rewriting some of its
+files (:func:`_undone_on_failure`)."""
 _WANTED = {TIM_TM2, NAV_SOL, NAV_PVT, NAV_POSLLH}
 
 
@@ -161,8 +175,83 @@ def _validate(s: SolveSettings) -> None:
         raise ConfigError("--photos", f"{s.photos} is not a directory")
     # never write over an input or a recording (groundstation.outpaths)
     outputs.check_output_dir(s.out_dir, [s.photos, s.flight, s.positions, s.base, s.eo])
-    if not s.flight.exists():
-        raise InputError(f"{s.flight}: no such file")
+    # The inputs' contents, before anything is created: a JPEG or a text file given as the
+    # flight or the base gets inspect's verdict, not a later "no camera marks" or half a run.
+    require_ubx_frames(s.flight)
+    if s.positions is not None:
+        positions.check_pos_file(s.positions)
+    if s.base is not None:
+        if is_rinex_obs_name(s.base):
+            _require_rinex_obs(s.base)
+        else:
+            require_ubx_frames(s.base)
+
+
+def _require_rinex_obs(path: Path) -> None:
+    """Refuse a base named like RINEX observations that does not start like them.
+
+    Raises:
+        InputError: unreadable, or no ``RINEX VERSION / TYPE`` header line.
+    """
+    check_regular(path)
+    try:
+        with (gzip.open(path, "rb") if path.name.lower().endswith(".gz")
+              else path.open("rb")) as f:
+            first = f.read(80)
+    except (OSError, EOFError, zlib.error) as err:
+        raise InputError(f"{path}: cannot read: {err}") from err
+    if b"RINEX VERSION / TYPE" not in first:
+        raise InputError(f"{path}: not a RINEX observation file (no RINEX VERSION / TYPE "
+                         "header line)")
+
+
+@contextlib.contextmanager
+def _undone_on_failure(out_dir: Path, created: bool) -> Iterator[None]:
+    """Leave no half outputs of a failed run: a surveyor takes what is in an output folder
+    for results. A directory this run created is removed whole (the inputs are untouched, so
+    a run again rebuilds everything, and the error line says what failed). In a directory
+    that existed, the files this run added are removed; files of an earlier run that this one
+    replaced cannot be restored, so ``SOLVE_FAILED.txt`` names them."""
+    before = {} if created else _files(out_dir)
+    try:
+        yield
+    except BaseException as err:
+        if created:
+            shutil.rmtree(out_dir, ignore_errors=True)
+            raise
+        changed = []
+        for path, stamp in _files(out_dir).items():
+            if path not in before:
+                with contextlib.suppress(OSError):
+                    path.unlink()
+            elif stamp != before[path]:
+                changed.append(path)
+        for dirpath, _, _ in sorted(os.walk(out_dir), key=lambda w: -len(w[0])):
+            with contextlib.suppress(OSError):
+                if Path(dirpath) != out_dir:
+                    Path(dirpath).rmdir()  # only the empty ones: the earlier run's stay
+        if changed:
+            with contextlib.suppress(OSError):
+                (out_dir / FAILED_NAME).write_text(
+                    f"groundstation solve failed: {err or type(err).__name__}\n"
+                    "These files were rewritten by the failed run and are not results:\n"
+                    + "".join(f"  {p.relative_to(out_dir)}\n" for p in sorted(changed)),
+                    encoding="utf-8")
+        raise
+    with contextlib.suppress(OSError):
+        (out_dir / FAILED_NAME).unlink(missing_ok=True)  # an earlier failure's note is stale
+
+
+def _files(root: Path) -> dict[Path, tuple[int, int]]:
+    """Every file under ``root`` with its (mtime ns, size)."""
+    out: dict[Path, tuple[int, int]] = {}
+    for dirpath, _, names in os.walk(root):
+        for name in names:
+            p = Path(dirpath) / name
+            with contextlib.suppress(OSError):
+                st = p.lstat()
+                out[p] = (st.st_mtime_ns, st.st_size)
+    return out
 
 
 def solve(settings: SolveSettings, progress: Progress | None = None) -> SolveResult:
@@ -178,11 +267,24 @@ def solve(settings: SolveSettings, progress: Progress | None = None) -> SolveRes
     """
     s = settings
     _validate(s)
+    created = outpaths.make_output_dir(s.out_dir, "--out-dir")
+    with _undone_on_failure(s.out_dir, created):
+        return _solve(s, progress)
+
+
+def _solve(s: SolveSettings, progress: Progress | None) -> SolveResult:
+    """:func:`solve` after the checks, into an existing ``s.out_dir``."""
     notes: list[str] = []
     rec, marks = _marks(s, progress)
     traj = _positions(s, rec, notes, progress)
     times, mp = _positions_at_marks(s, traj, marks, notes, progress)
     photo_list, match, recon = _photos(s, times, progress)
+    if s.photos is None:
+        notes.append(f"no photos given: marks named {outputs.MARK_NAME_PREFIX}NNNN (the "
+                     "receiver's mark count) in geo.txt, reference.csv, pix4d.csv")
+    jumps = report.lost_marks(marks)
+    if jumps:
+        notes.append(report.lost_marks_text(jumps))
     cams = _cameras(s, marks, mp, traj, photo_list, match, notes)
     files = outputs.write_all(cams.output(traj, mp, notes), s.out_dir)
     report_files, report_notes = _report(s, traj, marks, mp, photo_list, match, cams, notes)
@@ -410,6 +512,8 @@ def _cameras(
         lat, lon = proj.inverse(cam[:, 0], cam[:, 1])
     else:
         lat, lon = cam[:, 1], cam[:, 0]
+    # Without photos every mark is exported under its name (mark_0031), for pairing by hand.
+    names = outputs.mark_names([m.number for m in marks]) if s.photos is None else None
     rows: list[outputs.CameraRow] = []
     for i, (name, k) in enumerate(entries):
         sd = mp.sd_enu_m[k] if k >= 0 else np.full(3, np.nan)
@@ -425,6 +529,7 @@ def _cameras(
             omega_deg=float(opk[i, 0]), phi_deg=float(opk[i, 1]), kappa_deg=float(opk[i, 2]),
             attitude=attitude[i],
             antenna_x_m=float(ant_x[i]), antenna_y_m=float(ant_y[i]), antenna_h_m=float(ant_h[i]),
+            mark_name=names[k] if names is not None and k >= 0 else "",
         ))
     return _Cameras(tuple(rows), epsg, proj, traj_llh, mark_llh, cam, lever_est)
 
@@ -462,6 +567,7 @@ def _report(
         track_t_gps_ns=traj.t_gps_ns, track_x_m=te if proj.projected else traj_llh[:, 1],
         track_y_m=tn if proj.projected else traj_llh[:, 0], track_quality=traj.quality,
         photos_total=len(photo_list), photos_unmatched=unmatched,
+        photos_given=s.photos is not None, lost_marks=report.lost_marks(marks),
         orphan_marks=match.orphan_marks if match else (),
         clock_offset_s=match.offset_s if match else None,
         pair_window_s=match.tolerance_s if match else None,

@@ -346,11 +346,40 @@ def read_pos(path: str | Path, ref_ecef_m: tuple[float, float, float] | None = N
         raise InputError(f"{p}: cannot read: {err}") from err
     except (EOFError, gzip.BadGzipFile, zlib.error) as err:
         raise InputError(f"{p}: damaged gzip: {err}") from err
+    _check_text(p, data[:POS_HEAD_BYTES])
+    return parse_pos(data.decode("ascii", "replace"), source=p.name, ref_ecef_m=ref_ecef_m)
+
+
+POS_HEAD_BYTES = 4096
+
+
+def _check_text(p: Path, head: bytes) -> None:
     # A photo or a recording given by mistake: say so in one line rather than echo its bytes.
-    head = data[:4096]
     if b"\x00" in head or head.startswith(b"\xff\xd8") or not _is_text(head):
         raise InputError(f"{p}: not an RTKLIB .pos text file (binary data)")
-    return parse_pos(data.decode("ascii", "replace"), source=p.name, ref_ecef_m=ref_ecef_m)
+
+
+def check_pos_file(path: Path) -> None:
+    """The checks :func:`read_pos` makes before parsing, on the file's head only: what
+    ``solve`` runs before it creates anything.
+
+    Raises:
+        InputError: unreadable, damaged gzip, or not text (a photo, a recording).
+    """
+    try:
+        with path.open("rb") as f:
+            gz = f.read(2) == b"\x1f\x8b"
+        with (gzip.open(path, "rb") if gz else path.open("rb")) as f:
+            head = f.read(POS_HEAD_BYTES)
+    except FileNotFoundError as err:
+        raise InputError(f"{path}: no such file") from err
+    except OSError as err:  # gzip.BadGzipFile is an OSError
+        if isinstance(err, gzip.BadGzipFile):
+            raise InputError(f"{path}: damaged gzip: {err}") from err
+        raise InputError(f"{path}: cannot read: {err}") from err
+    except (EOFError, zlib.error) as err:
+        raise InputError(f"{path}: damaged gzip: {err}") from err
+    _check_text(path, head)
 
 
 def _is_text(head: bytes) -> bool:

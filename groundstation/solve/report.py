@@ -31,6 +31,7 @@ import numpy.typing as npt
 
 from groundstation import gpstime, jsonio
 from groundstation.errors import GroundstationError
+from groundstation.rules.marks import Mark, count_jump
 from groundstation.solve import figures
 from groundstation.solve.figures import QUALITY_COLOURS, Span
 from groundstation.solve.interpolate import FLAG_GAP
@@ -106,6 +107,10 @@ class ReportInput:
         rows: the camera rows ``cameras.csv`` is written from (photos, then orphan marks).
         marks_total, marks_duplicate: marks in the flight and duplicates set aside.
         photos_total: photos found (0 without ``--photos``).
+        photos_given: ``--photos`` was given (without, the marks are exported by name,
+            ``mark_0031``, and a mark without photo is no warning).
+        lost_marks: ``(last count, next count)`` of every jump in the receiver's mark count
+            (marks the receiver counted but whose records never arrived: :func:`lost_marks`).
         photos_unmatched: (photo name, reason) of every photo without a mark.
         orphan_marks: mark indices without a photo.
         clock_offset_s, pair_window_s: photo matching (None without photos).
@@ -147,6 +152,8 @@ class ReportInput:
     track_quality: IntArray
     height_datum: str = "WGS84 ellipsoidal height (no geoid applied)"
     photos_total: int = 0
+    photos_given: bool = True
+    lost_marks: tuple[tuple[int, int], ...] = ()
     photos_unmatched: tuple[tuple[str, str], ...] = ()
     orphan_marks: tuple[int, ...] = ()
     clock_offset_s: float | None = None
@@ -199,6 +206,24 @@ def _num(v: float, nd: int) -> str:
 # -- counts -----------------------------------------------------------------------------------
 
 
+def lost_marks(marks: Sequence[Mark]) -> tuple[tuple[int, int], ...]:
+    """``(last count, next count)`` of every jump in the marks' count (the marks rule's
+    :func:`~groundstation.rules.marks.count_jump`, as the live view alerts on them)."""
+    return tuple(j for j in map(count_jump, marks) if j is not None)
+
+
+def _missed_numbers(jumps: Sequence[tuple[int, int]]) -> int:
+    return sum(((b - a) & 0xFFFF) - 1 for a, b in jumps)
+
+
+def lost_marks_text(jumps: Sequence[tuple[int, int]]) -> str:
+    """One sentence: how many marks the receiver missed and where (``count 29 -> 31``)."""
+    shown = ", ".join(f"count {a} -> {b}" for a, b in jumps[:12])
+    more = f" and {len(jumps) - 12} more jumps" if len(jumps) > 12 else ""
+    return (f"{_missed_numbers(jumps)} time mark(s) missed by the receiver (the camera fired, "
+            f"no TIM-TM2 record arrived; no position for those photos): {shown}{more}.")
+
+
 def counts(inp: ReportInput) -> dict[str, int]:
     """The summary counts, all derived from the rows (so they equal ``cameras.csv``'s)."""
     rows = inp.rows
@@ -216,6 +241,7 @@ def counts(inp: ReportInput) -> dict[str, int]:
         "photos_matched": sum(1 for r in rows if r.photo and r.mark >= 0),
         "photos_unmatched": sum(1 for r in rows if r.photo and r.mark < 0),
         "orphan_marks": sum(1 for r in rows if not r.photo and r.mark >= 0),
+        "marks_missed": _missed_numbers(inp.lost_marks),
         "marks_bridging_gap": sum(1 for r in rows if r.flags & FLAG_GAP),
         "marks_in_radio_gap": in_radio,
         "nadir_assumed": sum(1 for r in rows if r.attitude == "nadir-track"),
@@ -278,7 +304,9 @@ def warnings(inp: ReportInput) -> list[str]:
         extra = len(inp.photos_unmatched) - 8
         more = f" and {extra} more" if extra > 0 else ""
         out.append(f"{c['photos_unmatched']} photo(s) without a time mark: {names}{more}.")
-    if c["orphan_marks"]:
+    if inp.lost_marks:
+        out.append(lost_marks_text(inp.lost_marks))
+    if c["orphan_marks"] and inp.photos_given:
         out.append(f"{c['orphan_marks']} time mark(s) without a photo (camera fired, no image "
                    "found): check the image count.")
     if inp.marks_duplicate:
@@ -429,7 +457,9 @@ def _counts_table(inp: ReportInput) -> str:
         f"{inp.marks_duplicate}</td></tr>"
         + row("photos", "photos") + row("photos matched to a mark", "photos_matched")
         + row("photos without mark", "photos_unmatched")
-        + row("marks without photo (orphans)", "orphan_marks")
+        + row("marks missed by the receiver (count jumps)", "marks_missed")
+        + (row("marks without photo (orphans)", "orphan_marks") if inp.photos_given
+           else row("marks named mark_NNNN (no photos given)", "orphan_marks"))
         + "<tr><th>cycle slips "
         + ("found (receiver flags + hidden in radio gaps)" if inp.slips_repaired is not None
            else "flagged (rover, first band)") + "</th>"
@@ -449,6 +479,24 @@ def _counts_table(inp: ReportInput) -> str:
 MARK_COLUMNS = ("photo", "mark", "count", "UTC", "GPS week s", "E (m)", "N (m)", "h (m)",
                 "σE (m)", "σN (m)", "σU (m)", "quality", "Δt epoch (s)", "flags")
 """Header of the per-mark table (the test reads the table back by these names)."""
+
+
+def _marks_notes(inp: ReportInput) -> str:
+    """What the marks section must say before its table: no photos given (the marks' names in
+    the exports), and the marks the receiver missed."""
+    out = []
+    if not inp.photos_given:
+        out.append(
+            f'<p class="marks-names">{NO_PHOTOS_TEXT}</p>')
+    if inp.lost_marks:
+        out.append(f'<p class="marks-missed">{_e(lost_marks_text(inp.lost_marks))}</p>')
+    return "".join(out)
+
+
+NO_PHOTOS_TEXT = ("No photos given: marks named mark_NNNN (the receiver's mark count) in "
+                  "geo.txt, reference.csv and pix4d.csv; pair them with the images in the "
+                  "photogrammetry tool.")
+"""Said in the report's marks section when ``solve`` ran without ``--photos``."""
 
 
 def _marks_table(inp: ReportInput) -> str:
@@ -563,7 +611,8 @@ def render_html(inp: ReportInput) -> str:
         f'<section class="positions"><h2>Camera positions</h2>'
         f'<p class="muted">One row per photo (then per mark without photo), as in cameras.csv. '
         f"E/N in EPSG:{inp.epsg}, h {_e(inp.height_datum)}; σ east/north/up; Δt epoch: time "
-        f"from the mark to the nearest solved epoch.</p>{_marks_table(inp)}</section>"
+        f"from the mark to the nearest solved epoch.</p>{_marks_notes(inp)}"
+        f"{_marks_table(inp)}</section>"
         + (f"<h2>Photos without mark</h2><ul>{unmatched}</ul>" if unmatched else "")
         + f"<h2>Notes</h2><ul>{notes}</ul>"
         "</body></html>\n"

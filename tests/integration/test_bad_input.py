@@ -25,6 +25,7 @@ from streams import flight_stream
 TIMEOUT_S = 30
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 LONG = "s" * 65
+BASE_XYZ = "4146349.2471,612312.5498,4791750.8505"
 
 
 @dataclass(frozen=True)
@@ -154,7 +155,7 @@ CASES: list[Case] = [
       "corrupt gzip"),
     c("solve-positions-fifo", "solve good.ubx --positions fifo --out o", 2, "not a regular"),
     c("solve-positions-corrupt-gzip", "solve good.ubx --positions corrupt.pos.gz --out o", 2,
-      "damaged gzip", logs=True),
+      "damaged gzip"),
     c("solve-eo-fifo", "solve good.ubx --positions x.pos --eo fifo --out o", 2,
       "not a regular file"),
     c("solve-positions-missing", "solve good.ubx --positions nope.pos --out o", 2,
@@ -169,6 +170,23 @@ CASES: list[Case] = [
     c("solve-epsg-text", "solve good.ubx --positions x.pos --epsg abc --out o", 2, "--epsg"),
     c("solve-interp", "solve good.ubx --positions x.pos --interp cubic --out o", 2, "--interp"),
     c("solve-max-gap", "solve good.ubx --positions x.pos --max-gap -1 --out o", 2, "--max-gap"),
+    # the flight and the base are checked as inspect checks them, before anything is written
+    c("solve-flight-text", "solve notes.txt --positions x.pos --out o", 2,
+      "no UBX frames in this file"),
+    c("solve-flight-jpeg", "solve X/a.jpg --positions x.pos --out o", 2, "a JPEG image"),
+    c("solve-base-text", f"solve good.ubx --base notes.txt --base-xyz {BASE_XYZ} --out o", 2,
+      "notes.txt: no UBX frames in this file"),
+    c("solve-base-not-rinex", f"solve good.ubx --base bad.obs --base-xyz {BASE_XYZ} --out o", 2,
+      "not a RINEX observation file"),
+    c("solve-positions-jpeg", "solve good.ubx --positions X/a.jpg --out o", 2,
+      "not an RTKLIB .pos text file"),
+    c("solve-out-in-proc", "solve good.ubx --positions x.pos --out-dir /proc/nope", 2,
+      "--out-dir: cannot create /proc/nope"),
+    # failures after the output directory was created leave nothing behind (the snapshot)
+    c("solve-positions-text", "solve good.ubx --positions notes.txt --out o", 2,
+      "cannot parse", logs=True),
+    c("solve-engine-no-solution", f"solve good.ubx --base good.ubx --base-xyz {BASE_XYZ} "
+      "--out o --no-progress", 1, "no navigation data", logs=True),
     # -- configure ----------------------------------------------------------------------------
     c("configure-unknown-profile", "configure --port /dev/null --profile nope --dry-run", 2,
       "unknown profile"),
@@ -208,6 +226,7 @@ def _workspace(root: Path) -> None:
     (root / "good.ubx").write_bytes(data)
     (root / "rec.mcap").write_bytes(MCAP_MAGIC + b"\x00" * 32)
     (root / "notes.txt").write_text("mine\n")
+    (root / "bad.obs").write_text("not RINEX\n")
     (root / "x.pos").write_text("% not used: the command stops before reading it\n")
     # gzip header, then a deflate block of an invalid type: zlib.error when read
     bad = b"\x1f\x8b\x08\x00\x00\x00\x00\x00\x00\x03" + b"\xff" * 64

@@ -162,13 +162,18 @@ def _same(table: eo.OptionTable, key: str, a: str, b: str) -> bool:
     return norm(a) == norm(b)
 
 
+def is_rinex_obs_name(path: Path) -> bool:
+    """Whether a base (or rover) file is taken as RINEX observations (by its name: ``.obs``,
+    ``.rnx``, ``.YYo``, optionally ``.gz``) rather than a recording to convert."""
+    return re.search(r"\.(obs|rnx|\d\do)(\.gz)?$", path.name.lower()) is not None
+
+
 def _to_rinex(
     path: Path, work: Path, progress: Progress | None, hook: rinex_hook | None = None,
 ) -> tuple[Path, list[Path]]:
     """(obs, [nav]) for a RINEX observation file or a recording converted by our RINEX writer
     (``hook`` changes the observations before they are written)."""
-    name = path.name.lower()
-    if re.search(r"\.(obs|rnx|\d\do)(\.gz)?$", name):
+    if is_rinex_obs_name(path):
         navs = [
             p for p in path.parent.glob(path.name.split(".")[0] + "*")
             if re.search(r"\.(nav|\d\d[ngpl])(\.gz)?$", p.name.lower())

@@ -1,0 +1,63 @@
+"""A solve that fails after it started writing leaves no half outputs in its directory.
+
+The command line, in a subprocess, on a flight whose engine run fails after the rover and base
+were converted to RINEX (``good.ubx`` holds observations but no ephemerides): a directory the
+run created is gone; in a directory that existed, the files the run added are removed, the
+earlier ones stay, and ``SOLVE_FAILED.txt`` names any earlier file the run rewrote.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+from peers import cli_env
+from streams import flight_stream
+
+BASE_XYZ = "4146349.2471,612312.5498,4791750.8505"
+
+
+def _solve(cwd: Path, out: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "groundstation.cli", "solve", "good.ubx", "--base", "base.ubx",
+         "--base-xyz", BASE_XYZ, "--out-dir", out, "--no-progress"],
+        cwd=cwd, env=cli_env(), capture_output=True, text=True, timeout=120, check=False)
+
+
+def _workspace(root: Path) -> None:
+    data, _ = flight_stream(10)
+    (root / "good.ubx").write_bytes(data)
+    (root / "base.ubx").write_bytes(data)
+
+
+def test_a_failed_run_removes_the_directory_it_created(tmp_path: Path) -> None:
+    _workspace(tmp_path)
+    proc = _solve(tmp_path, "new/out")
+    assert proc.returncode == 1 and "no navigation data" in proc.stderr, proc.stderr
+    assert "Traceback" not in proc.stderr
+    assert not (tmp_path / "new" / "out").exists()
+    assert (tmp_path / "new").is_dir()  # the parent was created by mkdir -p; not ours to judge
+
+
+def test_a_failed_run_in_an_existing_directory_keeps_the_earlier_files(tmp_path: Path) -> None:
+    _workspace(tmp_path)
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "cameras.csv").write_text("earlier run\n")
+    proc = _solve(tmp_path, "out")
+    assert proc.returncode == 1, proc.stderr
+    assert sorted(p.name for p in out.rglob("*")) == ["cameras.csv"]  # rtklib/ removed
+    assert (out / "cameras.csv").read_text() == "earlier run\n"
+
+
+def test_a_failed_run_that_rewrote_earlier_files_says_so(tmp_path: Path) -> None:
+    _workspace(tmp_path)
+    out = tmp_path / "out"
+    (out / "rtklib" / "rover").mkdir(parents=True)
+    (out / "rtklib" / "rover" / "good.obs").write_text("earlier run\n")
+    proc = _solve(tmp_path, "out")
+    assert proc.returncode == 1, proc.stderr
+    note = (out / "SOLVE_FAILED.txt").read_text()
+    assert "no navigation data" in note and "rtklib/rover/good.obs" in note, note
+    assert not (out / "rtklib" / "base").exists()  # what the run added is gone
