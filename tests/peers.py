@@ -196,39 +196,40 @@ class Received:
         return [m for _, m in self.timed(which)]
 
 
-class EventCollector:
-    """A pipeline sink that keeps every Event published (never drops: register it with
-    ``Overflow.NEVER_DROP``)."""
+class ItemCollector:
+    """A pipeline sink that keeps every item of the types it accepts, in order (never drops:
+    register it with ``Overflow.NEVER_DROP``). ``ItemCollector(RawChunk, RawEpoch)``, or a
+    subclass naming its ``accepts``."""
 
-    name = "events"
-    accepts = frozenset((Event,))
+    name = "items"
+    accepts: frozenset[type] = frozenset()
 
-    def __init__(self) -> None:
-        self.items: list[Event] = []
+    def __init__(self, *types: type) -> None:
+        if types:
+            self.accepts = frozenset(types)
+        self.items: list[Any] = []
 
     async def consume(self, inbox: Inbox, publish: object) -> None:
+        kinds = tuple(self.accepts)
         while True:
             try:
                 items = await inbox.get_all()
             except InboxClosed:
                 return
-            self.items.extend(i for i in items if isinstance(i, Event))
+            self.items.extend(i for i in items if isinstance(i, kinds))
 
 
-class StatusEventCollector:
-    """A pipeline sink that keeps every Event and Status published, in order (never drops:
-    register it with ``Overflow.NEVER_DROP``)."""
+class EventCollector(ItemCollector):
+    """Every Event published."""
+
+    name = "events"
+    accepts: frozenset[type] = frozenset({Event})
+    items: list[Event]
+
+
+class StatusEventCollector(ItemCollector):
+    """Every Event and Status published, in order."""
 
     name = "everything"
     accepts: frozenset[type] = frozenset({Event, Status})
-
-    def __init__(self) -> None:
-        self.items: list[Event | Status] = []
-
-    async def consume(self, inbox: Inbox, publish: object) -> None:
-        while True:
-            try:
-                items = await inbox.get_all()
-            except InboxClosed:
-                return
-            self.items.extend(i for i in items if isinstance(i, (Event, Status)))
+    items: list[Event | Status]

@@ -12,11 +12,11 @@ from collections import Counter
 from pathlib import Path
 
 import pytest
-from peers import EventCollector, cli_env
+from peers import EventCollector, ItemCollector, cli_env
 
 from groundstation import jsonio
 from groundstation.live.demo import DemoOptions, run_demo
-from groundstation.live.fanout import Inbox, InboxClosed, Overflow, SinkSpec
+from groundstation.live.fanout import Overflow, SinkSpec
 from groundstation.live.replay import run_replay
 from groundstation.records import RawChunk, RawEpoch
 from groundstation.storage import iter_messages
@@ -148,29 +148,6 @@ def test_replay_reads_the_environment_like_every_command(tmp_path: Path) -> None
     assert len(proc.stderr.strip().splitlines()) == 1, proc.stderr
 
 
-class _ChunkTimes:
-    """A pipeline sink that keeps the raw chunks' times and the epochs' GPS times."""
-
-    name = "chunk-times"
-    accepts = frozenset((RawChunk, RawEpoch))
-
-    def __init__(self) -> None:
-        self.chunks: list[int] = []
-        self.epochs: list[int] = []
-
-    async def consume(self, inbox: Inbox, publish: object) -> None:
-        while True:
-            try:
-                items = await inbox.get_all()
-            except InboxClosed:
-                return
-            for item in items:
-                if isinstance(item, RawChunk):
-                    self.chunks.append(item.t_host_ns)
-                elif isinstance(item, RawEpoch):
-                    self.epochs.append(item.t_gps_ns)
-
-
 def test_replay_of_a_ubx_file_keeps_the_pace_of_its_data(tmp_path: Path) -> None:
     """A ``.ubx`` holds no reception times: ``--speed N`` paces it on its own GPS time, so
     ``N`` seconds of data come through in about one second (it was paced as a 115 200-baud
@@ -182,21 +159,23 @@ def test_replay_of_a_ubx_file_keeps_the_pace_of_its_data(tmp_path: Path) -> None
     sim = simulate(SimConfig(duration_s=14, seed=5, with_base=False))
     path = tmp_path / "short.ubx"
     path.write_bytes(sim.rover_bytes)
-    sink = _ChunkTimes()
+    sink = ItemCollector(RawChunk, RawEpoch)  # the raw chunks' times and the epochs' GPS times
     speed = 10.0
     t0 = time.monotonic()
     summary, _ = asyncio.run(run_replay(path, speed=speed, sinks=(
         SinkSpec(sink, 100_000, Overflow.NEVER_DROP),)))
     wall_s = time.monotonic() - t0
     assert summary.bytes_in == len(sim.rover_bytes)
-    span_s = (sink.epochs[-1] - sink.epochs[0]) / 1e9
+    chunks = [i.t_host_ns for i in sink.items if isinstance(i, RawChunk)]
+    epochs = [i.t_gps_ns for i in sink.items if isinstance(i, RawEpoch)]
+    span_s = (epochs[-1] - epochs[0]) / 1e9
     assert span_s > 10
     ratio = span_s / wall_s  # data seconds per wall second: about the speed
     assert speed / 2 < ratio < speed * 1.2, (span_s, wall_s)
     # the chunks' times are the data's (UTC of its epochs), not today's
-    first = gps_to_unix_ns(sink.epochs[0])
-    assert first <= sink.chunks[0] < first + 10**9
-    assert sink.chunks[-1] == gps_to_unix_ns(sink.epochs[-1])
+    first = gps_to_unix_ns(epochs[0])
+    assert first <= chunks[0] < first + 10**9
+    assert chunks[-1] == gps_to_unix_ns(epochs[-1])
 
 
 def test_replay_summary_says_the_satellites_are_those_at_the_end_of_the_recording(
