@@ -21,6 +21,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
@@ -70,8 +71,14 @@ def plain_copy(src_path: Path, dir_: Path) -> Path:
     return ubx
 
 
-def main() -> int:
-    got = setup(__doc__.splitlines()[0])
+OursArgs = Callable[[Path, Path, Path], list[str]]
+"""Our command's arguments from (the given input, its decompressed copy, a scratch folder)."""
+
+
+def against_convbin(description: str, what: str, ours_args: OursArgs) -> int:
+    """Interleaved runs of convbin and of ``groundstation <what>`` on one input (the shared
+    command line of :func:`setup`); prints best and median wall and CPU times and the ratios."""
+    got = setup(description)
     if got is None:
         return 2
     args, convbin, ours_cmd = got
@@ -80,7 +87,8 @@ def main() -> int:
         ubx = plain_copy(args.input, t)
         cb = [convbin, "-r", "ubx", "-od", "-os", "-o", str(t / "cb.obs"), "-n", str(t / "cb.nav"),
               str(ubx)]
-        ours = [*ours_cmd, "inspect", str(args.input)]
+        ours = [*ours_cmd, *ours_args(args.input, ubx, t)]
+        # the bytecode cache an installed package has
         env = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
         env["PYTHONPYCACHEPREFIX"] = str(t / "pycache")
         run(cb)
@@ -91,16 +99,25 @@ def main() -> int:
             times["groundstation"].append(run(ours, env))
         size_mb = ubx.stat().st_size / 1e6
     print(f"input: {args.input.name} ({size_mb:.2f} MB decompressed), {args.runs} runs each")
-    best = {}
+    best: dict[str, tuple[float, float]] = {}
+    med: dict[str, tuple[float, float]] = {}
     for name, v in times.items():
         walls = sorted(w for w, _ in v)
         cpus = sorted(c for _, c in v)
         best[name] = (walls[0], cpus[0])
-        print(f"{name:<14} wall best {walls[0]:.3f} s  median {walls[len(v) // 2]:.3f} s   "
-              f"CPU best {cpus[0]:.3f} s  median {cpus[len(v) // 2]:.3f} s")
-    print(f"ratio inspect / convbin: wall best {best['groundstation'][0] / best['convbin'][0]:.2f}"
-          f"  CPU best {best['groundstation'][1] / best['convbin'][1]:.2f}")
+        med[name] = (walls[len(v) // 2], cpus[len(v) // 2])
+        print(f"{name:<14} wall best {walls[0]:.3f} s  median {med[name][0]:.3f} s   "
+              f"CPU best {cpus[0]:.3f} s  median {med[name][1]:.3f} s")
+    ours_best, cb_best = best["groundstation"], best["convbin"]
+    med_ratio = med["groundstation"][0] / med["convbin"][0]
+    print(f"ratio {what} / convbin: wall best {ours_best[0] / cb_best[0]:.2f}  median "
+          f"{med_ratio:.2f}   CPU best {ours_best[1] / cb_best[1]:.2f}")
     return 0
+
+
+def main() -> int:
+    return against_convbin(__doc__.splitlines()[0], "inspect",
+                           lambda src, _ubx, _tmp: ["inspect", str(src)])
 
 
 if __name__ == "__main__":
