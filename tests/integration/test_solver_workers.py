@@ -286,8 +286,24 @@ def test_simultaneous_claims_go_to_the_smallest_worker_and_a_vanished_one_is_tak
     client = ZenohSettings(mode="client", listen=(), connect=(endpoint,))
     bus_a, bus_b = open_bus(client), open_bus(client)
     requeued: dict[str, list[Any]] = {"wa": [], "wb": []}
-    a = Claims(bus_a, requeued["wa"].append, worker="wa", reclaim_max_s=0.5)
-    b = Claims(bus_b, requeued["wb"].append, worker="wb", reclaim_max_s=0.5)
+    both_looked = threading.Barrier(2)
+
+    class Together(Claims):
+        """Claims whose first look (no claim yet) waits for the other worker's: both then
+        declare at the same moment, whatever the machine's load (a worker that looks after the
+        other declared simply keeps the job aside, which is not the tie this test is about)."""
+
+        met = False
+
+        def _claimants(self, job: Any) -> set[str]:
+            seen = super()._claimants(job)
+            if not self.met:
+                self.met = True
+                both_looked.wait(10)
+            return seen
+
+    a = Together(bus_a, requeued["wa"].append, worker="wa", reclaim_max_s=0.5)
+    b = Together(bus_b, requeued["wb"].append, worker="wb", reclaim_max_s=0.5)
     try:
         for c in (a, b):
             c.start()
@@ -306,20 +322,20 @@ def test_simultaneous_claims_go_to_the_smallest_worker_and_a_vanished_one_is_tak
         assert b.reclaimed == 1
         # b claims it now; when it publishes ok and withdraws, nobody takes it up again
         assert b.acquire(job, "job-of-wb", tmp_path / "wb")
-        c = Claims(open_bus(client), requeued["wa"].append, worker="wc", reclaim_max_s=0.1)
-        c.start()
-        assert not c.acquire(job, "job-of-wc", tmp_path / "wc")  # held by b: kept aside
+        late = Claims(open_bus(client), requeued["wa"].append, worker="wc", reclaim_max_s=0.1)
+        late.start()
+        assert not late.acquire(job, "job-of-wc", tmp_path / "wc")  # held by b: kept aside
         ok = {"status": "ok", "station": "rover", "session_id": "s1", "flight": "/x/rover_1.mcap",
               "out_dir": str(tmp_path / "wb")}
         bus_b.put(key("rover", "solution"), encode("solution", ok))
         b.record("rover", ok)
-        wait_until(lambda: c.done(job) == "ok", 10, "the solution heard")
+        wait_until(lambda: late.done(job) == "ok", 10, "the solution heard")
         b.release(job)
-        time.sleep(0.5)  # past c's reclaim delay: nothing may come back
+        time.sleep(0.5)  # past the late worker's reclaim delay: nothing may come back
         assert requeued["wa"] == []
         assert json.loads((tmp_path / "wb" / "solution.json").read_text())["status"] == "ok"
-        c.close()
-        c.bus.close()
+        late.close()
+        late.bus.close()
     finally:
         for bus in (bus_b, bus_a, hub):
             bus.close()
