@@ -63,6 +63,28 @@ def cli_env(**settings: str) -> dict[str, str]:
     return env
 
 
+def interrupted_cli(argv: list[str], cwd: Path | None = None,
+                    ready: Callable[[], object] | None = None, ready_s: float = 60.0,
+                    after_s: float = 0.0) -> tuple[int, str, str]:
+    """Run ``groundstation <argv>``, wait until ``ready()`` (at most ``ready_s``) and ``after_s``
+    more, send SIGINT (a user's Ctrl-C); (exit status, stdout, stderr)."""
+    proc = subprocess.Popen([sys.executable, "-m", "groundstation.cli", *argv], cwd=cwd,
+                            env=cli_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True)
+    try:
+        deadline = time.monotonic() + ready_s
+        while ready is not None and not ready() and time.monotonic() < deadline:
+            time.sleep(0.1)
+        time.sleep(after_s)
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    return proc.returncode, out, err
+
+
 class CliProc:
     """``python -m groundstation.cli *argv`` in its own working directory ``cwd`` (made if
     missing), its stdout and stderr in ``stdout.txt`` and ``stderr.txt`` there.

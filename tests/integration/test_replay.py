@@ -12,7 +12,7 @@ from collections import Counter
 from pathlib import Path
 
 import pytest
-from peers import EventCollector, ItemCollector, cli_env
+from peers import EventCollector, ItemCollector, cli_env, interrupted_cli
 
 from groundstation import jsonio
 from groundstation.live.demo import DemoOptions, run_demo
@@ -200,25 +200,14 @@ def test_replay_summary_says_the_satellites_are_those_at_the_end_of_the_recordin
 def test_an_interrupted_replay_prints_its_summary_and_exits_130(tmp_path: Path) -> None:
     """``replay`` ends by itself, so Ctrl-C is an interruption (README: 130), unlike the
     daemon's normal end; the summary still comes, its satellites "where the replay stopped"."""
-    import signal
 
     from groundstation.sim.stream import SimConfig, simulate
 
     sim = simulate(SimConfig(duration_s=120, seed=2, with_base=False))
     path = tmp_path / "flight.ubx"
     path.write_bytes(sim.rover_bytes)
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "groundstation.cli", "replay", str(path), "--speed", "1",
-         "--no-zenoh"], env=cli_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-        text=True)
-    try:
-        time.sleep(3.0)
-        proc.send_signal(signal.SIGINT)
-        out, err = proc.communicate(timeout=60)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
-    assert proc.returncode == 130, err
+    returncode, out, err = interrupted_cli(
+        ["replay", str(path), "--speed", "1", "--no-zenoh"], after_s=3.0)
+    assert returncode == 130, err
     assert "(SIGINT)" in out and "where the replay stopped: " in out, out
     assert "Traceback" not in err
