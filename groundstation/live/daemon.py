@@ -22,6 +22,7 @@ from typing import Any
 from groundstation import events as kinds
 from groundstation.config import Settings
 from groundstation.errors import GroundstationError
+from groundstation.live.data_time import UNTIMED, DataClock, Timed
 from groundstation.live.fanout import Fanout, InboxStats, Overflow, Publish, Sink, SinkSpec
 from groundstation.live.monitor import Monitor
 from groundstation.live.monitor_sink import MonitorSink
@@ -90,6 +91,7 @@ class Pipeline:
             :class:`~groundstation.live.sources.FileSource`).
         open_file: how the recorder creates its files (a test's fault hook; default
             :class:`~groundstation.storage.mcapio.ExactFile`).
+        on_first_chunk: called with the time of the first chunk, before it is published.
     """
 
     def __init__(
@@ -103,6 +105,7 @@ class Pipeline:
         on_file: Callable[[Path], None] | None = None,
         monitor_data_clock: bool = False,
         open_file: FileOpener | None = None,
+        on_first_chunk: Callable[[int], None] | None = None,
     ) -> None:
         self.settings = settings
         self._clock = clock
@@ -154,6 +157,8 @@ class Pipeline:
                                        Overflow.DROP_OLDEST))
         for spec in sinks:
             self.add_sink(spec.sink, spec.maxsize, spec.overflow)
+        self._on_first_chunk = on_first_chunk
+        self._data_clock: DataClock | None = None
         self.chunks = 0
         self.records = 0
         self.events = 0
@@ -182,10 +187,24 @@ class Pipeline:
         return publish
 
     def ingest(self, chunk: bytes, t_host_ns: int) -> None:
-        """One chunk from the source: raw bytes first, then what they decode to."""
+        """One chunk from the source: raw bytes first, then what they decode to (an
+        :data:`~groundstation.live.data_time.UNTIMED` chunk once timed, without pacing)."""
+        for data, frames, t in self._timed(chunk, t_host_ns):
+            self._emit(data, frames, t)
+
+    def _timed(self, chunk: bytes, t_host_ns: int) -> list[Timed]:
+        """The chunk framed and timed: a timed chunk as is; an untimed one by the source's
+        data clock from the frames it completed (possibly held, or several released)."""
+        if t_host_ns != UNTIMED or self._data_clock is None:
+            return [(chunk, self.framer.feed(chunk, t_host_ns), t_host_ns)]
+        return self._data_clock.stamp(chunk, self.framer.feed(chunk, UNTIMED))
+
+    def _emit(self, chunk: bytes, frames: list[Frame], t_host_ns: int) -> None:
+        if self.chunks == 0 and self._on_first_chunk is not None:
+            self._on_first_chunk(t_host_ns)
         self.chunks += 1
         self.fanout.publish(RawChunk(chunk, t_host_ns))
-        self._decode(self.framer.feed(chunk, t_host_ns))
+        self._decode(frames)
 
     def _decode(self, frames: list[Frame]) -> None:
         for frame in frames:
@@ -224,9 +243,17 @@ class Pipeline:
 
     async def _ingest_loop(self) -> None:
         chunks = self.source.chunks()
+        pace = getattr(self.source, "untimed_delay_s", None)
         try:
             async for chunk, t_host_ns in chunks:
-                self.ingest(chunk, t_host_ns)
+                if self._data_clock is None:
+                    self._data_clock = getattr(self.source, "data_clock", None)
+                for data, frames, t in self._timed(chunk, t_host_ns):
+                    if t_host_ns == UNTIMED and callable(pace):
+                        delay = pace(t)
+                        if delay > 0:
+                            await asyncio.sleep(delay)
+                    self._emit(data, frames, t)
                 if self.source.can_wait:
                     await self._wait_for_sinks()
             self.stopped_by = self.stopped_by or "end of source"
@@ -242,8 +269,13 @@ class Pipeline:
             if callable(drain):
                 for chunk, t_host_ns in drain():
                     self.ingest(chunk, t_host_ns)
-            # Bytes still waiting in the framer: recover what frames they hold.
-            self._decode(self.framer.flush(self._clock()))
+            # Chunks held for their time and bytes still waiting in the framer: recover what
+            # frames they hold.
+            clock = self._data_clock
+            if clock is not None:
+                for data, frames, t in clock.flush():
+                    self._emit(data, frames, t)
+            self._decode(self.framer.flush(clock.now_ns() if clock is not None else self._clock()))
             log.info("source %s stopped (%s)", self.source.name, self.stopped_by)
 
     async def _status_loop(self) -> None:

@@ -4,8 +4,8 @@ The recording is read by the same :class:`~groundstation.live.sources.FileSource
 --file``: an MCAP re-emits its ``/ubx/raw`` chunks with their original host times and the
 monitor runs on those times, so it reaches the status and events the live daemon recorded for
 the same bytes; a ``.ubx``/``.ubx.gz`` file has no reception times, so its chunks take the
-data's own time (the UTC of its latest measurement epoch, :class:`~groundstation.live.sources.
-DataTimes`). ``speed`` paces those times (1: as recorded).
+data's own time (the UTC of its latest measurement epoch, :mod:`groundstation.live.data_time`).
+``speed`` paces those times (1: as recorded).
 
 Each replay is a session of its own for the views: its id (:func:`replay_session_id`) is new
 on every run (so a view drops the previous run's marks even when the same recording is replayed
@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import secrets
 import time
-from collections.abc import AsyncIterator, Callable
 from pathlib import Path
 from typing import Any
 
@@ -58,24 +57,6 @@ def replay_session_id(station: str, wall_start_ns: int, data_start_ns: int) -> s
     return session_file_stem(f"{station}_replay-{wall}-{secrets.token_hex(3)}", data_start_ns)
 
 
-class _FirstChunk:
-    """A file source that reports the time of its first chunk (the replay's session start)."""
-
-    def __init__(self, source: FileSource, on_first: Callable[[int], None]) -> None:
-        self._source = source
-        self._on_first = on_first
-        self.name = source.name
-        self.can_wait = source.can_wait
-
-    async def chunks(self) -> AsyncIterator[tuple[bytes, int]]:
-        first = True
-        async for data, t_host_ns in self._source.chunks():
-            if first:
-                first = False
-                self._on_first(t_host_ns)
-            yield data, t_host_ns
-
-
 async def run_replay(
     path: Path,
     *,
@@ -107,7 +88,7 @@ async def run_replay(
             pipeline.monitor.monitor.session_id = replay_session_id(
                 station, wall_start_ns, data_start_ns)
 
-    pipeline = Pipeline(settings, source=_FirstChunk(source, start_session), sinks=sinks,
-                        record=False, monitor_data_clock=True)
+    pipeline = Pipeline(settings, source=source, sinks=sinks, record=False,
+                        monitor_data_clock=True, on_first_chunk=start_session)
     summary = await pipeline.run(handle_signals=True)
     return summary, pipeline

@@ -27,7 +27,7 @@ import os
 import random
 import stat
 import time
-from collections.abc import AsyncIterator, Callable, Iterator
+from collections.abc import AsyncIterator, Callable
 from typing import Protocol
 
 from groundstation import events as kinds
@@ -38,14 +38,12 @@ from groundstation.config import (
     TcpSourceSettings,
 )
 from groundstation.errors import ConfigError, SourceError
-from groundstation.gpstime import gps_to_unix_ns
+from groundstation.live.data_time import UNTIMED, DataClock
 from groundstation.live.port_reader import DeviceVanished, PortReader
 from groundstation.pacing import LINK_BYTES_PER_S, Pacer, link_time_ns
-from groundstation.records import Event, RawEpoch
+from groundstation.records import Event
 from groundstation.serialport import Port, PortInUse, open_port
 from groundstation.storage.reading import Recording
-from groundstation.ubx.decode import Decoder
-from groundstation.ubx.framer import UbxFramer
 
 EventSink = Callable[[Event], None]
 REPOINT_CHECK_S = 1.0
@@ -316,54 +314,23 @@ class TcpSource:
             await self.state.wait_before_retry(s.reconnect_min_s, s.reconnect_max_s)
 
 
-DATA_TIME_WAIT_BYTES = 256 * 1024
-"""How far into a file without reception times its first epoch time is looked for; a file
-with none by then is timed as a link would have delivered it."""
-
-_EPOCH_KEYS = frozenset(((0x02, 0x10), (0x02, 0x15)))  # RXM-RAW, RXM-RAWX
-
-
-class DataTimes:
-    """The data's own clock in a stream without reception times (``.ubx``): the UTC (UNIX
-    ns) of the latest measurement epoch (RXM-RAW / RXM-RAWX) framed so far, never going back.
-
-    A receiver sends an epoch's messages right after its measurement time, so this is close
-    to when the bytes arrived live; pacing it (:class:`~groundstation.pacing.Pacer`) replays
-    a ``.ubx`` at the pace it was recorded, and the monitor's windows run on it.
-    """
-
-    def __init__(self) -> None:
-        self._framer = UbxFramer()
-        self._decoder = Decoder()
-        self.last_ns: int | None = None
-
-    def feed(self, data: bytes) -> int | None:
-        """The data time after ``data`` (``None`` until the first epoch)."""
-        for frame in self._framer.feed(data, 0):
-            if (frame.cls, frame.id) not in _EPOCH_KEYS:
-                continue
-            rec = self._decoder.decode(frame)
-            if isinstance(rec, RawEpoch) and rec.gps_week > 0:
-                t = gps_to_unix_ns(rec.t_gps_ns)
-                self.last_ns = t if self.last_ns is None else max(self.last_ns, t)
-        return self.last_ns
-
-
 class FileSource:
     """A recording read as if it arrived now: ``.ubx``, ``.ubx.gz`` or ``.mcap`` (finished or
     not), told apart by content, with the later parts of its session followed
     (:mod:`groundstation.storage.reading`).
 
     Times: an MCAP's chunks keep their recorded host times (its ``/ubx/raw`` ``log_time``), so
-    the monitor reaches what the live daemon saw; a file without times (``.ubx``) gets the
-    data's own time (:class:`DataTimes`: the UTC of its latest measurement epoch), and one
-    without epochs the times a link would have delivered its bytes at (``rate_bytes_per_s``,
-    or 115 200 baud) from the moment reading starts. The pipeline runs its monitor on these
-    times, not the wall clock.
+    the monitor reaches what the live daemon saw; a file without times (``.ubx``) yields its
+    chunks :data:`~groundstation.live.data_time.UNTIMED`, and the pipeline gives them the data's
+    own time with :attr:`data_clock` from its own frames (the UTC of the latest measurement
+    epoch; without epochs, the times a link would have delivered the bytes at:
+    ``rate_bytes_per_s``, or 115 200 baud, from the moment reading starts). The pipeline runs
+    its monitor on these times, not the wall clock.
 
     Pacing (:class:`~groundstation.pacing.Pacer`): ``rate_bytes_per_s`` > 0 paces the bytes at
     that rate (whatever the format); otherwise ``speed`` paces the chunks' times (1: as
-    recorded, N: N times faster); with neither, as fast as the sinks take it.
+    recorded, N: N times faster; the pipeline paces untimed chunks once timed, with
+    :meth:`untimed_delay_s`: one pacer); with neither, as fast as the sinks take it.
 
     Args:
         settings: path, rate and read size (the chunk size of files without recorded chunks).
@@ -391,6 +358,9 @@ class FileSource:
         self.speed = speed
         self.bytes_read = 0
         self.chunks_out = 0
+        self._pacer = Pacer(speed)
+        self.data_clock: DataClock | None = None
+        """How the pipeline times this file's :data:`UNTIMED` chunks (set when reading starts)."""
 
     def claim(self) -> None:
         """Check the recording before any file is created (missing, a directory, a FIFO or a
@@ -401,55 +371,27 @@ class FileSource:
         """
         Recording(self.settings.path)
 
-    def _timed(self, recording: Recording) -> Iterator[tuple[bytes, int]]:
-        """The recording's chunks with a time each: the recorded host time, else the data's
-        own (:class:`DataTimes`), else (no epoch in the first :data:`DATA_TIME_WAIT_BYTES`)
-        the time a 115 200-baud link (or ``rate_bytes_per_s``) would have delivered it."""
-        s = self.settings
-        link_rate = s.rate_bytes_per_s if s.rate_bytes_per_s > 0 else LINK_BYTES_PER_S
-        start_ns = self._clock()
-        data_times: DataTimes | None = DataTimes()
-        held: list[bytes] = []  # chunks before the first epoch time: they take that time
-        offset = 0
-        for data, t_host in recording.chunks(s.read_size_bytes):
-            if t_host > 0:
-                yield data, t_host
-                continue
-            if data_times is not None:
-                t = data_times.feed(data)
-                if t is None:
-                    held.append(data)
-                    if sum(map(len, held)) <= DATA_TIME_WAIT_BYTES:
-                        continue
-                    data_times = None  # no epochs here: a link's times from now on
-                else:
-                    for h in held:
-                        yield h, t
-                    held = []
-                    yield data, t
-                    continue
-            for h in [*held, data]:
-                yield h, link_time_ns(start_ns, offset, link_rate)
-                offset += len(h)
-            held = []
-        t_end = data_times.last_ns if data_times is not None else None
-        for h in held:  # a file that ended before its first epoch time
-            yield h, t_end if t_end is not None else link_time_ns(start_ns, offset, link_rate)
-            offset += len(h)
-
     async def chunks(self) -> AsyncIterator[tuple[bytes, int]]:
         s = self.settings
         recording = Recording(s.path)
         rate = s.rate_bytes_per_s
-        pacer = Pacer(1.0 if rate > 0 else self.speed)
-        for data, t_host in self._timed(recording):
-            pace_t = link_time_ns(0, self.bytes_read, rate) if rate > 0 else t_host
-            delay = pacer.delay_s(pace_t)
+        self._pacer = Pacer(1.0 if rate > 0 else self.speed)
+        self.data_clock = DataClock(
+            self._clock(), rate if rate > 0 else LINK_BYTES_PER_S)
+        for data, t_host in recording.chunks(s.read_size_bytes):
+            if rate > 0:
+                delay = self._pacer.delay_s(link_time_ns(0, self.bytes_read, rate))
+            else:  # an untimed chunk is paced by the pipeline once it is timed
+                delay = self._pacer.delay_s(t_host) if t_host != UNTIMED else 0.0
             # sleep(0) lets the sinks run between chunks when reading as fast as possible
             await asyncio.sleep(delay)
             self.bytes_read += len(data)
             self.chunks_out += 1
             yield data, t_host
+
+    def untimed_delay_s(self, t_ns: int) -> float:
+        """How long the pipeline waits before a chunk it timed with :attr:`data_clock`."""
+        return 0.0 if self.settings.rate_bytes_per_s > 0 else self._pacer.delay_s(t_ns)
 
 
 def make_source(

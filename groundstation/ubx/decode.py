@@ -23,6 +23,7 @@ from dataclasses import dataclass
 from typing import Any, TypeVar
 
 from groundstation.geodesy import ecef_to_llh, llh_to_ecef
+from groundstation.gpstime import NS_PER_WEEK
 from groundstation.records import (
     Ephemeris,
     Frame,
@@ -470,3 +471,26 @@ class Decoder:
             for gnss, sv, cno, elev, azim, _, flags in _SAT_SV.iter_unpack(p[8:end])
         ]
         return SvInfo("NAV-SAT", itow * 1_000_000, tuple(sats), frame.t_host_ns)
+
+
+def epoch_time_gps_ns(frame: Frame) -> int | None:
+    """The GPS time of a measurement epoch (RXM-RAW / RXM-RAWX) with a week, read from its
+    header alone (the :class:`RawEpoch` the decoder makes of it has this ``t_gps_ns``);
+    ``None`` for any other frame, a week-0 epoch or a header too short to hold it.
+
+    For timing a stream without reception times before its frames are decoded
+    (:class:`~groundstation.live.data_time.DataClock`).
+    """
+    key = (frame.cls, frame.id)
+    p = frame.payload
+    if key == RXM_RAW and len(p) >= _RAW_HEAD.size:
+        itow, week, n, _ = _RAW_HEAD.unpack_from(p)
+        size, tow_ns = _RAW_HEAD.size + _RAW_SV.size * n, itow * 1_000_000
+    elif key == RXM_RAWX and len(p) >= _RAWX_HEAD.size:
+        rcv_tow, week, _, n, _, _ = _RAWX_HEAD.unpack_from(p)
+        size, tow_ns = _RAWX_HEAD.size + _RAWX_MEAS.size * n, round(rcv_tow * 1e9)
+    else:
+        return None
+    if week <= 0 or len(p) < size:  # a week-0 epoch, or one the decoder cannot decode
+        return None
+    return int(week) * NS_PER_WEEK + int(tow_ns)
