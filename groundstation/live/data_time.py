@@ -90,5 +90,11 @@ class DataClock:
 
 
 def _at(chunk: bytes, frames: list[Frame], t_ns: int) -> Timed:
-    """The chunk and its frames with the time ``t_ns``."""
-    return chunk, [Frame(f.cls, f.id, f.payload, f.raw, t_ns, f.offset) for f in frames], t_ns
+    """The chunk and its frames with the time ``t_ns``.
+
+    The frames were made by the pipeline's framer for this chunk and nobody holds them yet, so
+    their time is set in place (a new frozen ``Frame`` per frame cost 3 % of a file's ingest).
+    """
+    for f in frames:
+        object.__setattr__(f, "t_host_ns", t_ns)
+    return chunk, frames, t_ns
