@@ -12,8 +12,8 @@ from groundstation.solve.positions import parse_pos
 HEAD = [
     "% program   : groundstation demo5",
     "% solution  : Forward",
-    "%  GPST                         x-ecef(m)      y-ecef(m)      z-ecef(m)   Q  ns   sdx(m)"
-    "   sdy(m)   sdz(m)  sdxy(m)  sdyz(m)  sdzx(m) age(s)  ratio",
+    ("%  GPST                         x-ecef(m)      y-ecef(m)      z-ecef(m)   Q  ns   sdx(m)"
+     "   sdy(m)   sdz(m)  sdxy(m)  sdyz(m)  sdzx(m) age(s)  ratio"),
 ]
 X0 = np.array([3774696.5, -596647.9, 5089485.6])
 
@@ -77,8 +77,10 @@ def test_the_correlations_count() -> None:
 
 
 def test_better_quality_is_taken_whole_and_lone_epochs_kept() -> None:
-    fwd = [line(10, (0, 0, 0), 2, sd=0.3, ratio=1.5), line(11, (0, 0, 0), 1), line(12, (1, 0, 0), 5)]
-    bwd = [line(10, (0.2, 0, 0), 1, ns=11), line(11, (0.5, 0, 0), 2, sd=0.3), line(13, (0, 0, 0), 1)]
+    fwd = [line(10, (0, 0, 0), 2, sd=0.3, ratio=1.5), line(11, (0, 0, 0), 1),
+           line(12, (1, 0, 0), 5)]
+    bwd = [line(10, (0.2, 0, 0), 1, ns=11), line(11, (0.5, 0, 0), 2, sd=0.3),
+           line(13, (0, 0, 0), 1)]
     out, stats = merged(fwd, bwd)
     rows = [ln for ln in out.splitlines() if not ln.startswith("%")]
     assert rows == [bwd[0], fwd[1], fwd[2], bwd[2]]
