@@ -53,7 +53,7 @@ _EPOCH = dt.datetime(1980, 1, 6)
 
 
 @dataclass(frozen=True, slots=True)
-class _Rows:
+class Solutions:
     """The solution lines of one ``.pos`` (xyz format, no velocity), sorted by time."""
 
     t_s: FloatArray
@@ -102,7 +102,7 @@ def _signed_square(v: FloatArray) -> FloatArray:
     return np.sign(v) * v * v
 
 
-def _parse(text: str) -> tuple[list[str], _Rows]:
+def parse_solutions(text: str) -> tuple[list[str], Solutions]:
     """Header lines and sorted solution rows of an RTKLIB xyz ``.pos`` text.
 
     Raises:
@@ -135,7 +135,7 @@ def _parse(text: str) -> tuple[list[str], _Rows]:
     cov[:, 0, 1] = cov[:, 1, 0] = _signed_square(sd[:, 3])
     cov[:, 1, 2] = cov[:, 2, 1] = _signed_square(sd[:, 4])
     cov[:, 2, 0] = cov[:, 0, 2] = _signed_square(sd[:, 5])
-    rows = _Rows(np.asarray(t)[order], [lines[i] for i in order], a[:, 0:3],
+    rows = Solutions(np.asarray(t)[order], [lines[i] for i in order], a[:, 0:3],
                  a[:, 3].astype(np.int64), cov)
     return head, rows
 
@@ -176,8 +176,8 @@ def combine_text(forward: str, backward: str) -> tuple[str, CombineStats]:
     Raises:
         ValueError: a solution line not in RTKLIB's xyz layout without velocity.
     """
-    head, f = _parse(forward)
-    _, b = _parse(backward)
+    head, f = parse_solutions(forward)
+    _, b = parse_solutions(backward)
     stats = CombineStats(rule=RULE)
     out: list[str] = [
         "% solution  : Combined (forward and backward combined by groundstation)"
