@@ -180,3 +180,65 @@ def test_no_measurable_dynamics_keeps_the_constant(shared_data: Path, tmp_path: 
     assert run.options["stats-prnaccelh"] == eo.UBLOX_L1_5HZ["stats-prnaccelh"]
     assert run.options["stats-prnaccelv"] == eo.UBLOX_L1_5HZ["stats-prnaccelv"]
     assert "acceleration noise: the default 0.3 / 0.05 m/s^2 (the forward pass failed)" in run.notes
+
+
+UBX_1009 = "real/jdesbonnet__GNSS_RTK_data/20181009"
+
+
+def test_our_default_from_the_recordings_of_the_2018_10_09_flight(
+    shared_data: Path, tmp_path: Path
+) -> None:
+    """What ``groundstation solve rover.ubx --base base.ubx`` does: our RINEX of both UBX
+    recordings (76 more base epochs than convbin's), the dynamics pass, forward and backward
+    merged by engine/combine.py. The issue's must-show on our own RINEX: >= 1735 fixed and
+    <= 2 cm at p95 where both are fixed (demo5's own combination: 1839 fixed, 2.18 cm; the
+    full-covariance check of the fixes of both runs makes 26 more of them float)."""
+    ubx = [shared_data / UBX_1009 / f"{f}.ubx.gz" for f in ("rover-20181009-1221",
+                                                           "base-20181009-1220")]
+    run = engine.run_engine("demo5", ubx[0], ubx[1], BASE_1009_XYZ, tmp_path / "work")
+    ours = read_pos(run.pos_path)
+    ref = read_pos(shared_data / POS / "jd_20181009_kin_vs_M8Pbase_svin.pos.gz")
+    _, i, j = np.intersect1d(_epochs_ms(ours), _epochs_ms(ref), return_indices=True)
+    fixed = (ours.quality[i] == 1) & (ref.quality[j] == 1)
+    d = np.linalg.norm(ours.ecef_m[i][fixed] - ref.ecef_m[j][fixed], axis=1)
+    n_fix, p95 = int(np.sum(ours.quality == 1)), float(np.percentile(d, 95))
+    print(f"our RINEX: {len(ours)} epochs, {n_fix} fixed; {int(fixed.sum())} both fixed, "
+          f"p95 {p95 * 100:.2f} cm, max {d.max() * 100:.1f} cm; {run.combination}")
+    assert n_fix >= int(np.sum(ref.quality == 1)) == 1735
+    assert p95 <= 0.02
+    comb = run.combination
+    assert comb is not None and isinstance(comb["chi2_rejected"], int) and comb["chi2_rejected"] > 0
+    assert run.options["pos1-soltype"] == "combined"
+    info = jsonio.loads(run.info_path.read_bytes())
+    assert info["combination"]["both_fixed"] == comb["both_fixed"]
+    assert any(n.startswith("combined: the forward and backward runs merged") for n in run.notes)
+
+
+def test_the_merge_is_demo5s_combination_but_for_the_check(
+    shared_data: Path, tmp_path: Path
+) -> None:
+    """demo5's own combined solution against ours from its forward and backward runs (convbin's
+    RINEX, our default with fixed noise): the same epochs, positions within 1 mm (the .pos
+    carries covariances to 0.1 mm), the same quality except where the full-covariance check
+    made a fix float."""
+    q = {"stats-prnaccelh": "0.16", "stats-prnaccelv": "0.013"}
+    own = _solve_1009(shared_data, tmp_path, {**q, "pos1-soltype": "combined"})
+    assert own.combination is not None
+    demo5 = Demo5Engine()
+    job = EngineJob(
+        tmp_path / "rover-20181009-1221.obs", tmp_path / "base-20181009-1220.obs",
+        (tmp_path / "base-20181009-1220.nav", tmp_path / "rover-20181009-1221.nav"),
+        {k: own.options[k] for k in own.options}, tmp_path / "demo5-combined",
+    )
+    job.work_dir.mkdir()
+    theirs = read_pos(demo5.run(job).pos_path)
+    ours = read_pos(own.pos_path)
+    assert np.array_equal(ours.t_gps_ns, theirs.t_gps_ns)
+    dist = np.linalg.norm(ours.ecef_m - theirs.ecef_m, axis=1)
+    differ = ours.quality != theirs.quality
+    print(f"{len(ours)} epochs; position difference p99 {np.percentile(dist, 99) * 1000:.2f} mm, "
+          f"max {dist.max() * 1000:.1f} mm; quality differs at {int(differ.sum())}; "
+          f"{own.combination}")
+    assert np.percentile(dist, 99) <= 0.001
+    assert np.all((theirs.quality[differ] == 1) & (ours.quality[differ] == 2))
+    assert int(differ.sum()) == own.combination["chi2_rejected"]

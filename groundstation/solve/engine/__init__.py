@@ -6,7 +6,9 @@ it converts recordings to RINEX, resolves the options (engine defaults < ``--rtk
 engine and writes, next to the ``.pos``, ``engine.json`` with the engine's name, version and
 full option set; the same goes into the ``.pos`` header. Between conversion and the solve, the
 "dynamics" stage (:func:`derive_dynamics`) sets the filter's acceleration noise from a
-forward-only pass when the user has not set it.
+forward-only pass when the user has not set it. A combined solution of an engine that allows it
+is made of separate forward and backward runs merged here (:func:`solve`, rule in
+:mod:`.combine`).
 """
 
 from __future__ import annotations
@@ -15,6 +17,7 @@ import logging
 import re
 import time
 from collections.abc import Callable, Mapping, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, ClassVar, Protocol
@@ -72,6 +75,8 @@ class EngineRun:
     """What the phase conditioning did to the rover (None when it did not run)."""
     dynamics: dict[str, object] | None = None
     """The rover's measured dynamics and the acceleration noise chosen (None: not derived)."""
+    combination: dict[str, object] | None = None
+    """How forward and backward were combined here (None: the engine's own solution type)."""
 
 
 class Engine(Protocol):
@@ -79,6 +84,9 @@ class Engine(Protocol):
 
     name: ClassVar[str]
     defaults: ClassVar[dict[str, str]]
+    combines_in_house: ClassVar[bool]
+    """Whether a "combined" solution is made of this engine's forward and backward runs by
+    :func:`solve` (with :mod:`.combine`'s stricter fix check) rather than by the engine."""
 
     def option_table(self) -> eo.OptionTable:
         """The engine's own ``sysopts[]`` (raises ToolMissingError when not installed)."""
@@ -272,6 +280,55 @@ def derive_dynamics(
     return opts, info, [note]
 
 
+def solve(
+    engine: Engine, job: EngineJob, progress: Progress | None = None,
+) -> tuple[EngineRun, dict[str, object] | None, list[str]]:
+    """Run the engine; a kinematic "combined" solution of an engine that
+    :attr:`~Engine.combines_in_house` is its forward and backward runs (in parallel, one worker
+    each) merged by :func:`.combine.combine_files`.
+
+    The engine's own combination is used for other modes, for output with velocities (a layout
+    the merge does not write) and, with a note, when a run's output cannot be read.
+
+    Returns:
+        (the run, what the merge did or None, notes).
+    """
+    opts = job.options
+    if not (
+        engine.combines_in_house and opts.get("pos1-soltype") == "combined"
+        and opts.get("pos1-posmode") == "kinematic" and opts.get("out-outvel", "off") == "off"
+    ):
+        return engine.run(job, progress), None, []
+    from groundstation.solve.engine import combine as cb
+
+    jobs = [
+        EngineJob(job.rover_obs, job.base_obs, job.nav, {**opts, "pos1-soltype": way},
+                  job.work_dir / way, job.timeout_s)
+        for way in ("forward", "backward")
+    ]
+    for j in jobs:
+        j.work_dir.mkdir(parents=True, exist_ok=True)
+    # Two worker processes at once: the two directions are independent, and each is one core.
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        fwd, bwd = pool.map(engine.run, jobs)
+    out = job.work_dir / "rover.pos"
+    try:
+        stats = cb.combine_files(fwd.pos_path, bwd.pos_path, out)
+    except ValueError as err:
+        log.warning("cannot merge forward and backward (%s): the engine's own combination", err)
+        return engine.run(job, progress), None, [
+            f"combined by the engine itself (forward and backward could not be merged: {err})"]
+    options = {**fwd.options, "pos1-soltype": "combined"}
+    run = EngineRun(engine.name, fwd.version, out, job.work_dir / "engine.json", options, 0.0,
+                    fwd.notes)
+    note = (
+        f"combined: the forward and backward runs merged by groundstation ({cb.RULE}): "
+        f"{stats.both_fixed} epochs fixed in both, {stats.demo5_rejected} made float by demo5's "
+        f"per-axis test and {stats.chi2_rejected} more by the full-covariance test"
+    )
+    return run, stats.as_dict(), [note]
+
+
 def run_engine(
     engine_name: str,
     rover: Path,
@@ -330,7 +387,8 @@ def run_engine(
     t0 = time.perf_counter()
     if progress is not None:
         progress(engine.name, 0.0)
-    run = engine.run(job, progress)
+    run, comb_info, comb_notes = solve(engine, job, progress)
+    notes.extend(comb_notes)
     wall = time.perf_counter() - t0
     if progress is not None:
         progress(engine.name, 1.0)
@@ -362,12 +420,13 @@ def run_engine(
         "notes": [*notes, *run.notes],
         "conditioning": cond,
         "dynamics": dyn_info,
+        "combination": comb_info,
     }
     run.info_path.write_bytes(jsonio.dumps(info, indent=1) + b"\n")
     _stamp_header(run.pos_path, run.engine, run.version, run.options)
     return EngineRun(
         run.engine, run.version, run.pos_path, run.info_path, run.options, wall,
-        (*notes, *run.notes), cond, dyn_info,
+        (*notes, *run.notes), cond, dyn_info, comb_info,
     )
 
 
@@ -392,4 +451,5 @@ __all__ = [
     "get_engine",
     "resolve_options",
     "run_engine",
+    "solve",
 ]

@@ -75,6 +75,7 @@ class Demo5Engine:
 
     name: ClassVar[str] = "demo5"
     defaults: ClassVar[dict[str, str]] = eo.UBLOX_L1_5HZ
+    combines_in_house: ClassVar[bool] = True
 
     def option_table(self) -> eo.OptionTable:
         return _table_and_version()[0]

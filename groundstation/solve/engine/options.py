@@ -214,7 +214,8 @@ UBLOX_L1_5HZ: dict[str, str] = {
     "pos1-frequency": "l1",
     # LEA-6T flights start and end with 15 min static: forward and backward runs each get an
     # initialisation, and the combined solution keeps the better-resolved of the two (M8T: forward,
-    # for real-time-like use).
+    # for real-time-like use). engine.solve makes it of a forward and a backward run, merged by
+    # engine/combine.py with a stricter check of the epochs both runs fixed than demo5's.
     "pos1-soltype": "combined",
     "pos1-elmask": "15",
     "pos1-snrmask_r": "off",

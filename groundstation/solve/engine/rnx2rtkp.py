@@ -46,6 +46,8 @@ class Rnx2rtkpEngine:
 
     name: ClassVar[str] = "rnx2rtkp"
     defaults: ClassVar[dict[str, str]] = eo.B34_L1_KINEMATIC
+    # b34 stays as Debian ships it (the baseline the issue compares with): its own combination.
+    combines_in_house: ClassVar[bool] = False
     exe: ClassVar[str | None] = None
 
     def option_table(self) -> eo.OptionTable:
