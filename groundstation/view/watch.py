@@ -340,8 +340,28 @@ def acknowledge(bus: Bus, station: str, alert: str = "marks_missed") -> None:
     bus.put(key(station, "ack"), jsonio.dumps({"alert": alert, "by": by}))
 
 
+def in_foreground(fd: int) -> bool:
+    """Whether this process's group owns the terminal on ``fd`` (``watch &`` does not)."""
+    try:
+        return os.tcgetpgrp(fd) == os.getpgrp()
+    except OSError:
+        return False
+
+
+BACKGROUND_NOTE = ("groundstation watch: running in the background: keys are off (a to "
+                   "acknowledge) until it is in the foreground (fg)")
+"""Said once when the watch starts in the background or is sent there (``watch &``, Ctrl-Z
+then ``bg``)."""
+
+
 def _keys(on_key: Callable[[str], None], stop: threading.Event) -> None:
-    """Single key presses from a terminal (no Enter needed), until ``stop``."""
+    """Single key presses from a terminal (no Enter needed), until ``stop``.
+
+    The terminal's modes are changed (cbreak) and read only while this process is in the
+    foreground: from the background, setting the modes stops the process by SIGTTOU and
+    reading by SIGTTIN (``groundstation watch &`` would stop silently); there the view goes on
+    without keys and says so once.
+    """
     import select
     import termios
     import tty
@@ -351,14 +371,27 @@ def _keys(on_key: Callable[[str], None], stop: threading.Event) -> None:
         saved = termios.tcgetattr(fd)
     except termios.error:
         return  # not a terminal: no keys
+    cbreak = told = False
     try:
-        tty.setcbreak(fd)
         while not stop.is_set():
+            if not in_foreground(fd):
+                if not told:
+                    sys.stderr.write(BACKGROUND_NOTE + "\n")
+                    sys.stderr.flush()
+                    told = True
+                cbreak = False  # the shell owns the modes now; set them again on fg
+                stop.wait(0.2)
+                continue
+            told = False
+            if not cbreak:
+                tty.setcbreak(fd)
+                cbreak = True
             ready, _, _ = select.select([fd], [], [], 0.2)
-            if ready:
+            if ready and in_foreground(fd):
                 on_key(os.read(fd, 1).decode(errors="replace"))
     finally:
-        termios.tcsetattr(fd, termios.TCSADRAIN, saved)
+        if cbreak and in_foreground(fd):
+            termios.tcsetattr(fd, termios.TCSADRAIN, saved)
 
 
 def run_watch(
