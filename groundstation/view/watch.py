@@ -289,7 +289,7 @@ def _status_body(st: dict[str, Any], marks: list[dict[str, Any]],
     mark_line.append(f"in dropout {ms['in_dropout']}  ",
                      style="bold yellow" if ms["in_dropout"] else "")
     mark_line.append(f"pulse {_fmt(ms.get('last_pulse_width_ms'), '.1f')} ms  "
-                     f"{ms.get('rate_per_min', 0):.1f}/min  {len(marks)} TIM-TM2 records here")
+                     f"{ms.get('rate_per_min', 0):.1f}/min  {len(marks)} received here")
 
     alerts = st.get("alerts") or []
     alert_text = Text()
