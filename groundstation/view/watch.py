@@ -281,7 +281,9 @@ def _status_body(st: dict[str, Any], marks: list[dict[str, Any]],
     ms = st["marks"]
     mark_line = Text()
     mark_line.append("MARKS ", style="bold")
-    mark_line.append(f"{ms['marks']}  last count {_fmt(ms.get('last_count'))}  ")
+    # the count received here beside the total: at 80 columns the line's tail wraps, not it
+    mark_line.append(f"{ms['marks']} ({len(marks)} received here)  last count "
+                     f"{_fmt(ms.get('last_count'))}  ")
     lt = ms.get("last_falling_t_gps_ns")
     if lt:
         mark_line.append(f"at {gpstime.gps_to_datetime(lt):%H:%M:%S.%f} UTC  ")
@@ -289,7 +291,7 @@ def _status_body(st: dict[str, Any], marks: list[dict[str, Any]],
     mark_line.append(f"in dropout {ms['in_dropout']}  ",
                      style="bold yellow" if ms["in_dropout"] else "")
     mark_line.append(f"pulse {_fmt(ms.get('last_pulse_width_ms'), '.1f')} ms  "
-                     f"{ms.get('rate_per_min', 0):.1f}/min  {len(marks)} received here")
+                     f"{ms.get('rate_per_min', 0):.1f}/min")
 
     alerts = st.get("alerts") or []
     alert_text = Text()

@@ -38,7 +38,7 @@ def _watch_text() -> str:
 
 def test_the_terminal_view_counts_marks_in_plain_words() -> None:
     text = _watch_text()
-    assert "3 received here" in text
+    assert "(3 received here)" in text
     assert not MESSAGE_NAME.search(text), MESSAGE_NAME.search(text)
 
 
