@@ -350,19 +350,19 @@ def in_foreground(fd: int) -> bool:
         return False
 
 
-BACKGROUND_NOTE = ("groundstation watch: running in the background: keys are off (a to "
-                   "acknowledge) until it is in the foreground (fg)")
+BACKGROUND_NOTE = "groundstation watch: running in the background: keys work after fg"
 """Said once when the watch starts in the background or is sent there (``watch &``, Ctrl-Z
-then ``bg``)."""
+then ``bg``); shorter than 80 columns, so that the live display's stderr redirection does not
+wrap it."""
 
 
-def _keys(on_key: Callable[[str], None], stop: threading.Event) -> None:
+def _keys(on_key: Callable[[str], None], stop: threading.Event, told: bool = False) -> None:
     """Single key presses from a terminal (no Enter needed), until ``stop``.
 
     The terminal's modes are changed (cbreak) and read only while this process is in the
     foreground: from the background, setting the modes stops the process by SIGTTOU and
     reading by SIGTTIN (``groundstation watch &`` would stop silently); there the view goes on
-    without keys and says so once.
+    without keys and says so once (``told``: already said at the start).
     """
     import select
     import termios
@@ -373,7 +373,7 @@ def _keys(on_key: Callable[[str], None], stop: threading.Event) -> None:
         saved = termios.tcgetattr(fd)
     except termios.error:
         return  # not a terminal: no keys
-    cbreak = told = False
+    cbreak = False
     try:
         while not stop.is_set():
             if not in_foreground(fd):
@@ -416,7 +416,12 @@ def run_watch(
         if ch.lower() == "a":
             acknowledge(bus, station)
 
-    threading.Thread(target=_keys, args=(on_key, keys_done), daemon=True).start()
+    # Started in the background (watch &): said before the live display takes the terminal.
+    background = sys.stdin.isatty() and not in_foreground(sys.stdin.fileno())
+    if background:
+        sys.stderr.write(BACKGROUND_NOTE + "\n")
+        sys.stderr.flush()
+    threading.Thread(target=_keys, args=(on_key, keys_done, background), daemon=True).start()
     try:
         with Live(render(state), console=console, refresh_per_second=refresh_hz,
                   screen=False, transient=False) as live:

@@ -352,8 +352,8 @@ def _convert_nav_only(
     others = _other_counts(multi)
     if not nav.ephemerides and not others:
         raise InputError(
-            f"{src}: no raw measurements and no orbit data (is the receiver's raw output on? "
-            "groundstation configure)"
+            f"{src}: no raw measurements and no navigation data (is the receiver's raw output "
+            "on? groundstation configure)"
         )
     nav_path = out / f"{stem}.nav"
     known = times[0][1] if times else approx
