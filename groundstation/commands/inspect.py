@@ -80,11 +80,11 @@ def format_summary(s: Summary) -> str:
         lines.append(f"  ... {len(s.gaps) - MAX_GAPS_SHOWN} more (use --json for all)")
     tm = s.timemarks
     if not tm.records:
-        lines.append("marks     none: no TIM-TM2 in this recording (camera on EXTINT0? TIM-TM2 "
-                     "enabled?)")
+        lines.append("marks     none: no camera marks in this recording (hot-shoe cable on the "
+                     "receiver's EXTINT0 pin? time-mark output on: groundstation configure)")
     else:
         lines.append(
-            f"marks     {tm.records} TIM-TM2 records: {tm.falling} falling edges, "
+            f"marks     {tm.records} time-mark records: {tm.falling} falling edges, "
             f"{tm.rising} rising edges, {tm.count_jumps} count jumps "
             f"({tm.missed_marks} marks missed), {tm.repeated_counts} repeated"
         )
@@ -93,7 +93,8 @@ def format_summary(s: Summary) -> str:
             f"          count {tm.first_count} .. {tm.last_count}, time base "
             f"{', '.join(tm.time_bases)}"
         )
-    unknown = (f" (+ {s.unknown_slot_signals} GLONASS measurements with no slot number yet)"
+    unknown = (f" (+ {s.unknown_slot_signals} measurements of GLONASS satellites the receiver "
+               "had not identified yet: no satellite number, not usable)"
                if s.unknown_slot_signals else "")
     lines.append(f"satellites {len(s.satellites)}: {' '.join(s.satellites)}{unknown}")
     return "\n".join(lines) + "\n"

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import dataclasses
 import difflib
 import glob
 import os
@@ -107,22 +106,24 @@ def missing_port_line(port: str, present: Sequence[str] | None = None) -> str:
     near = difflib.get_close_matches(port, present, n=3, cutoff=0.0)
     hint = (f"existing: {', '.join(near)}" if near
             else "no serial device present: none of " + ", ".join(SERIAL_GLOBS))
-    return (f"groundstation run: {port} does not exist ({hint}); waiting for it to be "
-            "plugged in, Ctrl-C to stop")
+    return (f"groundstation run: error: {port} does not exist ({hint}); plug the receiver in "
+            "or name its device with --port")
 
 
-def _remove_empty(summary: RunSummary) -> tuple[RunSummary, list[str]]:
-    """Remove the files of a session whose device never appeared: they hold only the
-    pipeline's own statuses and events, and empty files beside real flights mislead."""
-    lines = []
-    for path in (*summary.files, *summary.sidecars):
-        try:
-            path.unlink(missing_ok=True)
-        except OSError as err:
-            lines.append(f"  could not remove {path}: {err}")
-            continue
-        lines.append(f"  removed {path} (nothing received)")
-    return dataclasses.replace(summary, files=(), sidecars=()), lines
+def port_problem(port: str) -> str | None:
+    """The one line that refuses to start on ``port``, or None when it can be opened.
+
+    Checked before the daemon starts, so that nothing is recorded, announced or served over
+    Zenoh for a session that cannot receive anything (a device that goes away later is waited
+    for: the source reconnects). A path that is not a device is the source's configuration
+    error (exit 2); a device held by another process is refused by the source's claim.
+    """
+    if not os.path.exists(port):
+        return missing_port_line(port)
+    if not os.access(port, os.R_OK | os.W_OK):
+        return (f"groundstation run: error: cannot open {port}: permission denied (is this "
+                "user in the dialout group?)")
+    return None
 
 
 def run(args: argparse.Namespace) -> int:
@@ -132,25 +133,20 @@ def run(args: argparse.Namespace) -> int:
 
         require_ubx_frames(settings.source.path)
     port = getattr(settings.source, "port", None)
-    missing = (settings.source.kind == "serial" and isinstance(port, str)
-               and not os.path.exists(port))
-    if missing:
-        print(missing_port_line(str(port)), file=sys.stderr, flush=True)
+    problem = port_problem(port) if settings.source.kind == "serial" and isinstance(
+        port, str) else None
+    if problem is not None:
+        print(problem, file=sys.stderr, flush=True)
+        return 1
 
     def on_file(path: Path) -> None:
         print(f"recording to {path}", flush=True)
 
     summary = asyncio.run(run_daemon(settings, handle_signals=True, on_file=on_file))
     empty = summary.bytes_in == 0
-    removed: list[str] = []
-    if empty and missing and summary.outages == 0:
-        # The device never appeared (an outage is counted when it does, after the start's
-        # "cannot open"). A device that was there and stayed silent keeps its files: they
-        # hold the session's events (an operator's acknowledgement, the alerts).
-        summary, removed = _remove_empty(summary)
+    # A device that was there and stayed silent keeps its files: they hold the session's
+    # events (an operator's acknowledgement, the alerts).
     _print_summary(summary)
-    for line in removed:
-        print(line)
     sys.stdout.flush()
     if empty:
         # Not "0 outages" and exit 0: a session that received nothing is a failure to say.

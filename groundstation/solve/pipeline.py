@@ -304,9 +304,11 @@ def _marks(s: SolveSettings, progress: Progress | None) -> tuple[FlightRecords, 
     rec = read_flight(s.flight, progress)
     marks = tuple(build_marks(rec.timemarks))
     if not marks and s.photos is None:
-        raise InputError(f"{s.flight}: no camera marks (TIM-TM2) in this flight: nothing to "
-                         "position (is the hot-shoe cable on EXTINT0 and TIM-TM2 enabled?)")
-    log.info("%s: %d TIM-TM2 records, %d marks", s.flight.name, len(rec.timemarks), len(marks))
+        raise InputError(f"{s.flight}: no camera marks in this flight: nothing to position "
+                         "(hot-shoe cable on the receiver's EXTINT0 pin? time-mark output on: "
+                         "groundstation configure)")
+    log.info("%s: %d camera marks (%d time-mark records)", s.flight.name, len(marks),
+             len(rec.timemarks))
     return rec, marks
 
 

@@ -402,9 +402,9 @@ def trajectory_from_nav(solutions: Iterable[NavSolution], source: str = "receive
     sols = [s for s in solutions if s.ecef_m is not None and s.fix_ok]
     weeks = [s.gps_week for s in sols if s.gps_week is not None]
     if not sols:
-        raise InputError(f"{source}: no valid receiver fix (NAV-SOL/NAV-PVT/NAV-POSLLH)")
+        raise InputError(f"{source}: the receiver recorded no valid position of its own")
     if not weeks:
-        raise InputError(f"{source}: receiver fixes without a GPS week (no NAV-SOL)")
+        raise InputError(f"{source}: the receiver's own positions carry no GPS week")
     week = weeks[0]
     t, xyz, sd = [], [], []
     for s in sols:

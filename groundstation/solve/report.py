@@ -221,7 +221,7 @@ def lost_marks_text(jumps: Sequence[tuple[int, int]]) -> str:
     shown = ", ".join(f"count {a} -> {b}" for a, b in jumps[:12])
     more = f" and {len(jumps) - 12} more jumps" if len(jumps) > 12 else ""
     return (f"{_missed_numbers(jumps)} time mark(s) missed by the receiver (the camera fired, "
-            f"no TIM-TM2 record arrived; no position for those photos): {shown}{more}.")
+            f"the receiver recorded no mark; no position for those photos): {shown}{more}.")
 
 
 def counts(inp: ReportInput) -> dict[str, int]:
@@ -356,6 +356,7 @@ table.counts{width:100%}
 caption{text-align:left}
 pre{background:#f6f6f6;padding:.5em;white-space:pre-wrap}
 .muted{color:#666}
+table.result th{font-size:1.05em}table.result td{font-size:1.05em}.big{font-size:1.3em}
 @page{size:A4;margin:12mm 10mm}
 @media print{body{max-width:none;margin:0;padding:0;font-size:10pt}
  table.marks{font-size:7.5pt}table.marks th{position:static}
@@ -402,9 +403,8 @@ def _summary(inp: ReportInput) -> str:
         base = _e(inp.base_check or "none")
     opts = ""
     if inp.engine_options:
-        opts = ('<div class="opts">'
-                + "".join(f"<div><code>{_e(k)} = {_e(v)}</code></div>"
-                          for k, v in inp.engine_options.items()) + "</div>")
+        opts = (f'<br><span class="muted">its {len(inp.engine_options)} options: '
+                '<a href="#engine-options">Engine options</a>, at the end</span>')
     lever = (", ".join(f"{v:+.3f}" for v in inp.lever_arm_m) + " m (x, y, z)"
              if inp.lever_arm_m is not None else "not applied")
     rows = [
@@ -426,6 +426,61 @@ def _summary(inp: ReportInput) -> str:
                      f"±{(inp.pair_window_s or 0) * 1e3:.0f} ms; residual σ "
                      f"{residual_sigma_s(inp) * 1e3:.1f} ms (robust)")))
     return _kv(rows)
+
+
+def _cm(v: float) -> str:
+    return f"{v * 100:.1f} cm" if v < 1.0 else f"{v:.2f} m"
+
+
+def accuracy_text(inp: ReportInput) -> str:
+    """The engine's σ at the positioned camera positions, horizontal and up: median and worst."""
+    pos = [r for r in inp.rows if r.positioned and math.isfinite(r.sd_u_m)]
+    if not pos:
+        return "no camera position"
+    hor = np.array([math.hypot(r.sd_e_m, r.sd_n_m) for r in pos])
+    up = np.array([r.sd_u_m for r in pos])
+    return (f"σ horizontal {_cm(float(np.median(hor)))} median, {_cm(float(hor.max()))} worst; "
+            f"σ up {_cm(float(np.median(up)))} median, {_cm(float(up.max()))} worst "
+            f"(the engine's estimate at the {len(pos)} positioned camera position(s))")
+
+
+def _result(inp: ReportInput) -> str:
+    """What a surveyor looks for first: fixed share, marks positioned and missed, accuracy."""
+    c = counts(inp)
+    rows = c["rows"]
+    fixed = c["fixed"]
+    share = f" ({fixed / rows:.0%})" if rows else ""
+    marks = [r for r in inp.rows if r.mark >= 0]
+    positioned = sum(1 for r in marks if r.positioned)
+    missed = c["marks_missed"]
+    missed_text = ("none" if not missed else
+                   f"{missed} (the camera fired, the receiver recorded no mark: no position for "
+                   "those photos)")
+    unmatched = c["photos_unmatched"]
+    lines = [
+        ("Fixed", f'<b class="big">{fixed} of {rows}</b> camera positions ambiguity-fixed{share}'),
+        ("Marks positioned", f"<b>{positioned} of {len(marks)}</b> marks in the flight"
+         + (f"; {c['not_positioned']} camera position(s) not computed"
+            if c["not_positioned"] else "")),
+        ("Missed marks", _e(missed_text)),
+    ]
+    if inp.photos_given:
+        lines.append(("Photos without a mark", str(unmatched) if unmatched else "none"))
+    lines.append(("Accuracy", _e(accuracy_text(inp))))
+    return _kv(lines, "kv result")
+
+
+def _options(inp: ReportInput) -> str:
+    """The full option set the engine ran with (issue 13: in every output and the report)."""
+    if not inp.engine_options:
+        return ('<p class="muted">No option set recorded for this solution (an imported '
+                "solution file or the receiver's own fix).</p>")
+    return (f'<p class="muted">{_e(inp.engine_name)} '
+            f"{_e(inp.engine_version or '(version not recorded)')}: the full option set it ran "
+            f"with ({len(inp.engine_options)} options).</p>"
+            '<div class="opts">'
+            + "".join(f"<div><code>{_e(k)} = {_e(v)}</code></div>"
+                      for k, v in inp.engine_options.items()) + "</div>")
 
 
 def _counts_table(inp: ReportInput) -> str:
@@ -604,9 +659,10 @@ def render_html(inp: ReportInput) -> str:
         f"<h1>Flight report: {_e(inp.flight)}</h1>"
         f'<p class="muted">Camera positions from groundstation solve. Times in UTC and GPS '
         f"(week, seconds of week).</p>"
+        f'<section class="result" id="result"><h2>Result</h2>{_result(inp)}</section>'
+        f"<h2>Warnings</h2>{warn_html}"
         f"<h2>Summary</h2>{_summary(inp)}"
         f"<h2>Counts</h2>{_counts_table(inp)}"
-        f"<h2>Warnings</h2>{warn_html}"
         f'<section class="figs"><h2>Figures</h2>{figs}</section>'
         f'<section class="positions"><h2>Camera positions</h2>'
         f'<p class="muted">One row per photo (then per mark without photo), as in cameras.csv. '
@@ -615,7 +671,8 @@ def render_html(inp: ReportInput) -> str:
         f"{_marks_table(inp)}</section>"
         + (f"<h2>Photos without mark</h2><ul>{unmatched}</ul>" if unmatched else "")
         + f"<h2>Notes</h2><ul>{notes}</ul>"
-        "</body></html>\n"
+        f'<section class="options" id="engine-options"><h2>Engine options</h2>{_options(inp)}'
+        "</section></body></html>\n"
     )
 
 

@@ -281,7 +281,9 @@ def _status_body(st: dict[str, Any], marks: list[dict[str, Any]],
     ms = st["marks"]
     mark_line = Text()
     mark_line.append("MARKS ", style="bold")
-    mark_line.append(f"{ms['marks']}  last count {_fmt(ms.get('last_count'))}  ")
+    # the count received here beside the total: at 80 columns the line's tail wraps, not it
+    mark_line.append(f"{ms['marks']} ({len(marks)} received here)  last count "
+                     f"{_fmt(ms.get('last_count'))}  ")
     lt = ms.get("last_falling_t_gps_ns")
     if lt:
         mark_line.append(f"at {gpstime.gps_to_datetime(lt):%H:%M:%S.%f} UTC  ")
@@ -289,7 +291,7 @@ def _status_body(st: dict[str, Any], marks: list[dict[str, Any]],
     mark_line.append(f"in dropout {ms['in_dropout']}  ",
                      style="bold yellow" if ms["in_dropout"] else "")
     mark_line.append(f"pulse {_fmt(ms.get('last_pulse_width_ms'), '.1f')} ms  "
-                     f"{ms.get('rate_per_min', 0):.1f}/min  {len(marks)} TIM-TM2 records here")
+                     f"{ms.get('rate_per_min', 0):.1f}/min")
 
     alerts = st.get("alerts") or []
     alert_text = Text()
@@ -340,8 +342,28 @@ def acknowledge(bus: Bus, station: str, alert: str = "marks_missed") -> None:
     bus.put(key(station, "ack"), jsonio.dumps({"alert": alert, "by": by}))
 
 
-def _keys(on_key: Callable[[str], None], stop: threading.Event) -> None:
-    """Single key presses from a terminal (no Enter needed), until ``stop``."""
+def in_foreground(fd: int) -> bool:
+    """Whether this process's group owns the terminal on ``fd`` (``watch &`` does not)."""
+    try:
+        return os.tcgetpgrp(fd) == os.getpgrp()
+    except OSError:
+        return False
+
+
+BACKGROUND_NOTE = "groundstation watch: running in the background: keys work after fg"
+"""Said once when the watch starts in the background or is sent there (``watch &``, Ctrl-Z
+then ``bg``); shorter than 80 columns, so that the live display's stderr redirection does not
+wrap it."""
+
+
+def _keys(on_key: Callable[[str], None], stop: threading.Event, told: bool = False) -> None:
+    """Single key presses from a terminal (no Enter needed), until ``stop``.
+
+    The terminal's modes are changed (cbreak) and read only while this process is in the
+    foreground: from the background, setting the modes stops the process by SIGTTOU and
+    reading by SIGTTIN (``groundstation watch &`` would stop silently); there the view goes on
+    without keys and says so once (``told``: already said at the start).
+    """
     import select
     import termios
     import tty
@@ -351,14 +373,27 @@ def _keys(on_key: Callable[[str], None], stop: threading.Event) -> None:
         saved = termios.tcgetattr(fd)
     except termios.error:
         return  # not a terminal: no keys
+    cbreak = False
     try:
-        tty.setcbreak(fd)
         while not stop.is_set():
+            if not in_foreground(fd):
+                if not told:
+                    sys.stderr.write(BACKGROUND_NOTE + "\n")
+                    sys.stderr.flush()
+                    told = True
+                cbreak = False  # the shell owns the modes now; set them again on fg
+                stop.wait(0.2)
+                continue
+            told = False
+            if not cbreak:
+                tty.setcbreak(fd)
+                cbreak = True
             ready, _, _ = select.select([fd], [], [], 0.2)
-            if ready:
+            if ready and in_foreground(fd):
                 on_key(os.read(fd, 1).decode(errors="replace"))
     finally:
-        termios.tcsetattr(fd, termios.TCSADRAIN, saved)
+        if cbreak and in_foreground(fd):
+            termios.tcsetattr(fd, termios.TCSADRAIN, saved)
 
 
 def run_watch(
@@ -381,7 +416,12 @@ def run_watch(
         if ch.lower() == "a":
             acknowledge(bus, station)
 
-    threading.Thread(target=_keys, args=(on_key, keys_done), daemon=True).start()
+    # Started in the background (watch &): said before the live display takes the terminal.
+    background = sys.stdin.isatty() and not in_foreground(sys.stdin.fileno())
+    if background:
+        sys.stderr.write(BACKGROUND_NOTE + "\n")
+        sys.stderr.flush()
+    threading.Thread(target=_keys, args=(on_key, keys_done, background), daemon=True).start()
     try:
         with Live(render(state), console=console, refresh_per_second=refresh_hz,
                   screen=False, transient=False) as live:

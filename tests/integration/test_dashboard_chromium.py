@@ -210,7 +210,7 @@ class Feeder:
         self._thread.join(timeout=5)
 
 
-PANELS_CUT = """(() => {
+PANELS_CUT = """((strict) => {
   const cut = [];
   for (const id of ["ppk-panel", "marks-panel", "alerts-panel", "session-panel"]) {
     const panel = document.getElementById(id);
@@ -220,15 +220,35 @@ PANELS_CUT = """(() => {
         "h2, #alerts li, .label, .big, .mid, .detail, .kv th, .kv td, .rec")) {
       if (!el.textContent.trim()) continue;
       const r = el.getBoundingClientRect();
-      // (a table cell may end in an ellipsis on purpose: its full text is in its title)
-      const wide = el.tagName !== "TD" && el.scrollWidth > el.clientWidth + 1;
+      // (on a large screen the file name may end in an ellipsis: its full text is in its
+      // title; every other value, and on a small screen the file too, is whole)
+      const mayCut = !strict && el.id === "sess-file";
+      const wide = !mayCut && el.scrollWidth > el.clientWidth + 1;
       if (r.bottom > inner + 0.5 || r.right > box.right + 0.5 || wide)
         cut.push(id + " " + (el.id || el.className) + ": " + el.textContent.trim().slice(0, 40));
     }
   }
   return cut;
-})()"""
-"""Panel texts that do not fit: their box ends below or right of the panel's, or overflows."""
+})"""
+"""Panel texts that do not fit: their box ends below or right of the panel's, or overflows.
+Call it with ``true`` for a small screen (every value whole, the file name too)."""
+
+HEADER_CUT = """((ellipsisOk) => {
+  const cut = [];
+  const width = document.documentElement.clientWidth;
+  if (document.scrollingElement.scrollWidth > width)
+    cut.push("page scrolls sideways: " + document.scrollingElement.scrollWidth + " > " + width);
+  for (const id of ["station", "badge", "badge-detail", "alert-count", "clock"]) {
+    const el = document.getElementById(id);
+    const r = el.getBoundingClientRect();
+    const wide = !ellipsisOk.includes(id) && el.scrollWidth > el.clientWidth + 1;
+    if (r.right > width + 0.5 || wide) cut.push(id + ": " + el.textContent.trim().slice(0, 40));
+  }
+  return cut;
+})"""
+"""Header items that do not fit the window or are cut (but those named in the argument, which
+may end in an ellipsis) and a page wider than the window. Live, the badge detail is whole: on a
+small screen its session id is hidden, not cut."""
 
 
 def wait_for(what: str, cond: Callable[[], Any], timeout_s: float, poll_s: float = 0.05) -> Any:
@@ -354,12 +374,14 @@ def test_dashboard_in_headless_chromium(
     assert dashboard.proc.returncode == 0, dashboard.stderr
 
 
-@pytest.mark.parametrize(("width", "height"), [(1366, 768), (1024, 600)])
+@pytest.mark.parametrize(("width", "height"), [(1366, 768), (1024, 600), (1920, 1080)])
 def test_alerts_visible_on_small_screens(
     tmp_path: Path, pty: Pty, daemons: list[Daemon], width: int, height: int,
 ) -> None:
     """A dropout long enough for alerts, with every panel drawn: the ALERTS panel lies inside
-    the viewport at 1366x768 and 1024x600. Screenshots go to $UX_SHOTS (default the tmp dir)."""
+    the viewport at 1366x768, 1024x600 and 1920x1080, no panel text is cut, the header fits
+    the window (no sideways scrolling, the clock whole) live and after the session finished
+    (the widest badge). Screenshots go to $UX_SHOTS (default the tmp dir)."""
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     daemon = Daemon("--port", str(pty.link), "--station", STATION,
                     "--out-dir", str(tmp_path / "out"), "--zenoh-listen", endpoint)
@@ -398,8 +420,21 @@ def test_alerts_visible_on_small_screens(
         text = browser.eval("document.getElementById('alerts').textContent")
         assert "dropout" in text or "no data" in text, text
         # every line of the panels the operator reads in a glance is inside its panel
-        cut = browser.eval(PANELS_CUT)
-        assert cut == [], f"text cut at {width}x{height}: {cut}"
+        small = width < 1100
+        problems = browser.eval(f"{PANELS_CUT}({str(small).lower()})")
+        problems += ["live " + h for h in browser.eval(f"{HEADER_CUT}([])")]
+        # the session ends normally: SESSION FINISHED, the widest badge, still fits
+        feeder.paused.set()
+        rc, _ = daemon.stop(signal.SIGTERM)
+        assert rc == 0, daemon.stderr
+        wait_for("finished", lambda: browser.eval("document.body?.dataset.state") == "finished",
+                 10)
+        browser.screenshot(shots / f"dashboard-{width}x{height}-finished.png")
+        # (its explanation may end in an ellipsis: its whole text is in its title)
+        problems += ["finished " + h for h in browser.eval(f"{HEADER_CUT}(['badge-detail'])")]
+        assert problems == [], f"text cut at {width}x{height}: {problems}"
+        assert browser.eval("document.getElementById('badge-detail').title").startswith(
+            "the daemon ended the session normally")
         assert browser.console_errors() == []
     finally:
         browser.close()

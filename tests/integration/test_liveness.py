@@ -14,7 +14,7 @@ import threading
 import time
 from pathlib import Path
 
-from peers import Daemon, Pty, StatusEventCollector, free_port
+from peers import Daemon, Pty, Received, StatusEventCollector, free_port
 
 from groundstation import events as kinds
 from groundstation import jsonio
@@ -52,24 +52,33 @@ def test_silent_tcp_source_raises_an_alert_within_10_s(
         server.close()
 
 
-def test_missing_port_at_start_is_an_alert_and_a_clear_line(
+def test_missing_port_at_start_is_one_line_and_nothing_else(
     tmp_path: Path, daemons: list[Daemon]
 ) -> None:
-    daemon = Daemon("--port", str(tmp_path / "nonexistent"), "--station", "gone", "--no-zenoh",
-                    "--out-dir", str(tmp_path), "--duration", "4")
-    daemons.append(daemon)
-    # at once, one line (it used to show only at exit): the device does not exist
-    daemon.wait_for(f"groundstation run: {tmp_path / 'nonexistent'} does not exist (",
-                    timeout_s=10.0)
-    daemon.wait_for("alert: source down:", timeout_s=10.0)
-    daemon.proc.wait(timeout=30)
-    daemon.wait_for("groundstation run: error: no data received from the serial port")
-    assert daemon.proc.returncode == 1
-    assert "cannot open" in daemon.stderr and "Traceback" not in daemon.stderr
-    # no empty recording is left behind, and the summary says so
-    assert not list(tmp_path.glob("gone_*")), list(tmp_path.iterdir())
-    assert daemon.proc.stdout is not None
-    assert "(nothing received)" in daemon.proc.stdout.read()
+    """A device that does not exist at the start: one line, exit 1, no recording made,
+    announced or served (a Zenoh peer on loopback listening for the station hears nothing)."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    bus = open_bus(ZenohSettings(mode="peer", connect=(), listen=(endpoint,)))
+    try:
+        heard = Received(bus, key("gone", "**"), parse=lambda p: {"bytes": len(p)})
+        daemon = Daemon("--port", str(tmp_path / "nonexistent"), "--station", "gone",
+                        "--zenoh-connect", endpoint, "--out-dir", str(tmp_path / "out"),
+                        "--duration", "4")
+        daemons.append(daemon)
+        assert daemon.proc.wait(timeout=30) == 1
+        _, out = daemon.stop()  # (already ended: collects its stdout, joins the stderr pump)
+        lines = daemon.stderr.splitlines()
+        assert len(lines) == 1, daemon.stderr
+        assert lines[0].startswith(
+            f"groundstation run: error: {tmp_path / 'nonexistent'} does not exist (")
+        assert "plug the receiver in or name its device with --port" in lines[0]
+        assert out == ""  # no "recording to", no summary of a session that never was
+        assert not (tmp_path / "out").exists() or not list((tmp_path / "out").iterdir())
+        # nothing served: a query for the station's status finds no one
+        assert bus.get(key("gone", "q/status"), timeout_s=1.0) == []
+        assert heard.all() == []
+    finally:
+        bus.close()
 
 
 def test_an_acknowledgement_travels_to_the_daemon_and_back(

@@ -106,7 +106,7 @@ def test_readme_field_steps_run_verbatim(tmp_path: Path, pty: Pty) -> None:
     summary = subprocess.run(
         [sys.executable, "-m", "groundstation.cli", "inspect", str(mcap)], cwd=tmp_path,
         env=env, text=True, capture_output=True, check=True).stdout
-    assert re.search(r"marks\s+\d+ TIM-TM2 records", summary), summary
+    assert re.search(r"marks\s+\d+ time-mark records", summary), summary
     # The solve line: placeholders, but every option in it exists.
     help_text = subprocess.run(
         [sys.executable, "-m", "groundstation.cli", "solve", "--help"], cwd=tmp_path, env=env,

@@ -12,6 +12,7 @@ is checked for A4 pages carrying the same table. Screenshots go to ``$GS_REPORT_
 from __future__ import annotations
 
 import csv
+import html
 import html.parser
 import json
 import os
@@ -248,6 +249,32 @@ def test_warnings_name_what_a_reviewer_must_know(flight: dict[str, Any]) -> None
         assert "m from the mean of the base receiver" in text
 
 
+def test_the_result_comes_first_and_the_full_options_last(flight: dict[str, Any]) -> None:
+    """A surveyor reads the result (fixed share, marks positioned and missed, accuracy) and the
+    warnings first; the engine's option set is at the end, whole (issue 13)."""
+    text = (flight["out"] / "report.html").read_text(encoding="utf-8")
+    headings = re.findall(r"<h2>(.*?)</h2>", text)
+    assert headings[:2] == ["Result", "Warnings"], headings
+    assert headings[-1] == "Engine options", headings
+    result = text[text.index('id="result"'):text.index("<h2>Warnings</h2>")]
+    rows = _cameras(flight["out"])
+    fixed = sum(1 for r in rows if r["quality_name"] == "fix")
+    assert f"{fixed} of {len(rows)}</b> camera positions ambiguity-fixed" in result
+    assert f"of {flight['marks']}</b> marks in the flight" in result
+    assert "Missed marks" in result and "σ horizontal" in result and " cm " in result
+    head, _, tail = text.partition('id="engine-options"')
+    info = flight["out"] / "rtklib" / "engine.json"
+    if info.is_file():  # our engine ran: every option it ran with, only at the end
+        options = json.loads(info.read_text())["options"]
+        assert len(options) > 100
+        for key, value in options.items():
+            assert f"<code>{html.escape(f'{key} = {value}')}</code>" in tail, key
+            assert f"<code>{html.escape(key)} = " not in head, key
+        assert f"({len(options)} options)" in tail
+    else:  # an imported solution: the report says that no option set is recorded
+        assert "No option set recorded" in tail
+
+
 def _shots_dir(tmp_path: Path) -> Path:
     d = Path(os.environ.get("GS_REPORT_SHOTS") or tmp_path)
     d.mkdir(parents=True, exist_ok=True)
@@ -285,6 +312,15 @@ def test_report_renders_in_chromium(flight: dict[str, Any], tmp_path: Path) -> N
         traj = {b[0]: b[1:] for b in boxes}["trajectory"]
         assert 0.6 * traj[0] < traj[1] < 768  # the map is not a strip, and fits the screen
         assert browser.eval("document.documentElement.scrollWidth") <= 1366
+        # The first screen (1366x768) holds the result and the start of the warnings; the
+        # option set is after the per-mark table.
+        first = browser.eval(
+            "[document.getElementById('result').getBoundingClientRect().bottom, [...document"
+            ".querySelectorAll('h2')].find(h => h.textContent === 'Warnings')"
+            ".getBoundingClientRect().bottom, document.querySelector('.opts, #engine-options p')"
+            ".getBoundingClientRect().top, document.getElementById('marks')"
+            ".getBoundingClientRect().bottom]")
+        assert first[0] < 768 and first[1] < 768 and first[2] > first[3], first
         n_rows = browser.eval("document.querySelectorAll('#marks tbody tr').length")
         assert n_rows == len(_cameras(flight["out"]))
         shots = _shots_dir(tmp_path)
@@ -309,7 +345,8 @@ def test_report_pdf_is_the_same_page_on_a4(flight: dict[str, Any]) -> None:
     assert "(A4)" in info.stdout and pages >= 3
     text = subprocess.run(["pdftotext", "-layout", str(pdf), "-"], capture_output=True,
                           text=True, check=True).stdout
-    for heading in ("Summary", "Counts", "Warnings", "Figures", "Camera positions"):
+    for heading in ("Result", "Warnings", "Summary", "Counts", "Figures", "Camera positions",
+                    "Engine options"):
         assert heading in text
     rows = _cameras(out)
     # Every photo of the table is on paper (the table is not cut at the page bottom).

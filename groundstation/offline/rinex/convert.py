@@ -300,9 +300,9 @@ def convert(
         if unknown:
             notes.append("signals without a RINEX 3.04 code here, left out: " + ", ".join(unknown))
     if math.isfinite(approx[0]) and approx == (0.0, 0.0, 0.0):
-        notes.append("no NAV-SOL/NAV-PVT fix: APPROX POSITION XYZ is zero")
+        notes.append("the receiver recorded no position of its own: APPROX POSITION XYZ is zero")
     if not nav.ephemerides:
-        notes.append("no GPS ephemeris found (RXM-SFRB, RXM-SFRBX, AID-EPH): empty nav file")
+        notes.append("no GPS orbit data (broadcast ephemerides) in the recording: empty nav file")
     if opt.version != "3.04" and _other_counts(multi):
         notes.append("RINEX 2.11 navigation file holds GPS only: GLONASS/Galileo left out")
     return RinexResult(
@@ -352,7 +352,8 @@ def _convert_nav_only(
     others = _other_counts(multi)
     if not nav.ephemerides and not others:
         raise InputError(
-            f"{src}: no raw measurements (RXM-RAW / RXM-RAWX) and no navigation data"
+            f"{src}: no raw measurements and no navigation data (is the receiver's raw output "
+            "on? groundstation configure)"
         )
     nav_path = out / f"{stem}.nav"
     known = times[0][1] if times else approx
@@ -373,7 +374,7 @@ def _convert_nav_only(
         frames=len(index),
         rejected_messages=0,
         nav_parity_errors=nav.parity_errors,
-        notes=("no raw measurements (RXM-RAW / RXM-RAWX): navigation file only",),
+        notes=("no raw measurements in the recording: navigation file only",),
         other_ephemerides=others,
         obs_written=False,
     )

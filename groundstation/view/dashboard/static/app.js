@@ -42,6 +42,13 @@ function bytes(v) {
   return v.toFixed(i === 0 ? 0 : 1) + " " + units[i];
 }
 
+// "77.9 of 270.6 GB": one unit when both figures have it (shorter, as a surveyor says it).
+function bytesOf(part, whole) {
+  const a = bytes(part), b = bytes(whole);
+  const ua = a.split(" ")[1], ub = b.split(" ")[1];
+  return ua !== undefined && ua === ub ? a.split(" ")[0] + " of " + b : a + " of " + b;
+}
+
 function duration(s) {
   if (s === null || s === undefined) return "-";
   s = Math.max(0, Math.floor(s));
@@ -157,12 +164,26 @@ function refreshBadge() {
         (doc.view.alive === false ? " · daemon gone" : "") + " · values are old";
     } else {
       state = "live"; text = "LIVE";
-      info = (doc.view.session_id || "") + (doc.view.rate_hz ? " · " + doc.view.rate_hz + " Hz" : "");
+      // the rate first: on a small screen the session id is hidden (.sid), the rate stays
+      const rate = doc.view.rate_hz ? doc.view.rate_hz + " Hz" : "";
+      const sid = doc.view.session_id || "";
+      info = [rate, sid && rate ? " · " : "", sid];
     }
   }
   badge.className = "badge " + state;
   badge.textContent = text;
-  detail.textContent = info;
+  if (Array.isArray(info)) {
+    const [rate, sep, sid] = info;
+    const span = document.createElement("span");
+    span.className = "sid";
+    span.textContent = sep + "session " + sid;
+    detail.replaceChildren(document.createTextNode(rate));
+    if (sid) detail.appendChild(span);
+    detail.title = rate + sep + sid;
+  } else {
+    detail.textContent = info;
+    detail.title = info;
+  }
   document.body.dataset.state = state;
   const now = new Date();
   $("clock").textContent = now.toISOString().substring(11, 19) + " UTC";
@@ -351,13 +372,13 @@ function renderSession(s) {
   rec.className = "rec" + (recording ? " on" : "");
   const file = $("sess-file");
   file.textContent = s.file ? s.file.split("/").pop() : "-";
-  file.title = s.file || "";
+  file.title = (s.file || "") + (s.id ? "\nsession " + s.id : "");
   $("sess-duration").textContent = duration(s.duration_s);
   $("sess-bytes").textContent = bytes(s.size_bytes) + (s.bytes_in !== null && s.bytes_in !== undefined
     ? " · in " + bytes(s.bytes_in) : "");
   const low = s.disk_free_bytes !== null && s.disk_free_bytes !== undefined && s.disk_free_bytes < 1e9;
   setText("sess-disk", s.disk_free_bytes === null || s.disk_free_bytes === undefined ? "unknown (remote)" :
-    bytes(s.disk_free_bytes) + " of " + bytes(s.disk_total_bytes), low ? "alarm" : "");
+    bytesOf(s.disk_free_bytes, s.disk_total_bytes), low ? "alarm" : "");
 }
 
 function renderReport(r) {
