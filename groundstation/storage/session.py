@@ -56,14 +56,14 @@ import errno
 import logging
 import os
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from groundstation import __version__, jsonio
 from groundstation import events as kinds
-from groundstation.records import Event, NavSolution
+from groundstation.records import Event, NavSolution, RawChunk
 from groundstation.storage.backlog import Backlog, Msg, cost, size_text
 from groundstation.storage.location import LOCATION_CHANNEL, location_fix
 from groundstation.storage.mcapio import ExactFile, McapFileWriter, WritableFile
@@ -170,6 +170,10 @@ class SessionRecorder:
         self._sidecars: list[Path] = []
         self._file_start_ns = 0
         self._last_flush_ns = 0
+        # RotationPolicy.limits of the current file: a message is written at once (no
+        # rotation due) while none is reached (module docstring: the write path)
+        self._due_now = True
+        self._data_limit = self._time_limit = 0
         self._publish_clock = PublishClock()
         self._raw_chunks = 0
         self._raw_bytes = 0
@@ -265,9 +269,19 @@ class SessionRecorder:
         self._mcap_good = self._pair_empty_size = mcap.size_bytes
         self._side_good = 0
         self._file_chunks = self._msgs_at_flush = 0
+        self._set_limits()
         if not after_failure:  # a recovery says so once it has succeeded
             log.info("recording to %s", path)
         return path
+
+    def _set_limits(self) -> None:
+        """Work out the current file's rotation limits again (after its size, its closed
+        chunks or the file itself changed)."""
+        mcap = self._mcap
+        if mcap is not None:
+            self._due_now, self._data_limit, self._time_limit = self.rotation.limits(
+                size_bytes=mcap.size_bytes, closed_chunks=self._file_chunks,
+                started_ns=self._file_start_ns)
 
     def _rotate_due(self, now_ns: int) -> bool:
         mcap = self._mcap
@@ -337,15 +351,54 @@ class SessionRecorder:
         self._records += 1
         if isinstance(record, Event):
             self._events += 1
-        self._write((spec, jsonio.dumps_with({"type": type(record).__name__}, record),
-                     log_time_ns, publish))
+        self._write((spec, jsonio.dumps_typed(record), log_time_ns, publish))
         if isinstance(record, NavSolution):
             fix = location_fix(record, publish, self.station)
             if fix is not None:
                 self._write((LOCATION_CHANNEL, jsonio.dumps(fix), log_time_ns, publish))
         return True
 
+    def write_items(self, items: Sequence[Any], start: int, clock: Callable[[], int],
+                    files_seen: int) -> int:
+        """Record ``items[start:]`` (raw chunks and records) as :meth:`write_raw` and
+        :meth:`write_record` would one by one, a record without a host time (``t_host_ns``)
+        at ``clock()``; stop after a raw chunk when the session has other than
+        ``files_seen`` files (so the caller can announce a new part where it would have
+        item by item). Returns the index after the last item written."""
+        n = len(items)
+        i = start
+        while i < n:
+            item = items[i]
+            i += 1
+            if type(item) is RawChunk:
+                self.write_raw(item.data, item.t_host_ns)
+                if len(self._files) != files_seen:
+                    return i
+            else:
+                # log_time is the host time the record's bytes arrived (events: when they
+                # happened)
+                t = getattr(item, "t_host_ns", 0)
+                self.write_record(item, t if isinstance(t, int) and t > 0 else clock())
+        return n
+
     def _write(self, msg: Msg) -> None:
+        mcap = self._mcap
+        if mcap is not None and self._failure is None:
+            now = self._clock()
+            if (now < self._time_limit and mcap.data_bytes < self._data_limit
+                    and not self._due_now):  # no rotation due (RotationPolicy.limits)
+                self._pending.append(msg)  # pending before anything can fail
+                spec, data, log_ns, publish_ns = msg
+                try:
+                    if mcap.add(spec, data, log_ns, publish_ns):
+                        self._set_limits()  # the file grew by a chunk
+                    if spec is RAW_CHANNEL and self._ubx is not None:
+                        self._ubx.write(data)
+                except OSError as err:
+                    self._fail(err)  # the pending messages go to the backlog, in order
+                return
+            self._write_at(msg, now)
+            return
         if self._closed:
             raise RuntimeError("recorder is closed")
         if self._mcap is None and self._failure is None:
@@ -353,7 +406,10 @@ class SessionRecorder:
         if self._failure is not None:
             self._backlog.hold(msg)
             return
-        now = self._clock()
+        self._write_at(msg, self._clock())
+
+    def _write_at(self, msg: Msg, now: int) -> None:
+        """:meth:`_write` when a rotation may be due at ``now``."""
         rotate = self._rotate_due(now)
         if rotate and self._pair_gone(now):
             self._write(msg)  # into the new part, or held if there is none
@@ -375,7 +431,8 @@ class SessionRecorder:
         assert self._mcap is not None
         self._pending.append(msg)
         spec, data, log_ns, publish_ns = msg
-        self._mcap.add(spec, data, log_ns, publish_ns)
+        if self._mcap.add(spec, data, log_ns, publish_ns):
+            self._set_limits()
         if spec is RAW_CHANNEL and self._ubx is not None:
             self._ubx.write(data)
 
@@ -596,6 +653,7 @@ class SessionRecorder:
         self._pending.clear()
         self._last_flush_ns = now_ns
         self._flushes += 1
+        self._set_limits()
 
     def maybe_flush(self) -> bool:
         """Flush if the flush interval has passed (after a failure: retry writing when the

@@ -15,6 +15,9 @@ def _write(path: Path, library_path: bool, chunk_size: int, compression: str = "
     raw = ChannelSpec("/ubx/raw", "ubx")
     js = json_channel("/gnss/epoch", {"title": "RawEpoch", "type": "object"})
     late = json_channel("/events", {"title": "Event", "type": "object"})
+    # a schema larger than the small chunks: registering it makes the chunk in progress full,
+    # and the library closes the chunk there
+    big = json_channel("/big", {"title": "Big", "type": "object", "description": "x" * 1500})
     w = McapFileWriter(path, chunk_size_bytes=chunk_size, compression=compression)
     if library_path:
         w._appender = None  # the library's add_message, as when its internals change
@@ -26,6 +29,8 @@ def _write(path: Path, library_path: bool, chunk_size: int, compression: str = "
         spec = raw if rng.random() < 0.5 else js
         if i > 1500 and rng.random() < 0.1:
             spec = late  # a channel registered in the middle of a chunk
+        if i in (2100, 2500):
+            spec = big
         data = bytes(rng.randrange(256) for _ in range(rng.randrange(0, 300)))
         w.add(spec, data, t, t + rng.randrange(10**9))
         if i % 700 == 0:
