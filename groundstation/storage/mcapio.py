@@ -24,7 +24,7 @@ import logging
 import os
 import struct
 import zlib
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, BinaryIO, Protocol
@@ -199,6 +199,9 @@ _COMPRESSION_NAMES = {CompressionType.ZSTD: "zstd", CompressionType.LZ4: "lz4",
                       CompressionType.NONE: ""}
 _PRIVATE = "_Writer__"  # the name-mangled prefix of mcap.writer.Writer's private attributes
 _MESSAGE_FIXED = 22  # channel(2) + sequence(4) + log_time(8) + publish_time(8)
+_BLANK_HEAD = bytes(_MESSAGE_HEAD.size)  # a message's head, packed once its length is known
+_RECORD_HEAD = struct.Struct("<BQ")  # opcode, record length
+_MESSAGE_BODY = struct.Struct("<HIQQ")  # channel, sequence, log time, publish time
 
 
 class _MessageAppender:
@@ -237,6 +240,11 @@ class _MessageAppender:
         self._data_crcs: bool = getattr(writer, _PRIVATE + "enable_data_crcs")
         self.buf = bytearray()  # the records of the chunk in progress
         self.index: dict[int, list[int]] = {}  # channel -> [log_time, offset, ...], first use first
+        # What is not yet known to be safe (McapFileWriter.unsettled): the chunks closed since
+        # the last settle, each with the offset its unsettled records start at, and that
+        # offset in the chunk in progress.
+        self.kept: list[tuple[bytearray, int]] = []
+        self.settled = 0
 
     @classmethod
     def make(cls, writer: Writer) -> _MessageAppender | None:
@@ -302,14 +310,19 @@ class _MessageAppender:
             cb.message_indices[cid] = MessageIndex(
                 channel_id=cid, records=list(zip(entries[0::2], entries[1::2], strict=True)))
 
-    def take_back(self) -> None:
+    def take_back(self, failed: bool) -> None:
         """Take the chunk in progress back from the library's builder after :meth:`lend` (the
-        library closed it if the registration made it full)."""
+        library closed it if the registration made it full; ``failed``: writing it failed)."""
         cb = self._builder
-        if self.index and cb.num_messages == 0:  # closed by the library, with our messages
-            self._count(self.index, *self._times(self.index))
-            self.index = {}
-        self.buf = bytearray(cb.record_writer.end())
+        rest = cb.record_writer.end()
+        if failed or (self.index and cb.num_messages == 0):  # closed by the library
+            if self.index:
+                self._count(self.index, *self._times(self.index))
+                self.kept.append((self.buf, self.settled))
+            self.index, self.settled = {}, 0
+            self.buf = bytearray() if failed else bytearray(rest)
+        else:
+            self.buf = bytearray(rest)  # ours, then the schema and channel records
         cb.reset()
 
     def finalize(self) -> None:
@@ -323,7 +336,8 @@ class _MessageAppender:
         self._count(index, n, start, end)
         self._stats.chunk_count += 1
         chunk_data = self.buf
-        self.buf, self.index = bytearray(), {}
+        self.kept.append((chunk_data, self.settled))  # before anything can fail
+        self.buf, self.index, self.settled = bytearray(), {}, 0
         if self._zstd is not None:
             compressed = self._zstd.compress(chunk_data)
         elif self._compression == "lz4":
@@ -406,7 +420,10 @@ class McapFileWriter:
         self._schemas: dict[str, int] = {}
         self._channels: dict[ChannelSpec, int] = {}
         self._ids: dict[int, int] = {}  # id(spec) -> channel id
+        self._specs: dict[int, ChannelSpec] = {}  # channel id -> the first spec seen
         self._kept: list[ChannelSpec] = []
+        # unsettled messages the chunks do not hold (the library's path; a failed channel's)
+        self._loose: list[tuple[ChannelSpec, bytes, int, int]] = []
         self._finished = False
         self.messages = 0
         self.data_bytes = 0
@@ -435,23 +452,42 @@ class McapFileWriter:
                         )
                         self._schemas[key] = schema_id
                 cid = self._writer.register_channel(spec.topic, spec.message_encoding, schema_id)
-            finally:
+            except BaseException:
                 if appender is not None:
-                    appender.take_back()
+                    appender.take_back(failed=True)
+                raise
+            if appender is not None:
+                appender.take_back(failed=False)
             self._channels[spec] = cid
+            self._specs.setdefault(cid, spec)
+        return cid
+
+    def _channel_of(self, spec: ChannelSpec, message: Callable[[], bytes], log_time_ns: int,
+                    publish_time_ns: int) -> int:
+        """The channel id of ``spec`` for a message being added; if registering it fails, the
+        message (``message()`` is its data) stays unsettled like the ones before it."""
+        # Channels by the spec object's identity first: hashing the dataclass is a Python
+        # call per message. ``_kept`` holds every spec seen, so no id is reused meanwhile.
+        cid = self._ids.get(id(spec))
+        if cid is None:
+            try:
+                cid = self.channel_id(spec)
+            except OSError:
+                self._loose.append((spec, message(), log_time_ns, publish_time_ns))
+                raise
+            self._ids[id(spec)] = cid
+            self._kept.append(spec)
         return cid
 
     def add(self, spec: ChannelSpec, data: bytes, log_time_ns: int, publish_time_ns: int) -> bool:
         """Add one message on the channel described by ``spec``; True if that closed a chunk
         (the file grew)."""
-        # Channels by the spec object's identity first: hashing the dataclass is a Python
-        # call per message. ``_kept`` holds every spec seen, so no id is reused meanwhile.
         cid = self._ids.get(id(spec))
         if cid is None:
-            cid = self._ids[id(spec)] = self.channel_id(spec)
-            self._kept.append(spec)
+            cid = self._channel_of(spec, lambda: data, log_time_ns, publish_time_ns)
         appender = self._appender
         if appender is None:
+            self._loose.append((spec, data, log_time_ns, publish_time_ns))
             chunks = self._writer_chunks()
             self._writer.add_message(cid, log_time=log_time_ns, data=data,
                                      publish_time=publish_time_ns,
@@ -473,6 +509,69 @@ class McapFileWriter:
         self.messages += 1
         self.data_bytes += len(data)
         return full
+
+    def add_typed(self, spec: ChannelSpec, record: Any, log_time_ns: int,
+                  publish_time_ns: int) -> bool:
+        """:meth:`add` of ``jsonio.dumps_typed(record)``, encoded straight into the chunk."""
+        appender = self._appender
+        if appender is None:
+            return self.add(spec, jsonio.dumps_typed(record), log_time_ns, publish_time_ns)
+        cid = self._ids.get(id(spec))
+        if cid is None:
+            cid = self._channel_of(spec, lambda: jsonio.dumps_typed(record), log_time_ns,
+                                   publish_time_ns)
+        buf = appender.buf
+        offset = len(buf)
+        buf += _BLANK_HEAD
+        jsonio.append_typed(record, buf)  # leaves buf as it was if it raises
+        n = len(buf) - offset - _MESSAGE_HEAD.size
+        _MESSAGE_HEAD.pack_into(buf, offset, _MESSAGE_OPCODE, _MESSAGE_FIXED + n, cid,
+                                self.messages & 0xFFFFFFFF, log_time_ns, publish_time_ns)
+        entries = appender.index.get(cid)
+        if entries is None:
+            entries = appender.index[cid] = []
+        entries += (log_time_ns, offset)
+        full = len(buf) > appender.chunk_size
+        if full:
+            appender.finalize()
+        self.messages += 1
+        self.data_bytes += n
+        return full
+
+    def unsettled(self) -> list[tuple[ChannelSpec, bytes, int, int]]:
+        """Every message added since the last :meth:`settle` (in order, as ``(spec, data,
+        log_time_ns, publish_time_ns)``): what a failed write may have lost. Read back from
+        the chunks, which hold them anyway (no second copy is kept per message)."""
+        out: list[tuple[ChannelSpec, bytes, int, int]] = []
+        appender = self._appender
+        if appender is not None:
+            for chunk, start in (*appender.kept, (appender.buf, appender.settled)):
+                self._messages_of(chunk, start, out)
+        out += self._loose
+        return out
+
+    def _messages_of(self, chunk: bytearray, pos: int,
+                     out: list[tuple[ChannelSpec, bytes, int, int]]) -> None:
+        view = memoryview(chunk)
+        end = len(chunk)
+        while pos < end:
+            opcode, length = _RECORD_HEAD.unpack_from(chunk, pos)
+            body = pos + _RECORD_HEAD.size
+            if opcode == _MESSAGE_OPCODE:  # else a schema or a channel
+                cid, _, log_ns, publish_ns = _MESSAGE_BODY.unpack_from(chunk, body)
+                out.append((self._specs[cid], bytes(view[body + _MESSAGE_FIXED:body + length]),
+                            log_ns, publish_ns))
+            pos = body + length
+        view.release()
+
+    def settle(self) -> None:
+        """Everything added so far is safely in the file (flushed, and the file is still
+        where it was): forget it."""
+        appender = self._appender
+        if appender is not None:
+            appender.kept.clear()
+            appender.settled = len(appender.buf)
+        self._loose.clear()
 
     def _writer_chunks(self) -> int:
         """Chunks the library's writer has closed (when it adds the messages itself)."""

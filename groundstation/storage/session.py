@@ -11,10 +11,11 @@ LocationFix messages from ``storage/location.py``, and what is held while writin
 
 Write failures (ENOSPC, EDQUOT, EIO ... any ``OSError``) never escape. The design:
 
-- Every message handed to the MCAP writer since its last successful flush is also kept in a
-  short *pending* list (at most one flush interval), and the sizes of the MCAP and the sidecar
-  after that flush are known-good boundaries (files are written unbuffered and never short,
-  :class:`~groundstation.storage.mcapio.ExactFile`).
+- Every message handed to the MCAP writer since its last successful flush is *pending*: the
+  writer can give it back (:meth:`~groundstation.storage.mcapio.McapFileWriter.unsettled`,
+  read from the uncompressed chunks it holds until then, at most one flush interval), and the
+  sizes of the MCAP and the sidecar after that flush are known-good boundaries (files are
+  written unbuffered and never short, :class:`~groundstation.storage.mcapio.ExactFile`).
 - When a write fails, the current pair is *abandoned*: the MCAP is cut back to its last good
   chunk boundary and closed without a summary (a torn chunk is never left behind, and nothing in
   it is duplicated later), the sidecar is cut back to the same point in the byte stream. The
@@ -182,7 +183,6 @@ class SessionRecorder:
         self._flushes = 0
         self._closed = False
         # write-failure handling (module docstring)
-        self._pending: list[Msg] = []
         self._mcap_good = 0
         self._side_good = 0
         self._failure: OSError | None = None
@@ -299,7 +299,6 @@ class SessionRecorder:
         if self._ubx is not None:
             self._ubx.close()
             self._ubx = None
-        self._pending.clear()
 
     def close(self) -> None:
         """Finish the MCAP (summary written) and close the sidecar; safe to call twice.
@@ -351,7 +350,20 @@ class SessionRecorder:
         self._records += 1
         if isinstance(record, Event):
             self._events += 1
-        self._write((spec, jsonio.dumps_typed(record), log_time_ns, publish))
+        mcap = self._mcap
+        if mcap is not None and self._failure is None:
+            now = self._clock()
+            if (now < self._time_limit and mcap.data_bytes < self._data_limit
+                    and not self._due_now):  # as in _write, encoded straight into the chunk
+                try:
+                    if mcap.add_typed(spec, record, log_time_ns, publish):
+                        self._set_limits()
+                except OSError as err:
+                    self._fail(err)
+            else:
+                self._write_at((spec, jsonio.dumps_typed(record), log_time_ns, publish), now)
+        else:
+            self._write((spec, jsonio.dumps_typed(record), log_time_ns, publish))
         if isinstance(record, NavSolution):
             fix = location_fix(record, publish, self.station)
             if fix is not None:
@@ -387,7 +399,6 @@ class SessionRecorder:
             now = self._clock()
             if (now < self._time_limit and mcap.data_bytes < self._data_limit
                     and not self._due_now):  # no rotation due (RotationPolicy.limits)
-                self._pending.append(msg)  # pending before anything can fail
                 spec, data, log_ns, publish_ns = msg
                 try:
                     if mcap.add(spec, data, log_ns, publish_ns):
@@ -429,7 +440,6 @@ class SessionRecorder:
     def _put(self, msg: Msg) -> None:
         """Into the current pair (pending until the next successful flush)."""
         assert self._mcap is not None
-        self._pending.append(msg)
         spec, data, log_ns, publish_ns = msg
         if self._mcap.add(spec, data, log_ns, publish_ns):
             self._set_limits()
@@ -445,6 +455,7 @@ class SessionRecorder:
         self._failure = err
         self._failures += first
         path = self._mcap.path if self._mcap is not None else None
+        pending = self._mcap.unsettled() if self._mcap is not None else []
         empty = self._mcap_good <= self._pair_empty_size and self._side_good == 0
         if self._mcap is not None and empty and len(self._files) > 1:
             # a new part that holds nothing yet: leave no empty files behind
@@ -466,8 +477,7 @@ class SessionRecorder:
             with contextlib.suppress(OSError):
                 self._ubx.close()
             self._ubx = None
-        self._backlog.push_front(self._pending)
-        self._pending.clear()
+        self._backlog.push_front(pending)
         self._next_retry_ns = now + self.retry_interval_ns
         if first:
             self._report_failure(err, path or self.out_dir, now)
@@ -514,7 +524,7 @@ class SessionRecorder:
             mcap.flush()
         except OSError as err:
             log.debug("recording still failing: %s", err)
-            self._drained_bytes -= sum(len(m[1]) for m in self._pending)
+            self._drained_bytes -= sum(len(m[1]) for m in mcap.unsettled())
             self._fail(err)
             return
         self._mark_flushed(now_ns)
@@ -562,6 +572,7 @@ class SessionRecorder:
             return False
         mcap, ubx = self._mcap, self._ubx
         assert mcap is not None
+        pending = mcap.unsettled()
         ours = {path for path, ident in self._idents if _still(path, ident)}
         # What is still ours (a sidecar deleted beside its MCAP) is cut back to its last good
         # boundary as after a write failure, so the pending messages are not there twice.
@@ -578,8 +589,7 @@ class SessionRecorder:
         self._mcap = self._ubx = None
         self._idents = []
         lost = self._mark_lost()
-        self._backlog.push_front(self._pending)
-        self._pending.clear()
+        self._backlog.push_front(pending)
         self._failure = FileNotFoundError(errno.ENOENT, why)
         try:
             self._open_file(now, after_failure=why)
@@ -650,7 +660,7 @@ class SessionRecorder:
             self._msgs_at_flush = self._mcap.messages
         self._mcap_good = self._mcap.size_bytes
         self._side_good = self._ubx.tell() if self._ubx is not None else 0
-        self._pending.clear()
+        self._mcap.settle()
         self._last_flush_ns = now_ns
         self._flushes += 1
         self._set_limits()
