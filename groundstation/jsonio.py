@@ -84,7 +84,8 @@ def append_typed(record: Any, buffer: bytearray) -> None:
     """Append :func:`dumps_typed` of ``record`` to ``buffer``, encoded in place (what the
     recorder writes for every record, straight into the MCAP chunk in progress)."""
     at = len(buffer)
-    buffer += _type_head(record)
+    head = _TYPE_HEADS.get(type(record))
+    buffer += head if head is not None else _type_head(record)
     brace = len(buffer) - 1  # the record's "{" is written over the head's ","
     try:
         _ENCODER.encode_into(record, buffer, brace)

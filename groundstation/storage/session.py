@@ -367,7 +367,7 @@ class SessionRecorder:
         if isinstance(record, NavSolution):
             fix = location_fix(record, publish, self.station)
             if fix is not None:
-                self._write((LOCATION_CHANNEL, jsonio.dumps(fix), log_time_ns, publish))
+                self._write((LOCATION_CHANNEL, fix, log_time_ns, publish))
         return True
 
     def write_items(self, items: Sequence[Any], start: int, clock: Callable[[], int],
