@@ -170,7 +170,11 @@ class PackedChunkIndexes:
     def append(self, index: ChunkIndex) -> None:
         builder = RecordBuilder()
         index.write(builder)
-        self._data += builder.end()  # type: ignore[no-untyped-call]
+        self.append_record(builder.end())  # type: ignore[no-untyped-call]
+
+    def append_record(self, record: bytes) -> None:
+        """Append a chunk index already serialised (:class:`_MessageAppender` packs them)."""
+        self._data += record
         self._n += 1
 
     def __len__(self) -> int:
@@ -201,6 +205,11 @@ _PRIVATE = "_Writer__"  # the name-mangled prefix of mcap.writer.Writer's privat
 _MESSAGE_FIXED = 22  # channel(2) + sequence(4) + log_time(8) + publish_time(8)
 _BLANK_HEAD = bytes(_MESSAGE_HEAD.size)  # a message's head, packed once its length is known
 _RECORD_HEAD = struct.Struct("<BQ")  # opcode, record length
+_CHUNK_INDEX_OPCODE = 0x08
+_CHUNK_INDEX_HEAD = struct.Struct("<QQQQI")  # times, chunk offset, length, offsets' length
+_INDEX_OFFSET = struct.Struct("<HQ")  # channel, message index offset
+_U64_U32 = struct.Struct("<QI")
+_U64_U64 = struct.Struct("<QQ")
 _MESSAGE_BODY = struct.Struct("<HIQQ")  # channel, sequence, log time, publish time
 
 
@@ -364,12 +373,21 @@ class _MessageAppender:
                 indexes += struct.pack(f"<{len(entries)}Q", *entries)
             if indexes:
                 self._stream.write(indexes)
-        self._chunk_indices.append(ChunkIndex(
-            message_start_time=start, message_end_time=end, chunk_start_offset=chunk_start,
-            chunk_length=chunk_length, message_index_offsets=offsets,
-            message_index_length=len(indexes), compression=self._compression,
-            compressed_size=len(compressed), uncompressed_size=len(chunk_data),
-        ))
+        if isinstance(self._chunk_indices, PackedChunkIndexes):  # ChunkIndex.write's bytes
+            fields = (_CHUNK_INDEX_HEAD.pack(start, end, chunk_start, chunk_length,
+                                             10 * len(offsets))
+                      + b"".join(_INDEX_OFFSET.pack(cid, at) for cid, at in offsets.items())
+                      + _U64_U32.pack(len(indexes), len(name)) + name
+                      + _U64_U64.pack(len(compressed), len(chunk_data)))
+            self._chunk_indices.append_record(
+                _RECORD_HEAD.pack(_CHUNK_INDEX_OPCODE, len(fields)) + fields)
+        else:
+            self._chunk_indices.append(ChunkIndex(
+                message_start_time=start, message_end_time=end, chunk_start_offset=chunk_start,
+                chunk_length=chunk_length, message_index_offsets=offsets,
+                message_index_length=len(indexes), compression=self._compression,
+                compressed_size=len(compressed), uncompressed_size=len(chunk_data),
+            ))
 
 
 class McapFileWriter:
