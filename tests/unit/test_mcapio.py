@@ -48,3 +48,46 @@ def test_own_message_path_writes_the_librarys_bytes(tmp_path: Path) -> None:
                     == _write(lib, True, chunk_size, compression) == 3000)
             assert fast.read_bytes() == lib.read_bytes(), name
             assert sum(1 for _ in iter_messages(fast)) == 3000
+
+
+def test_unsettled_gives_back_every_message_since_the_last_settle(tmp_path: Path) -> None:
+    """What a failed write may have lost (``McapFileWriter.unsettled``) is read back from the
+    chunks: every message added since the last ``settle``, in order, across chunks closed by
+    size, a channel registered in the middle of a chunk and records encoded in place; the same
+    on the library's path."""
+    from dataclasses import dataclass
+
+    from groundstation import jsonio
+
+    @dataclass(frozen=True)
+    class Rec:
+        n: int
+        text: str
+
+    raw = ChannelSpec("/ubx/raw", "ubx")
+    js = json_channel("/rec", {"title": "Rec", "type": "object"})
+    big = json_channel("/big", {"title": "Big", "type": "object", "description": "x" * 1500})
+    for library_path in (False, True):
+        w = McapFileWriter(tmp_path / f"u{library_path}.mcap", chunk_size_bytes=1024)
+        if library_path:
+            w._appender = None
+        expected: list[tuple[ChannelSpec, bytes, int, int]] = []
+        for i in range(120):
+            if i == 40:
+                w.flush()
+                w.settle()
+                expected.clear()
+            if i % 3 == 0:
+                msg = (raw, bytes([i]) * (i % 50), i, i + 1)
+                w.add(*msg)
+            else:
+                spec = big if i in (70, 71) else js
+                record = Rec(i, "é" * (i % 7))
+                msg = (spec, jsonio.dumps_typed(record), i, i + 2)
+                w.add_typed(spec, record, i, i + 2)
+            expected.append(msg)
+        assert w.unsettled() == expected
+        assert len(expected) == 80
+        w.finish()
+        assert [m.data for m in iter_messages(tmp_path / f"u{library_path}.mcap")][40:] == [
+            m[1] for m in expected]
