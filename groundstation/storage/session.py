@@ -9,6 +9,14 @@ from ``storage/naming.py``, when to start the next file from ``storage/rotation.
 LocationFix messages from ``storage/location.py``, and what is held while writing fails from
 ``storage/backlog.py``.
 
+The write path: while no rotation is due, a message goes straight into the MCAP chunk in
+progress (a record's JSON is encoded there, :meth:`~groundstation.storage.mcapio.McapFileWriter.
+add_typed`). Whether one is due is two comparisons per message against the current file's
+:meth:`~groundstation.storage.rotation.RotationPolicy.limits`, worked out again for each new
+file, at each flush and when a chunk is closed, so a file ends exactly where the per-message
+rule ends it. Otherwise (or while writing fails) the full path below is taken. The recorder
+sink hands over a whole burst (:meth:`SessionRecorder.write_items`).
+
 Write failures (ENOSPC, EDQUOT, EIO ... any ``OSError``) never escape. The design:
 
 - Every message handed to the MCAP writer since its last successful flush is *pending*: the
@@ -171,8 +179,7 @@ class SessionRecorder:
         self._sidecars: list[Path] = []
         self._file_start_ns = 0
         self._last_flush_ns = 0
-        # RotationPolicy.limits of the current file: a message is written at once (no
-        # rotation due) while none is reached (module docstring: the write path)
+        # RotationPolicy.limits of the current file (module docstring: the write path)
         self._due_now = True
         self._data_limit = self._time_limit = 0
         self._publish_clock = PublishClock()
@@ -354,7 +361,7 @@ class SessionRecorder:
         if mcap is not None and self._failure is None:
             now = self._clock()
             if (now < self._time_limit and mcap.data_bytes < self._data_limit
-                    and not self._due_now):  # as in _write, encoded straight into the chunk
+                    and not self._due_now):  # _write's check; encoded straight into the chunk
                 try:
                     if mcap.add_typed(spec, record, log_time_ns, publish):
                         self._set_limits()
