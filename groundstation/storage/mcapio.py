@@ -6,7 +6,11 @@ at most what arrived since) and an idempotent :meth:`~McapFileWriter.finish`. Fi
 exclusively: an existing file is never overwritten. They are written through :class:`ExactFile`,
 unbuffered and never silently short (a full disk makes ``os.write`` write less than asked), so
 the size after a successful flush is a known-good chunk boundary: :meth:`McapFileWriter.abandon`
-cuts a file whose write failed back to it, leaving an unfinished but clean file.
+cuts a file whose write failed back to it, leaving an unfinished but clean file. Asked to
+(``keep_unsettled``), it keeps the uncompressed chunks since the caller last called
+:meth:`~McapFileWriter.settle` and gives their messages back (:meth:`~McapFileWriter.unsettled`):
+what the session recorder moves to its backlog when a write fails. Records can be encoded
+straight into the chunk in progress (:meth:`~McapFileWriter.add_typed`).
 
 Reading: :func:`iter_messages` reads linearly (streaming), which works the same for finished
 files and for files whose writer died: it returns every message up to the last complete chunk
@@ -249,9 +253,10 @@ class _MessageAppender:
         self._data_crcs: bool = getattr(writer, _PRIVATE + "enable_data_crcs")
         self.buf = bytearray()  # the records of the chunk in progress
         self.index: dict[int, list[int]] = {}  # channel -> [log_time, offset, ...], first use first
-        # What is not yet known to be safe (McapFileWriter.unsettled): the chunks closed since
-        # the last settle, each with the offset its unsettled records start at, and that
-        # offset in the chunk in progress.
+        # What is not yet known to be safe (McapFileWriter.unsettled), when ``keep``: the
+        # chunks closed since the last settle, each with the offset its unsettled records start
+        # at, and that offset in the chunk in progress.
+        self.keep = False
         self.kept: list[tuple[bytearray, int]] = []
         self.settled = 0
 
@@ -327,7 +332,8 @@ class _MessageAppender:
         if failed or (self.index and cb.num_messages == 0):  # closed by the library
             if self.index:
                 self._count(self.index, *self._times(self.index))
-                self.kept.append((self.buf, self.settled))
+                if self.keep:
+                    self.kept.append((self.buf, self.settled))
             self.index, self.settled = {}, 0
             self.buf = bytearray() if failed else bytearray(rest)
         else:
@@ -345,7 +351,8 @@ class _MessageAppender:
         self._count(index, n, start, end)
         self._stats.chunk_count += 1
         chunk_data = self.buf
-        self.kept.append((chunk_data, self.settled))  # before anything can fail
+        if self.keep:
+            self.kept.append((chunk_data, self.settled))  # before anything can fail
         self.buf, self.index, self.settled = bytearray(), {}, 0
         if self._zstd is not None:
             compressed = self._zstd.compress(chunk_data)
@@ -403,6 +410,8 @@ class McapFileWriter:
         packed_index: keep the chunk indexes packed (:class:`PackedChunkIndexes`): the writer
             holds one per chunk until :meth:`finish`, and a live recorder closes a chunk at
             every flush. Skipped, with a debug log, if the mcap library changed its internals.
+        keep_unsettled: keep what was added since the last :meth:`settle` (the uncompressed
+            chunks), for :meth:`unsettled`; whoever sets it calls :meth:`settle` regularly.
 
     Raises:
         FileExistsError: if ``path`` exists (recordings are never overwritten).
@@ -418,6 +427,7 @@ class McapFileWriter:
         library: str = "groundstation",
         file: WritableFile | None = None,
         packed_index: bool = True,
+        keep_unsettled: bool = False,
     ) -> None:
         self.path = path
         self._file: WritableFile = file if file is not None else ExactFile(path)
@@ -435,11 +445,14 @@ class McapFileWriter:
                 log.debug("mcap writer internals changed: chunk indexes not packed")
         self._writer.start(profile="", library=library)
         self._appender = _MessageAppender.make(self._writer)
+        self._keep = keep_unsettled
+        if self._appender is not None:
+            self._appender.keep = keep_unsettled
         self._schemas: dict[str, int] = {}
         self._channels: dict[ChannelSpec, int] = {}
         self._ids: dict[int, int] = {}  # id(spec) -> channel id
         self._specs: dict[int, ChannelSpec] = {}  # channel id -> the first spec seen
-        self._kept: list[ChannelSpec] = []
+        self._specs_seen: list[ChannelSpec] = []
         # unsettled messages the chunks do not hold (the library's path; a failed channel's)
         self._loose: list[tuple[ChannelSpec, bytes, int, int]] = []
         self._finished = False
@@ -485,16 +498,17 @@ class McapFileWriter:
         """The channel id of ``spec`` for a message being added; if registering it fails, the
         message (``message()`` is its data) stays unsettled like the ones before it."""
         # Channels by the spec object's identity first: hashing the dataclass is a Python
-        # call per message. ``_kept`` holds every spec seen, so no id is reused meanwhile.
+        # call per message. ``_specs_seen`` holds every spec seen, so no id is reused meanwhile.
         cid = self._ids.get(id(spec))
         if cid is None:
             try:
                 cid = self.channel_id(spec)
             except OSError:
-                self._loose.append((spec, message(), log_time_ns, publish_time_ns))
+                if self._keep:
+                    self._loose.append((spec, message(), log_time_ns, publish_time_ns))
                 raise
             self._ids[id(spec)] = cid
-            self._kept.append(spec)
+            self._specs_seen.append(spec)
         return cid
 
     def add(self, spec: ChannelSpec, data: bytes, log_time_ns: int, publish_time_ns: int) -> bool:
@@ -505,7 +519,8 @@ class McapFileWriter:
             cid = self._channel_of(spec, lambda: data, log_time_ns, publish_time_ns)
         appender = self._appender
         if appender is None:
-            self._loose.append((spec, data, log_time_ns, publish_time_ns))
+            if self._keep:
+                self._loose.append((spec, data, log_time_ns, publish_time_ns))
             chunks = self._writer_chunks()
             self._writer.add_message(cid, log_time=log_time_ns, data=data,
                                      publish_time=publish_time_ns,
@@ -560,6 +575,8 @@ class McapFileWriter:
         """Every message added since the last :meth:`settle` (in order, as ``(spec, data,
         log_time_ns, publish_time_ns)``): what a failed write may have lost. Read back from
         the chunks, which hold them anyway (no second copy is kept per message)."""
+        if not self._keep:
+            raise RuntimeError("the writer was made without keep_unsettled")
         out: list[tuple[ChannelSpec, bytes, int, int]] = []
         appender = self._appender
         if appender is not None:

@@ -239,7 +239,7 @@ class SessionRecorder:
                 created.append(ubx)
             mcap = McapFileWriter(
                 path, chunk_size_bytes=self.chunk_size_bytes, compression=self.compression,
-                library=f"groundstation {__version__}", file=mcap_file,
+                library=f"groundstation {__version__}", file=mcap_file, keep_unsettled=True,
             )
             previous = self._files[-1].name if self._files else ""
             mcap.add_metadata(

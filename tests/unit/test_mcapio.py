@@ -68,7 +68,8 @@ def test_unsettled_gives_back_every_message_since_the_last_settle(tmp_path: Path
     js = json_channel("/rec", {"title": "Rec", "type": "object"})
     big = json_channel("/big", {"title": "Big", "type": "object", "description": "x" * 1500})
     for library_path in (False, True):
-        w = McapFileWriter(tmp_path / f"u{library_path}.mcap", chunk_size_bytes=1024)
+        w = McapFileWriter(tmp_path / f"u{library_path}.mcap", chunk_size_bytes=1024,
+                           keep_unsettled=True)
         if library_path:
             w._appender = None
         expected: list[tuple[ChannelSpec, bytes, int, int]] = []
@@ -91,3 +92,15 @@ def test_unsettled_gives_back_every_message_since_the_last_settle(tmp_path: Path
         w.finish()
         assert [m.data for m in iter_messages(tmp_path / f"u{library_path}.mcap")][40:] == [
             m[1] for m in expected]
+
+
+def test_a_writer_keeps_nothing_unless_asked(tmp_path: Path) -> None:
+    """Without ``keep_unsettled`` (a writer nobody settles) no closed chunk is kept."""
+    raw = ChannelSpec("/ubx/raw", "ubx")
+    w = McapFileWriter(tmp_path / "a.mcap", chunk_size_bytes=1024)
+    assert w._appender is not None
+    for i in range(100):
+        w.add(raw, bytes(100), i, i)
+    assert w._appender.kept == [] and w._loose == []
+    w.finish()
+    assert sum(1 for _ in iter_messages(tmp_path / "a.mcap")) == 100
