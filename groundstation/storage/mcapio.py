@@ -220,7 +220,7 @@ _MESSAGE_BODY = struct.Struct("<HIQQ")  # channel, sequence, log time, publish t
 class _MessageAppender:
     """``Writer.add_message`` for chunked files, with the chunk in progress kept here: its
     records in a ``bytearray`` and, per channel, its message index as a flat list of (log
-    time, offset) pairs. Per message only those two grow (:meth:`McapFileWriter.add_id`); the
+    time, offset) pairs. Per message only those two grow (:meth:`McapFileWriter.add`, ``add_typed``); the
     chunk's times and the file's statistics are worked out from the index when the chunk is
     closed (:meth:`finalize`, for full chunks, flushes and the finish), with the same results
     as the library's per-message updates. The file is byte for byte the library's
@@ -556,10 +556,14 @@ class McapFileWriter:
         buf = appender.buf
         offset = len(buf)
         buf += _BLANK_HEAD
-        jsonio.append_typed(record, buf)  # leaves buf as it was if it raises
-        n = len(buf) - offset - _MESSAGE_HEAD.size
-        _MESSAGE_HEAD.pack_into(buf, offset, _MESSAGE_OPCODE, _MESSAGE_FIXED + n, cid,
-                                self.messages & 0xFFFFFFFF, log_time_ns, publish_time_ns)
+        try:
+            jsonio.append_typed(record, buf)
+            n = len(buf) - offset - _MESSAGE_HEAD.size
+            _MESSAGE_HEAD.pack_into(buf, offset, _MESSAGE_OPCODE, _MESSAGE_FIXED + n, cid,
+                                    self.messages & 0xFFFFFFFF, log_time_ns, publish_time_ns)
+        except BaseException:  # a value that cannot be written: the chunk stays whole
+            del buf[offset:]
+            raise
         entries = appender.index.get(cid)
         if entries is None:
             entries = appender.index[cid] = []
