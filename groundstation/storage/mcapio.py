@@ -222,10 +222,10 @@ class _MessageAppender:
     records in a ``bytearray`` and, per channel, its message index as a flat list of (log
     time, offset) pairs. Per message only those two grow (:meth:`McapFileWriter.add` and
     ``add_typed``); the chunk's times and the file's statistics are worked out from the index
-    when the chunk is closed (:meth:`finalize`, for full chunks, flushes and the finish), with the same results
-    as the library's per-message updates. The file is byte for byte the library's
-    (``tests/unit/test_mcapio.py``). A live recorder adds a message per raw chunk and per
-    record, and the library's path was a third of its time.
+    when the chunk is closed (:meth:`finalize`, for full chunks, flushes and the finish), with
+    the same results as the library's per-message updates. The file is byte for byte the
+    library's (``tests/unit/test_mcapio.py``). A live recorder adds a message per raw chunk and
+    per record, and the library's path was a third of its time.
 
     Schemas and channels are registered by the library into its own chunk builder, which may
     close the chunk when that makes it full: :meth:`lend` hands the chunk in progress to the
