@@ -215,6 +215,7 @@ _INDEX_OFFSET = struct.Struct("<HQ")  # channel, message index offset
 _U64_U32 = struct.Struct("<QI")
 _U64_U64 = struct.Struct("<QQ")
 _MESSAGE_BODY = struct.Struct("<HIQQ")  # channel, sequence, log time, publish time
+_IDS_MAX = 256  # spec objects a writer remembers by identity
 
 
 class _MessageAppender:
@@ -507,6 +508,9 @@ class McapFileWriter:
                 if self._keep:
                     self._loose.append((spec, message(), log_time_ns, publish_time_ns))
                 raise
+            if len(self._specs_seen) >= _IDS_MAX:  # a caller making a spec per message
+                self._ids.clear()
+                self._specs_seen.clear()
             self._ids[id(spec)] = cid
             self._specs_seen.append(spec)
         return cid

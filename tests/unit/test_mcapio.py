@@ -7,7 +7,13 @@ from __future__ import annotations
 import random
 from pathlib import Path
 
-from groundstation.storage.mcapio import ChannelSpec, McapFileWriter, iter_messages, json_channel
+from groundstation.storage.mcapio import (
+    ChannelSpec,
+    McapFileWriter,
+    iter_messages,
+    json_channel,
+    read_summary,
+)
 
 
 def _write(path: Path, library_path: bool, chunk_size: int, compression: str = "zstd") -> int:
@@ -102,5 +108,10 @@ def test_a_writer_keeps_nothing_unless_asked(tmp_path: Path) -> None:
     for i in range(100):
         w.add(raw, bytes(100), i, i)
     assert w._appender.kept == [] and w._loose == []
+    for i in range(1000):  # an equal spec made anew for every message: one channel, bounded
+        w.add(ChannelSpec("/ubx/raw", "ubx"), bytes(10), i, i)
+    assert len(w._specs_seen) <= 256
     w.finish()
-    assert sum(1 for _ in iter_messages(tmp_path / "a.mcap")) == 100
+    assert {m.topic for m in iter_messages(tmp_path / "a.mcap")} == {"/ubx/raw"}
+    summary = read_summary(tmp_path / "a.mcap")
+    assert summary is not None and summary.messages_by_topic == {"/ubx/raw": 1100}
