@@ -216,11 +216,12 @@ def test_sink_bursts_write_and_announce_as_item_by_item(tmp_path: Path,
     where each new part is announced (the clock's reading then), are those of writing the same
     items one by one (``RecorderSink.write``), with rotations by size and by duration falling
     inside bursts."""
+    import secrets
+
     from groundstation.live.recorder_sink import RecorderSink
     from groundstation.records import RawChunk
-    from groundstation.storage import naming
 
-    monkeypatch.setattr(naming.secrets, "token_hex", lambda n: "ab" * n)  # one session id
+    monkeypatch.setattr(secrets, "token_hex", lambda n: "ab" * n)  # one session id
     data = generated_stream(n=1200)
     items: list[object] = []
     dec, framer = Decoder(), UbxFramer()
@@ -239,8 +240,12 @@ def test_sink_bursts_write_and_announce_as_item_by_item(tmp_path: Path,
             rec = SessionRecorder(out, "st1", chunk_size_bytes=512, clock=clock,
                                   **kw)  # type: ignore[arg-type]
             announced: list[tuple[str, int]] = []
-            sink = RecorderSink(rec, 0.5, lambda p: announced.append((p.name, clock.now)),
-                                clock=clock)
+
+            def announce(path: Path, announced: list[tuple[str, int]] = announced,
+                         clock: FakeClock = clock) -> None:
+                announced.append((path.name, clock.now))
+
+            sink = RecorderSink(rec, 0.5, announce, clock=clock)
             sink.open()
             for j in range(0, len(items), 40):
                 part = items[j : j + 40]
