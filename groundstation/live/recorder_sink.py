@@ -92,6 +92,14 @@ class RecorderSink:
             t = getattr(item, "t_host_ns", 0)
             self.recorder.write_record(item, t if isinstance(t, int) and t > 0 else self._clock())
 
+    def _write_burst(self, items: list[Item]) -> None:
+        """:meth:`write` for each item, the loop in the session recorder (one call a burst)."""
+        recorder, i, n = self.recorder, 0, len(items)
+        while i < n:
+            i = recorder.write_items(items, i, self._clock, self._files_seen)
+            if type(items[i - 1]) is RawChunk and recorder.file_count != self._files_seen:
+                self._notify_files()  # where write() announces a new file
+
     async def consume(self, inbox: Inbox, publish: Publish) -> None:
         self.open()
         try:
@@ -101,8 +109,7 @@ class RecorderSink:
                                                 linger_s=LINGER_S)
                 except InboxClosed:
                     break
-                for item in items:
-                    self.write(item)
+                self._write_burst(items)
                 self.recorder.maybe_flush()
                 for event in self.recorder.take_notices():
                     self.write(event)  # our own news never comes back through the fanout

@@ -6,7 +6,11 @@ at most what arrived since) and an idempotent :meth:`~McapFileWriter.finish`. Fi
 exclusively: an existing file is never overwritten. They are written through :class:`ExactFile`,
 unbuffered and never silently short (a full disk makes ``os.write`` write less than asked), so
 the size after a successful flush is a known-good chunk boundary: :meth:`McapFileWriter.abandon`
-cuts a file whose write failed back to it, leaving an unfinished but clean file.
+cuts a file whose write failed back to it, leaving an unfinished but clean file. Asked to
+(``keep_unsettled``), it keeps the uncompressed chunks since the caller last called
+:meth:`~McapFileWriter.settle` and gives their messages back (:meth:`~McapFileWriter.unsettled`):
+what the session recorder moves to its backlog when a write fails. Records can be encoded
+straight into the chunk in progress (:meth:`~McapFileWriter.add_typed`).
 
 Reading: :func:`iter_messages` reads linearly (streaming), which works the same for finished
 files and for files whose writer died: it returns every message up to the last complete chunk
@@ -20,12 +24,11 @@ from __future__ import annotations
 import collections
 import contextlib
 import errno
-import itertools
 import logging
 import os
 import struct
 import zlib
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, BinaryIO, Protocol
@@ -171,7 +174,11 @@ class PackedChunkIndexes:
     def append(self, index: ChunkIndex) -> None:
         builder = RecordBuilder()
         index.write(builder)
-        self._data += builder.end()  # type: ignore[no-untyped-call]
+        self.append_record(builder.end())  # type: ignore[no-untyped-call]
+
+    def append_record(self, record: bytes) -> None:
+        """Append a chunk index already serialised (:class:`_MessageAppender` packs them)."""
+        self._data += record
         self._n += 1
 
     def __len__(self) -> int:
@@ -200,15 +207,30 @@ _COMPRESSION_NAMES = {CompressionType.ZSTD: "zstd", CompressionType.LZ4: "lz4",
                       CompressionType.NONE: ""}
 _PRIVATE = "_Writer__"  # the name-mangled prefix of mcap.writer.Writer's private attributes
 _MESSAGE_FIXED = 22  # channel(2) + sequence(4) + log_time(8) + publish_time(8)
+_BLANK_HEAD = bytes(_MESSAGE_HEAD.size)  # a message's head, packed once its length is known
+_RECORD_HEAD = struct.Struct("<BQ")  # opcode, record length
+_CHUNK_INDEX_OPCODE = 0x08
+_CHUNK_INDEX_HEAD = struct.Struct("<QQQQI")  # times, chunk offset, length, offsets' length
+_INDEX_OFFSET = struct.Struct("<HQ")  # channel, message index offset
+_U64_U32 = struct.Struct("<QI")
+_U64_U64 = struct.Struct("<QQ")
+_MESSAGE_BODY = struct.Struct("<HIQQ")  # channel, sequence, log time, publish time
+_IDS_MAX = 256  # spec objects a writer remembers by identity
 
 
 class _MessageAppender:
-    """``Writer.add_message`` for chunked files, in one struct pack instead of about a dozen
-    calls (the record, the index entry and the statistics exactly as the library keeps them),
-    and the chunk's closing (:meth:`finalize`, used for full chunks, flushes and the finish).
-    The file is byte for byte the library's (``tests/unit/test_mcapio.py``). A live recorder
-    adds a message per raw chunk and per record, and the library's path was a third of its
-    time.
+    """``Writer.add_message`` for chunked files, with the chunk in progress kept here: its
+    records in a ``bytearray`` and, per channel, its message index as a flat list of (log
+    time, offset) pairs. Per message only those two grow (:meth:`McapFileWriter.add` and
+    ``add_typed``); the chunk's times and the file's statistics are worked out from the index
+    when the chunk is closed (:meth:`finalize`, for full chunks, flushes and the finish), with
+    the same results as the library's per-message updates. The file is byte for byte the
+    library's (``tests/unit/test_mcapio.py``). A live recorder adds a message per raw chunk and
+    per record, and the library's path was a third of its time.
+
+    Schemas and channels are registered by the library into its own chunk builder, which may
+    close the chunk when that makes it full: :meth:`lend` hands the chunk in progress to the
+    builder for that and :meth:`take_back` takes what is left back.
 
     Made only when the writer's internals are the ones this was written against (mcap 1.x);
     otherwise :meth:`make` returns ``None`` and the library's own path is used."""
@@ -216,7 +238,7 @@ class _MessageAppender:
     def __init__(self, writer: Writer) -> None:
         self._stats = getattr(writer, _PRIVATE + "statistics")
         self._builder = getattr(writer, _PRIVATE + "chunk_builder")
-        self._chunk_size: int = getattr(writer, _PRIVATE + "chunk_size")
+        self.chunk_size: int = getattr(writer, _PRIVATE + "chunk_size")
         self._stream = getattr(writer, _PRIVATE + "stream")
         self._flush_records = getattr(writer, _PRIVATE + "flush")
         self._chunk_indices = getattr(writer, _CHUNK_INDEXES_ATTR)
@@ -230,6 +252,14 @@ class _MessageAppender:
         self._zstd = (zstandard.ZstdCompressor(level=3)
                       if compression == CompressionType.ZSTD else None)
         self._data_crcs: bool = getattr(writer, _PRIVATE + "enable_data_crcs")
+        self.buf = bytearray()  # the records of the chunk in progress
+        self.index: dict[int, list[int]] = {}  # channel -> [log_time, offset, ...], first use first
+        # What is not yet known to be safe (McapFileWriter.unsettled), when ``keep``: the
+        # chunks closed since the last settle, each with the offset its unsettled records start
+        # at, and that offset in the chunk in progress.
+        self.keep = False
+        self.kept: list[tuple[bytearray, int]] = []
+        self.settled = 0
 
     @classmethod
     def make(cls, writer: Writer) -> _MessageAppender | None:
@@ -239,8 +269,11 @@ class _MessageAppender:
             ok = (builder is not None and isinstance(builder.record_writer, RecordBuilder)
                   and hasattr(builder.record_writer, "_buffer")
                   and isinstance(builder.message_indices, dict)
+                  and hasattr(builder, "num_messages")
+                  and hasattr(builder, "message_start_time")
                   and hasattr(appender._stats, "channel_message_counts")
                   and hasattr(appender._stats, "chunk_count")
+                  and hasattr(appender._stats, "message_start_time")
                   and hasattr(builder, "reset") and hasattr(appender._stream, "tell")
                   and callable(appender._flush_records)
                   and appender._compression is not None
@@ -252,51 +285,83 @@ class _MessageAppender:
             return None
         return appender
 
-    def add(self, channel_id: int, log_time: int, data: bytes, publish_time: int,
-            sequence: int) -> None:
+    def _times(self, index: dict[int, list[int]]) -> tuple[int, int, int]:
+        """Messages, earliest and latest log time of a chunk's ``index`` (latest at least 0,
+        as the library's running maximum starts there)."""
+        n = 0
+        start = end = 0
+        for entries in index.values():
+            logs = entries[0::2]
+            lo, hi = min(logs), max(logs)
+            if n == 0 or lo < start:
+                start = lo
+            if hi > end:
+                end = hi
+            n += len(logs)
+        return n, start, end
+
+    def _count(self, index: dict[int, list[int]], n: int, start: int, end: int) -> None:
+        """Add a closed chunk's messages to the file's statistics."""
         st = self._stats
-        if st.message_count == 0 or log_time < st.message_start_time:
-            st.message_start_time = log_time
-        if log_time > st.message_end_time:
-            st.message_end_time = log_time
-        st.channel_message_counts[channel_id] += 1
-        st.message_count += 1
+        if st.message_count == 0 or start < st.message_start_time:
+            st.message_start_time = start
+        if end > st.message_end_time:
+            st.message_end_time = end
+        counts = st.channel_message_counts
+        for cid, entries in index.items():
+            counts[cid] += len(entries) // 2
+        st.message_count += n
+
+    def lend(self) -> None:
+        """Put the chunk in progress into the library's chunk builder (before a schema or a
+        channel is registered there), as the library would hold it."""
         cb = self._builder
-        if cb.num_messages == 0 or log_time < cb.message_start_time:
-            cb.message_start_time = log_time
-        if log_time > cb.message_end_time:
-            cb.message_end_time = log_time
-        buf = cb.record_writer._buffer
-        offset = buf.tell()
-        index = cb.message_indices.get(channel_id)
-        if index is None:
-            index = cb.message_indices[channel_id] = MessageIndex(channel_id=channel_id,
-                                                                  records=[])
-        index.records.append((log_time, offset))
-        cb.num_messages += 1
-        buf.write(_MESSAGE_HEAD.pack(_MESSAGE_OPCODE, _MESSAGE_FIXED + len(data), channel_id,
-                                     sequence, log_time, publish_time))
-        buf.write(data)
-        if offset + 31 + len(data) > self._chunk_size:
-            self.finalize()
+        cb.record_writer.write(self.buf)
+        n, start, end = self._times(self.index)
+        cb.num_messages = n
+        cb.message_start_time, cb.message_end_time = start, end
+        cb.message_indices.clear()
+        for cid, entries in self.index.items():
+            cb.message_indices[cid] = MessageIndex(
+                channel_id=cid, records=list(zip(entries[0::2], entries[1::2], strict=True)))
+
+    def take_back(self, failed: bool) -> None:
+        """Take the chunk in progress back from the library's builder after :meth:`lend` (the
+        library closed it if the registration made it full; ``failed``: writing it failed)."""
+        cb = self._builder
+        rest = cb.record_writer.end()
+        if failed or (self.index and cb.num_messages == 0):  # closed by the library
+            if self.index:
+                self._count(self.index, *self._times(self.index))
+                if self.keep:
+                    self.kept.append((self.buf, self.settled))
+            self.index, self.settled = {}, 0
+            self.buf = bytearray() if failed else bytearray(rest)
+        else:
+            self.buf = bytearray(rest)  # ours, then the schema and channel records
+        cb.reset()
 
     def finalize(self) -> None:
         """Close the chunk in progress, as ``Writer.__finalize_chunk`` does (the chunk record,
         its message indexes and its chunk index, the same bytes in the same two writes), with
         each record packed by ``struct`` at once instead of field by field."""
-        cb = self._builder
-        if cb.num_messages == 0:
+        index = self.index
+        if not index:
             return
+        n, start, end = self._times(index)
+        self._count(index, n, start, end)
         self._stats.chunk_count += 1
-        chunk_data = cb.end()
+        chunk_data = self.buf
+        if self.keep:
+            self.kept.append((chunk_data, self.settled))  # before anything can fail
+        self.buf, self.index, self.settled = bytearray(), {}, 0
         if self._zstd is not None:
             compressed = self._zstd.compress(chunk_data)
         elif self._compression == "lz4":
             compressed = lz4.frame.compress(chunk_data)
         else:
-            compressed = chunk_data
+            compressed = bytes(chunk_data)
         name = self._compression.encode()
-        start, end = cb.message_start_time, cb.message_end_time
         head = _CHUNK_HEAD.pack(
             _CHUNK_OPCODE, 8 + 8 + 8 + 4 + 4 + len(name) + 8 + len(compressed), start, end,
             len(chunk_data), zlib.crc32(chunk_data) if self._crcs else 0, len(name),
@@ -309,22 +374,28 @@ class _MessageAppender:
         indexes = bytearray()
         if self._index_messages:
             index_start = chunk_start + chunk_length
-            for cid, index in cb.message_indices.items():
+            for cid, entries in index.items():
                 offsets[cid] = index_start + len(indexes)
-                entries = index.records
-                indexes += _INDEX_HEAD.pack(_INDEX_OPCODE, 6 + 16 * len(entries), cid,
-                                            16 * len(entries))
-                indexes += struct.pack(f"<{2 * len(entries)}Q", *itertools.chain.from_iterable(
-                    entries))
+                indexes += _INDEX_HEAD.pack(_INDEX_OPCODE, 6 + 8 * len(entries), cid,
+                                            8 * len(entries))
+                indexes += struct.pack(f"<{len(entries)}Q", *entries)
             if indexes:
                 self._stream.write(indexes)
-        self._chunk_indices.append(ChunkIndex(
-            message_start_time=start, message_end_time=end, chunk_start_offset=chunk_start,
-            chunk_length=chunk_length, message_index_offsets=offsets,
-            message_index_length=len(indexes), compression=self._compression,
-            compressed_size=len(compressed), uncompressed_size=len(chunk_data),
-        ))
-        cb.reset()
+        if isinstance(self._chunk_indices, PackedChunkIndexes):  # ChunkIndex.write's bytes
+            fields = (_CHUNK_INDEX_HEAD.pack(start, end, chunk_start, chunk_length,
+                                             10 * len(offsets))
+                      + b"".join(_INDEX_OFFSET.pack(cid, at) for cid, at in offsets.items())
+                      + _U64_U32.pack(len(indexes), len(name)) + name
+                      + _U64_U64.pack(len(compressed), len(chunk_data)))
+            self._chunk_indices.append_record(
+                _RECORD_HEAD.pack(_CHUNK_INDEX_OPCODE, len(fields)) + fields)
+        else:
+            self._chunk_indices.append(ChunkIndex(
+                message_start_time=start, message_end_time=end, chunk_start_offset=chunk_start,
+                chunk_length=chunk_length, message_index_offsets=offsets,
+                message_index_length=len(indexes), compression=self._compression,
+                compressed_size=len(compressed), uncompressed_size=len(chunk_data),
+            ))
 
 
 class McapFileWriter:
@@ -340,6 +411,8 @@ class McapFileWriter:
         packed_index: keep the chunk indexes packed (:class:`PackedChunkIndexes`): the writer
             holds one per chunk until :meth:`finish`, and a live recorder closes a chunk at
             every flush. Skipped, with a debug log, if the mcap library changed its internals.
+        keep_unsettled: keep what was added since the last :meth:`settle` (the uncompressed
+            chunks), for :meth:`unsettled`; whoever sets it calls :meth:`settle` regularly.
 
     Raises:
         FileExistsError: if ``path`` exists (recordings are never overwritten).
@@ -355,6 +428,7 @@ class McapFileWriter:
         library: str = "groundstation",
         file: WritableFile | None = None,
         packed_index: bool = True,
+        keep_unsettled: bool = False,
     ) -> None:
         self.path = path
         self._file: WritableFile = file if file is not None else ExactFile(path)
@@ -372,8 +446,16 @@ class McapFileWriter:
                 log.debug("mcap writer internals changed: chunk indexes not packed")
         self._writer.start(profile="", library=library)
         self._appender = _MessageAppender.make(self._writer)
+        self._keep = keep_unsettled
+        if self._appender is not None:
+            self._appender.keep = keep_unsettled
         self._schemas: dict[str, int] = {}
         self._channels: dict[ChannelSpec, int] = {}
+        self._ids: dict[int, int] = {}  # id(spec) -> channel id
+        self._specs: dict[int, ChannelSpec] = {}  # channel id -> the first spec seen
+        self._specs_seen: list[ChannelSpec] = []
+        # unsettled messages the chunks do not hold (the library's path; a failed channel's)
+        self._loose: list[tuple[ChannelSpec, bytes, int, int]] = []
         self._finished = False
         self.messages = 0
         self.data_bytes = 0
@@ -388,32 +470,156 @@ class McapFileWriter:
         """The channel id for ``spec``, registering schema and channel on first use."""
         cid = self._channels.get(spec)
         if cid is None:
-            schema_id = 0
-            if spec.schema_name:
-                key = spec.schema_name + "\0" + spec.schema_data.decode()
-                schema_id = self._schemas.get(key, 0)
-                if not schema_id:
-                    schema_id = self._writer.register_schema(
-                        spec.schema_name, spec.schema_encoding, spec.schema_data
-                    )
-                    self._schemas[key] = schema_id
-            cid = self._writer.register_channel(spec.topic, spec.message_encoding, schema_id)
+            appender = self._appender
+            if appender is not None:
+                appender.lend()
+            try:
+                schema_id = 0
+                if spec.schema_name:
+                    key = spec.schema_name + "\0" + spec.schema_data.decode()
+                    schema_id = self._schemas.get(key, 0)
+                    if not schema_id:
+                        schema_id = self._writer.register_schema(
+                            spec.schema_name, spec.schema_encoding, spec.schema_data
+                        )
+                        self._schemas[key] = schema_id
+                cid = self._writer.register_channel(spec.topic, spec.message_encoding, schema_id)
+            except BaseException:
+                if appender is not None:
+                    appender.take_back(failed=True)
+                raise
+            if appender is not None:
+                appender.take_back(failed=False)
             self._channels[spec] = cid
+            self._specs.setdefault(cid, spec)
         return cid
 
-    def add(self, spec: ChannelSpec, data: bytes, log_time_ns: int, publish_time_ns: int) -> None:
-        """Add one message on the channel described by ``spec``."""
-        cid = self._channels.get(spec)
+    def _channel_of(self, spec: ChannelSpec, message: Callable[[], bytes], log_time_ns: int,
+                    publish_time_ns: int) -> int:
+        """The channel id of ``spec`` for a message being added; if registering it fails, the
+        message (``message()`` is its data) stays unsettled like the ones before it."""
+        # Channels by the spec object's identity first: hashing the dataclass is a Python
+        # call per message. ``_specs_seen`` holds every spec seen, so no id is reused meanwhile.
+        cid = self._ids.get(id(spec))
         if cid is None:
-            cid = self.channel_id(spec)
-        if self._appender is not None:
-            self._appender.add(cid, log_time_ns, data, publish_time_ns, self.messages & 0xFFFFFFFF)
-        else:
+            try:
+                cid = self.channel_id(spec)
+            except OSError:
+                if self._keep:
+                    self._loose.append((spec, message(), log_time_ns, publish_time_ns))
+                raise
+            if len(self._specs_seen) >= _IDS_MAX:  # a caller making a spec per message
+                self._ids.clear()
+                self._specs_seen.clear()
+            self._ids[id(spec)] = cid
+            self._specs_seen.append(spec)
+        return cid
+
+    def add(self, spec: ChannelSpec, data: bytes, log_time_ns: int, publish_time_ns: int) -> bool:
+        """Add one message on the channel described by ``spec``; True if that closed a chunk
+        (the file grew)."""
+        cid = self._ids.get(id(spec))
+        if cid is None:
+            cid = self._channel_of(spec, lambda: data, log_time_ns, publish_time_ns)
+        appender = self._appender
+        if appender is None:
+            if self._keep:
+                self._loose.append((spec, data, log_time_ns, publish_time_ns))
+            chunks = self._writer_chunks()
             self._writer.add_message(cid, log_time=log_time_ns, data=data,
                                      publish_time=publish_time_ns,
                                      sequence=self.messages & 0xFFFFFFFF)
+            self.messages += 1
+            self.data_bytes += len(data)
+            return self._writer_chunks() != chunks
+        buf = appender.buf
+        entries = appender.index.get(cid)
+        if entries is None:
+            entries = appender.index[cid] = []
+        entries += (log_time_ns, len(buf))
+        buf += _MESSAGE_HEAD.pack(_MESSAGE_OPCODE, _MESSAGE_FIXED + len(data), cid,
+                                  self.messages & 0xFFFFFFFF, log_time_ns, publish_time_ns)
+        buf += data
+        full = len(buf) > appender.chunk_size
+        if full:
+            appender.finalize()
         self.messages += 1
         self.data_bytes += len(data)
+        return full
+
+    def add_typed(self, spec: ChannelSpec, record: Any, log_time_ns: int,
+                  publish_time_ns: int) -> bool:
+        """:meth:`add` of ``jsonio.dumps_typed(record)``, encoded straight into the chunk."""
+        appender = self._appender
+        if appender is None:
+            return self.add(spec, jsonio.dumps_typed(record), log_time_ns, publish_time_ns)
+        cid = self._ids.get(id(spec))
+        if cid is None:
+            cid = self._channel_of(spec, lambda: jsonio.dumps_typed(record), log_time_ns,
+                                   publish_time_ns)
+        buf = appender.buf
+        offset = len(buf)
+        buf += _BLANK_HEAD
+        try:
+            jsonio.append_typed(record, buf)
+            n = len(buf) - offset - _MESSAGE_HEAD.size
+            _MESSAGE_HEAD.pack_into(buf, offset, _MESSAGE_OPCODE, _MESSAGE_FIXED + n, cid,
+                                    self.messages & 0xFFFFFFFF, log_time_ns, publish_time_ns)
+        except BaseException:  # a value that cannot be written: the chunk stays whole
+            del buf[offset:]
+            raise
+        entries = appender.index.get(cid)
+        if entries is None:
+            entries = appender.index[cid] = []
+        entries += (log_time_ns, offset)
+        full = len(buf) > appender.chunk_size
+        if full:
+            appender.finalize()
+        self.messages += 1
+        self.data_bytes += n
+        return full
+
+    def unsettled(self) -> list[tuple[ChannelSpec, bytes, int, int]]:
+        """Every message added since the last :meth:`settle` (in order, as ``(spec, data,
+        log_time_ns, publish_time_ns)``): what a failed write may have lost. Read back from
+        the chunks, which hold them anyway (no second copy is kept per message)."""
+        if not self._keep:
+            raise RuntimeError("the writer was made without keep_unsettled")
+        out: list[tuple[ChannelSpec, bytes, int, int]] = []
+        appender = self._appender
+        if appender is not None:
+            for chunk, start in (*appender.kept, (appender.buf, appender.settled)):
+                self._messages_of(chunk, start, out)
+        out += self._loose
+        return out
+
+    def _messages_of(self, chunk: bytearray, pos: int,
+                     out: list[tuple[ChannelSpec, bytes, int, int]]) -> None:
+        view = memoryview(chunk)
+        end = len(chunk)
+        while pos < end:
+            opcode, length = _RECORD_HEAD.unpack_from(chunk, pos)
+            body = pos + _RECORD_HEAD.size
+            if opcode == _MESSAGE_OPCODE:  # else a schema or a channel
+                cid, _, log_ns, publish_ns = _MESSAGE_BODY.unpack_from(chunk, body)
+                out.append((self._specs[cid], bytes(view[body + _MESSAGE_FIXED:body + length]),
+                            log_ns, publish_ns))
+            pos = body + length
+        view.release()
+
+    def settle(self) -> None:
+        """Everything added so far is safely in the file (flushed, and the file is still
+        where it was): forget it."""
+        appender = self._appender
+        if appender is not None:
+            appender.kept.clear()
+            appender.settled = len(appender.buf)
+        self._loose.clear()
+
+    def _writer_chunks(self) -> int:
+        """Chunks the library's writer has closed (when it adds the messages itself)."""
+        stats = getattr(self._writer, _PRIVATE + "statistics", None)
+        return int(getattr(stats, "chunk_count", 0))
 
     def add_metadata(self, name: str, data: dict[str, str]) -> None:
         self._writer.add_metadata(name, data)

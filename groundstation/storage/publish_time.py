@@ -34,7 +34,8 @@ class PublishClock:
                 week += 1
         return gpstime.gps_to_unix_ns(week * gpstime.NS_PER_WEEK + tow_ns)
 
-    def _publish_time_ns(self, record: Any, log_time_ns: int) -> int:
+    def publish_time_ns(self, record: Any, log_time_ns: int) -> int:
+        """The ``publish_time`` of ``record`` received at ``log_time_ns``."""
         t: int | None = None
         if isinstance(record, RawEpoch):
             self._week, self._tow_ns = record.gps_week, record.tow_ns
@@ -46,7 +47,3 @@ class PublishClock:
             week = record.gps_week if isinstance(record, NavSolution) else None
             t = self._gps_unix_ns(record.tow_ns, week)
         return t if t is not None and t >= 0 else log_time_ns
-
-    def publish_time_ns(self, record: Any, log_time_ns: int) -> int:
-        """The ``publish_time`` of ``record`` received at ``log_time_ns``."""
-        return self._publish_time_ns(record, log_time_ns)

@@ -37,3 +37,22 @@ class RotationPolicy:
         if self.max_chunks_per_file and chunks >= self.max_chunks_per_file:
             return True
         return bool(self.duration_ns and now_ns - started_ns >= self.duration_ns)
+
+    def limits(self, *, size_bytes: int, closed_chunks: int, started_ns: int
+               ) -> tuple[bool, int, int]:
+        """:meth:`due` solved for what changes message by message, so a writer can check it
+        with two comparisons: ``(due_now, data_limit, time_limit)``. With the same file (size,
+        closed chunks, start), ``due(..., data_bytes=d, now_ns=t)`` is true exactly when
+        ``due_now or d >= data_limit or t >= time_limit``."""
+        due_now = bool(self.size_bytes and size_bytes >= self.size_bytes)
+        data_limit = time_limit = NEVER
+        if self.max_chunks_per_file:
+            # closed + d // chunk >= max  <=>  d >= (max - closed) * chunk  (d >= 0)
+            data_limit = max(0, self.max_chunks_per_file - closed_chunks) * self.chunk_size_bytes
+        if self.duration_ns:
+            time_limit = started_ns + self.duration_ns
+        return due_now, data_limit, time_limit
+
+
+NEVER = 1 << 126
+"""A limit no byte count or UNIX ns time reaches."""

@@ -9,12 +9,21 @@ from ``storage/naming.py``, when to start the next file from ``storage/rotation.
 LocationFix messages from ``storage/location.py``, and what is held while writing fails from
 ``storage/backlog.py``.
 
+The write path: while no rotation is due, a message goes straight into the MCAP chunk in
+progress (a record's JSON is encoded there, :meth:`~groundstation.storage.mcapio.McapFileWriter.
+add_typed`). Whether one is due is two comparisons per message against the current file's
+:meth:`~groundstation.storage.rotation.RotationPolicy.limits`, worked out again for each new
+file, at each flush and when a chunk is closed, so a file ends exactly where the per-message
+rule ends it. Otherwise (or while writing fails) the full path below is taken. The recorder
+sink hands over a whole burst (:meth:`SessionRecorder.write_items`).
+
 Write failures (ENOSPC, EDQUOT, EIO ... any ``OSError``) never escape. The design:
 
-- Every message handed to the MCAP writer since its last successful flush is also kept in a
-  short *pending* list (at most one flush interval), and the sizes of the MCAP and the sidecar
-  after that flush are known-good boundaries (files are written unbuffered and never short,
-  :class:`~groundstation.storage.mcapio.ExactFile`).
+- Every message handed to the MCAP writer since its last successful flush is *pending*: the
+  writer can give it back (:meth:`~groundstation.storage.mcapio.McapFileWriter.unsettled`,
+  read from the uncompressed chunks it holds until then, at most one flush interval), and the
+  sizes of the MCAP and the sidecar after that flush are known-good boundaries (files are
+  written unbuffered and never short, :class:`~groundstation.storage.mcapio.ExactFile`).
 - When a write fails, the current pair is *abandoned*: the MCAP is cut back to its last good
   chunk boundary and closed without a summary (a torn chunk is never left behind, and nothing in
   it is duplicated later), the sidecar is cut back to the same point in the byte stream. The
@@ -56,14 +65,14 @@ import errno
 import logging
 import os
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from groundstation import __version__, jsonio
 from groundstation import events as kinds
-from groundstation.records import Event, NavSolution
+from groundstation.records import Event, NavSolution, RawChunk
 from groundstation.storage.backlog import Backlog, Msg, cost, size_text
 from groundstation.storage.location import LOCATION_CHANNEL, location_fix
 from groundstation.storage.mcapio import ExactFile, McapFileWriter, WritableFile
@@ -170,6 +179,9 @@ class SessionRecorder:
         self._sidecars: list[Path] = []
         self._file_start_ns = 0
         self._last_flush_ns = 0
+        # RotationPolicy.limits of the current file (module docstring: the write path)
+        self._due_now = True
+        self._data_limit = self._time_limit = 0
         self._publish_clock = PublishClock()
         self._raw_chunks = 0
         self._raw_bytes = 0
@@ -178,7 +190,6 @@ class SessionRecorder:
         self._flushes = 0
         self._closed = False
         # write-failure handling (module docstring)
-        self._pending: list[Msg] = []
         self._mcap_good = 0
         self._side_good = 0
         self._failure: OSError | None = None
@@ -228,7 +239,7 @@ class SessionRecorder:
                 created.append(ubx)
             mcap = McapFileWriter(
                 path, chunk_size_bytes=self.chunk_size_bytes, compression=self.compression,
-                library=f"groundstation {__version__}", file=mcap_file,
+                library=f"groundstation {__version__}", file=mcap_file, keep_unsettled=True,
             )
             previous = self._files[-1].name if self._files else ""
             mcap.add_metadata(
@@ -265,9 +276,19 @@ class SessionRecorder:
         self._mcap_good = self._pair_empty_size = mcap.size_bytes
         self._side_good = 0
         self._file_chunks = self._msgs_at_flush = 0
+        self._set_limits()
         if not after_failure:  # a recovery says so once it has succeeded
             log.info("recording to %s", path)
         return path
+
+    def _set_limits(self) -> None:
+        """Work out the current file's rotation limits again (after its size, its closed
+        chunks or the file itself changed)."""
+        mcap = self._mcap
+        if mcap is not None:
+            self._due_now, self._data_limit, self._time_limit = self.rotation.limits(
+                size_bytes=mcap.size_bytes, closed_chunks=self._file_chunks,
+                started_ns=self._file_start_ns)
 
     def _rotate_due(self, now_ns: int) -> bool:
         mcap = self._mcap
@@ -285,7 +306,6 @@ class SessionRecorder:
         if self._ubx is not None:
             self._ubx.close()
             self._ubx = None
-        self._pending.clear()
 
     def close(self) -> None:
         """Finish the MCAP (summary written) and close the sidecar; safe to call twice.
@@ -337,15 +357,66 @@ class SessionRecorder:
         self._records += 1
         if isinstance(record, Event):
             self._events += 1
-        self._write((spec, jsonio.dumps_with({"type": type(record).__name__}, record),
-                     log_time_ns, publish))
+        mcap = self._mcap
+        if mcap is not None and self._failure is None:
+            now = self._clock()
+            if (now < self._time_limit and mcap.data_bytes < self._data_limit
+                    and not self._due_now):  # _write's check; encoded straight into the chunk
+                try:
+                    if mcap.add_typed(spec, record, log_time_ns, publish):
+                        self._set_limits()
+                except OSError as err:
+                    self._fail(err)
+            else:
+                self._write_at((spec, jsonio.dumps_typed(record), log_time_ns, publish), now)
+        else:
+            self._write((spec, jsonio.dumps_typed(record), log_time_ns, publish))
         if isinstance(record, NavSolution):
             fix = location_fix(record, publish, self.station)
             if fix is not None:
-                self._write((LOCATION_CHANNEL, jsonio.dumps(fix), log_time_ns, publish))
+                self._write((LOCATION_CHANNEL, fix, log_time_ns, publish))
         return True
 
+    def write_items(self, items: Sequence[Any], start: int, clock: Callable[[], int],
+                    files_seen: int) -> int:
+        """Record ``items[start:]`` (raw chunks and records) as :meth:`write_raw` and
+        :meth:`write_record` would one by one, a record without a host time (``t_host_ns``)
+        at ``clock()``; stop after a raw chunk when the session has other than
+        ``files_seen`` files (so the caller can announce a new part where it would have
+        item by item). Returns the index after the last item written."""
+        n = len(items)
+        i = start
+        while i < n:
+            item = items[i]
+            i += 1
+            if type(item) is RawChunk:
+                self.write_raw(item.data, item.t_host_ns)
+                if len(self._files) != files_seen:
+                    return i
+            else:
+                # log_time is the host time the record's bytes arrived (events: when they
+                # happened)
+                t = getattr(item, "t_host_ns", 0)
+                self.write_record(item, t if isinstance(t, int) and t > 0 else clock())
+        return n
+
     def _write(self, msg: Msg) -> None:
+        mcap = self._mcap
+        if mcap is not None and self._failure is None:
+            now = self._clock()
+            if (now < self._time_limit and mcap.data_bytes < self._data_limit
+                    and not self._due_now):  # no rotation due (RotationPolicy.limits)
+                spec, data, log_ns, publish_ns = msg
+                try:
+                    if mcap.add(spec, data, log_ns, publish_ns):
+                        self._set_limits()  # the file grew by a chunk
+                    if spec is RAW_CHANNEL and self._ubx is not None:
+                        self._ubx.write(data)
+                except OSError as err:
+                    self._fail(err)  # the pending messages go to the backlog, in order
+                return
+            self._write_at(msg, now)
+            return
         if self._closed:
             raise RuntimeError("recorder is closed")
         if self._mcap is None and self._failure is None:
@@ -353,7 +424,10 @@ class SessionRecorder:
         if self._failure is not None:
             self._backlog.hold(msg)
             return
-        now = self._clock()
+        self._write_at(msg, self._clock())
+
+    def _write_at(self, msg: Msg, now: int) -> None:
+        """:meth:`_write` when a rotation may be due at ``now``."""
         rotate = self._rotate_due(now)
         if rotate and self._pair_gone(now):
             self._write(msg)  # into the new part, or held if there is none
@@ -373,9 +447,9 @@ class SessionRecorder:
     def _put(self, msg: Msg) -> None:
         """Into the current pair (pending until the next successful flush)."""
         assert self._mcap is not None
-        self._pending.append(msg)
         spec, data, log_ns, publish_ns = msg
-        self._mcap.add(spec, data, log_ns, publish_ns)
+        if self._mcap.add(spec, data, log_ns, publish_ns):
+            self._set_limits()
         if spec is RAW_CHANNEL and self._ubx is not None:
             self._ubx.write(data)
 
@@ -388,6 +462,7 @@ class SessionRecorder:
         self._failure = err
         self._failures += first
         path = self._mcap.path if self._mcap is not None else None
+        pending = self._mcap.unsettled() if self._mcap is not None else []
         empty = self._mcap_good <= self._pair_empty_size and self._side_good == 0
         if self._mcap is not None and empty and len(self._files) > 1:
             # a new part that holds nothing yet: leave no empty files behind
@@ -409,8 +484,7 @@ class SessionRecorder:
             with contextlib.suppress(OSError):
                 self._ubx.close()
             self._ubx = None
-        self._backlog.push_front(self._pending)
-        self._pending.clear()
+        self._backlog.push_front(pending)
         self._next_retry_ns = now + self.retry_interval_ns
         if first:
             self._report_failure(err, path or self.out_dir, now)
@@ -457,7 +531,7 @@ class SessionRecorder:
             mcap.flush()
         except OSError as err:
             log.debug("recording still failing: %s", err)
-            self._drained_bytes -= sum(len(m[1]) for m in self._pending)
+            self._drained_bytes -= sum(len(m[1]) for m in mcap.unsettled())
             self._fail(err)
             return
         self._mark_flushed(now_ns)
@@ -505,6 +579,7 @@ class SessionRecorder:
             return False
         mcap, ubx = self._mcap, self._ubx
         assert mcap is not None
+        pending = mcap.unsettled()
         ours = {path for path, ident in self._idents if _still(path, ident)}
         # What is still ours (a sidecar deleted beside its MCAP) is cut back to its last good
         # boundary as after a write failure, so the pending messages are not there twice.
@@ -521,8 +596,7 @@ class SessionRecorder:
         self._mcap = self._ubx = None
         self._idents = []
         lost = self._mark_lost()
-        self._backlog.push_front(self._pending)
-        self._pending.clear()
+        self._backlog.push_front(pending)
         self._failure = FileNotFoundError(errno.ENOENT, why)
         try:
             self._open_file(now, after_failure=why)
@@ -593,9 +667,10 @@ class SessionRecorder:
             self._msgs_at_flush = self._mcap.messages
         self._mcap_good = self._mcap.size_bytes
         self._side_good = self._ubx.tell() if self._ubx is not None else 0
-        self._pending.clear()
+        self._mcap.settle()
         self._last_flush_ns = now_ns
         self._flushes += 1
+        self._set_limits()
 
     def maybe_flush(self) -> bool:
         """Flush if the flush interval has passed (after a failure: retry writing when the

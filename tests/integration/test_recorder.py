@@ -208,3 +208,55 @@ def test_missing_file_source_is_an_error(tmp_path: Path) -> None:
         asyncio.run(run_daemon(settings))
     # refused before any file is created (FileSource.claim)
     assert not list((tmp_path / "out").glob("*.mcap"))
+
+
+def test_sink_bursts_write_and_announce_as_item_by_item(tmp_path: Path,
+                                                        monkeypatch: pytest.MonkeyPatch) -> None:
+    """The recorder sink hands each burst to the session (``write_items``); the files, and
+    where each new part is announced (the clock's reading then), are those of writing the same
+    items one by one (``RecorderSink.write``), with rotations by size and by duration falling
+    inside bursts."""
+    import secrets
+
+    from groundstation.live.recorder_sink import RecorderSink
+    from groundstation.records import RawChunk
+
+    monkeypatch.setattr(secrets, "token_hex", lambda n: "ab" * n)  # one session id
+    data = generated_stream(n=1200)
+    items: list[object] = []
+    dec, framer = Decoder(), UbxFramer()
+    for k, i in enumerate(range(0, len(data), 97)):
+        t = T0_NS + i * 86_806
+        items.append(RawChunk(data[i : i + 97], t))
+        items += [dec.decode(f) for f in framer.feed(data[i : i + 97], t)]
+        if k % 7 == 0:
+            items.append(Event("test.kind", 0, "no host time", "info", {"k": k}))  # sink clock
+    for kw in ({"rotate_size_bytes": 3000}, {"rotate_duration_ns": 40_000_000}):
+        seen: list[list[tuple[str, int]]] = []
+        contents: list[list[bytes]] = []
+        for burst in (False, True):
+            out = tmp_path / f"{burst}{len(seen)}{sorted(kw)[0]}"
+            clock = FakeClock()
+            rec = SessionRecorder(out, "st1", chunk_size_bytes=512, clock=clock,
+                                  **kw)  # type: ignore[arg-type]
+            announced: list[tuple[str, int]] = []
+
+            def announce(path: Path, announced: list[tuple[str, int]] = announced,
+                         clock: FakeClock = clock) -> None:
+                announced.append((path.name, clock.now))
+
+            sink = RecorderSink(rec, 0.5, announce, clock=clock)
+            sink.open()
+            for j in range(0, len(items), 40):
+                part = items[j : j + 40]
+                if burst:
+                    sink._write_burst(part)  # type: ignore[arg-type]
+                else:
+                    for item in part:
+                        sink.write(item)  # type: ignore[arg-type]
+                rec.maybe_flush()
+            rec.close()
+            seen.append(announced)
+            contents.append([p.read_bytes() for p in sorted(out.iterdir())])
+        assert seen[0] == seen[1] and len(seen[0]) > 3, kw
+        assert contents[0] == contents[1], kw

@@ -9,6 +9,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from groundstation import jsonio
 from groundstation.bus import decode, encode
@@ -45,6 +46,28 @@ def test_head_fields_lead_and_the_record_wins() -> None:
     assert jsonio.loads(jsonio.dumps_with({"type": "e"}, Empty())) == {"type": "e"}
     assert jsonio.loads(jsonio.dumps_with({}, {"a": 1})) == {"a": 1}
     assert jsonio.loads(jsonio.dumps_with({"type": "v"}, [1, 2])) == {"type": "v", "value": [1, 2]}
+
+
+def test_typed_records_are_dumps_with_a_type_head() -> None:
+    """``dumps_typed`` and ``append_typed`` (what the recorder writes) give the bytes of
+    ``dumps_with({"type": <class name>}, record)`` for every kind of value, and an encoding
+    error leaves the buffer as it was."""
+    sat = SatObs(0, 5, math.nan, math.inf, -100.25, 44, 7, 2, True, False, locktime_ms=3)
+    values = [RawEpoch(2300, 123_400_000_000, (sat,), "RXM-RAW", 99),
+              TimeMark(0, 1, None, 5, False, True, 1, True, 20, 7), Empty(),
+              Event("x.y", 1, "é", "info", {"blob": b"\x01"}), [1, 2], {"a": 1}, {}, 3.5]
+    for value in values:
+        expected = jsonio.dumps_with({"type": type(value).__name__}, value)
+        assert jsonio.dumps_typed(value) == expected
+        buf = bytearray(b"head")
+        jsonio.append_typed(value, buf)
+        assert buf == b"head" + expected
+    loop: list[object] = []
+    loop.append(loop)
+    buf = bytearray(b"head")
+    with pytest.raises(RecursionError):
+        jsonio.append_typed({"v": loop}, buf)
+    assert buf == b"head"
 
 
 def test_bus_payload_round_trip() -> None:
