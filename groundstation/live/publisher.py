@@ -294,10 +294,16 @@ class ZenohPublisherSink:
                         log.info("every recording file was sent in full: done serving")
                         break
                     await asyncio.sleep(0.2)
-            if self.bus is not None:
-                await asyncio.sleep(FLUSH_BEFORE_CLOSE_S)  # let the last puts leave the host
+            await self._let_puts_leave()
         finally:
             self._drop_bus()
+
+    async def _let_puts_leave(self) -> None:
+        """Before leaving the bus: give the last puts time to leave the host, when anyone is
+        connected to receive them (with nobody connected there is nothing in flight, and the
+        0.3 s was a fixed cost of every file replayed or ingested alone)."""
+        if self.bus is not None and self.bus.connections() > 0:
+            await asyncio.sleep(FLUSH_BEFORE_CLOSE_S)
 
     def close(self) -> None:
         """Leave the bus (when :meth:`finish` was not reached)."""
@@ -369,7 +375,6 @@ class ZenohPublisherSink:
                 self.session["state"] = "finished"
                 self.session["marks"] = len(self.marks)
                 self._put_session()
-                if self.bus is not None:
-                    await asyncio.sleep(FLUSH_BEFORE_CLOSE_S)  # the last puts leave the host
+                await self._let_puts_leave()
                 self._drop_bus()
             # else: the daemon calls finish() once the recorder has closed the last file
