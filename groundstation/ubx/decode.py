@@ -13,14 +13,12 @@ field for field on every real recording and on the simulator's output.
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 import math
 import struct
 from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, TypeVar
 
 from groundstation.geodesy import ecef_to_llh, llh_to_ecef
 from groundstation.records import (
@@ -35,6 +33,7 @@ from groundstation.records import (
     SvInfoSat,
     TimeMark,
     UndecodedFrame,
+    positional_constructor,
 )
 from groundstation.rules.phase import RawPhase, RawxPhase
 from groundstation.ubx import layouts as L
@@ -149,45 +148,22 @@ def gnss_of_svid(svid: int) -> tuple[int, int]:
 _SVID = tuple(gnss_of_svid(s) for s in range(256))  # one lookup per satellite in the hot path
 
 
-T = TypeVar("T")
-
-
-def positional_constructor(cls: type[T]) -> Callable[..., T]:
-    """A constructor of a frozen, slotted dataclass taking every field positionally.
-
-    The same object as ``cls(*values)``, about three times faster: the generated ``__init__`` of a
-    frozen dataclass calls ``object.__setattr__`` once per field, this sets each slot through its
-    descriptor. It matters for the records made per satellite (80 000 on a 40-minute file).
-    """
-    fields = dataclasses.fields(cls)  # type: ignore[arg-type]
-    ns: dict[str, Any] = {"new": object.__new__, "cls": cls}
-    params = []
-    lines = ["    o = new(cls)"]
-    for i, f in enumerate(fields):
-        if f.default_factory is not dataclasses.MISSING:
-            raise TypeError(f"{cls.__name__}.{f.name}: default factories are not supported")
-        if f.default is dataclasses.MISSING:
-            params.append(f.name)
-        else:
-            ns[f"default{i}"] = f.default
-            params.append(f"{f.name}=default{i}")
-        ns[f"set{i}"] = cls.__dict__[f.name].__set__
-        lines.append(f"    set{i}(o, {f.name})")
-    lines.insert(0, f"def make({', '.join(params)}):")
-    lines.append("    return o")
-    exec("\n".join(lines), ns)  # noqa: S102 - code built from the dataclass's own field names
-    make: Callable[..., T] = ns["make"]
-    make.__doc__ = f"{cls.__name__}(*fields), built slot by slot."
-    return make
-
-
+# the records made per frame or per satellite, built without the frozen ``__init__``'s cost
 _sat_obs = positional_constructor(SatObs)
 _sv_info_sat = positional_constructor(SvInfoSat)
+_raw_epoch = positional_constructor(RawEpoch)
+_nav_solution = positional_constructor(NavSolution)
+_sv_info = positional_constructor(SvInfo)
+# SatObs.half_cycle_unresolved and .slip of each LLI byte (a lookup instead of two bool calls)
+_LLI_HALF_OF = tuple(bool(b & _LLI_HALF) for b in range(256))
+_LLI_SLIP_OF = tuple(bool(b & _LLI_SLIP) for b in range(256))
 
 
-def _need(name: str, payload: bytes, size: int) -> None:
+def _need(name: str, payload: bytes, size: int, count: int | None = None, unit: str = "") -> None:
+    # the message is formatted only on failure: this runs for every frame
     if len(payload) < size:
-        raise PayloadError(f"{len(payload)}-byte payload, {name} needs {size}")
+        what = name if count is None else f"{name} with {count} {unit}"
+        raise PayloadError(f"{len(payload)}-byte payload, {what} needs {size}")
 
 
 @dataclass(frozen=True, slots=True)
@@ -271,25 +247,27 @@ class Decoder:
         _need("RXM-RAW", p, 8)
         itow, week, n, _ = _RAW_HEAD.unpack_from(p)
         end = 8 + 24 * n
-        _need(f"RXM-RAW with {n} satellites", p, end)
-        svid_map = _SVID
-        sats = []
-        raw_phase = self._raw_phase
+        _need("RXM-RAW", p, end, n, "satellites")
+        # the hot loop (one turn per satellite): everything it uses bound locally
+        svid_map, half_of, slip_of, sat_obs = _SVID, _LLI_HALF_OF, _LLI_SLIP_OF, _sat_obs
+        # the phase rule (rules/phase.py): slips carried over blank phase; a week-0 message
+        # (cold start) keeps the receiver's bits and does not advance the rule's state
+        rule = self._raw_phase.lli if week != 0 else None
+        sats: list[SatObs] = []
+        append = sats.append
         for cp, pr, do, svid, qi, cno, lli in _RAW_SV.iter_unpack(p[8:end]):
             gnss, sv = svid_map[svid]
-            if week != 0:  # the phase rule (rules/phase.py): slips carried over blank phase
-                lli = raw_phase.lli(svid, lli, cp)
-            sats.append(_sat_obs(
-                gnss, sv, cp, pr, do, cno, qi, lli, bool(lli & _LLI_HALF), bool(lli & _LLI_SLIP)
-            ))
-        return RawEpoch(week, itow * 1_000_000, tuple(sats), "RXM-RAW", frame.t_host_ns)
+            if rule is not None:
+                lli = rule(svid, lli, cp)
+            append(sat_obs(gnss, sv, cp, pr, do, cno, qi, lli, half_of[lli], slip_of[lli]))
+        return _raw_epoch(week, itow * 1_000_000, tuple(sats), "RXM-RAW", frame.t_host_ns)
 
     def _rxm_rawx(self, frame: Frame) -> RawEpoch:
         p = frame.payload
         _need("RXM-RAWX", p, 16)
         rcv_tow, week, leap_s, n, rec_stat, _ = _RAWX_HEAD.unpack_from(p)
         end = 16 + 32 * n
-        _need(f"RXM-RAWX with {n} measurements", p, end)
+        _need("RXM-RAWX", p, end, n, "measurements")
         leap_valid = bool(rec_stat & _LEAP_VALID)
         if leap_valid:
             self.leap_s = leap_s
@@ -308,13 +286,13 @@ class Decoder:
                 cp_valid, lli = bool(trk & _CP_VALID), 0
             max_sig = max(max_sig, sig)
             sats.append(_sat_obs(
-                gnss, sv, cp, pr, do, cno, None, lli, bool(lli & _LLI_HALF), bool(lli & _LLI_SLIP),
+                gnss, sv, cp, pr, do, cno, None, lli, _LLI_HALF_OF[lli], _LLI_SLIP_OF[lli],
                 sig, freq, lock_ms, trk, bool(trk & _PR_VALID), cp_valid,
                 half_sub, pr_std & _STD, cp_std & _STD, do_std & _STD,
             ))  # fmt: skip
         if week != 0 and n:
             rule.end_message(max_sig)
-        return RawEpoch(
+        return _raw_epoch(
             week,
             round(rcv_tow * 1e9),
             tuple(sats),
@@ -348,7 +326,7 @@ class Decoder:
         p = frame.payload
         _need("RXM-SFRBX", p, 8)
         gnss, sv, sig, freq, n, chn, _, _ = _SFRBX_HEAD.unpack_from(p)
-        _need(f"RXM-SFRBX with {n} words", p, 8 + 4 * n)
+        _need("RXM-SFRBX", p, 8 + 4 * n, n, "words")
         words = struct.unpack_from(f"<{n}I", p, 8)
         return Subframe(
             gnss, sv, words, "RXM-SFRBX", channel=chn, sig_id=sig, freq_id=freq,
@@ -376,7 +354,7 @@ class Decoder:
         lat = lon = h = None
         if has_pos:
             lat, lon, h = ecef_to_llh(*ecef)
-        return NavSolution(
+        return _nav_solution(
             source="NAV-SOL",
             tow_ns=itow * 1_000_000 + ftow,
             gps_week=week if flags & _SOL_WKN_SET else None,
@@ -402,7 +380,7 @@ class Decoder:
         lon = round(lon_raw * _LAT_SCALE, L.SCALE_ROUND)
         h = height_mm / 1000.0
         has_pos = not (lat == 0.0 and lon == 0.0)
-        return NavSolution(
+        return _nav_solution(
             source=source,
             tow_ns=itow * 1_000_000,
             gps_week=None,
@@ -445,7 +423,7 @@ class Decoder:
         _need("NAV-SVINFO", p, 8)
         itow, n, _, _ = _SVINFO_HEAD.unpack_from(p)
         end = 8 + 12 * n
-        _need(f"NAV-SVINFO with {n} channels", p, end)
+        _need("NAV-SVINFO", p, end, n, "channels")
         svid_map = _SVID
         sats = []
         for _, svid, flags, quality, cno, elev, azim, _ in _SVINFO_SAT.iter_unpack(p[8:end]):
@@ -454,14 +432,14 @@ class Decoder:
                 gnss, sv if gnss != 1 else svid, cno, elev, azim, bool(flags & _SVINFO_USED),
                 quality & _SVINFO_QUALITY, not flags & _SVINFO_UNHEALTHY,
             ))  # fmt: skip
-        return SvInfo("NAV-SVINFO", itow * 1_000_000, tuple(sats), frame.t_host_ns)
+        return _sv_info("NAV-SVINFO", itow * 1_000_000, tuple(sats), frame.t_host_ns)
 
     def _nav_sat(self, frame: Frame) -> SvInfo:
         p = frame.payload
         _need("NAV-SAT", p, 8)
         itow, _, n = _SAT_HEAD.unpack_from(p)
         end = 8 + 12 * n
-        _need(f"NAV-SAT with {n} satellites", p, end)
+        _need("NAV-SAT", p, end, n, "satellites")
         sats = [
             _sv_info_sat(
                 gnss, sv, cno, elev, azim, bool(flags & _SAT_USED), flags & _SAT_QUALITY,
@@ -469,4 +447,4 @@ class Decoder:
             )
             for gnss, sv, cno, elev, azim, _, flags in _SAT_SV.iter_unpack(p[8:end])
         ]
-        return SvInfo("NAV-SAT", itow * 1_000_000, tuple(sats), frame.t_host_ns)
+        return _sv_info("NAV-SAT", itow * 1_000_000, tuple(sats), frame.t_host_ns)

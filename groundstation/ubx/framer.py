@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import numpy.typing as npt
 
-from groundstation.records import Frame
+from groundstation.records import Frame, positional_constructor
 
 SYNC1 = 0xB5
 SYNC2 = 0x62
@@ -41,6 +41,7 @@ DEFAULT_MAX_PAYLOAD = 8192
 NMEA_MAX_LEN = 120  # NMEA 0183 says 82; u-blox PUBX sentences run longer
 RTCM3_PREAMBLE = 0xD3
 
+_frame = positional_constructor(Frame)  # one per frame: the fast form of Frame(...)
 _CANDIDATE = re.compile(rb"[$\xd3]")
 _NMEA = re.compile(rb"\$([A-Z][A-Z0-9]{1,9},[\x20-\x29\x2b-\x7e]*)\*([0-9A-Fa-f]{2})\r?\n")
 # Weights n..1 for the Fletcher checksum's second byte, sliced from the end for each length.
@@ -390,16 +391,19 @@ class UbxFramer:
         c.truncated += scan.truncated
         out: list[Frame] = []
         gap = self._gap_at - base
-        by_type = c.frames_by_type
-        for s, ln in zip(scan.start, scan.length, strict=True):
-            if gap < s:
-                self._account_gap(buf, gap, s, hard=True, at_end=False)
-            e = s + OVERHEAD + ln
-            raw = bytes(buf[s:e])
-            key = (raw[2], raw[3])
-            out.append(Frame(raw[2], raw[3], raw[6:-2], raw, t_host_ns, base + s))
-            by_type[key] += 1
-            gap = e
+        if scan.start:
+            # one copy of the bytes at hand, then each frame's raw and payload sliced from it
+            data = bytes(buf)
+            frame = _frame
+            append = out.append
+            for s, ln in zip(scan.start, scan.length, strict=True):
+                if gap < s:
+                    self._account_gap(buf, gap, s, hard=True, at_end=False)
+                e = s + OVERHEAD + ln
+                append(frame(data[s + 2], data[s + 3], data[s + 6 : e - 2], data[s:e], t_host_ns,
+                             base + s))
+                gap = e
+            c.frames_by_type.update([(f.cls, f.id) for f in out])
         c.frames += len(scan.start)
         c.frame_bytes += sum(scan.length) + OVERHEAD * len(scan.start)
         hold = scan.hold

@@ -14,12 +14,19 @@ from real_files import REAL_UBX_FILES
 from streams import WEEK, rxm_raw, t_gps_ns, tim_tm2
 
 from groundstation.errors import DecodeError
-from groundstation.records import Frame, RawEpoch, SatObs, TimeMark, UndecodedFrame
+from groundstation.records import (
+    Frame,
+    RawEpoch,
+    SatObs,
+    TimeMark,
+    UndecodedFrame,
+    positional_constructor,
+)
 from groundstation.sim.stream import SimConfig, simulate
 from groundstation.storage.reading import iter_chunks
 from groundstation.ubx import layouts as L
 from groundstation.ubx.build import build_frame
-from groundstation.ubx.decode import Decoder, gnss_of_svid, message_name, positional_constructor
+from groundstation.ubx.decode import Decoder, gnss_of_svid, message_name
 from groundstation.ubx.framer import UbxFramer, iter_frames
 
 
@@ -327,3 +334,27 @@ def test_positional_constructor_equals_dataclass_init() -> None:
     )
     with pytest.raises(dataclasses.FrozenInstanceError):
         make(*args).sv = 3  # type: ignore[misc]
+    obs = make(*args, locktime_ms=9, cp_valid=False)
+    assert type(obs) is SatObs
+    assert obs == SatObs(*args, locktime_ms=9, cp_valid=False)
+    assert hash(obs) == hash(SatObs(*args, locktime_ms=9, cp_valid=False))
+    assert make(*args) != make(*args[:-1], False)
+    with pytest.raises(TypeError):
+        make(*args[:-1])  # a field without a default is missing
+    # a field named like a local of the generated code (Frame.cls) does not shadow it
+    frame = positional_constructor(Frame)(1, 2, b"p", b"raw", 3)
+    assert type(frame) is Frame and frame == Frame(1, 2, b"p", b"raw", 3, 0)
+
+
+def test_positional_constructor_refuses_what_it_cannot_build() -> None:
+    @dataclasses.dataclass(frozen=True)
+    class NoSlots:
+        a: int
+
+    @dataclasses.dataclass(frozen=True, slots=True)
+    class Factory:
+        a: list[int] = dataclasses.field(default_factory=list)
+
+    for cls in (NoSlots, Factory):
+        with pytest.raises(TypeError):
+            positional_constructor(cls)
