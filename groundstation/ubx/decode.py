@@ -154,6 +154,8 @@ _sv_info_sat = positional_constructor(SvInfoSat)
 _raw_epoch = positional_constructor(RawEpoch)
 _nav_solution = positional_constructor(NavSolution)
 _sv_info = positional_constructor(SvInfo)
+_ephemeris = positional_constructor(Ephemeris)
+_subframe = positional_constructor(Subframe)
 # SatObs.half_cycle_unresolved and .slip of each LLI byte (a lookup instead of two bool calls)
 _LLI_HALF_OF = tuple(bool(b & _LLI_HALF) for b in range(256))
 _LLI_SLIP_OF = tuple(bool(b & _LLI_SLIP) for b in range(256))
@@ -320,7 +322,7 @@ class Decoder:
         _need("RXM-SFRB", p, _SFRB.size)
         chn, svid, *words = _SFRB.unpack_from(p)
         gnss, sv = _SVID[svid]
-        return Subframe(gnss, sv, tuple(words), "RXM-SFRB", channel=chn, t_host_ns=frame.t_host_ns)
+        return _subframe(gnss, sv, tuple(words), "RXM-SFRB", channel=chn, t_host_ns=frame.t_host_ns)
 
     def _rxm_sfrbx(self, frame: Frame) -> Subframe:
         p = frame.payload
@@ -328,7 +330,7 @@ class Decoder:
         gnss, sv, sig, freq, n, chn, _, _ = _SFRBX_HEAD.unpack_from(p)
         _need("RXM-SFRBX", p, 8 + 4 * n, n, "words")
         words = struct.unpack_from(f"<{n}I", p, 8)
-        return Subframe(
+        return _subframe(
             gnss, sv, words, "RXM-SFRBX", channel=chn, sig_id=sig, freq_id=freq,
             t_host_ns=frame.t_host_ns,
         )
@@ -338,9 +340,9 @@ class Decoder:
         _need("AID-EPH", p, 8)
         svid, how = _EPH_HEAD.unpack_from(p)
         if len(p) < 8 + _EPH_SF.size:  # no ephemeris for this satellite: header only
-            return Ephemeris(svid, how, (), (), (), frame.t_host_ns)
+            return _ephemeris(svid, how, (), (), (), frame.t_host_ns)
         w = _EPH_SF.unpack_from(p, 8)
-        return Ephemeris(svid, how, w[0:8], w[8:16], w[16:24], frame.t_host_ns)
+        return _ephemeris(svid, how, w[0:8], w[8:16], w[16:24], frame.t_host_ns)
 
     # -- receiver's own solution --------------------------------------------------------------
 

@@ -96,8 +96,10 @@ def _nmea_checksum_ok(m: re.Match[bytes]) -> bool:
 
 IntArray = npt.NDArray[np.int64]
 
-_CHECKSUM_WINDOW = 1 << 20
+_CHECKSUM_WINDOW = 1 << 18
 """Checksums are computed over windows of about this many bytes (bounds memory on whole files)."""
+# i mod 256 for every offset i of a window (a window may run a longest frame past its size)
+_RAMP = np.tile(np.arange(256, dtype=np.uint8), (_CHECKSUM_WINDOW + 65536) // 256 + 2)
 
 
 def _checksums_ok(
@@ -105,25 +107,31 @@ def _checksums_ok(
 ) -> npt.NDArray[np.bool_]:
     """Whether each complete candidate ``[start, end)`` has a right Fletcher checksum.
 
-    Both sums come from two prefix sums over a window of the data: the uint32 wrap-around keeps
-    them right modulo 256, which is all the checksum needs.
+    Over the bytes ``x[b:e]`` a frame's checksum covers, CK_A is their sum and CK_B the sum of
+    the running sums, ``sum((e - i) * x[i])`` = ``e * sum(x[i]) - sum(i * x[i])``: two sums per
+    frame (``np.add.reduceat``, vectorised, unlike a running sum) over the bytes and over the
+    bytes times their offset. Only their values modulo 256 matter, so everything is computed in
+    wrapping uint8 arithmetic with offsets taken modulo 256.
     """
-    ok = np.zeros(start.size, dtype=bool)
-    i = 0
-    while i < start.size:
-        j = int(np.searchsorted(start, start[i] + _CHECKSUM_WINDOW, side="left"))
-        j = max(j, i + 1)
+    ok = np.empty(start.size, dtype=bool)
+    i, m = 0, start.size
+    while i < m:
+        if arr.size - int(start[i]) <= _CHECKSUM_WINDOW:  # the rest fits in one window
+            j, w_hi = m, arr.size
+        else:
+            j = max(int(np.searchsorted(start, start[i] + _CHECKSUM_WINDOW, side="left")), i + 1)
+            w_hi = int(end[i:j].max())
         s_, e_ = start[i:j], end[i:j]
         w_lo = int(s_[0]) + 2
-        w_hi = int(e_.max()) - 2
-        p1 = np.zeros(w_hi - w_lo + 1, dtype=np.uint32)
-        np.cumsum(arr[w_lo:w_hi], dtype=np.uint32, out=p1[1:])
-        q = np.zeros(p1.size, dtype=np.uint32)
-        np.cumsum(p1[1:], dtype=np.uint32, out=q[1:])
-        b = s_ + 2 - w_lo
-        e = e_ - 2 - w_lo
-        ck_a = (p1[e] - p1[b]) & np.uint32(0xFF)
-        ck_b = (q[e] - q[b] - (e - b).astype(np.uint32) * p1[b]) & np.uint32(0xFF)
+        win = arr[w_lo:w_hi]
+        # reduceat's rows [b0, e0), [e0, b1), [b1, e1) ...: the even ones are the frames (each
+        # index is inside the window: a frame's checksum bytes follow its end)
+        bounds = np.empty(2 * (j - i), dtype=np.int64)
+        bounds[0::2] = s_ + (2 - w_lo)
+        bounds[1::2] = e_ - (2 + w_lo)
+        ck_a = np.add.reduceat(win, bounds, dtype=np.uint8)[0::2]
+        weighted = np.add.reduceat(win * _RAMP[: win.size], bounds, dtype=np.uint8)[0::2]
+        ck_b = bounds[1::2].astype(np.uint8) * ck_a - weighted
         ok[i:j] = (ck_a == arr[e_ - 2]) & (ck_b == arr[e_ - 1])
         i = j
     return ok
