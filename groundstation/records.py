@@ -48,12 +48,12 @@ def positional_constructor(cls: type[T]) -> Callable[..., T]:
     if getattr(cls, "__slots__", None) != names or cls.__bases__ != (object,):
         raise TypeError(f"{cls.__name__}: not a slotted dataclass with its own fields only")
     twin = type(f"_{cls.__name__}Fields", (), {"__slots__": names})
-    probe: Any = object.__new__(twin)
+    probe: Any = twin()
     probe.__class__ = cls  # fails here, not on first use, if the layouts were incompatible
     # the generated code's own names start with _pc_, so no field name can shadow them
     if any(name.startswith("_pc_") for name in names):
         raise TypeError(f"{cls.__name__}: a field name starts with _pc_")
-    ns: dict[str, Any] = {"_pc_new": object.__new__, "_pc_twin": twin, "_pc_cls": cls}
+    ns: dict[str, Any] = {"_pc_twin": twin, "_pc_cls": cls}
     params = []
     for i, f in enumerate(fields):
         if f.default_factory is not dataclasses.MISSING:
@@ -63,7 +63,7 @@ def positional_constructor(cls: type[T]) -> Callable[..., T]:
         else:
             ns[f"_pc_default{i}"] = f.default
             params.append(f"{f.name}=_pc_default{i}")
-    lines = [f"def make({', '.join(params)}):", "    _pc_o = _pc_new(_pc_twin)"]
+    lines = [f"def make({', '.join(params)}):", "    _pc_o = _pc_twin()"]
     lines += [f"    _pc_o.{name} = {name}" for name in names]
     lines += ["    _pc_o.__class__ = _pc_cls", "    return _pc_o"]
     exec("\n".join(lines), ns)  # noqa: S102 - code built from the dataclass's own field names

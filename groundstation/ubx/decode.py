@@ -161,6 +161,11 @@ _LLI_HALF_OF = tuple(bool(b & _LLI_HALF) for b in range(256))
 _LLI_SLIP_OF = tuple(bool(b & _LLI_SLIP) for b in range(256))
 
 
+def _receiver_lli(svid: int, lli: int, cp: float) -> int:
+    """RXM-RAW LLI of a message without a GPS week: the receiver's byte as it is."""
+    return lli
+
+
 def _need(name: str, payload: bytes, size: int, count: int | None = None, unit: str = "") -> None:
     # the message is formatted only on failure: this runs for every frame
     if len(payload) < size:
@@ -252,15 +257,14 @@ class Decoder:
         _need("RXM-RAW", p, end, n, "satellites")
         # the hot loop (one turn per satellite): everything it uses bound locally
         svid_map, half_of, slip_of, sat_obs = _SVID, _LLI_HALF_OF, _LLI_SLIP_OF, _sat_obs
-        # the phase rule (rules/phase.py): slips carried over blank phase; a week-0 message
-        # (cold start) keeps the receiver's bits and does not advance the rule's state
-        rule = self._raw_phase.lli if week != 0 else None
         sats: list[SatObs] = []
         append = sats.append
+        # the phase rule (rules/phase.py): slips carried over blank phase; a week-0 message (cold
+        # start) keeps the receiver's bits and does not advance the rule's state
+        rule = self._raw_phase.lli if week != 0 else _receiver_lli
         for cp, pr, do, svid, qi, cno, lli in _RAW_SV.iter_unpack(p[8:end]):
             gnss, sv = svid_map[svid]
-            if rule is not None:
-                lli = rule(svid, lli, cp)
+            lli = rule(svid, lli, cp)
             append(sat_obs(gnss, sv, cp, pr, do, cno, qi, lli, half_of[lli], slip_of[lli]))
         return _raw_epoch(week, itow * 1_000_000, tuple(sats), "RXM-RAW", frame.t_host_ns)
 

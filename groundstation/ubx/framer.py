@@ -23,7 +23,6 @@ sentence, a valid RTCM3 frame, or garbage.
 
 from __future__ import annotations
 
-import bisect
 import re
 from collections import Counter
 from dataclasses import dataclass, field
@@ -159,22 +158,27 @@ class UbxScan:
     hold: int
 
 
-_BAD, _LONG, _TRUNC = range(3)
 _VECTOR_BYTES = 4096
 """From this many bytes on, sync words are found and checksums computed with numpy."""
 
 
-_Candidates = tuple[list[int], list[int | None], list[bool], list[int], list[int]]
+_Candidates = tuple[list[int], list[int | None], list[bool], list[bool]]
+_NO_END = 1 << 62
 
 
 def _candidates_np(buf: bytes | bytearray, lo: int, n: int, max_payload: int) -> _Candidates:
     """:func:`scan_ubx`'s candidates, found with numpy (long inputs)."""
     c, has_header, _length, e, ok = _candidate_arrays(buf, lo, n, max_payload)
-    suffix_min = np.minimum.accumulate(e[ok][::-1])[::-1]
+    # the smallest end of the valid candidates after each one
+    valid_end = np.where(ok, e, _NO_END)
+    after = np.empty(c.size, dtype=np.int64)
+    if c.size:
+        after[-1] = _NO_END
+        after[:-1] = np.minimum.accumulate(valid_end[:0:-1])[::-1]
     ends: list[int | None] = list(e.tolist())
     for k in np.flatnonzero(~has_header).tolist():
         ends[k] = None
-    return c.tolist(), ends, ok.tolist(), c[ok].tolist(), suffix_min.tolist()
+    return c.tolist(), ends, ok.tolist(), (after < e).tolist()
 
 
 def _candidates_py(buf: bytes | bytearray, lo: int, n: int, max_payload: int) -> _Candidates:
@@ -198,15 +202,15 @@ def _candidates_py(buf: bytes | bytearray, lo: int, n: int, max_payload: int) ->
                 and ubx_checksum(memoryview(buf)[j + 2 : e - 2]) == (buf[e - 2], buf[e - 1])
             )
         j = buf.find(b"\xb5\x62", j + 1, n)
-    v_start = [c for c, ok in zip(cand, valid, strict=True) if ok]
-    suffix_min: list[int] = []
-    m = 1 << 62
-    for e_or_none, ok in zip(reversed(ends), reversed(valid), strict=True):
-        if ok and e_or_none is not None:
-            m = min(m, e_or_none)
-            suffix_min.append(m)
-    suffix_min.reverse()
-    return cand, ends, valid, v_start, suffix_min
+    inside = [False] * len(cand)
+    after = _NO_END  # the smallest end of the valid candidates after this one
+    for k in range(len(cand) - 1, -1, -1):
+        e_or_none = ends[k]
+        if e_or_none is not None:
+            inside[k] = after < e_or_none
+            if valid[k]:
+                after = min(after, e_or_none)
+    return cand, ends, valid, inside
 
 
 def scan_ubx(
@@ -226,52 +230,52 @@ def scan_ubx(
         final: no more bytes will come: a frame still incomplete is truncated.
     """
     buf = data if isinstance(data, (bytes, bytearray)) else bytes(data)
-    # Each sync word: its claimed end (None while its header has not arrived) and whether it is
-    # complete with a right checksum; then, of the valid ones, starts and a suffix minimum of
-    # ends: a candidate holds a valid frame inside when some valid frame after it ends before
-    # it does (a valid frame that starts after its end also ends after it).
+    # Each sync word: its claimed end (None while its header has not arrived), whether it is
+    # complete with a right checksum, and whether it holds a valid frame inside: some valid
+    # frame after it ends before it does (a valid frame that starts after its end also ends
+    # after it).
     if n - lo >= _VECTOR_BYTES:
-        cand, ends, valid, v_start, suffix_min = _candidates_np(buf, lo, n, max_payload)
+        cand, ends, valid, insides = _candidates_np(buf, lo, n, max_payload)
     else:
-        cand, ends, valid, v_start, suffix_min = _candidates_py(buf, lo, n, max_payload)
+        cand, ends, valid, insides = _candidates_py(buf, lo, n, max_payload)
     starts: list[int] = []
     lengths: list[int] = []
-    counts = [0, 0, 0]
+    n_bad = n_long = n_trunc = 0
     hold = n
     pos = lo
-    for c, e_or_none, ok in zip(cand, ends, valid, strict=True):
+    for c, e, ok, inside in zip(cand, ends, valid, insides, strict=True):
         if c < pos:
             continue  # inside an accepted frame: payload, not a frame
-        if e_or_none is None:  # header not complete
+        if e is None:  # header not complete
             if final:
-                counts[_TRUNC] += 1
+                n_trunc += 1
                 continue
             hold = c
             break
-        e = e_or_none
-        length = e - c - OVERHEAD
-        if length > max_payload:
-            counts[_LONG] += 1
+        if ok:  # length allowed, bytes at hand, right checksum: the usual case, decided here
+            if inside:
+                n_bad += 1  # a valid frame inside proves the length false
+            else:
+                starts.append(c)
+                lengths.append(e - c - OVERHEAD)
+                pos = e
             continue
-        k = bisect.bisect_right(v_start, c)
-        if k < len(v_start) and suffix_min[k] < e:
-            counts[_BAD] += 1  # a valid frame inside proves the length false
+        if e - c - OVERHEAD > max_payload:
+            n_long += 1
+            continue
+        if inside:
+            n_bad += 1  # a valid frame inside proves the length false
             continue
         if e > n:
             if final:
-                counts[_TRUNC] += 1
+                n_trunc += 1
                 continue
             hold = c
             break
-        if ok:
-            starts.append(c)
-            lengths.append(length)
-            pos = e
-        else:
-            counts[_BAD] += 1
+        n_bad += 1  # complete, wrong checksum
     if not final and hold == n and n > max(lo, pos) and buf[n - 1] == SYNC1:
         hold = n - 1  # may be the first half of a sync word
-    return UbxScan(starts, lengths, counts[_BAD], counts[_LONG], counts[_TRUNC], hold)
+    return UbxScan(starts, lengths, n_bad, n_long, n_trunc, hold)
 
 
 @dataclass(frozen=True, slots=True)
