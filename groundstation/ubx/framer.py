@@ -23,6 +23,7 @@ sentence, a valid RTCM3 frame, or garbage.
 
 from __future__ import annotations
 
+import operator
 import re
 from collections import Counter
 from dataclasses import dataclass, field
@@ -41,6 +42,7 @@ NMEA_MAX_LEN = 120  # NMEA 0183 says 82; u-blox PUBX sentences run longer
 RTCM3_PREAMBLE = 0xD3
 
 _frame = positional_constructor(Frame)  # one per frame: the fast form of Frame(...)
+_frame_key = operator.attrgetter("cls", "id")  # a frame's (class, id), counted per type
 _CANDIDATE = re.compile(rb"[$\xd3]")
 _NMEA = re.compile(rb"\$([A-Z][A-Z0-9]{1,9},[\x20-\x29\x2b-\x7e]*)\*([0-9A-Fa-f]{2})\r?\n")
 # Weights n..1 for the Fletcher checksum's second byte, sliced from the end for each length.
@@ -415,7 +417,7 @@ class UbxFramer:
                 append(frame(data[s + 2], data[s + 3], data[s + 6 : e - 2], data[s:e], t_host_ns,
                              base + s))
                 gap = e
-            c.frames_by_type.update([(f.cls, f.id) for f in out])
+            c.frames_by_type.update(map(_frame_key, out))
         c.frames += len(scan.start)
         c.frame_bytes += sum(scan.length) + OVERHEAD * len(scan.start)
         hold = scan.hold
