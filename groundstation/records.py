@@ -36,9 +36,10 @@ def positional_constructor(cls: type[T]) -> Callable[..., T]:
     dataclass's ``__init__`` sets each field through ``object.__setattr__`` (its own
     ``__setattr__`` refuses); this one fills a plain twin class with the same slots, with
     ordinary attribute stores, then gives the object its real class (allowed: same layout). The
-    result is an instance of ``cls`` like any other (equality, hash, frozenness), about three
-    times faster to make. It matters for the records made per frame and per satellite (106 000
-    satellite measurements in 5 MB of RXM-RAW).
+    result is an instance of ``cls`` like any other (equality, hash, frozenness), made about six
+    times faster than by ``cls(...)`` (three times faster than setting each slot through its
+    descriptor). It matters for the records made per frame and per satellite (106 000 satellite
+    measurements in 5 MB of RXM-RAW).
 
     Raises:
         TypeError: ``cls`` is not a slotted dataclass without default factories.
