@@ -70,10 +70,10 @@ def ingest(megabytes: float) -> int:
         return n
 
     print(f"input: {INGEST.name} x{len(data) // len(one)}, {mb:.2f} MB, "
-          f"{run(1 << 20, False)} UBX frames; CPU s per 5 MB, best of 3")
+          f"{run(1 << 20, False)} UBX frames; CPU s per 5 MB, best of 5")
     for chunk in (4096, 64):
-        t_frame = best_of(3, lambda chunk=chunk: run(chunk, False)) * 5 / mb
-        t_both = best_of(3, lambda chunk=chunk: run(chunk, True)) * 5 / mb
+        t_frame = best_of(5, lambda chunk=chunk: run(chunk, False)) * 5 / mb
+        t_both = best_of(5, lambda chunk=chunk: run(chunk, True)) * 5 / mb
         print(f"{chunk:5d}-byte reads: framer {t_frame:6.3f} s, framer + decoder {t_both:6.3f} s "
               f"(decoder {t_both - t_frame:6.3f} s)")
     print(f"load average {os.getloadavg()[0]:.2f}")

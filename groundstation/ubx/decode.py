@@ -201,7 +201,7 @@ class Decoder:
         self._raw_phase = RawPhase()  # the phase rule's per-signal state (rules/phase.py)
         self._rawx_phase = RawxPhase()
         self.leap_s: int | None = None
-        self._handlers: dict[tuple[int, int], Callable[[Frame], Record]] = {
+        handlers: dict[tuple[int, int], Callable[[Frame], Record]] = {
             RXM_RAW: self._rxm_raw,
             RXM_RAWX: self._rxm_rawx,
             TIM_TM2: self._tim_tm2,
@@ -214,6 +214,11 @@ class Decoder:
             NAV_SVINFO: self._nav_svinfo,
             NAV_SAT: self._nav_sat,
         }
+        # by (class << 8 | id), with the message's name: one lookup per frame
+        self._dispatch: dict[int, tuple[Callable[[Frame], Record], str]] = {
+            (cls << 8) | mid: (handler, _NAMES[cls, mid])
+            for (cls, mid), handler in handlers.items()
+        }
 
     @property
     def stats(self) -> DecoderStats:
@@ -225,15 +230,14 @@ class Decoder:
         )
 
     def decode(self, frame: Frame) -> Record:
-        key = (frame.cls, frame.id)
-        handler = self._handlers.get(key)
-        if handler is None:
+        entry = self._dispatch.get((frame.cls << 8) | frame.id)
+        if entry is None:
             self._passed += 1
             return frame
+        handler, name = entry
         try:
             record = handler(frame)
         except (ValueError, struct.error, ArithmeticError) as err:  # PayloadError, or math
-            name = _NAMES[key]
             self._undecodable[name] += 1
             log.warning(
                 "undecodable %s at offset %d (%d bytes kept): %s",
@@ -244,7 +248,7 @@ class Decoder:
 
                 raise DecodeError(f"{name} at offset {frame.offset}: {err}") from err
             return UndecodedFrame(frame, f"{type(err).__name__}: {err}")
-        self._decoded[_NAMES[key]] += 1
+        self._decoded[name] += 1
         return record
 
     # -- observations -------------------------------------------------------------------------

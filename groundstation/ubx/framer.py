@@ -178,8 +178,8 @@ def _candidates_np(buf: bytes | bytearray, lo: int, n: int, max_payload: int) ->
         after[-1] = _NO_END
         after[:-1] = np.minimum.accumulate(valid_end[:0:-1])[::-1]
     ends: list[int | None] = list(e.tolist())
-    for k in np.flatnonzero(~has_header).tolist():
-        ends[k] = None
+    for k in range(int(np.count_nonzero(has_header)), len(ends)):
+        ends[k] = None  # the last sync words, whose header has not arrived
     return c.tolist(), ends, ok.tolist(), (after < e).tolist()
 
 
