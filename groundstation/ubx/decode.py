@@ -104,6 +104,11 @@ _SAT_USED = L.NAV_SAT_FLAGS.mask("svUsed")
 _SAT_HEALTH_LO, _SAT_HEALTH_W = L.NAV_SAT_FLAGS.parts["health"]
 _LAT_SCALE = L.NAV_PVT.scales["lat"]
 assert L.NAV_POSLLH.scales["lat"] == _LAT_SCALE == L.NAV_POSLLH.scales["lon"]
+# pyubx2's value round(raw * 1e-7, 12) is exactly raw / 1e7 for every int32 raw, at a tenth of
+# round()'s cost: the product is within 3e-14 of the 7-decimal quotient (far inside half a
+# 12-decimal step) and the division is correctly rounded.
+assert _LAT_SCALE == 1e-7 and 7 <= L.SCALE_ROUND <= 12
+_LAT_DIVISOR = 1e7
 
 
 class PayloadError(ValueError):
@@ -386,8 +391,8 @@ class Decoder:
         source: str, frame: Frame, itow: int, lat_raw: int, lon_raw: int, height_mm: int,
         h_acc: int, v_acc: int, fix_type: int, fix_ok: bool, num_sv: int | None,
     ) -> NavSolution:
-        lat = round(lat_raw * _LAT_SCALE, L.SCALE_ROUND)
-        lon = round(lon_raw * _LAT_SCALE, L.SCALE_ROUND)
+        lat = lat_raw / _LAT_DIVISOR
+        lon = lon_raw / _LAT_DIVISOR
         h = height_mm / 1000.0
         has_pos = not (lat == 0.0 and lon == 0.0)
         return _nav_solution(

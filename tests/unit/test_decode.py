@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import random
 import struct
 from collections import Counter
 from pathlib import Path
@@ -16,6 +17,7 @@ from streams import WEEK, rxm_raw, t_gps_ns, tim_tm2
 from groundstation.errors import DecodeError
 from groundstation.records import (
     Frame,
+    NavSolution,
     RawEpoch,
     SatObs,
     TimeMark,
@@ -358,3 +360,19 @@ def test_positional_constructor_refuses_what_it_cannot_build() -> None:
     for cls in (NoSlots, Factory):
         with pytest.raises(TypeError):
             positional_constructor(cls)
+
+
+def test_latitude_and_longitude_are_the_scaled_fields_for_any_int32() -> None:
+    """The decoder's ``raw / 1e7`` equals pyubx2's ``round(raw * 1e-7, 12)`` (the layout's
+    ``scaled``) bit for bit, over the whole int32 range and its ends."""
+    rng = random.Random(7)
+    values = [-(2**31), 2**31 - 1, -1, 1, 5, -5, 1_800_000_000, -1_800_000_000]
+    values += [rng.randrange(-(2**31), 2**31) for _ in range(3000)]
+    decoder = Decoder()
+    for lat, lon in zip(values, reversed(values), strict=True):
+        for layout in (L.NAV_POSLLH, L.NAV_PVT):
+            sol = decode_one(build_frame(*layout.key, layout.payload(lat=lat, lon=lon)), decoder)
+            assert isinstance(sol, NavSolution)
+            if (lat, lon) != (0, 0):
+                assert sol.lat_deg == layout.scaled("lat", lat)
+                assert sol.lon_deg == layout.scaled("lon", lon)
