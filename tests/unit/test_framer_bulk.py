@@ -142,3 +142,22 @@ def test_vector_checksums_equal_the_checksum_of_each_frame(
             for s, e in zip(start.tolist(), end.tolist(), strict=True)]
     assert got == want
     assert 50 < sum(want) < len(want)  # both verdicts are tested
+
+
+def test_both_candidate_paths_of_the_loop_agree(monkeypatch: pytest.MonkeyPatch) -> None:
+    """``scan_ubx`` finds its candidates with numpy from ``_VECTOR_BYTES`` on and with
+    ``bytes.find`` below: forced to each path, the same decisions on damaged streams cut
+    anywhere and on the overlapping case."""
+    rng = random.Random(4096)
+    cases = [(_overlapping(), 0, n) for n in range(len(_overlapping()) + 1)]
+    for _ in range(400):
+        data = _damaged_stream(rng, rng.randrange(1, 60))
+        lo = rng.randrange(0, 3)
+        cases.append((data, lo, rng.randrange(lo, len(data) + 1)))
+    for data, lo, n in cases:
+        for max_payload in (8192, 30):
+            for final in (True, False):
+                monkeypatch.setattr(framer, "_VECTOR_BYTES", 0)
+                vector = scan_ubx(data, lo, n, max_payload, final=final)
+                monkeypatch.setattr(framer, "_VECTOR_BYTES", 1 << 30)
+                assert scan_ubx(data, lo, n, max_payload, final=final) == vector
