@@ -8,8 +8,9 @@ field names. Every record is a frozen, slotted dataclass so it can be shared bet
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Any, Literal, TypeVar
 
 from groundstation.gpstime import NS_PER_WEEK
 
@@ -23,6 +24,54 @@ def sv_label(gnss: int, sv: int) -> str:
     if letter == "S" and sv >= 100:
         sv -= 100
     return f"{letter}{sv:02d}"
+
+
+T = TypeVar("T")
+
+
+def positional_constructor(cls: type[T]) -> Callable[..., T]:
+    """A fast constructor of a frozen, slotted dataclass: the same object as ``cls(...)``.
+
+    It takes the fields in order, positionally or by name, with the same defaults. A frozen
+    dataclass's ``__init__`` sets each field through ``object.__setattr__`` (its own
+    ``__setattr__`` refuses); this one fills a plain twin class with the same slots, with
+    ordinary attribute stores, then gives the object its real class (allowed: same layout). The
+    result is an instance of ``cls`` like any other (equality, hash, frozenness), made about six
+    times faster than by ``cls(...)`` (three times faster than setting each slot through its
+    descriptor). It matters for the records made per frame and per satellite (106 000 satellite
+    measurements in 5 MB of RXM-RAW).
+
+    Raises:
+        TypeError: ``cls`` is not a slotted dataclass without default factories.
+    """
+    fields = dataclasses.fields(cls)  # type: ignore[arg-type]
+    names = tuple(f.name for f in fields)
+    if getattr(cls, "__slots__", None) != names or cls.__bases__ != (object,):
+        raise TypeError(f"{cls.__name__}: not a slotted dataclass with its own fields only")
+    twin = type(f"_{cls.__name__}Fields", (), {"__slots__": names})
+    probe: Any = twin()
+    probe.__class__ = cls  # fails here, not on first use, if the layouts were incompatible
+    # the generated code's own names start with _pc_, so no field name can shadow them
+    if any(name.startswith("_pc_") for name in names):
+        raise TypeError(f"{cls.__name__}: a field name starts with _pc_")
+    ns: dict[str, Any] = {"_pc_twin": twin, "_pc_cls": cls}
+    params = []
+    for i, f in enumerate(fields):
+        if f.default_factory is not dataclasses.MISSING:
+            raise TypeError(f"{cls.__name__}.{f.name}: default factories are not supported")
+        if f.default is dataclasses.MISSING:
+            params.append(f.name)
+        else:
+            ns[f"_pc_default{i}"] = f.default
+            params.append(f"{f.name}=_pc_default{i}")
+    lines = [f"def make({', '.join(params)}):", "    _pc_o = _pc_twin()"]
+    lines += [f"    _pc_o.{name} = {name}" for name in names]
+    lines += ["    _pc_o.__class__ = _pc_cls", "    return _pc_o"]
+    exec("\n".join(lines), ns)  # noqa: S102 - code built from the dataclass's own field names
+    make: Callable[..., T] = ns["make"]
+    make.__doc__ = f"{cls.__name__}(...), built as its slots' twin."
+    make.__qualname__ = make.__name__ = f"make_{cls.__name__}"
+    return make
 
 
 @dataclass(frozen=True, slots=True)

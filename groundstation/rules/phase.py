@@ -61,10 +61,14 @@ class RawPhase:
     """RXM-RAW LLI, one measurement at a time (per-satellite slip carried over blank phase)."""
 
     def __init__(self) -> None:
-        self._pending: dict[Hashable, bool] = {}
+        # signals whose slip was flagged on a blank phase and not yet shown on a valid one
+        self._pending: set[Hashable] = set()
 
     def lli(self, key: Hashable, receiver_lli: int, cp_cyc: float) -> int:
         """The LLI of one measurement of a message with a GPS week (call in stream order).
+
+        Called once per satellite of every epoch: the usual case (phase present, nothing
+        pending) costs one set lookup.
 
         Args:
             key: the signal (the satellite number).
@@ -72,11 +76,14 @@ class RawPhase:
             cp_cyc: carrier phase; 0.0 is blank.
         """
         lli = receiver_lli & 3
-        pending = self._pending.get(key, False) or bool(lli & LLI_SLIP)
+        pending = self._pending
         if cp_cyc != 0.0:
-            self._pending[key] = False
-            return lli | (LLI_SLIP if pending else 0)
-        self._pending[key] = pending
+            if key in pending:
+                pending.discard(key)
+                return lli | LLI_SLIP
+            return lli
+        if lli & LLI_SLIP:
+            pending.add(key)
         return lli
 
 

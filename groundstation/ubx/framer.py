@@ -23,7 +23,7 @@ sentence, a valid RTCM3 frame, or garbage.
 
 from __future__ import annotations
 
-import bisect
+import operator
 import re
 from collections import Counter
 from dataclasses import dataclass, field
@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import numpy.typing as npt
 
-from groundstation.records import Frame
+from groundstation.records import Frame, positional_constructor
 
 SYNC1 = 0xB5
 SYNC2 = 0x62
@@ -41,6 +41,8 @@ DEFAULT_MAX_PAYLOAD = 8192
 NMEA_MAX_LEN = 120  # NMEA 0183 says 82; u-blox PUBX sentences run longer
 RTCM3_PREAMBLE = 0xD3
 
+_frame = positional_constructor(Frame)  # one per frame: the fast form of Frame(...)
+_frame_key = operator.attrgetter("cls", "id")  # a frame's (class, id), counted per type
 _CANDIDATE = re.compile(rb"[$\xd3]")
 _NMEA = re.compile(rb"\$([A-Z][A-Z0-9]{1,9},[\x20-\x29\x2b-\x7e]*)\*([0-9A-Fa-f]{2})\r?\n")
 # Weights n..1 for the Fletcher checksum's second byte, sliced from the end for each length.
@@ -95,8 +97,10 @@ def _nmea_checksum_ok(m: re.Match[bytes]) -> bool:
 
 IntArray = npt.NDArray[np.int64]
 
-_CHECKSUM_WINDOW = 1 << 20
+_CHECKSUM_WINDOW = 1 << 18
 """Checksums are computed over windows of about this many bytes (bounds memory on whole files)."""
+# i mod 256 for every offset i of a window (a window may run a longest frame past its size)
+_RAMP = np.tile(np.arange(256, dtype=np.uint8), (_CHECKSUM_WINDOW + 65536) // 256 + 2)
 
 
 def _checksums_ok(
@@ -104,25 +108,31 @@ def _checksums_ok(
 ) -> npt.NDArray[np.bool_]:
     """Whether each complete candidate ``[start, end)`` has a right Fletcher checksum.
 
-    Both sums come from two prefix sums over a window of the data: the uint32 wrap-around keeps
-    them right modulo 256, which is all the checksum needs.
+    Over the bytes ``x[b:e]`` a frame's checksum covers, CK_A is their sum and CK_B the sum of
+    the running sums, ``sum((e - i) * x[i])`` = ``e * sum(x[i]) - sum(i * x[i])``: two sums per
+    frame (``np.add.reduceat``, vectorised, unlike a running sum) over the bytes and over the
+    bytes times their offset. Only their values modulo 256 matter, so everything is computed in
+    wrapping uint8 arithmetic with offsets taken modulo 256.
     """
-    ok = np.zeros(start.size, dtype=bool)
-    i = 0
-    while i < start.size:
-        j = int(np.searchsorted(start, start[i] + _CHECKSUM_WINDOW, side="left"))
-        j = max(j, i + 1)
+    ok = np.empty(start.size, dtype=bool)
+    i, m = 0, start.size
+    while i < m:
+        if arr.size - int(start[i]) <= _CHECKSUM_WINDOW:  # the rest fits in one window
+            j, w_hi = m, arr.size
+        else:
+            j = max(int(np.searchsorted(start, start[i] + _CHECKSUM_WINDOW, side="left")), i + 1)
+            w_hi = int(end[i:j].max())
         s_, e_ = start[i:j], end[i:j]
         w_lo = int(s_[0]) + 2
-        w_hi = int(e_.max()) - 2
-        p1 = np.zeros(w_hi - w_lo + 1, dtype=np.uint32)
-        np.cumsum(arr[w_lo:w_hi], dtype=np.uint32, out=p1[1:])
-        q = np.zeros(p1.size, dtype=np.uint32)
-        np.cumsum(p1[1:], dtype=np.uint32, out=q[1:])
-        b = s_ + 2 - w_lo
-        e = e_ - 2 - w_lo
-        ck_a = (p1[e] - p1[b]) & np.uint32(0xFF)
-        ck_b = (q[e] - q[b] - (e - b).astype(np.uint32) * p1[b]) & np.uint32(0xFF)
+        win = arr[w_lo:w_hi]
+        # reduceat's rows [b0, e0), [e0, b1), [b1, e1) ...: the even ones are the frames (each
+        # index is inside the window: a frame's checksum bytes follow its end)
+        bounds = np.empty(2 * (j - i), dtype=np.int64)
+        bounds[0::2] = s_ + (2 - w_lo)
+        bounds[1::2] = e_ - (2 + w_lo)
+        ck_a = np.add.reduceat(win, bounds, dtype=np.uint8)[0::2]
+        weighted = np.add.reduceat(win * _RAMP[: win.size], bounds, dtype=np.uint8)[0::2]
+        ck_b = bounds[1::2].astype(np.uint8) * ck_a - weighted
         ok[i:j] = (ck_a == arr[e_ - 2]) & (ck_b == arr[e_ - 1])
         i = j
     return ok
@@ -150,22 +160,27 @@ class UbxScan:
     hold: int
 
 
-_BAD, _LONG, _TRUNC = range(3)
 _VECTOR_BYTES = 4096
 """From this many bytes on, sync words are found and checksums computed with numpy."""
 
 
-_Candidates = tuple[list[int], list[int | None], list[bool], list[int], list[int]]
+_Candidates = tuple[list[int], list[int | None], list[bool], list[bool]]
+_NO_END = 1 << 62
 
 
 def _candidates_np(buf: bytes | bytearray, lo: int, n: int, max_payload: int) -> _Candidates:
     """:func:`scan_ubx`'s candidates, found with numpy (long inputs)."""
     c, has_header, _length, e, ok = _candidate_arrays(buf, lo, n, max_payload)
-    suffix_min = np.minimum.accumulate(e[ok][::-1])[::-1]
+    # the smallest end of the valid candidates after each one
+    valid_end = np.where(ok, e, _NO_END)
+    after = np.empty(c.size, dtype=np.int64)
+    if c.size:
+        after[-1] = _NO_END
+        after[:-1] = np.minimum.accumulate(valid_end[:0:-1])[::-1]
     ends: list[int | None] = list(e.tolist())
-    for k in np.flatnonzero(~has_header).tolist():
-        ends[k] = None
-    return c.tolist(), ends, ok.tolist(), c[ok].tolist(), suffix_min.tolist()
+    for k in range(int(np.count_nonzero(has_header)), len(ends)):
+        ends[k] = None  # the last sync words, whose header has not arrived
+    return c.tolist(), ends, ok.tolist(), (after < e).tolist()
 
 
 def _candidates_py(buf: bytes | bytearray, lo: int, n: int, max_payload: int) -> _Candidates:
@@ -189,15 +204,15 @@ def _candidates_py(buf: bytes | bytearray, lo: int, n: int, max_payload: int) ->
                 and ubx_checksum(memoryview(buf)[j + 2 : e - 2]) == (buf[e - 2], buf[e - 1])
             )
         j = buf.find(b"\xb5\x62", j + 1, n)
-    v_start = [c for c, ok in zip(cand, valid, strict=True) if ok]
-    suffix_min: list[int] = []
-    m = 1 << 62
-    for e_or_none, ok in zip(reversed(ends), reversed(valid), strict=True):
-        if ok and e_or_none is not None:
-            m = min(m, e_or_none)
-            suffix_min.append(m)
-    suffix_min.reverse()
-    return cand, ends, valid, v_start, suffix_min
+    inside = [False] * len(cand)
+    after = _NO_END  # the smallest end of the valid candidates after this one
+    for k in range(len(cand) - 1, -1, -1):
+        e_or_none = ends[k]
+        if e_or_none is not None:
+            inside[k] = after < e_or_none
+            if valid[k]:
+                after = min(after, e_or_none)
+    return cand, ends, valid, inside
 
 
 def scan_ubx(
@@ -217,52 +232,52 @@ def scan_ubx(
         final: no more bytes will come: a frame still incomplete is truncated.
     """
     buf = data if isinstance(data, (bytes, bytearray)) else bytes(data)
-    # Each sync word: its claimed end (None while its header has not arrived) and whether it is
-    # complete with a right checksum; then, of the valid ones, starts and a suffix minimum of
-    # ends: a candidate holds a valid frame inside when some valid frame after it ends before
-    # it does (a valid frame that starts after its end also ends after it).
+    # Each sync word: its claimed end (None while its header has not arrived), whether it is
+    # complete with a right checksum, and whether it holds a valid frame inside: some valid
+    # frame after it ends before it does (a valid frame that starts after its end also ends
+    # after it).
     if n - lo >= _VECTOR_BYTES:
-        cand, ends, valid, v_start, suffix_min = _candidates_np(buf, lo, n, max_payload)
+        cand, ends, valid, insides = _candidates_np(buf, lo, n, max_payload)
     else:
-        cand, ends, valid, v_start, suffix_min = _candidates_py(buf, lo, n, max_payload)
+        cand, ends, valid, insides = _candidates_py(buf, lo, n, max_payload)
     starts: list[int] = []
     lengths: list[int] = []
-    counts = [0, 0, 0]
+    n_bad = n_long = n_trunc = 0
     hold = n
     pos = lo
-    for c, e_or_none, ok in zip(cand, ends, valid, strict=True):
+    for c, e, ok, inside in zip(cand, ends, valid, insides, strict=True):
         if c < pos:
             continue  # inside an accepted frame: payload, not a frame
-        if e_or_none is None:  # header not complete
+        if e is None:  # header not complete
             if final:
-                counts[_TRUNC] += 1
+                n_trunc += 1
                 continue
             hold = c
             break
-        e = e_or_none
-        length = e - c - OVERHEAD
-        if length > max_payload:
-            counts[_LONG] += 1
+        if ok:  # length allowed, bytes at hand, right checksum: the usual case, decided here
+            if inside:
+                n_bad += 1  # a valid frame inside proves the length false
+            else:
+                starts.append(c)
+                lengths.append(e - c - OVERHEAD)
+                pos = e
             continue
-        k = bisect.bisect_right(v_start, c)
-        if k < len(v_start) and suffix_min[k] < e:
-            counts[_BAD] += 1  # a valid frame inside proves the length false
+        if e - c - OVERHEAD > max_payload:
+            n_long += 1
+            continue
+        if inside:
+            n_bad += 1  # a valid frame inside proves the length false
             continue
         if e > n:
             if final:
-                counts[_TRUNC] += 1
+                n_trunc += 1
                 continue
             hold = c
             break
-        if ok:
-            starts.append(c)
-            lengths.append(length)
-            pos = e
-        else:
-            counts[_BAD] += 1
+        n_bad += 1  # complete, wrong checksum
     if not final and hold == n and n > max(lo, pos) and buf[n - 1] == SYNC1:
         hold = n - 1  # may be the first half of a sync word
-    return UbxScan(starts, lengths, counts[_BAD], counts[_LONG], counts[_TRUNC], hold)
+    return UbxScan(starts, lengths, n_bad, n_long, n_trunc, hold)
 
 
 @dataclass(frozen=True, slots=True)
@@ -390,16 +405,19 @@ class UbxFramer:
         c.truncated += scan.truncated
         out: list[Frame] = []
         gap = self._gap_at - base
-        by_type = c.frames_by_type
-        for s, ln in zip(scan.start, scan.length, strict=True):
-            if gap < s:
-                self._account_gap(buf, gap, s, hard=True, at_end=False)
-            e = s + OVERHEAD + ln
-            raw = bytes(buf[s:e])
-            key = (raw[2], raw[3])
-            out.append(Frame(raw[2], raw[3], raw[6:-2], raw, t_host_ns, base + s))
-            by_type[key] += 1
-            gap = e
+        if scan.start:
+            # one copy of the bytes at hand, then each frame's raw and payload sliced from it
+            data = bytes(buf)
+            frame = _frame
+            append = out.append
+            for s, ln in zip(scan.start, scan.length, strict=True):
+                if gap < s:
+                    self._account_gap(buf, gap, s, hard=True, at_end=False)
+                e = s + OVERHEAD + ln
+                append(frame(data[s + 2], data[s + 3], data[s + 6 : e - 2], data[s:e], t_host_ns,
+                             base + s))
+                gap = e
+            c.frames_by_type.update(map(_frame_key, out))
         c.frames += len(scan.start)
         c.frame_bytes += sum(scan.length) + OVERHEAD * len(scan.start)
         hold = scan.hold

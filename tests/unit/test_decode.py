@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import random
 import struct
 from collections import Counter
 from pathlib import Path
@@ -14,12 +15,20 @@ from real_files import REAL_UBX_FILES
 from streams import WEEK, rxm_raw, t_gps_ns, tim_tm2
 
 from groundstation.errors import DecodeError
-from groundstation.records import Frame, RawEpoch, SatObs, TimeMark, UndecodedFrame
+from groundstation.records import (
+    Frame,
+    NavSolution,
+    RawEpoch,
+    SatObs,
+    TimeMark,
+    UndecodedFrame,
+    positional_constructor,
+)
 from groundstation.sim.stream import SimConfig, simulate
 from groundstation.storage.reading import iter_chunks
 from groundstation.ubx import layouts as L
 from groundstation.ubx.build import build_frame
-from groundstation.ubx.decode import Decoder, gnss_of_svid, message_name, positional_constructor
+from groundstation.ubx.decode import Decoder, gnss_of_svid, message_name
 from groundstation.ubx.framer import UbxFramer, iter_frames
 
 
@@ -327,3 +336,43 @@ def test_positional_constructor_equals_dataclass_init() -> None:
     )
     with pytest.raises(dataclasses.FrozenInstanceError):
         make(*args).sv = 3  # type: ignore[misc]
+    obs = make(*args, locktime_ms=9, cp_valid=False)
+    assert type(obs) is SatObs
+    assert obs == SatObs(*args, locktime_ms=9, cp_valid=False)
+    assert hash(obs) == hash(SatObs(*args, locktime_ms=9, cp_valid=False))
+    assert make(*args) != make(*args[:-1], False)
+    with pytest.raises(TypeError):
+        make(*args[:-1])  # a field without a default is missing
+    # a field named like a local of the generated code (Frame.cls) does not shadow it
+    frame = positional_constructor(Frame)(1, 2, b"p", b"raw", 3)
+    assert type(frame) is Frame and frame == Frame(1, 2, b"p", b"raw", 3, 0)
+
+
+def test_positional_constructor_refuses_what_it_cannot_build() -> None:
+    @dataclasses.dataclass(frozen=True)
+    class NoSlots:
+        a: int
+
+    @dataclasses.dataclass(frozen=True, slots=True)
+    class Factory:
+        a: list[int] = dataclasses.field(default_factory=list)
+
+    for cls in (NoSlots, Factory):
+        with pytest.raises(TypeError):
+            positional_constructor(cls)
+
+
+def test_latitude_and_longitude_are_the_scaled_fields_for_any_int32() -> None:
+    """The decoder's ``raw / 1e7`` equals pyubx2's ``round(raw * 1e-7, 12)`` (the layout's
+    ``scaled``) bit for bit, over the whole int32 range and its ends."""
+    rng = random.Random(7)
+    values = [-(2**31), 2**31 - 1, -1, 1, 5, -5, 1_800_000_000, -1_800_000_000]
+    values += [rng.randrange(-(2**31), 2**31) for _ in range(3000)]
+    decoder = Decoder()
+    for lat, lon in zip(values, reversed(values), strict=True):
+        for layout in (L.NAV_POSLLH, L.NAV_PVT):
+            sol = decode_one(build_frame(*layout.key, layout.payload(lat=lat, lon=lon)), decoder)
+            assert isinstance(sol, NavSolution)
+            if (lat, lon) != (0, 0):
+                assert sol.lat_deg == layout.scaled("lat", lat)
+                assert sol.lon_deg == layout.scaled("lon", lon)

@@ -15,7 +15,7 @@ import pytest
 from real_files import REAL_UBX_FILES, real_bytes
 
 from groundstation.storage.reading import iter_chunks
-from groundstation.ubx import fastraw
+from groundstation.ubx import fastraw, framer
 from groundstation.ubx.build import build_frame
 from groundstation.ubx.framer import scan_ubx, scan_ubx_arrays
 
@@ -112,3 +112,52 @@ def test_index_chunks_equals_the_whole_file_index(
     assert frames == b"".join(whole.raw(data, i) for i in range(len(whole)))
     assert index.start.tolist() == (np.cumsum(whole.length + 8) - (whole.length + 8)).tolist()
     assert fastraw.index_frames(frames).start.tolist() == index.start.tolist()
+
+
+@pytest.mark.parametrize("window", [64, 1000, 1 << 18])
+def test_vector_checksums_equal_the_checksum_of_each_frame(
+    window: int, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """``_checksums_ok`` (all candidates at once, in windows) says what ``ubx_checksum`` says of
+    each one: right and wrong checksums, overlapping spans, long frames, several windows."""
+    monkeypatch.setattr(framer, "_CHECKSUM_WINDOW", window)
+    rng = random.Random(window)
+    data = bytearray(_damaged_stream(rng, 300))
+    for size in (0, 1, 300, 5000):  # long payloads: a window shorter than one frame
+        data += build_frame(0x02, 0x10, rng.randbytes(size))
+    arr = np.frombuffer(bytes(data), dtype=np.uint8)
+    start = np.array(sorted(rng.sample(range(len(data) - 8), 400)), dtype=np.int64)
+    end = np.minimum(start + 8 + np.array([rng.randrange(0, 6000) for _ in start]), len(data))
+    true_starts = [i for i in range(len(data) - 1) if data[i : i + 2] == b"\xb5\x62"]
+    start = np.concatenate((start, np.array(true_starts, dtype=np.int64)))
+    length = np.array([data[s + 4] | data[s + 5] << 8 if s + 6 <= len(data) else 0
+                       for s in start.tolist()], dtype=np.int64)
+    end = np.concatenate((end, start[len(end):] + 8 + length[len(end):]))
+    order = np.argsort(start, kind="stable")
+    start, end = start[order], end[order]
+    keep = end <= len(data)
+    start, end = start[keep], end[keep]
+    got = framer._checksums_ok(arr, start, end).tolist()
+    want = [framer.ubx_checksum(data[s + 2 : e - 2]) == (data[e - 2], data[e - 1])
+            for s, e in zip(start.tolist(), end.tolist(), strict=True)]
+    assert got == want
+    assert 50 < sum(want) < len(want)  # both verdicts are tested
+
+
+def test_both_candidate_paths_of_the_loop_agree(monkeypatch: pytest.MonkeyPatch) -> None:
+    """``scan_ubx`` finds its candidates with numpy from ``_VECTOR_BYTES`` on and with
+    ``bytes.find`` below: forced to each path, the same decisions on damaged streams cut
+    anywhere and on the overlapping case."""
+    rng = random.Random(4096)
+    cases = [(_overlapping(), 0, n) for n in range(len(_overlapping()) + 1)]
+    for _ in range(400):
+        data = _damaged_stream(rng, rng.randrange(1, 60))
+        lo = rng.randrange(0, 3)
+        cases.append((data, lo, rng.randrange(lo, len(data) + 1)))
+    for data, lo, n in cases:
+        for max_payload in (8192, 30):
+            for final in (True, False):
+                monkeypatch.setattr(framer, "_VECTOR_BYTES", 0)
+                vector = scan_ubx(data, lo, n, max_payload, final=final)
+                monkeypatch.setattr(framer, "_VECTOR_BYTES", 1 << 30)
+                assert scan_ubx(data, lo, n, max_payload, final=final) == vector
