@@ -1,5 +1,6 @@
 """The receiver's own fix as ``foxglove.LocationFix`` (MCAP ``/groundstation/location``), so a map
-panel in Foxglove or Lichtblick shows the station."""
+panel in Foxglove or Lichtblick shows the station: one per epoch, from the first solution of
+that epoch with a position (the session recorder skips the others of the same instant)."""
 
 from __future__ import annotations
 

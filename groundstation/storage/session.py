@@ -186,6 +186,7 @@ class SessionRecorder:
         self._raw_chunks = 0
         self._raw_bytes = 0
         self._records = 0
+        self._fix_publish_ns: int | None = None  # the epoch of the last LocationFix written
         self._events = 0
         self._flushes = 0
         self._closed = False
@@ -371,9 +372,12 @@ class SessionRecorder:
                 self._write_at((spec, jsonio.dumps_typed(record), log_time_ns, publish), now)
         else:
             self._write((spec, jsonio.dumps_typed(record), log_time_ns, publish))
-        if isinstance(record, NavSolution):
+        if isinstance(record, NavSolution) and publish != self._fix_publish_ns:
+            # One map point per epoch: a receiver sending NAV-SOL and NAV-POSLLH (the LEA-6T)
+            # gave two LocationFix messages of the same instant and place.
             fix = location_fix(record, publish, self.station)
             if fix is not None:
+                self._fix_publish_ns = publish
                 self._write((LOCATION_CHANNEL, fix, log_time_ns, publish))
         return True
 

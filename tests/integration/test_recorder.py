@@ -10,6 +10,7 @@ from pathlib import Path
 
 import pytest
 from mcap.reader import make_reader
+from streams import rxm_raw
 
 from groundstation import gpstime
 from groundstation.config import FileSourceSettings, RecorderSettings, Settings
@@ -260,3 +261,29 @@ def test_sink_bursts_write_and_announce_as_item_by_item(tmp_path: Path,
             contents.append([p.read_bytes() for p in sorted(out.iterdir())])
         assert seen[0] == seen[1] and len(seen[0]) > 3, kw
         assert contents[0] == contents[1], kw
+
+
+def test_one_location_fix_per_epoch_when_the_receiver_sends_two_solutions(tmp_path: Path) -> None:
+    """The LEA-6T sends NAV-SOL and NAV-POSLLH every epoch: the map gets one point per epoch
+    (the first solution with a position), not two of the same instant and place."""
+    sol_flags = L.NAV_SOL_FLAGS.compose(gpsfixOK=1, wknSet=1, towSet=1)
+    data = bytearray()
+    for k in range(6):
+        itow = 100_000 + 200 * k
+        data += rxm_raw(2300, itow, [(3, 0), (7, 0)])  # its week dates NAV-POSLLH's TOW
+        if k != 3:  # one epoch with NAV-POSLLH alone
+            data += L.NAV_SOL.frame(
+                iTOW=itow, week=2300, gpsFix=3, flags=sol_flags, ecefX=377469655,
+                ecefY=-59664791, ecefZ=508948565, pAcc=250, numSV=8)
+        data += L.NAV_POSLLH.frame(iTOW=itow, lon=-89900000, lat=533400000, height=50_000,
+                                   hMSL=0, hAcc=200, vAcc=300)
+    rec = record_stream(tmp_path, bytes(data))
+    rec.close()
+    fixes = [m for m in iter_messages(rec.stats.files[0])
+             if m.topic == "/groundstation/location"]
+    navs = [m for m in iter_messages(rec.stats.files[0]) if m.topic == "/gnss/nav"]
+    assert len(navs) == 11
+    stamps = [json.loads(m.data)["timestamp"] for m in fixes]
+    assert len(fixes) == 6 and len({(s["sec"], s["nsec"]) for s in stamps}) == 6
+    # the epoch without NAV-SOL still gets its point, from NAV-POSLLH (accuracy h / v)
+    assert json.loads(fixes[3].data)["position_covariance"][8] == pytest.approx(0.09)
