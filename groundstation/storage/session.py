@@ -83,6 +83,11 @@ from groundstation.storage.topics import RAW_CHANNEL, ROUTES
 
 log = logging.getLogger("groundstation.recorder")
 
+SAME_FIX_EPOCH_NS = 5_000_000
+"""Two receiver solutions this close are one epoch's (NAV-SOL's TOW carries its sub-millisecond
+``fTOW``, NAV-POSLLH's does not; u-blox navigation rates are at most 20-25 Hz, 40 ms apart)."""
+
+
 @dataclass(frozen=True, slots=True)
 class RecorderStats:
     """Counters of a recording session.
@@ -372,7 +377,9 @@ class SessionRecorder:
                 self._write_at((spec, jsonio.dumps_typed(record), log_time_ns, publish), now)
         else:
             self._write((spec, jsonio.dumps_typed(record), log_time_ns, publish))
-        if isinstance(record, NavSolution) and publish != self._fix_publish_ns:
+        if isinstance(record, NavSolution) and (
+                self._fix_publish_ns is None
+                or abs(publish - self._fix_publish_ns) >= SAME_FIX_EPOCH_NS):
             # One map point per epoch: a receiver sending NAV-SOL and NAV-POSLLH (the LEA-6T)
             # gave two LocationFix messages of the same instant and place.
             fix = location_fix(record, publish, self.station)

@@ -272,8 +272,9 @@ def test_one_location_fix_per_epoch_when_the_receiver_sends_two_solutions(tmp_pa
         itow = 100_000 + 200 * k
         data += rxm_raw(2300, itow, [(3, 0), (7, 0)])  # its week dates NAV-POSLLH's TOW
         if k != 3:  # one epoch with NAV-POSLLH alone
-            data += L.NAV_SOL.frame(
-                iTOW=itow, week=2300, gpsFix=3, flags=sol_flags, ecefX=377469655,
+            data += L.NAV_SOL.frame(  # fTOW: its time is not NAV-POSLLH's to the ns
+                iTOW=itow, fTOW=-123_456 * (k % 2), week=2300, gpsFix=3, flags=sol_flags,
+                ecefX=377469655,
                 ecefY=-59664791, ecefZ=508948565, pAcc=250, numSV=8)
         data += L.NAV_POSLLH.frame(iTOW=itow, lon=-89900000, lat=533400000, height=50_000,
                                    hMSL=0, hAcc=200, vAcc=300)
