@@ -32,7 +32,7 @@ import numpy.typing as npt
 from groundstation import gpstime, jsonio
 from groundstation.errors import GroundstationError
 from groundstation.rules.marks import Mark, count_jump
-from groundstation.solve import figures
+from groundstation.solve import figures, photos
 from groundstation.solve.figures import QUALITY_COLOURS, Span
 from groundstation.solve.interpolate import FLAG_GAP
 from groundstation.solve.outputs import CameraRow
@@ -263,14 +263,6 @@ def nearest_epoch_s(inp: ReportInput) -> FloatArray:
     return out
 
 
-def residual_sigma_s(inp: ReportInput) -> float:
-    """Robust σ (1.4826 MAD) of the photo-to-mark residuals; NaN with fewer than 3 pairs."""
-    r = inp.pair_residual_s
-    if r.size < 3:
-        return math.nan
-    return float(1.4826 * np.median(np.abs(r - np.median(r))))
-
-
 # -- warnings ---------------------------------------------------------------------------------
 
 
@@ -422,9 +414,9 @@ def _summary(inp: ReportInput) -> str:
         ("Interpolation", f"{_e(inp.interp)}; gaps longer than {inp.max_gap_s:g} s are flagged"),
     ]
     if inp.clock_offset_s is not None:
+        sigma = photos.residual_sigma_text(photos.residual_sigma_s(inp.pair_residual_s))
         rows.append(("Camera clock", (f"GPS − camera {inp.clock_offset_s:+.3f} s; pairing window "
-                     f"±{(inp.pair_window_s or 0) * 1e3:.0f} ms; residual σ "
-                     f"{residual_sigma_s(inp) * 1e3:.1f} ms (robust)")))
+                     f"±{(inp.pair_window_s or 0) * 1e3:.0f} ms; timing residual σ {sigma}")))
     return _kv(rows)
 
 
@@ -626,7 +618,8 @@ def _figures(inp: ReportInput) -> list[tuple[str, str, str]]:
         out.append((
             "Photo timing residuals",
             figures.timing_residuals(inp.pair_t_gps_ns, inp.pair_residual_s,
-                                     inp.pair_window_s or math.nan, residual_sigma_s(inp)),
+                                     inp.pair_window_s or math.nan,
+                                     photos.residual_sigma_s(inp.pair_residual_s)),
             ("Time of each mark minus the photo's EXIF time corrected by the camera clock offset. "
             "Whole-second EXIF times spread over ±500 ms; sub-second times sit near zero."),
         ))

@@ -275,6 +275,18 @@ def test_the_result_comes_first_and_the_full_options_last(flight: dict[str, Any]
         assert "No option set recorded" in tail
 
 
+def test_one_timing_residual_sigma_in_printout_and_report(flight: dict[str, Any]) -> None:
+    """The solve's printout and the report give the same residual σ, in the same unit."""
+    printed = re.search(r"timing residual sigma (\d+\.\d) ms \(robust\)", flight["stdout"])
+    assert printed, flight["stdout"]
+    text = (flight["out"] / "report.html").read_text(encoding="utf-8")
+    shown = re.search(r"timing residual σ (\d+\.\d) ms \(robust\)", text)
+    assert shown
+    assert printed.group(1) == shown.group(1)
+    window = re.search(r"pairing window \+/-(\d+) ms", flight["stdout"])
+    assert window and f"pairing window ±{window.group(1)} ms" in text
+
+
 def _shots_dir(tmp_path: Path) -> Path:
     d = Path(os.environ.get("GS_REPORT_SHOTS") or tmp_path)
     d.mkdir(parents=True, exist_ok=True)
