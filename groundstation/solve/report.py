@@ -439,9 +439,11 @@ def accuracy_text(inp: ReportInput) -> str:
 def _result(inp: ReportInput) -> str:
     """What a surveyor looks for first: fixed share, marks positioned and missed, accuracy."""
     c = counts(inp)
-    rows = c["rows"]
+    # The share is over the positions computed: a photo without a mark has no position to fix
+    # (it has its own line below), and counting it would pull a fully fixed flight down.
+    n_pos = c["rows"] - c["not_positioned"]
     fixed = c["fixed"]
-    share = f" ({fixed / rows:.0%})" if rows else ""
+    share = f" ({fixed / n_pos:.0%})" if n_pos else ""
     marks = [r for r in inp.rows if r.mark >= 0]
     positioned = sum(1 for r in marks if r.positioned)
     missed = c["marks_missed"]
@@ -450,7 +452,8 @@ def _result(inp: ReportInput) -> str:
                    "those photos)")
     unmatched = c["photos_unmatched"]
     lines = [
-        ("Fixed", f'<b class="big">{fixed} of {rows}</b> camera positions ambiguity-fixed{share}'),
+        ("Fixed", (f'<b class="big">{fixed} of {n_pos}</b> computed camera positions '
+                   f"ambiguity-fixed{share}")),
         ("Marks positioned", f"<b>{positioned} of {len(marks)}</b> marks in the flight"
          + (f"; {c['not_positioned']} camera position(s) not computed"
             if c["not_positioned"] else "")),
