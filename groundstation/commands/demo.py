@@ -103,7 +103,8 @@ def _write_photos(result: Any, directory: Path) -> Path:
     """The simulated camera's JPEGs, one per exposure of the truth (solve/photosim.py)."""
     from groundstation.solve.photosim import photos_at_times, write_photo_set
 
-    times = [e["falling_t_gps_ns"] for e in result.sim.truth["exposures"]]
+    # The exposures up to the stop: a cut run's camera stopped with it.
+    times = [e["falling_t_gps_ns"] for e in result.sent().exposures]
     write_photo_set(photos_at_times(times, clock_error_s=CAMERA_CLOCK_ERROR_S), directory)
     return directory
 
@@ -153,17 +154,21 @@ def _log_through(console: Any) -> None:
 def _print_summary(result: Any, photos: Path | None = None) -> None:
     s = result.summary
     truth = result.sim.truth
-    injected = truth["fault_summary"]
+    sent = result.sent()
     st = result.last_status
     print(f"demo finished: {s.stopped_by} after {s.duration_s:.1f} s")
+    if not sent.whole_flight:
+        planned = (int(truth["end_gps_ns"]) - int(truth["start_gps_ns"])) / 1e9
+        print(f"  cut short: {sent.flight_s:.1f} s of the {planned:g} s flight sent; the "
+              "simulator's figures below are those up to the stop")
     lost = result.bytes_written - s.bytes_in
     print(f"  received {s.bytes_in:,} of the {result.bytes_written:,} bytes written into the pty"
           f"{'' if lost == 0 else f' ({lost:,} not read before the end)'}: {s.frames:,} frames, "
           f"{s.garbage_bytes:,} garbage bytes, {s.records:,} records")
     if st is not None:
-        for line in status_lines(st, injected_lost_epochs=len(injected["epochs_lost_tow_ms"]),
-                                 exposures=len(truth["exposures"]),
-                                 at="at the end of the flight"):
+        at = "at the end of the flight" if sent.whole_flight else "when it stopped"
+        for line in status_lines(st, injected_lost_epochs=sent.lost_epochs,
+                                 exposures=len(sent.exposures), at=at):
             print(line)
     for path in s.files:
         print(f"  MCAP:        {path}")
@@ -172,7 +177,7 @@ def _print_summary(result: Any, photos: Path | None = None) -> None:
     print(f"  base UBX:    {result.base_path}")
     print(f"  truth:       {result.truth_path}")
     if photos is not None:
-        print(f"  photos:      {photos} ({len(truth['exposures'])} JPEGs)")
+        print(f"  photos:      {photos} ({len(sent.exposures)} JPEGs)")
     if result.endpoint:
         print(f"  Zenoh:       groundstation/{result.station}/** on {result.endpoint}")
     if s.files and not s.frames_by_type.get("TIM-TM2"):  # no "next: ... solve" that fails

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -89,3 +90,35 @@ def test_demo_reads_the_environment_like_every_command(tmp_path: Path) -> None:
         )
         assert proc.returncode == 2, proc.stderr
         assert var in proc.stderr and len(proc.stderr.strip().splitlines()) == 1, proc.stderr
+
+
+def test_a_demo_cut_short_gives_the_figures_up_to_the_stop(tmp_path: Path) -> None:
+    """``--duration`` stops the flight early: the summary says so and gives the simulator's
+    figures for what it sent up to the stop, never the whole flight's totals (paced at x20 for
+    3 s of wall time, the cut is inside the static start, before any exposure)."""
+    proc = subprocess.run(
+        [sys.executable, "-m", "groundstation.cli", "demo", "--flight", "300", "--speed", "20",
+         "--duration", "3", "--out-dir", "flights", "--photos", "photos", "--no-zenoh",
+         "--no-view"],
+        cwd=tmp_path, capture_output=True, text=True, timeout=120, check=False,
+    )
+    assert proc.returncode == 0, proc.stderr
+    out = proc.stdout
+    (truth_path,) = (tmp_path / "flights").glob("demo_*.truth.json")
+    truth = json.loads(truth_path.read_text())
+    cut = re.search(r"cut short: (\d+\.\d) s of the 300 s flight sent", out)
+    assert cut, out
+    sent_s = float(cut.group(1))
+    assert 0 < sent_s <= 61.0  # 3 s at x20, whatever the machine's load
+    takeoff_s = (truth["phases"]["takeoff_gps_ns"] - truth["start_gps_ns"]) / 1e9
+    assert sent_s < takeoff_s
+    assert len(truth["exposures"]) > 0 and len(truth["fault_summary"]["epochs_lost_tow_ms"]) > 0
+    start = truth["start_gps_ns"]
+    week0 = start - start % (604_800 * 10**9)
+    lost = sum(1 for tow in truth["fault_summary"]["epochs_lost_tow_ms"]
+               if week0 + tow * 10**6 - start < sent_s * 1e9 + 1)
+    assert f"simulator injected {lost})" in out
+    assert "(simulator: 0 exposures)" in out
+    assert "at the end of the flight" not in out and "when it stopped:" in out
+    assert "photos:      photos (0 JPEGs)" in out
+    assert list((tmp_path / "photos").glob("*.JPG")) == []
