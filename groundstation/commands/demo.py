@@ -36,8 +36,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="directory for the recording, the base stream and the truth "
                         "(default flights)")
     parser.add_argument("--photos", type=Path, metavar="DIR",
-                        help="also write the camera's photos (JPEG with EXIF, camera clock off "
-                        "by hours as in the field) for every exposure, to try `solve --photos`")
+                        help="also write the camera's photos (JPEG with EXIF) for every "
+                        f"exposure, to try `solve --photos`; {camera_clock_text()}")
     parser.add_argument("--station", help="station name (default demo)")
     add_zenoh_daemon(parser)
     parser.add_argument("--serve-after", type=float, metavar="S",
@@ -96,7 +96,26 @@ def run(args: argparse.Namespace) -> int:
 
 
 CAMERA_CLOCK_ERROR_S = -(1 * 3600 + 51 * 60 + 2.6)
-"""The simulated camera's clock error: hours off, as camera clocks are in the field."""
+"""The simulated camera's clock error against the local time it is set to."""
+CAMERA_ZONE_S = 7200
+"""The simulated camera runs local time, UTC+02:00, and writes no zone tag (many do not)."""
+
+
+def _duration_text(seconds: float) -> str:
+    s = round(abs(seconds))
+    h, rem = divmod(s, 3600)
+    m, sec = divmod(rem, 60)
+    return (f"{h} h {m:02d} min {sec:02d} s" if h else f"{m} min {sec:02d} s")
+
+
+def camera_clock_text() -> str:
+    """What the simulated camera's EXIF times are, from the constants the photos are made with."""
+    ahead = CAMERA_ZONE_S + CAMERA_CLOCK_ERROR_S
+    return (f"the camera's clock runs local time UTC{CAMERA_ZONE_S / 3600:+03.0f}:00 with no zone "
+            f"tag, {_duration_text(CAMERA_CLOCK_ERROR_S)} "
+            f"{'slow' if CAMERA_CLOCK_ERROR_S < 0 else 'fast'}, so its EXIF times read "
+            f"{_duration_text(ahead)} {'ahead of' if ahead >= 0 else 'behind'} UTC; solve "
+            "finds that offset itself")
 
 
 def _write_photos(result: Any, directory: Path) -> Path:
@@ -105,7 +124,8 @@ def _write_photos(result: Any, directory: Path) -> Path:
 
     # The exposures up to the stop: a cut run's camera stopped with it.
     times = [e["falling_t_gps_ns"] for e in result.sent().exposures]
-    write_photo_set(photos_at_times(times, clock_error_s=CAMERA_CLOCK_ERROR_S), directory)
+    write_photo_set(photos_at_times(times, clock_error_s=CAMERA_CLOCK_ERROR_S,
+                                    zone_s=CAMERA_ZONE_S), directory)
     return directory
 
 

@@ -3,14 +3,18 @@
 from __future__ import annotations
 
 import asyncio
+import datetime as dt
 import json
 import re
 import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+from exif import Image
 from peers import REPO, cli_env
 
+from groundstation import gpstime
 from groundstation.live.demo import DemoOptions, run_demo
 from groundstation.offline.inspect import inspect_path
 from groundstation.storage import iter_raw_chunks
@@ -122,3 +126,30 @@ def test_a_demo_cut_short_gives_the_figures_up_to_the_stop(tmp_path: Path) -> No
     assert "at the end of the flight" not in out and "when it stopped:" in out
     assert "photos:      photos (0 JPEGs)" in out
     assert list((tmp_path / "photos").glob("*.JPG")) == []
+
+
+def test_demo_help_says_how_far_the_photos_clock_is_off(tmp_path: Path) -> None:
+    """The help states the camera clock the simulator really writes: the EXIF time of a photo
+    minus the UTC time of its exposure is what ``demo --help`` says."""
+    helptext = subprocess.run(
+        [sys.executable, "-m", "groundstation.cli", "demo", "--help"], cwd=tmp_path,
+        capture_output=True, text=True, timeout=60, check=True).stdout
+    said = re.search(r"EXIF times read\s+(\d+)\s+min\s+(\d+)\s+s\s+ahead\s+of\s+UTC", helptext)
+    assert said, helptext
+    ahead_s = int(said.group(1)) * 60 + int(said.group(2))
+    proc = subprocess.run(
+        [sys.executable, "-m", "groundstation.cli", "demo", "--flight", "90", "--speed", "max",
+         "--out-dir", "flights", "--photos", "photos", "--no-zenoh", "--no-view"],
+        cwd=tmp_path, capture_output=True, text=True, timeout=120, check=False)
+    assert proc.returncode == 0, proc.stderr
+    (truth_path,) = (tmp_path / "flights").glob("demo_*.truth.json")
+    exposures = json.loads(truth_path.read_text())["exposures"]
+    photos = sorted((tmp_path / "photos").glob("*.JPG"))
+    assert len(photos) == len(exposures) > 0
+    for path, exp in zip(photos, exposures, strict=True):
+        img = Image(path.read_bytes())
+        exif = dt.datetime.strptime(img.datetime_original, "%Y:%m:%d %H:%M:%S").replace(
+            tzinfo=dt.UTC)
+        utc_s = gpstime.gps_to_unix_ns(exp["falling_t_gps_ns"]) / 1e9
+        # Whole-second EXIF times: the shot lies inside the EXIF second; ±0.5 s of rounding.
+        assert exif.timestamp() - utc_s == pytest.approx(ahead_s, abs=1.5)
