@@ -24,6 +24,7 @@ from rich.text import Text
 from groundstation import gpstime, messages
 from groundstation.bus import Bus, key
 from groundstation.config import ZenohSettings
+from groundstation.view.summary import ppk_label, ppk_thresholds
 
 STALE_AFTER_S = 3.0
 TIMELINE_S = 300
@@ -272,10 +273,11 @@ def _status_body(st: dict[str, Any], marks: list[dict[str, Any]],
             Text(s["state"], style=style),
         )
     ppk = Text()
-    ppk.append("PPK-ready ", style="bold")
+    need, clean_s = ppk_thresholds(st.get("ppk_ready_min"), st.get("ppk_clean_phase_s"))
+    ppk.append(f"{ppk_label(clean_s)} ", style="bold")
     ready = st.get("ppk_ready", 0)
-    ppk.append(f" {ready} ", style="bold black on green" if ready >= 5 else "bold white on red")
-    ppk.append(f" of {st.get('tracked', 0)} tracked, half-cycle "
+    ppk.append(f" {ready} ", style="bold black on green" if ready >= need else "bold white on red")
+    ppk.append(f" of {st.get('tracked', 0)} tracked, {need} needed, half-cycle "
                f"{st.get('half_cycle_fraction', 0) * 100:.0f}%")
 
     ms = st["marks"]

@@ -153,3 +153,43 @@ def test_demo_help_says_how_far_the_photos_clock_is_off(tmp_path: Path) -> None:
         utc_s = gpstime.gps_to_unix_ns(exp["falling_t_gps_ns"]) / 1e9
         # Whole-second EXIF times: the shot lies inside the EXIF second; ±0.5 s of rounding.
         assert exif.timestamp() - utc_s == pytest.approx(ahead_s, abs=1.5)
+
+
+def test_every_view_says_what_ppk_ready_counts(tmp_path: Path) -> None:
+    """The PPK-ready number comes with its threshold, the daemon's ``[monitor]``
+    ``clean_phase_s`` (here 12 s, 3 needed, from a config file), in the same words in the
+    demo's summary, ``watch`` and the dashboard, from the statuses the monitor publishes."""
+    from rich.console import Console
+
+    from groundstation.live.demo import demo_settings
+    from groundstation.view.dashboard.state import StationView
+    from groundstation.view.watch import WatchState, render
+
+    cfg = tmp_path / "gs.toml"
+    cfg.write_text("[monitor]\nclean_phase_s = 12.0\nppk_ready_min = 3\n")
+    label = "PPK-ready (clean phase >= 12 s)"
+    proc = subprocess.run(
+        [sys.executable, "-m", "groundstation.cli", "demo", "--flight", "90", "--speed", "max",
+         "--config", str(cfg), "--out-dir", "flights", "--no-zenoh", "--no-view"],
+        cwd=tmp_path, capture_output=True, text=True, timeout=120, check=False)
+    assert proc.returncode == 0, proc.stderr
+    assert re.search(rf"\d+ satellites tracked, \d+ {re.escape(label)}, 3 needed", proc.stdout), \
+        proc.stdout
+
+    payloads: list[tuple[str, bytes]] = []
+    settings = demo_settings(cfg, environ={}, overrides={
+        "recorder": {"out_dir": tmp_path / "api"}, "zenoh": {"enabled": False}})
+    asyncio.run(run_demo(DemoOptions(flight_s=90, speed=None, settings=settings),
+                         on_payload=lambda k, p: payloads.append((k, p))))
+    status = [p for k, p in payloads if k == "status"][-1]
+    watch = WatchState("demo")
+    watch.on_payload("groundstation/demo/status", status, now_s=0.0)
+    console = Console(record=True, width=100, color_system=None)
+    console.print(render(watch, now_s=0.0))
+    text = console.export_text()
+    assert re.search(rf"{re.escape(label)}\s+\d+\s+of \d+ tracked, 3 needed", text), text
+    view = StationView("demo")
+    view.on_payload("groundstation/demo/status", status, now_s=0.0)
+    ppk = view.snapshot(0.0)["ppk"]
+    assert ppk["label"] == label and ppk["min"] == 3 and ppk["clean_phase_s"] == 12.0
+    assert view.snapshot(0.0, ppk_ready_min=7)["ppk"]["min"] == 7  # --ppk-min overrides

@@ -18,6 +18,7 @@ from urllib.parse import quote
 from groundstation import events as kinds
 from groundstation import gpstime, messages
 from groundstation.storage.naming import session_start_ns
+from groundstation.view.summary import ppk_label, ppk_thresholds
 
 STALE_AFTER_S = 3.0
 """No status for longer than this and the station is shown as stale."""
@@ -27,8 +28,6 @@ DATA_RATE_MIN_SPAN_S = 0.5
 """Below this much receiving time between them, statuses came in one burst: no pace measured."""
 TIMELINE_SPAN_S = 600
 TIMELINE_BUCKET_S = 5
-PPK_READY_MIN = 5
-"""Default of the monitor's ``ppk_ready_min`` threshold (the gauge's green line)."""
 EVENTS_KEPT = 40
 DROPOUTS_KEPT = 1000
 MARKS_KEPT = 3000
@@ -329,10 +328,14 @@ class StationView:
 
     def snapshot(
         self, now_s: float, *, file_info: Callable[[str], FileInfo] = no_file_info,
-        ppk_ready_min: int = PPK_READY_MIN,
+        ppk_ready_min: int | None = None,
     ) -> dict[str, Any]:
-        """The JSON document the page draws for this station."""
+        """The JSON document the page draws for this station.
+
+        ``ppk_ready_min`` overrides the daemon's threshold (which its status carries) for the
+        gauge's green line."""
         st = self.status or {}
+        need, clean_s = ppk_thresholds(st.get("ppk_ready_min"), st.get("ppk_clean_phase_s"))
         link = dict(st.get("link") or {})
         # dropouts closed since the status (its current_dropout is then history)
         more, missing = self._dropouts_since_status
@@ -357,7 +360,9 @@ class StationView:
             "sats": st.get("sats") or [],
             "ppk": {
                 "ready": st.get("ppk_ready"), "tracked": st.get("tracked"),
-                "min": ppk_ready_min, "half_cycle_fraction": st.get("half_cycle_fraction"),
+                "min": need if ppk_ready_min is None else ppk_ready_min,
+                "clean_phase_s": clean_s, "label": ppk_label(clean_s),
+                "half_cycle_fraction": st.get("half_cycle_fraction"),
             },
             "alerts": self._alerts(st),
             "events": list(self.events)[-15:][::-1],

@@ -282,6 +282,7 @@ function renderPpk(ppk) {
   setText("ppk-ready", ppk.ready === null || ppk.ready === undefined ? "-" : String(ppk.ready),
     ok ? "good" : "bad");
   $("ppk-min").textContent = String(ppk.min);
+  $("ppk-title").textContent = ppk.label;  // what the number counts, as watch says it
   $("ppk-detail").textContent = "of " + num(ppk.tracked) + " tracked · half-cycle " +
     (ppk.half_cycle_fraction === null || ppk.half_cycle_fraction === undefined ? "-" :
       (ppk.half_cycle_fraction * 100).toFixed(0) + "%");
