@@ -1,7 +1,10 @@
-"""The monitor's status in words: the end-of-run summary lines, and the PPK-ready label every
-view (summary, watch, dashboard) gives its number with."""
+"""The monitor's status in words: the end-of-run summary lines, the PPK-ready label every view
+(summary, watch, dashboard) gives its number with, and when a view calls a session finished."""
 
 from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
 
 from groundstation.config import MonitorSettings
 from groundstation.records import Status
@@ -17,6 +20,15 @@ def ppk_thresholds(ready_min: object, clean_phase_s: object) -> tuple[int, float
              if isinstance(clean_phase_s, (int, float)) and not isinstance(clean_phase_s, bool)
              else default.clean_phase_s)
     return n, clean
+
+
+def session_finished(status: Mapping[str, Any] | None,
+                     session: Mapping[str, Any] | None) -> bool:
+    """The daemon said the session its status is about has finished: the views read
+    "finished" (not live, not stale) and show the alerts as those standing at its end."""
+    sess = session or {}
+    return sess.get("state") == "finished" and sess.get("session_id") in (
+        None, (status or {}).get("session_id"))
 
 
 def ppk_label(clean_phase_s: float) -> str:

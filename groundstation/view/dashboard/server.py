@@ -295,7 +295,8 @@ class Hub:
         with self.cond:
             return [
                 {"name": v.station, "alive": v.alive, "stale": v.stale(now),
-                 "has_status": v.status is not None,
+                 "has_status": v.status is not None, "finished": v.finished(),
+                 "status_age_s": v.status_age_s(now),
                  "alerts": len((v.status or {}).get("alerts") or [])}
                 for v in sorted(self.views.values(), key=lambda v: v.station)
             ]

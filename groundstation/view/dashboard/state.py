@@ -18,7 +18,7 @@ from urllib.parse import quote
 from groundstation import events as kinds
 from groundstation import gpstime, messages
 from groundstation.storage.naming import session_start_ns
-from groundstation.view.summary import ppk_label, ppk_thresholds
+from groundstation.view.summary import ppk_label, ppk_thresholds, session_finished
 
 STALE_AFTER_S = 3.0
 """No status for longer than this and the station is shown as stale."""
@@ -164,6 +164,11 @@ class StationView:
             return None
         return (f"station_conflict: {n} daemons publish as station {self.station!r}; "
                 "what is shown mixes them")
+
+    def finished(self) -> bool:
+        """The daemon said the session its status is about has finished (no more data will
+        come for it: the view reads "finished", its alerts are those at the end)."""
+        return session_finished(self.status, self.session)
 
     def _reset_session(self, session_id: str) -> None:
         """A new daemon session: what belonged to the previous one goes."""
@@ -351,6 +356,7 @@ class StationView:
             "stale": self.stale(now_s),
             "status_age_s": self.status_age_s(now_s),
             "alive": self.alive,
+            "finished": self.finished(),
             "rejected": self.rejected,
             "last_rejection": self.last_rejection,
             "session_id": st.get("session_id"),
