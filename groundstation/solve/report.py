@@ -837,7 +837,7 @@ _ENGINE_INFO_NOTE = "engine options in "
 """How the engine names its info file (engine, version, full option set) in the notes."""
 
 
-def _engine_info(traj: Trajectory) -> dict[str, Any] | None:
+def engine_info(traj: Trajectory) -> dict[str, Any] | None:
     """The ``engine.json`` of the engine run that made the trajectory, if any."""
     info_path = next((Path(n.removeprefix(_ENGINE_INFO_NOTE)) for n in traj.notes
                       if n.startswith(_ENGINE_INFO_NOTE)), None)
@@ -853,7 +853,7 @@ def _engine_info(traj: Trajectory) -> dict[str, Any] | None:
 def conditioning_of(traj: Trajectory) -> tuple[int, int, int] | None:
     """(slips found, repaired, flagged) by the phase conditioning before the engine; None when
     it did not run (an imported solution, a RINEX or RXM-RAWX rover)."""
-    info = _engine_info(traj)
+    info = engine_info(traj)
     cond = info.get("conditioning") if info else None
     if not isinstance(cond, dict) or not cond.get("applied"):
         return None
@@ -871,7 +871,7 @@ def engine_of(
     imported ``.pos`` states its program in its header; ``rtklib_overrides`` is kept for callers
     that imported a solution made with known options.
     """
-    info = _engine_info(traj)
+    info = engine_info(traj)
     if info is not None:
         opts = {str(k): str(v) for k, v in dict(info.get("options") or {}).items()}
         return str(info.get("engine", traj.source)), str(info.get("version", "")), opts
