@@ -389,6 +389,11 @@ class Status:
     marks: MarkStatus
     alerts: tuple[str, ...]
     recording: dict[str, Any] = dataclasses.field(default_factory=dict)
+    ppk_ready_min: int | None = None
+    """The monitor's ``ppk_ready_min``: PPK-ready satellites needed (None: not recorded)."""
+    ppk_clean_phase_s: float | None = None
+    """The monitor's ``clean_phase_s``: clean continuous phase a satellite needs to count as
+    PPK-ready, so a view can say what its number means (None: not recorded)."""
 
 
 @dataclass(frozen=True, slots=True)

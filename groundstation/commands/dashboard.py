@@ -36,8 +36,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="web server address (default 127.0.0.1: this machine only)")
     add_zenoh_client(parser)
     parser.add_argument("--ppk-min", type=int, default=None, metavar="N",
-                        help="satellites with clean phase the PPK gauge asks for (default 5, "
-                        "the monitor's ppk_ready_min)")
+                        help="satellites with clean phase the PPK gauge asks for (default: "
+                        "the daemon's [monitor] ppk_ready_min, which its status carries)")
     parser.add_argument("--duration", type=float, metavar="S",
                         help="stop after S seconds (default: until Ctrl-C or SIGTERM)")
 

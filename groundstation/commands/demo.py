@@ -36,8 +36,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="directory for the recording, the base stream and the truth "
                         "(default flights)")
     parser.add_argument("--photos", type=Path, metavar="DIR",
-                        help="also write the camera's photos (JPEG with EXIF, camera clock off "
-                        "by hours as in the field) for every exposure, to try `solve --photos`")
+                        help="also write the camera's photos (JPEG with EXIF) for every "
+                        f"exposure, to try `solve --photos`; {camera_clock_text()}")
     parser.add_argument("--station", help="station name (default demo)")
     add_zenoh_daemon(parser)
     parser.add_argument("--serve-after", type=float, metavar="S",
@@ -96,15 +96,36 @@ def run(args: argparse.Namespace) -> int:
 
 
 CAMERA_CLOCK_ERROR_S = -(1 * 3600 + 51 * 60 + 2.6)
-"""The simulated camera's clock error: hours off, as camera clocks are in the field."""
+"""The simulated camera's clock error against the local time it is set to."""
+CAMERA_ZONE_S = 7200
+"""The simulated camera runs local time, UTC+02:00, and writes no zone tag (many do not)."""
+
+
+def _duration_text(seconds: float) -> str:
+    s = round(abs(seconds))
+    h, rem = divmod(s, 3600)
+    m, sec = divmod(rem, 60)
+    return (f"{h} h {m:02d} min {sec:02d} s" if h else f"{m} min {sec:02d} s")
+
+
+def camera_clock_text() -> str:
+    """What the simulated camera's EXIF times are, from the constants the photos are made with."""
+    ahead = CAMERA_ZONE_S + CAMERA_CLOCK_ERROR_S
+    return (f"the camera's clock runs local time UTC{CAMERA_ZONE_S / 3600:+03.0f}:00 with no zone "
+            f"tag, {_duration_text(CAMERA_CLOCK_ERROR_S)} "
+            f"{'slow' if CAMERA_CLOCK_ERROR_S < 0 else 'fast'}, so its EXIF times read "
+            f"{_duration_text(ahead)} {'ahead of' if ahead >= 0 else 'behind'} UTC; solve "
+            "finds that offset itself")
 
 
 def _write_photos(result: Any, directory: Path) -> Path:
     """The simulated camera's JPEGs, one per exposure of the truth (solve/photosim.py)."""
     from groundstation.solve.photosim import photos_at_times, write_photo_set
 
-    times = [e["falling_t_gps_ns"] for e in result.sim.truth["exposures"]]
-    write_photo_set(photos_at_times(times, clock_error_s=CAMERA_CLOCK_ERROR_S), directory)
+    # The exposures up to the stop: a cut run's camera stopped with it.
+    times = [e["falling_t_gps_ns"] for e in result.sent().exposures]
+    write_photo_set(photos_at_times(times, clock_error_s=CAMERA_CLOCK_ERROR_S,
+                                    zone_s=CAMERA_ZONE_S), directory)
     return directory
 
 
@@ -153,17 +174,21 @@ def _log_through(console: Any) -> None:
 def _print_summary(result: Any, photos: Path | None = None) -> None:
     s = result.summary
     truth = result.sim.truth
-    injected = truth["fault_summary"]
+    sent = result.sent()
     st = result.last_status
     print(f"demo finished: {s.stopped_by} after {s.duration_s:.1f} s")
+    if not sent.whole_flight:
+        planned = (int(truth["end_gps_ns"]) - int(truth["start_gps_ns"])) / 1e9
+        print(f"  cut short: {sent.flight_s:.1f} s of the {planned:g} s flight sent; the "
+              "simulator's figures below are those up to the stop")
     lost = result.bytes_written - s.bytes_in
     print(f"  received {s.bytes_in:,} of the {result.bytes_written:,} bytes written into the pty"
           f"{'' if lost == 0 else f' ({lost:,} not read before the end)'}: {s.frames:,} frames, "
           f"{s.garbage_bytes:,} garbage bytes, {s.records:,} records")
     if st is not None:
-        for line in status_lines(st, injected_lost_epochs=len(injected["epochs_lost_tow_ms"]),
-                                 exposures=len(truth["exposures"]),
-                                 at="at the end of the flight"):
+        at = "at the end of the flight" if sent.whole_flight else "when it stopped"
+        for line in status_lines(st, injected_lost_epochs=sent.lost_epochs,
+                                 exposures=len(sent.exposures), at=at):
             print(line)
     for path in s.files:
         print(f"  MCAP:        {path}")
@@ -172,7 +197,7 @@ def _print_summary(result: Any, photos: Path | None = None) -> None:
     print(f"  base UBX:    {result.base_path}")
     print(f"  truth:       {result.truth_path}")
     if photos is not None:
-        print(f"  photos:      {photos} ({len(truth['exposures'])} JPEGs)")
+        print(f"  photos:      {photos} ({len(sent.exposures)} JPEGs)")
     if result.endpoint:
         print(f"  Zenoh:       groundstation/{result.station}/** on {result.endpoint}")
     if s.files and not s.frames_by_type.get("TIM-TM2"):  # no "next: ... solve" that fails

@@ -13,6 +13,7 @@ from groundstation.solve import engine as ppk
 from groundstation.solve import interpolate as interp
 from groundstation.solve.photos import JPEG_SUFFIXES
 from groundstation.solve.pipeline import SolveResult, SolveSettings, solve
+from groundstation.solve.report_notes import printed_notes
 
 NAME = "solve"
 HELP = "post-flight: positions -> marks -> photos -> lever arm -> outputs"
@@ -181,6 +182,8 @@ def format_result(r: SolveResult) -> str:
     ]
     if r.match is not None:
         lines.extend(r.reconciliation[:3])
-    lines.extend(f"note       {n}" for n in r.notes)
+    # the engine's technical notes in plain words (they stay whole in engine.json and the
+    # report's notes)
+    lines.extend(f"note       {n}" for n in printed_notes(r.trajectory, r.notes))
     lines.extend(f"wrote      {p}" for p in r.files)
     return "\n".join(lines) + "\n"

@@ -83,6 +83,26 @@ class DemoOptions:
     settings: Settings | None = None
 
 
+WEEK_NS = 604_800 * 1_000_000_000
+
+
+@dataclass(frozen=True, slots=True)
+class SentFigures:
+    """The simulator's own figures for what it put on the link before the demo stopped.
+
+    Attributes:
+        whole_flight: every chunk of the flight was written (the figures are the whole flight's).
+        flight_s: seconds of flight data sent (from the flight's start to the last chunk).
+        lost_epochs: epochs the injected link faults dropped among those sent.
+        exposures: the truth's exposures whose time mark was due on the link before the stop.
+    """
+
+    whole_flight: bool
+    flight_s: float
+    lost_epochs: int
+    exposures: tuple[dict[str, Any], ...]
+
+
 @dataclass(frozen=True, slots=True)
 class DemoResult:
     summary: RunSummary
@@ -94,6 +114,39 @@ class DemoResult:
     endpoint: str | None
     station: str
     bytes_written: int
+    sent_until_gps_ns: int | None = None
+    """GPS time of the last chunk written when the run stopped before the flight's end."""
+
+    def sent(self) -> SentFigures:
+        """The simulator's figures up to the stop (the whole flight's when it ran to its end),
+        so a cut run is never compared with the whole flight's totals."""
+        truth = self.sim.truth
+        start = int(truth["start_gps_ns"])
+        exposures = truth["exposures"]
+        lost_tow = truth["fault_summary"]["epochs_lost_tow_ms"]
+        if self.sent_until_gps_ns is None:
+            return SentFigures(True, (int(truth["end_gps_ns"]) - start) / 1e9, len(lost_tow),
+                               tuple(exposures))
+        until = self.sent_until_gps_ns
+        week0 = start - start % WEEK_NS
+
+        def lost_t(tow_ms: int) -> int:
+            t = week0 + tow_ms * 1_000_000
+            return t + WEEK_NS if t < start else t  # the flight crossed a week boundary
+
+        # A mark is output with the first epoch after its rising edge (sim/stream.py) and that
+        # epoch's chunk follows the epoch: the mark was sent if its epoch is before the last
+        # chunk written.
+        interval = round(1e9 / float(truth["rate_hz"]))
+
+        def mark_epoch(e: dict[str, Any]) -> int:
+            r = int(e["rising_t_gps_ns"])
+            return start + -(-(r - start) // interval) * interval
+
+        return SentFigures(
+            False, max(0.0, (until - start) / 1e9),
+            sum(1 for tow in lost_tow if lost_t(int(tow)) < until),
+            tuple(e for e in exposures if mark_epoch(e) < until))
 
 
 class ViewSink:
@@ -228,4 +281,7 @@ async def run_demo(
         endpoint=zenoh.listen[0] if zenoh.enabled and zenoh.listen else None,
         station=station,
         bytes_written=feeder.bytes_written,
+        sent_until_gps_ns=(None if feeder.chunks_written == len(sim.rover_chunks)
+                           else feeder.last_t_ns if feeder.last_t_ns is not None
+                           else int(sim.truth["start_gps_ns"])),
     )

@@ -270,4 +270,6 @@ class Monitor:
             marks=self.mark_watch.status(t_last),
             alerts=self.alerts.messages(),
             recording=dict(self.recording),
+            ppk_ready_min=self.th.ppk_ready_min,
+            ppk_clean_phase_s=self.th.clean_phase_s,
         )

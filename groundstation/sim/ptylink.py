@@ -38,6 +38,10 @@ class PtyLink:
         self.path = ""
         """What a serial reader opens (the link, or the slave's device name)."""
         self.bytes_written = 0
+        self.chunks_written = 0
+        """Timed chunks :meth:`feed` has written whole (a cut run reports what was sent)."""
+        self.last_t_ns: int | None = None
+        """The time of the last chunk :meth:`feed` wrote whole, ``None`` before the first."""
         self.done = threading.Event()
         """Set when a feed has ended (all written, stopped, or the pty closed)."""
         self._stop = threading.Event()
@@ -78,10 +82,12 @@ class PtyLink:
             OSError: the pty was closed under the writer.
         """
         start = self.bytes_written
-        for _, chunk in paced(chunks, speed):
+        for t_ns, chunk in paced(chunks, speed):
             if self._stop.is_set():
                 break
             self.write(chunk, piece=len(chunk) or 1)
+            self.chunks_written += 1
+            self.last_t_ns = t_ns
         return self.bytes_written - start
 
     def start_feed(self, chunks: Iterable[tuple[int, bytes]], speed: float | None) -> None:

@@ -389,6 +389,27 @@ def _vote_offsets(photo_s: FloatArray, mark_s: FloatArray, window_s: float) -> l
     return out
 
 
+def residual_sigma_s(residual_s: FloatArray) -> float:
+    """Robust σ (1.4826 × median absolute deviation) of photo-to-mark residuals, seconds.
+
+    The one measure of how well the photos' times fit their marks once the clock offset is
+    applied: the solve's printout, the report and the pairing window all use it. NaN with fewer
+    than 3 residuals (no spread to speak of).
+    """
+    r = np.asarray(residual_s, dtype=np.float64)
+    r = r[np.isfinite(r)]
+    if r.size < 3:
+        return math.nan
+    return float(1.4826 * np.median(np.abs(r - np.median(r))))
+
+
+def residual_sigma_text(sigma_s: float) -> str:
+    """The residual σ as both the printout and the report give it: milliseconds, or why not."""
+    if not math.isfinite(sigma_s):
+        return "not computed (fewer than 3 pairs)"
+    return f"{sigma_s * 1e3:.1f} ms (robust)"
+
+
 def _residuals(shifted: FloatArray, mark_sorted: FloatArray) -> FloatArray:
     """Signed distance from each shifted photo time to its nearest mark."""
     j = np.searchsorted(mark_sorted, shifted)
@@ -459,7 +480,8 @@ class MatchResult:
         orphan_marks: mark indices with no photo.
         duplicate_marks: mark indices dropped because an earlier mark has the same time.
         photo_s: the estimated capture time of each photo on the camera clock (GPS-scale s).
-        residual_sigma_s: robust σ of the pair residuals.
+        residual_sigma_s: robust σ of the final pairs' residuals (:func:`residual_sigma_s`;
+            NaN with fewer than 3 pairs).
     """
 
     offset_s: float
@@ -559,11 +581,12 @@ def match(
         offset_s, _ = estimate_offset(photo_s, valid_marks, max_pair_s)
     usable_marks = np.nan_to_num(valid_marks, nan=-1e18)
     first = greedy_pairs(photo_s, usable_marks, offset_s, max_pair_s)
-    sigma = max_pair_s
-    r = np.array([p.residual_s for p in first if exact[p.photo]])
-    if r.size >= 3:
-        sigma = float(1.4826 * np.median(np.abs(r - np.median(r))))
-    tol_precise = min(max_pair_s, max(MIN_PAIR_TOLERANCE_S, 5.0 * sigma))
+    # The window for sub-second photos comes from their own first-pass spread; without 3 of
+    # them there is no spread to go by and the full window applies.
+    first_sigma = residual_sigma_s(np.array([p.residual_s for p in first if exact[p.photo]]))
+    if math.isnan(first_sigma):
+        first_sigma = max_pair_s
+    tol_precise = min(max_pair_s, max(MIN_PAIR_TOLERANCE_S, 5.0 * first_sigma))
     has_spread = np.isfinite(times.spread_s) & ~exact
     spread = np.nan_to_num(times.spread_s)
     lower = np.where(
@@ -588,7 +611,8 @@ def match(
     )
     return MatchResult(
         offset_s, float(tol.max()) if tol.size else max_pair_s, tuple(pairs), unmatched,
-        orphans, tuple(dups), photo_s, sigma,
+        orphans, tuple(dups), photo_s,
+        residual_sigma_s(np.array([p.residual_s for p in pairs], dtype=np.float64)),
     )
 
 
@@ -599,8 +623,8 @@ def reconciliation_lines(
     lines = [
         (f"camera clock offset (GPS - camera): {result.offset_s:+.2f} s "
         f"({_hms(result.offset_s)})"),
-        (f"pairing window {result.tolerance_s:.2f} s, "
-        f"residual sigma {result.residual_sigma_s:.3f} s"),
+        (f"pairing window +/-{result.tolerance_s * 1e3:.0f} ms, timing residual sigma "
+         f"{residual_sigma_text(result.residual_sigma_s)}"),
         (f"photos {len(photos)}, marks {len(mark_t_gps_ns)}: {len(result.pairs)} paired, "
         f"{len(result.unmatched_photos)} photos without mark, {len(result.orphan_marks)} marks "
         f"without photo, {len(result.duplicate_marks)} duplicate marks dropped"

@@ -32,7 +32,7 @@ import numpy.typing as npt
 from groundstation import gpstime, jsonio
 from groundstation.errors import GroundstationError
 from groundstation.rules.marks import Mark, count_jump
-from groundstation.solve import figures
+from groundstation.solve import figures, photos
 from groundstation.solve.figures import QUALITY_COLOURS, Span
 from groundstation.solve.interpolate import FLAG_GAP
 from groundstation.solve.outputs import CameraRow
@@ -263,14 +263,6 @@ def nearest_epoch_s(inp: ReportInput) -> FloatArray:
     return out
 
 
-def residual_sigma_s(inp: ReportInput) -> float:
-    """Robust σ (1.4826 MAD) of the photo-to-mark residuals; NaN with fewer than 3 pairs."""
-    r = inp.pair_residual_s
-    if r.size < 3:
-        return math.nan
-    return float(1.4826 * np.median(np.abs(r - np.median(r))))
-
-
 # -- warnings ---------------------------------------------------------------------------------
 
 
@@ -422,9 +414,9 @@ def _summary(inp: ReportInput) -> str:
         ("Interpolation", f"{_e(inp.interp)}; gaps longer than {inp.max_gap_s:g} s are flagged"),
     ]
     if inp.clock_offset_s is not None:
+        sigma = photos.residual_sigma_text(photos.residual_sigma_s(inp.pair_residual_s))
         rows.append(("Camera clock", (f"GPS − camera {inp.clock_offset_s:+.3f} s; pairing window "
-                     f"±{(inp.pair_window_s or 0) * 1e3:.0f} ms; residual σ "
-                     f"{residual_sigma_s(inp) * 1e3:.1f} ms (robust)")))
+                     f"±{(inp.pair_window_s or 0) * 1e3:.0f} ms; timing residual σ {sigma}")))
     return _kv(rows)
 
 
@@ -447,9 +439,11 @@ def accuracy_text(inp: ReportInput) -> str:
 def _result(inp: ReportInput) -> str:
     """What a surveyor looks for first: fixed share, marks positioned and missed, accuracy."""
     c = counts(inp)
-    rows = c["rows"]
+    # The share is over the positions computed: a photo without a mark has no position to fix
+    # (it has its own line below), and counting it would pull a fully fixed flight down.
+    n_pos = c["rows"] - c["not_positioned"]
     fixed = c["fixed"]
-    share = f" ({fixed / rows:.0%})" if rows else ""
+    share = f" ({fixed / n_pos:.0%})" if n_pos else ""
     marks = [r for r in inp.rows if r.mark >= 0]
     positioned = sum(1 for r in marks if r.positioned)
     missed = c["marks_missed"]
@@ -458,7 +452,8 @@ def _result(inp: ReportInput) -> str:
                    "those photos)")
     unmatched = c["photos_unmatched"]
     lines = [
-        ("Fixed", f'<b class="big">{fixed} of {rows}</b> camera positions ambiguity-fixed{share}'),
+        ("Fixed", (f'<b class="big">{fixed} of {n_pos}</b> computed camera positions '
+                   f"ambiguity-fixed{share}")),
         ("Marks positioned", f"<b>{positioned} of {len(marks)}</b> marks in the flight"
          + (f"; {c['not_positioned']} camera position(s) not computed"
             if c["not_positioned"] else "")),
@@ -626,7 +621,8 @@ def _figures(inp: ReportInput) -> list[tuple[str, str, str]]:
         out.append((
             "Photo timing residuals",
             figures.timing_residuals(inp.pair_t_gps_ns, inp.pair_residual_s,
-                                     inp.pair_window_s or math.nan, residual_sigma_s(inp)),
+                                     inp.pair_window_s or math.nan,
+                                     photos.residual_sigma_s(inp.pair_residual_s)),
             ("Time of each mark minus the photo's EXIF time corrected by the camera clock offset. "
             "Whole-second EXIF times spread over ±500 ms; sub-second times sit near zero."),
         ))
@@ -841,7 +837,7 @@ _ENGINE_INFO_NOTE = "engine options in "
 """How the engine names its info file (engine, version, full option set) in the notes."""
 
 
-def _engine_info(traj: Trajectory) -> dict[str, Any] | None:
+def engine_info(traj: Trajectory) -> dict[str, Any] | None:
     """The ``engine.json`` of the engine run that made the trajectory, if any."""
     info_path = next((Path(n.removeprefix(_ENGINE_INFO_NOTE)) for n in traj.notes
                       if n.startswith(_ENGINE_INFO_NOTE)), None)
@@ -857,7 +853,7 @@ def _engine_info(traj: Trajectory) -> dict[str, Any] | None:
 def conditioning_of(traj: Trajectory) -> tuple[int, int, int] | None:
     """(slips found, repaired, flagged) by the phase conditioning before the engine; None when
     it did not run (an imported solution, a RINEX or RXM-RAWX rover)."""
-    info = _engine_info(traj)
+    info = engine_info(traj)
     cond = info.get("conditioning") if info else None
     if not isinstance(cond, dict) or not cond.get("applied"):
         return None
@@ -875,7 +871,7 @@ def engine_of(
     imported ``.pos`` states its program in its header; ``rtklib_overrides`` is kept for callers
     that imported a solution made with known options.
     """
-    info = _engine_info(traj)
+    info = engine_info(traj)
     if info is not None:
         opts = {str(k): str(v) for k, v in dict(info.get("options") or {}).items()}
         return str(info.get("engine", traj.source)), str(info.get("version", "")), opts

@@ -1,8 +1,39 @@
-"""The monitor's final status as a few lines of text, for the end-of-run summaries."""
+"""The monitor's status in words: the end-of-run summary lines, the PPK-ready label every view
+(summary, watch, dashboard) gives its number with, and when a view calls a session finished."""
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+from typing import Any
+
+from groundstation.config import MonitorSettings
 from groundstation.records import Status
+
+
+def ppk_thresholds(ready_min: object, clean_phase_s: object) -> tuple[int, float]:
+    """The PPK-ready thresholds a status carries (the daemon's ``[monitor]`` ``ppk_ready_min``
+    and ``clean_phase_s``); the monitor's defaults for a status recorded without them."""
+    default = MonitorSettings()
+    n = (ready_min if isinstance(ready_min, int) and not isinstance(ready_min, bool)
+         else default.ppk_ready_min)
+    clean = (float(clean_phase_s)
+             if isinstance(clean_phase_s, (int, float)) and not isinstance(clean_phase_s, bool)
+             else default.clean_phase_s)
+    return n, clean
+
+
+def session_finished(status: Mapping[str, Any] | None,
+                     session: Mapping[str, Any] | None) -> bool:
+    """The daemon said the session its status is about has finished: the views read
+    "finished" (not live, not stale) and show the alerts as those standing at its end."""
+    sess = session or {}
+    return sess.get("state") == "finished" and sess.get("session_id") in (
+        None, (status or {}).get("session_id"))
+
+
+def ppk_label(clean_phase_s: float) -> str:
+    """What the PPK-ready number counts, in the same words in every view."""
+    return f"PPK-ready (clean phase >= {clean_phase_s:g} s)"
 
 
 def status_lines(st: Status, *, injected_lost_epochs: int | None = None,
@@ -17,6 +48,7 @@ def status_lines(st: Status, *, injected_lost_epochs: int | None = None,
     sim_link = (f"; simulator injected {injected_lost_epochs}"
                 if injected_lost_epochs is not None else "")
     sim_marks = f" (simulator: {exposures} exposures)" if exposures is not None else ""
+    need, clean_s = ppk_thresholds(st.ppk_ready_min, st.ppk_clean_phase_s)
     return [
         (f"  link: {link.epochs} epochs at {link.epoch_interval_s or 0:g} s, {link.dropouts} "
         f"dropouts ({link.missing_epochs} epochs missing{sim_link}), {link.damaged_frames} "
@@ -24,6 +56,7 @@ def status_lines(st: Status, *, injected_lost_epochs: int | None = None,
         (f"  marks: {marks.marks} received, {marks.missed} missed, {marks.duplicates} "
          f"duplicates, "
         f"{marks.in_dropout} inside dropouts{sim_marks}"),
-        (f"  {at}: {st.tracked} satellites tracked, {st.ppk_ready} PPK-ready; alerts: "
+        (f"  {at}: {st.tracked} satellites tracked, {st.ppk_ready} {ppk_label(clean_s)}, "
+         f"{need} needed; alerts: "
          f"{'; '.join(st.alerts) or 'none'}"),
     ]

@@ -24,6 +24,7 @@ from rich.text import Text
 from groundstation import gpstime, messages
 from groundstation.bus import Bus, key
 from groundstation.config import ZenohSettings
+from groundstation.view.summary import ppk_label, ppk_thresholds, session_finished
 
 STALE_AFTER_S = 3.0
 TIMELINE_S = 300
@@ -214,7 +215,8 @@ def render(state: WatchState, now_s: float | None = None) -> RenderableType:
     if st is None:
         return Panel(body, title=title)
     alerts = st.get("alerts") or []
-    return Panel(body, title=title, border_style="red" if stale or alerts else "green")
+    border = ("cyan" if session_finished(st, session) else "red" if stale or alerts else "green")
+    return Panel(body, title=title, border_style=border)
 
 
 def _status_body(st: dict[str, Any], marks: list[dict[str, Any]],
@@ -223,8 +225,9 @@ def _status_body(st: dict[str, Any], marks: list[dict[str, Any]],
     """The screen below the title for one status."""
     link = st["link"]
     head = Text()
-    # A normal end of session is not a failure: the daemon said "finished" before it went.
-    finished = stale and (session or {}).get("state") == "finished"
+    # A normal end of session is not a failure: the daemon said "finished" before it went
+    # (for the session this status is about), and nothing more will come for it.
+    finished = session_finished(st, session)
     if finished:
         head.append(" SESSION FINISHED ", style="bold black on cyan")
     elif stale:
@@ -272,10 +275,11 @@ def _status_body(st: dict[str, Any], marks: list[dict[str, Any]],
             Text(s["state"], style=style),
         )
     ppk = Text()
-    ppk.append("PPK-ready ", style="bold")
+    need, clean_s = ppk_thresholds(st.get("ppk_ready_min"), st.get("ppk_clean_phase_s"))
+    ppk.append(f"{ppk_label(clean_s)} ", style="bold")
     ready = st.get("ppk_ready", 0)
-    ppk.append(f" {ready} ", style="bold black on green" if ready >= 5 else "bold white on red")
-    ppk.append(f" of {st.get('tracked', 0)} tracked, half-cycle "
+    ppk.append(f" {ready} ", style="bold black on green" if ready >= need else "bold white on red")
+    ppk.append(f" of {st.get('tracked', 0)} tracked, {need} needed, half-cycle "
                f"{st.get('half_cycle_fraction', 0) * 100:.0f}%")
 
     ms = st["marks"]
@@ -296,8 +300,9 @@ def _status_body(st: dict[str, Any], marks: list[dict[str, Any]],
     alerts = st.get("alerts") or []
     alert_text = Text()
     if alerts:
-        for a in alerts:
-            alert_text.append(f" ⚠ {a}\n", style="bold white on red")
+        for a in alerts:  # a finished session's alerts are those standing at its end
+            alert_text.append(f" ⚠ {a}\n",
+                              style="bold white on grey35" if finished else "bold white on red")
     else:
         alert_text.append(" no alerts", style="green")
     ev_text = Text()
@@ -305,11 +310,12 @@ def _status_body(st: dict[str, Any], marks: list[dict[str, Any]],
         when = time.strftime("%H:%M:%S", time.localtime(e.get("t_host_ns", 0) / 1e9))
         ev_text.append(f"{when} {e.get('kind', '?'):<22} {e.get('message', '')}\n",
                        style="yellow" if e.get("severity") == "warning" else "")
-    if any("mark" in a for a in alerts):
+    if any("mark" in a for a in alerts) and not finished:
         alert_text.append(" press a to acknowledge the missed marks\n", style="dim")
     # ALERTS right under the head: a short terminal (80x24) cuts the bottom, never the alerts.
     return Group(
-        head, Text("ALERTS", style="bold"), alert_text, link_line,
+        head, Text("ALERTS at the end of the session" if finished else "ALERTS", style="bold"),
+        alert_text, link_line,
         Text("last 5 min ") + timeline(link), ppk, mark_line, sats,
         Text("EVENTS", style="bold"), ev_text,
     )

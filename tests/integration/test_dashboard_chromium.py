@@ -39,6 +39,8 @@ CHROMIUM = Path("/usr/bin/chromium")
 RXM_RAW_HEADER = b"\xb5\x62\x02\x10"
 STATION = "dash"
 WIDTH, HEIGHT = 1366, 768
+STALE_AFTER_S = 3.0
+"""The page's STALE_AFTER_S (app.js)."""
 SKIP_S = 100.0
 """Start the stream this far into the simulated flight: the camera starts soon after."""
 
@@ -308,6 +310,10 @@ def test_dashboard_in_headless_chromium(
                      "document.getElementById('marks-count').textContent") or 0) >= 3, 20)
         assert chromium.eval("document.querySelectorAll('#timeline line.mark').length") >= 3
         assert chromium.eval("document.querySelectorAll('#timeline rect.dropout').length") == 0
+        # the PPK-ready number says what it counts: the daemon's [monitor] clean_phase_s
+        assert chromium.eval("document.getElementById('ppk-title').textContent") == \
+            "PPK-ready (clean phase >= 30 s)"
+        assert chromium.eval("document.getElementById('ppk-min').textContent") == "5"
         chromium.screenshot(tmp_path / "1-live.png")
 
         # a dropout in the stream: the page shows it while the stream is still silent (the
@@ -329,16 +335,29 @@ def test_dashboard_in_headless_chromium(
         skipped = feeder.skipped_epochs
         assert abs(missing - skipped) <= 2, (missing, skipped)  # frames cut at either end
 
-        # the daemon ends normally: "session finished", not a red STALE / "daemon gone"
+        # the daemon ends normally, an alert standing (the stream silent): "session finished",
+        # not a red STALE / "daemon gone"; the station reads finished, not live, and the alerts
+        # are shown as those at the end, not as live ones
         feeder.paused.set()
+        wait_for("an alert raised", lambda: chromium.eval(
+            "document.querySelectorAll('#alerts li:not(.none)').length") >= 1, 15)
         rc, _ = daemon.stop(signal.SIGTERM)
         assert rc == 0, daemon.stderr
-        stopped_at = time.monotonic()
         wait_for("finished", lambda: chromium.eval("document.body?.dataset.state") == "finished",
                  6)
-        assert time.monotonic() - stopped_at > 2.0  # not before the status is really late
         assert chromium.eval("document.getElementById('badge').textContent") == \
             "SESSION FINISHED"
+        time.sleep(STALE_AFTER_S + 0.5)  # the selector ages between pushes too
+        option = chromium.eval("document.querySelector('#station option').textContent")
+        assert option.startswith(STATION) and "finished" in option, option
+        assert "live" not in option and "stale" not in option and "⚠" not in option, option
+        assert chromium.eval("document.getElementById('alerts-title').textContent") == \
+            "Alerts at the end"
+        n_alerts = chromium.eval("document.querySelectorAll('#alerts li.ended').length")
+        assert n_alerts == len(chromium.eval("gsDashboard.doc.view.alerts")) >= 1
+        assert chromium.eval("document.getElementById('alert-count').textContent").endswith(
+            "at end")
+        assert chromium.eval("document.body?.dataset.state") == "finished"
         assert "daemon gone" not in chromium.eval(
             "document.getElementById('badge-detail').textContent")
         assert not chromium.eval("document.getElementById('link-now').textContent"

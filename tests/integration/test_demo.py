@@ -3,13 +3,18 @@
 from __future__ import annotations
 
 import asyncio
+import datetime as dt
 import json
+import re
 import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+from exif import Image
 from peers import REPO, cli_env
 
+from groundstation import gpstime
 from groundstation.live.demo import DemoOptions, run_demo
 from groundstation.offline.inspect import inspect_path
 from groundstation.storage import iter_raw_chunks
@@ -89,3 +94,102 @@ def test_demo_reads_the_environment_like_every_command(tmp_path: Path) -> None:
         )
         assert proc.returncode == 2, proc.stderr
         assert var in proc.stderr and len(proc.stderr.strip().splitlines()) == 1, proc.stderr
+
+
+def test_a_demo_cut_short_gives_the_figures_up_to_the_stop(tmp_path: Path) -> None:
+    """``--duration`` stops the flight early: the summary says so and gives the simulator's
+    figures for what it sent up to the stop, never the whole flight's totals (paced at x20 for
+    3 s of wall time, the cut is inside the static start, before any exposure)."""
+    proc = subprocess.run(
+        [sys.executable, "-m", "groundstation.cli", "demo", "--flight", "300", "--speed", "20",
+         "--duration", "3", "--out-dir", "flights", "--photos", "photos", "--no-zenoh",
+         "--no-view"],
+        cwd=tmp_path, capture_output=True, text=True, timeout=120, check=False,
+    )
+    assert proc.returncode == 0, proc.stderr
+    out = proc.stdout
+    (truth_path,) = (tmp_path / "flights").glob("demo_*.truth.json")
+    truth = json.loads(truth_path.read_text())
+    cut = re.search(r"cut short: (\d+\.\d) s of the 300 s flight sent", out)
+    assert cut, out
+    sent_s = float(cut.group(1))
+    assert 0 < sent_s <= 61.0  # 3 s at x20, whatever the machine's load
+    takeoff_s = (truth["phases"]["takeoff_gps_ns"] - truth["start_gps_ns"]) / 1e9
+    assert sent_s < takeoff_s
+    assert len(truth["exposures"]) > 0 and len(truth["fault_summary"]["epochs_lost_tow_ms"]) > 0
+    start = truth["start_gps_ns"]
+    week0 = start - start % (604_800 * 10**9)
+    lost = sum(1 for tow in truth["fault_summary"]["epochs_lost_tow_ms"]
+               if week0 + tow * 10**6 - start < sent_s * 1e9 + 1)
+    assert f"simulator injected {lost})" in out
+    assert "(simulator: 0 exposures)" in out
+    assert "at the end of the flight" not in out and "when it stopped:" in out
+    assert "photos:      photos (0 JPEGs)" in out
+    assert list((tmp_path / "photos").glob("*.JPG")) == []
+
+
+def test_demo_help_says_how_far_the_photos_clock_is_off(tmp_path: Path) -> None:
+    """The help states the camera clock the simulator really writes: the EXIF time of a photo
+    minus the UTC time of its exposure is what ``demo --help`` says."""
+    helptext = subprocess.run(
+        [sys.executable, "-m", "groundstation.cli", "demo", "--help"], cwd=tmp_path,
+        capture_output=True, text=True, timeout=60, check=True).stdout
+    said = re.search(r"EXIF times read\s+(\d+)\s+min\s+(\d+)\s+s\s+ahead\s+of\s+UTC", helptext)
+    assert said, helptext
+    ahead_s = int(said.group(1)) * 60 + int(said.group(2))
+    proc = subprocess.run(
+        [sys.executable, "-m", "groundstation.cli", "demo", "--flight", "90", "--speed", "max",
+         "--out-dir", "flights", "--photos", "photos", "--no-zenoh", "--no-view"],
+        cwd=tmp_path, capture_output=True, text=True, timeout=120, check=False)
+    assert proc.returncode == 0, proc.stderr
+    (truth_path,) = (tmp_path / "flights").glob("demo_*.truth.json")
+    exposures = json.loads(truth_path.read_text())["exposures"]
+    photos = sorted((tmp_path / "photos").glob("*.JPG"))
+    assert len(photos) == len(exposures) > 0
+    for path, exp in zip(photos, exposures, strict=True):
+        img = Image(path.read_bytes())
+        exif = dt.datetime.strptime(img.datetime_original, "%Y:%m:%d %H:%M:%S").replace(
+            tzinfo=dt.UTC)
+        utc_s = gpstime.gps_to_unix_ns(exp["falling_t_gps_ns"]) / 1e9
+        # Whole-second EXIF times: the shot lies inside the EXIF second; ±0.5 s of rounding.
+        assert exif.timestamp() - utc_s == pytest.approx(ahead_s, abs=1.5)
+
+
+def test_every_view_says_what_ppk_ready_counts(tmp_path: Path) -> None:
+    """The PPK-ready number comes with its threshold, the daemon's ``[monitor]``
+    ``clean_phase_s`` (here 12 s, 3 needed, from a config file), in the same words in the
+    demo's summary, ``watch`` and the dashboard, from the statuses the monitor publishes."""
+    from rich.console import Console
+
+    from groundstation.live.demo import demo_settings
+    from groundstation.view.dashboard.state import StationView
+    from groundstation.view.watch import WatchState, render
+
+    cfg = tmp_path / "gs.toml"
+    cfg.write_text("[monitor]\nclean_phase_s = 12.0\nppk_ready_min = 3\n")
+    label = "PPK-ready (clean phase >= 12 s)"
+    proc = subprocess.run(
+        [sys.executable, "-m", "groundstation.cli", "demo", "--flight", "90", "--speed", "max",
+         "--config", str(cfg), "--out-dir", "flights", "--no-zenoh", "--no-view"],
+        cwd=tmp_path, capture_output=True, text=True, timeout=120, check=False)
+    assert proc.returncode == 0, proc.stderr
+    assert re.search(rf"\d+ satellites tracked, \d+ {re.escape(label)}, 3 needed", proc.stdout), \
+        proc.stdout
+
+    payloads: list[tuple[str, bytes]] = []
+    settings = demo_settings(cfg, environ={}, overrides={
+        "recorder": {"out_dir": tmp_path / "api"}, "zenoh": {"enabled": False}})
+    asyncio.run(run_demo(DemoOptions(flight_s=90, speed=None, settings=settings),
+                         on_payload=lambda k, p: payloads.append((k, p))))
+    status = [p for k, p in payloads if k == "status"][-1]
+    watch = WatchState("demo")
+    watch.on_payload("groundstation/demo/status", status, now_s=0.0)
+    console = Console(record=True, width=100, color_system=None)
+    console.print(render(watch, now_s=0.0))
+    text = console.export_text()
+    assert re.search(rf"{re.escape(label)}\s+\d+\s+of \d+ tracked, 3 needed", text), text
+    view = StationView("demo")
+    view.on_payload("groundstation/demo/status", status, now_s=0.0)
+    ppk = view.snapshot(0.0)["ppk"]
+    assert ppk["label"] == label and ppk["min"] == 3 and ppk["clean_phase_s"] == 12.0
+    assert view.snapshot(0.0, ppk_ready_min=7)["ppk"]["min"] == 7  # --ppk-min overrides

@@ -259,7 +259,17 @@ def test_the_result_comes_first_and_the_full_options_last(flight: dict[str, Any]
     result = text[text.index('id="result"'):text.index("<h2>Warnings</h2>")]
     rows = _cameras(flight["out"])
     fixed = sum(1 for r in rows if r["quality_name"] == "fix")
-    assert f"{fixed} of {len(rows)}</b> camera positions ambiguity-fixed" in result
+    # The fixed share is over the computed positions: photos without a mark (their own line)
+    # do not pull it down.
+    positioned = [r for r in rows if r["x_m"]]
+    share = f"{fixed / len(positioned):.0%}"
+    assert (f"{fixed} of {len(positioned)}</b> computed camera positions ambiguity-fixed "
+            f"({share})") in result
+    unmatched = sum(bool(r["photo"] and not r["mark"]) for r in rows)
+    if flight["name"] == "demo":
+        assert unmatched > 0  # the demo's missed marks leave photos without a mark
+    if unmatched:
+        assert re.search(rf"Photos without a mark</th>\s*<td>{unmatched}<", result), result
     assert f"of {flight['marks']}</b> marks in the flight" in result
     assert "Missed marks" in result and "σ horizontal" in result and " cm " in result
     head, _, tail = text.partition('id="engine-options"')
@@ -273,6 +283,18 @@ def test_the_result_comes_first_and_the_full_options_last(flight: dict[str, Any]
         assert f"({len(options)} options)" in tail
     else:  # an imported solution: the report says that no option set is recorded
         assert "No option set recorded" in tail
+
+
+def test_one_timing_residual_sigma_in_printout_and_report(flight: dict[str, Any]) -> None:
+    """The solve's printout and the report give the same residual σ, in the same unit."""
+    printed = re.search(r"timing residual sigma (\d+\.\d) ms \(robust\)", flight["stdout"])
+    assert printed, flight["stdout"]
+    text = (flight["out"] / "report.html").read_text(encoding="utf-8")
+    shown = re.search(r"timing residual σ (\d+\.\d) ms \(robust\)", text)
+    assert shown
+    assert printed.group(1) == shown.group(1)
+    window = re.search(r"pairing window \+/-(\d+) ms", flight["stdout"])
+    assert window and f"pairing window ±{window.group(1)} ms" in text
 
 
 def _shots_dir(tmp_path: Path) -> Path:

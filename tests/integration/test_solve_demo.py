@@ -242,3 +242,37 @@ def test_report_html_is_self_contained(solved: dict[str, Any]) -> None:
     assert "url(http" not in text and "@import" not in text
     assert {"html", "svg"} <= refs.tags or {"html", "img"} <= refs.tags
     assert "demo5" in text and str(len(solved["truth"]["exposures"])) in text
+
+
+def test_the_printed_notes_are_plain_words_with_the_engines_figures(
+        solved: dict[str, Any]) -> None:
+    """A surveyor reads the solve's printout: the engine's notes come in plain words with the
+    figures of ``engine.json`` (which keeps the technical notes whole, as does the report)."""
+    out: str = solved["stdout"]
+    notes = [ln.removeprefix("note       ") for ln in out.splitlines()
+             if ln.startswith("note       ")]
+    printed = "\n".join(notes)
+    for jargon in ("phase conditioning", "hidden found", "kept by doppler", "sqrt(s)",
+                   "acceleration noise", "RTKLIB .pos (", "GPST", "chi-square", "Qf+Qb"):
+        assert jargon not in printed, (jargon, printed)
+    info = json.loads((solved["out"] / "rtklib" / "engine.json").read_text())
+    t = info["conditioning"]["totals"]
+    assert (f"carrier phase checked before solving: {t['receiver_slips']} cycle slips marked "
+            f"by the receiver, {t['hidden_found']} more found in radio gaps; {t['repaired']} "
+            f"phase jumps repaired, {t['half_resolved']} half-cycle ambiguities resolved, "
+            f"{t['flagged']} breaks not bridged") in printed
+    m = info["dynamics"]["measured"]
+    used = " / ".join(info["dynamics"]["used"].values())
+    assert (f"motion model set from how the rover moved: it sustained "
+            f"{m['accel_h_m_s2']:.2f} m/s^2 horizontally and {m['accel_v_m_s2']:.2f} m/s^2 "
+            "vertically") in printed
+    assert f"engine setting {used} horizontal / vertical" in printed
+    c = info["combination"]
+    assert (f"forward and backward solutions merged: {c['both_fixed']} epochs fixed in both "
+            f"directions, {c['demo5_rejected'] + c['chi2_rejected']} fixes set to float") \
+        in printed
+    assert "solution file in RTKLIB format (ECEF X/Y/Z, GPS time, date and time)" in printed
+    # the technical detail stays whole in engine.json and in the report's notes
+    assert any(n.startswith("phase conditioning: receiver slips") for n in info["notes"])
+    report = (solved["out"] / "report.html").read_text(encoding="utf-8")
+    assert "phase conditioning: receiver slips" in report and "m/s^2/sqrt(s)" in report

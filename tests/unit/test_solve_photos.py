@@ -145,3 +145,25 @@ def test_scan_requires_a_directory(tmp_path: Path) -> None:
 def test_natural_order() -> None:
     names = ["IMG_10.JPG", "IMG_9.JPG", "img_100.jpg"]
     assert sorted(names, key=photos.natural_key) == ["IMG_9.JPG", "IMG_10.JPG", "img_100.jpg"]
+
+
+@pytest.mark.parametrize("subsec", [False, True])
+def test_residual_sigma_is_that_of_the_pairs(tmp_path: Path, subsec: bool) -> None:
+    """One residual σ: the robust σ of the final pairs' residuals, whatever the photos' timing.
+
+    Whole-second photos used to report the pairing cap (0.750 s) as their σ while the report
+    computed the pairs' own spread (a few ms)."""
+    sc = photo_scenario(120, seed=5, subsec=subsec, missing_fraction=0.0, extra_fraction=0.0)
+    res = _run(sc, tmp_path)
+    r = np.array([p.residual_s for p in res.pairs])
+    assert res.residual_sigma_s == pytest.approx(photos.residual_sigma_s(r), abs=1e-12)
+    assert res.residual_sigma_s == pytest.approx(
+        1.4826 * float(np.median(np.abs(r - np.median(r)))), abs=1e-12)
+    assert res.residual_sigma_s < photos.MAX_PAIR_S / 2
+    line = photos.reconciliation_lines(res, photos.scan_photos(tmp_path), sc.mark_t_gps_ns)[1]
+    assert f"timing residual sigma {res.residual_sigma_s * 1e3:.1f} ms (robust)" in line
+
+
+def test_residual_sigma_needs_three_pairs() -> None:
+    assert np.isnan(photos.residual_sigma_s(np.array([0.1, 0.2])))
+    assert photos.residual_sigma_text(float("nan")) == "not computed (fewer than 3 pairs)"

@@ -40,3 +40,35 @@ def test_a_new_session_drops_the_previous_marks() -> None:
     # the same session again: nothing dropped
     w.on_payload("groundstation/st/status", drawable(22.0, first_s=10.0, sid=older), now_s=2.0)
     assert len(w.marks) == 2 and w.marks[-1]["falling_t_gps_ns"] == T0 + 21 * NS + NS // 2
+
+
+def test_a_finished_session_reads_finished_with_its_alerts_as_of_the_end() -> None:
+    """The daemon said its session finished: watch says SESSION FINISHED at once (not LIVE),
+    and the alerts standing then are titled as those at the end, with nothing to acknowledge;
+    the next session is live again."""
+    from rich.console import Console
+
+    from groundstation.bus import encode
+    from groundstation.view.watch import render
+
+    def screen(w: WatchState, now_s: float) -> str:
+        console = Console(record=True, width=100, color_system=None)
+        console.print(render(w, now_s=now_s))
+        return console.export_text()
+
+    doc = jsonio.loads(drawable(1000.0))
+    doc["alerts"] = ["2 time mark(s) missed this session; acknowledge to clear"]
+    w = WatchState("st")
+    w.on_payload("groundstation/st/status", jsonio.dumps(doc), now_s=0.0)
+    live = screen(w, 0.1)
+    assert " LIVE " in live and "press a to acknowledge" in live
+    w.on_payload("groundstation/st/session",
+                 encode("session", {"state": "finished", "session_id": doc["session_id"]}),
+                 now_s=0.2)
+    done = screen(w, 0.3)
+    assert "SESSION FINISHED" in done and " LIVE " not in done
+    assert "ALERTS at the end of the session" in done and "2 time mark(s) missed" in done
+    assert "press a to acknowledge" not in done
+    w.on_payload("groundstation/st/status",
+                 drawable(1001.0, sid="st_20250602T100000Z"), now_s=1.0)
+    assert " LIVE " in screen(w, 1.1)

@@ -28,7 +28,7 @@ from urllib.parse import parse_qs, urlsplit
 from groundstation import jsonio
 from groundstation.bus import KEY_ROOT, key, open_bus
 from groundstation.config import CLIENT_ZENOH, STATION_NAME, ZenohSettings
-from groundstation.view.dashboard.state import PPK_READY_MIN, FileInfo, StationView
+from groundstation.view.dashboard.state import FileInfo, StationView
 
 log = logging.getLogger("groundstation.dashboard")
 
@@ -165,14 +165,15 @@ class DashboardSettings:
         bind: address of the web server (loopback by default).
         port: web server port (0: any free port).
         bus: how to join Zenoh.
-        ppk_ready_min: satellites with clean phase the PPK gauge asks for.
+        ppk_ready_min: satellites with clean phase the PPK gauge asks for (None: the
+            daemon's ``[monitor]`` ``ppk_ready_min``, which its status carries).
     """
 
     stations: tuple[str, ...] = ()
     bind: str = "127.0.0.1"
     port: int = 8080
     bus: ZenohSettings = CLIENT_ZENOH
-    ppk_ready_min: int = PPK_READY_MIN
+    ppk_ready_min: int | None = None
 
 
 class Hub:
@@ -185,7 +186,7 @@ class Hub:
         *,
         clock: Callable[[], float] = time.monotonic,
         file_info: Callable[[str], FileInfo] | None = None,
-        ppk_ready_min: int = PPK_READY_MIN,
+        ppk_ready_min: int | None = None,
     ) -> None:
         self._clock = clock
         self._file_info = file_info or LocalFiles(clock)
@@ -294,7 +295,8 @@ class Hub:
         with self.cond:
             return [
                 {"name": v.station, "alive": v.alive, "stale": v.stale(now),
-                 "has_status": v.status is not None,
+                 "has_status": v.status is not None, "finished": v.finished(),
+                 "status_age_s": v.status_age_s(now),
                  "alerts": len((v.status or {}).get("alerts") or [])}
                 for v in sorted(self.views.values(), key=lambda v: v.station)
             ]

@@ -18,6 +18,7 @@ from urllib.parse import quote
 from groundstation import events as kinds
 from groundstation import gpstime, messages
 from groundstation.storage.naming import session_start_ns
+from groundstation.view.summary import ppk_label, ppk_thresholds, session_finished
 
 STALE_AFTER_S = 3.0
 """No status for longer than this and the station is shown as stale."""
@@ -27,8 +28,6 @@ DATA_RATE_MIN_SPAN_S = 0.5
 """Below this much receiving time between them, statuses came in one burst: no pace measured."""
 TIMELINE_SPAN_S = 600
 TIMELINE_BUCKET_S = 5
-PPK_READY_MIN = 5
-"""Default of the monitor's ``ppk_ready_min`` threshold (the gauge's green line)."""
 EVENTS_KEPT = 40
 DROPOUTS_KEPT = 1000
 MARKS_KEPT = 3000
@@ -165,6 +164,11 @@ class StationView:
             return None
         return (f"station_conflict: {n} daemons publish as station {self.station!r}; "
                 "what is shown mixes them")
+
+    def finished(self) -> bool:
+        """The daemon said the session its status is about has finished (no more data will
+        come for it: the view reads "finished", its alerts are those at the end)."""
+        return session_finished(self.status, self.session)
 
     def _reset_session(self, session_id: str) -> None:
         """A new daemon session: what belonged to the previous one goes."""
@@ -329,10 +333,14 @@ class StationView:
 
     def snapshot(
         self, now_s: float, *, file_info: Callable[[str], FileInfo] = no_file_info,
-        ppk_ready_min: int = PPK_READY_MIN,
+        ppk_ready_min: int | None = None,
     ) -> dict[str, Any]:
-        """The JSON document the page draws for this station."""
+        """The JSON document the page draws for this station.
+
+        ``ppk_ready_min`` overrides the daemon's threshold (which its status carries) for the
+        gauge's green line."""
         st = self.status or {}
+        need, clean_s = ppk_thresholds(st.get("ppk_ready_min"), st.get("ppk_clean_phase_s"))
         link = dict(st.get("link") or {})
         # dropouts closed since the status (its current_dropout is then history)
         more, missing = self._dropouts_since_status
@@ -348,6 +356,7 @@ class StationView:
             "stale": self.stale(now_s),
             "status_age_s": self.status_age_s(now_s),
             "alive": self.alive,
+            "finished": self.finished(),
             "rejected": self.rejected,
             "last_rejection": self.last_rejection,
             "session_id": st.get("session_id"),
@@ -357,7 +366,9 @@ class StationView:
             "sats": st.get("sats") or [],
             "ppk": {
                 "ready": st.get("ppk_ready"), "tracked": st.get("tracked"),
-                "min": ppk_ready_min, "half_cycle_fraction": st.get("half_cycle_fraction"),
+                "min": need if ppk_ready_min is None else ppk_ready_min,
+                "clean_phase_s": clean_s, "label": ppk_label(clean_s),
+                "half_cycle_fraction": st.get("half_cycle_fraction"),
             },
             "alerts": self._alerts(st),
             "events": list(self.events)[-15:][::-1],

@@ -114,6 +114,17 @@ $("station").addEventListener("change", (ev) => {
 
 // -- header ------------------------------------------------------------------------------
 
+// One rule for the badge and the station selector: a session the daemon said finished reads
+// finished at once; otherwise a status older than STALE_AFTER_S is stale, a fresh one live.
+function stationState(hasStatus, ageS, finished) {
+  if (!hasStatus) return "waiting";
+  if (finished) return "finished";
+  return ageS > STALE_AFTER_S ? "stale" : "live";
+}
+
+const STATION_MARK = { waiting: "  … no data", finished: "  ■ finished", stale: "  ✕ stale",
+  live: "  ● live" };
+
 function renderStations(doc) {
   const select = $("station");
   const names = doc.stations.map((s) => s.name);
@@ -128,10 +139,16 @@ function renderStations(doc) {
       select.appendChild(opt);
     }
   }
+  // the ages move on between pushes (none come once a daemon has gone): age them here
+  const sinceRx = (performance.now() - gs.rxAt) / 1000;
   for (const opt of select.options) {
     const s = doc.stations.find((x) => x.name === opt.value);
-    const mark = !s ? "" : s.stale ? (s.has_status ? "  ✕ stale" : "  … no data") : "  ● live";
-    opt.textContent = opt.value + mark + (s && s.alerts ? "  ⚠" + s.alerts : "");
+    const state = !s ? null : stationState(s.has_status, (s.status_age_s || 0) + sinceRx,
+      s.finished);
+    // a finished session's alerts are history: its panel shows them as of the end
+    const alerts = s && s.alerts && state !== "finished" ? "  ⚠" + s.alerts : "";
+    const text = opt.value + (state ? STATION_MARK[state] : "") + alerts;
+    if (opt.textContent !== text) opt.textContent = text;
   }
   if (wanted && select.value !== wanted) select.value = wanted;
 }
@@ -153,12 +170,12 @@ function refreshBadge() {
     info = "no status from " + doc.view.station + " yet" + (doc.view.alive ? " (daemon up)" : "");
   } else {
     const age = (doc.view.status_age_s || 0) + sinceRx;
-    const finished = doc.view.session && doc.view.session.state === "finished";
-    if (age > STALE_AFTER_S && finished) {
+    const st = stationState(true, age, doc.view.finished);
+    if (st === "finished") {
       // A normal end of session is not a failure (no red STALE, no "daemon gone").
       state = "finished"; text = "SESSION FINISHED";
       info = "the daemon ended the session normally · values are the last ones";
-    } else if (age > STALE_AFTER_S) {
+    } else if (st === "stale") {
       state = "stale"; text = "STALE";
       info = "no status for " + age.toFixed(0) + " s" +
         (doc.view.alive === false ? " · daemon gone" : "") + " · values are old";
@@ -185,6 +202,7 @@ function refreshBadge() {
     detail.title = info;
   }
   document.body.dataset.state = state;
+  if (doc) renderStations(doc);
   const now = new Date();
   $("clock").textContent = now.toISOString().substring(11, 19) + " UTC";
 }
@@ -282,6 +300,15 @@ function renderPpk(ppk) {
   setText("ppk-ready", ppk.ready === null || ppk.ready === undefined ? "-" : String(ppk.ready),
     ok ? "good" : "bad");
   $("ppk-min").textContent = String(ppk.min);
+  // what the number counts, in watch's words; the condition in the small print of a heading
+  const title = $("ppk-title"), cut = ppk.label.indexOf(" (");
+  if (title.textContent !== ppk.label) {
+    const sub = document.createElement("span");
+    sub.className = "sub";
+    sub.textContent = cut < 0 ? "" : ppk.label.slice(cut);
+    title.replaceChildren(document.createTextNode(cut < 0 ? ppk.label : ppk.label.slice(0, cut)),
+      sub);
+  }
   $("ppk-detail").textContent = "of " + num(ppk.tracked) + " tracked · half-cycle " +
     (ppk.half_cycle_fraction === null || ppk.half_cycle_fraction === undefined ? "-" :
       (ppk.half_cycle_fraction * 100).toFixed(0) + "%");
@@ -310,8 +337,7 @@ function renderLink(view) {
   setText("link-session", pct(link.completeness_session));
   setText("link-dropouts", num(link.dropouts) + " (" + num(link.missing_epochs) + " ep)",
     link.dropouts ? "warn" : "");
-  const finished = view.session && view.session.state === "finished";
-  const ongoing = !finished && (view.timeline.dropouts || []).find((d) => d[2]);
+  const ongoing = !view.finished && (view.timeline.dropouts || []).find((d) => d[2]);
   if (ongoing) {
     const secs = ongoing[1] - ongoing[0];
     setText("link-now", "DROPOUT " + num(secs, 1) + " s", "alarm");
@@ -399,12 +425,16 @@ function renderReport(r) {
   }
 }
 
-function renderAlerts(alerts) {
+function renderAlerts(view) {
+  const alerts = view.alerts;
+  const ended = Boolean(view.finished);  // the alerts standing when the session ended
+  $("alerts-title").textContent = ended ? "Alerts at the end" : "Alerts";
   const ul = $("alerts");
   clear(ul);
   for (const a of alerts) {
     const li = document.createElement("li");
     li.textContent = "⚠ " + a;
+    if (ended) li.className = "ended";
     ul.appendChild(li);
   }
   if (!alerts.length) {
@@ -414,10 +444,12 @@ function renderAlerts(alerts) {
     ul.appendChild(li);
   }
   const count = $("alert-count");
-  count.textContent = alerts.length + (alerts.length === 1 ? " alert" : " alerts");
-  count.className = "alert-count " + (alerts.length ? "some" : "none");
-  // Missed marks stay raised until acknowledged: the daemon clears them for every view.
-  $("ack").hidden = !alerts.some((a) => a.indexOf("time mark") >= 0);
+  count.textContent = alerts.length + (alerts.length === 1 ? " alert" : " alerts") +
+    (ended && alerts.length ? " at end" : "");
+  count.className = "alert-count " + (!alerts.length ? "none" : ended ? "ended" : "some");
+  // Missed marks stay raised until acknowledged: the daemon clears them for every view (a
+  // finished session's daemon is gone: nothing to acknowledge).
+  $("ack").hidden = ended || !alerts.some((a) => a.indexOf("time mark") >= 0);
 }
 
 function acknowledge() {
@@ -465,7 +497,7 @@ function render(doc) {
     panel("link", renderLink, view);
     panel("session", renderSession, view.session);
     panel("report", renderReport, view.report);
-    panel("alerts", renderAlerts, view.alerts);
+    panel("alerts", renderAlerts, view);
     panel("events", renderEvents, view.events);
   }
   panel("rejected", renderRejected, view);
