@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from groundstation import gpstime
 from groundstation.errors import InputError
 from groundstation.solve import photos
 from groundstation.solve.photosim import PhotoScenario, photo_scenario, write_photo_set
@@ -50,6 +51,7 @@ def test_all_pairs_correct(tmp_path: Path, name: str, seed: int) -> None:
     print(f"{name} seed {seed}: {correct}/{n} photos correct, {len(res.pairs)} pairs, "
           f"{lost} marks lost, {len(sc.extra_marks)} extra marks, offset {res.offset_s:+.2f} s")
     assert correct == n
+    assert not res.warnings and not res.notes  # irregular marks: one pairing, nothing to say
     assert len(res.unmatched_photos) == lost == 15
     assert set(res.orphan_marks) == set(sc.extra_marks) and len(sc.extra_marks) == 15
     bursts = sum(
@@ -63,7 +65,7 @@ def test_offset_is_recovered_to_a_hundredth(tmp_path: Path) -> None:
     err = -(2 * 3600 + 17 * 60 + 23.37)
     sc = photo_scenario(200, subsec=True, clock_error_s=err, zone_s=7200, write_zone=True)
     res = _run(sc, tmp_path)
-    # Camera clock = UTC + zone + err and the zone tag is honoured: GPS - camera = -err.
+    # Camera clock = UTC + zone + err and the zone tag is honoured: UTC - camera = -err.
     assert res.offset_s == pytest.approx(-err, abs=0.011)
 
 
@@ -71,6 +73,70 @@ def test_large_set_1000_photos(tmp_path: Path) -> None:
     sc = photo_scenario(1000, seed=7, subsec=True)
     res = _run(sc, tmp_path)
     assert _score(sc, res) == (1000, 1000)
+    assert not res.warnings
+
+
+# A camera on a timer: marks every 2.0 s, always 0.15 s into the UTC second (the real
+# 2018-10-09 flight: 1.96-2.03 s apart, 0.13-0.17 s in). Marks 2018-10-09 12:20 GPS.
+_T0_GPS_NS = gpstime.datetime_to_gps_ns(dt.datetime(2018, 10, 9, 12, 20, tzinfo=dt.UTC))
+
+
+def _timer_marks(n: int, seed: int = 3) -> list[int | None]:
+    rng = np.random.default_rng(seed)
+    return [_T0_GPS_NS + k * 2_000_000_000 + 150_000_000 + int(rng.normal(0, 3e6))
+            for k in range(n)]
+
+
+def _photos_at(marks: list[int | None], clock_error_s: float) -> list[photos.Photo]:
+    """Whole-second photos of the given marks, the camera clock ``clock_error_s`` ahead of UTC."""
+    out = []
+    for k, t in enumerate(marks):
+        assert t is not None
+        unix_ns = gpstime.gps_to_unix_ns(t) + int(clock_error_s * 1e9)
+        second = unix_ns // gpstime.NS_PER_S * gpstime.NS_PER_S
+        out.append(photos.Photo(f"IMG_{k:04d}.JPG", f"/x/IMG_{k:04d}.JPG", second))
+    return out
+
+
+@pytest.mark.parametrize(("first", "count"), [(100, 50), (1, 5), (400, 12)])
+def test_timer_marks_subset_paired_by_the_clock_setting(first: int, count: int) -> None:
+    # Every shift by whole marks pairs these photos equally well; the camera clock set to UTC
+    # (to within a second) names the right one, and the solve says how it chose.
+    marks = _timer_marks(589)
+    res = photos.match(photos.photo_times(_photos_at(marks[first:first + count], 0.3)), marks)
+    assert [(p.photo, p.mark) for p in res.pairs] == [(k, first + k) for k in range(count)]
+    assert not res.warnings
+    assert len(res.notes) == 1 and "set to UTC" in res.notes[0]
+
+
+def test_timer_marks_zone_clock_paired_by_the_clock_setting() -> None:
+    # The camera clock on UTC-5 h: GPS - camera = 18 s + 5 h.
+    marks = _timer_marks(300)
+    res = photos.match(photos.photo_times(_photos_at(marks[40:70], -5 * 3600 + 0.2)), marks)
+    assert [(p.photo, p.mark) for p in res.pairs] == [(k, 40 + k) for k in range(30)]
+    assert "UTC-5 h" in res.notes[0] and not res.warnings
+    assert res.gps_minus_camera_s == pytest.approx(18 + 5 * 3600, abs=1.0)
+
+
+def test_timer_marks_ambiguous_pairing_is_a_warning() -> None:
+    # 0.9 s ahead: two shifts (2 s apart) both fit a clock set to UTC within its 1.5 s; no
+    # single one can be named: a warning, never a silent pick.
+    marks = _timer_marks(300)
+    res = photos.match(photos.photo_times(_photos_at(marks[50:80], 0.9)), marks)
+    assert len(res.pairs) == 30
+    assert len(res.warnings) == 1 and "ambiguous" in res.warnings[0]
+
+
+def test_clock_offset_label_is_gps_minus_camera() -> None:
+    # Photos stamped in UTC (right to the second): GPS - camera is the 18 leap seconds.
+    marks = _timer_marks(100)
+    ph = _photos_at(marks[10:20], 0.0)
+    res = photos.match(photos.photo_times(ph), marks)
+    assert res.leap_s == 18
+    assert res.gps_minus_camera_s == pytest.approx(18 - 0.35, abs=0.05)
+    line = photos.reconciliation_lines(res, ph, marks)[0]
+    assert line.startswith(f"camera clock offset (GPS - camera): {res.gps_minus_camera_s:+.2f} s")
+    assert "18 s leap seconds (GPS - UTC)" in line
 
 
 def test_duplicate_marks_dropped_and_reported() -> None:
