@@ -2,13 +2,16 @@
 
 The matching core (:func:`match`) is sans-I/O: it takes photo times on the camera clock and mark
 times in GPS seconds. EXIF reading (a bounded parser of its own: a crafted photo must not hang
-the solver) and writing (the ``exif`` library) live here too, at the edge:
-:func:`read_photo`, :func:`scan_photos`, :func:`write_gps_copy`, :func:`make_jpeg`.
+the solver) and GPS tag writing (:func:`tiff_with_gps`, of its own too: the ``exif`` library
+cannot add tags to a file without a thumbnail IFD) live here too, at the edge:
+:func:`read_photo`, :func:`scan_photos`, :func:`write_gps_copy`, and :func:`make_jpeg` (test
+and demo photos, EXIF by the ``exif`` library).
 """
 
 from __future__ import annotations
 
 import datetime as dt
+import logging
 import math
 import re
 from collections.abc import Sequence
@@ -23,6 +26,7 @@ from groundstation import gpstime
 from groundstation.errors import InputError
 
 FloatArray = npt.NDArray[np.float64]
+log = logging.getLogger(__name__)
 
 MAX_PAIR_S = 0.75
 """A photo and a mark further apart than this (after the clock offset) are never paired."""
@@ -895,19 +899,151 @@ def _dms(value: float) -> tuple[float, float, float]:
     return float(d), float(m), round(s, 6)
 
 
-def write_gps_copy(src: Path, dst: Path, lat_deg: float, lon_deg: float, h_m: float) -> None:
-    """Copy a photo to ``dst`` with EXIF GPS position tags set; ``src`` is only read."""
-    from exif import Image
+_BYTE, _ASCII, _RATIONAL = 1, 2, 5
+_TYPE_SIZE = {_BYTE: 1, _ASCII: 1, _RATIONAL: 8}
+_TIFF_IFD0 = 4  # where the TIFF header keeps IFD0's offset
 
+
+def _gps_entries(
+    lat_deg: float, lon_deg: float, h_m: float, order: Literal["little", "big"]
+) -> list[tuple[int, int, int, bytes]]:
+    """The GPS IFD's entries (tag, type, count, value bytes), in tag order."""
+
+    def rationals(*pairs: tuple[int, int]) -> bytes:
+        return b"".join(n.to_bytes(4, order) + d.to_bytes(4, order) for n, d in pairs)
+
+    def dms(v: float) -> bytes:
+        d, m, sec = _dms(v)
+        return rationals((int(d), 1), (int(m), 1), (round(sec * 1_000_000), 1_000_000))
+
+    return [
+        (0x0000, _BYTE, 4, bytes([2, 3, 0, 0])),  # GPSVersionID 2.3
+        (0x0001, _ASCII, 2, (b"N" if lat_deg >= 0 else b"S") + b"\x00"),
+        (0x0002, _RATIONAL, 3, dms(lat_deg)),
+        (0x0003, _ASCII, 2, (b"E" if lon_deg >= 0 else b"W") + b"\x00"),
+        (0x0004, _RATIONAL, 3, dms(lon_deg)),
+        (0x0005, _BYTE, 1, bytes([0 if h_m >= 0 else 1])),
+        (0x0006, _RATIONAL, 1, rationals((round(abs(h_m) * 1000), 1000))),
+        (0x0012, _ASCII, 7, b"WGS-84\x00"),
+    ]
+
+
+def tiff_with_gps(tiff: bytes, lat_deg: float, lon_deg: float, h_m: float) -> bytes:
+    """An EXIF TIFF block with a new GPS IFD; every byte already there stays where it was.
+
+    IFD0 cannot grow in place (what follows it would move, and with it every offset a maker
+    note keeps to itself). So a copy of IFD0 with the GPS pointer added (or replaced) and the
+    GPS IFD are appended at the end and the header points to the copy: the old IFD0 is left
+    unused, IFD1 (thumbnail) stays chained when there is one and nothing needs one when
+    there is none (the ``exif`` library refuses such files). A ``tiff`` of ``b""`` gives a
+    block of its own (the photo had no EXIF).
+
+    Raises:
+        ExifError: a damaged TIFF header or IFD0.
+    """
+    if not tiff:
+        tiff = b"II*\x00" + (8).to_bytes(4, "little") + bytes(6)  # empty IFD0, no IFD1
+    if len(tiff) < 8 or tiff[:4] not in (b"II*\x00", b"MM\x00*"):
+        raise ExifError("bad TIFF header in EXIF")
+    order: Literal["little", "big"] = "little" if tiff[:2] == b"II" else "big"
+
+    def u(off: int, n: int) -> int:
+        if off < 0 or off + n > len(tiff):
+            raise ExifError(f"EXIF offset {off} outside the {len(tiff)}-byte block")
+        return int.from_bytes(tiff[off : off + n], order)
+
+    ifd0 = u(_TIFF_IFD0, 4)
+    count = u(ifd0, 2)
+    if count > EXIF_MAX_ENTRIES:
+        raise ExifError(f"EXIF IFD0 with {count} entries")
+    u(ifd0 + 2 + 12 * count, 4)  # the whole IFD0 is inside the block
+    kept = [tiff[ifd0 + 2 + 12 * k : ifd0 + 14 + 12 * k] for k in range(count)]
+    kept = [e for e in kept if int.from_bytes(e[:2], order) != _TAG_GPS_IFD]
+    next_ifd = tiff[ifd0 + 2 + 12 * count : ifd0 + 6 + 12 * count]
+    base = len(tiff) + (len(tiff) & 1)  # IFDs start on a word boundary
+    new_ifd0_size = 2 + 12 * (len(kept) + 1) + 4
+    gps_at = base + new_ifd0_size
+    entries = _gps_entries(lat_deg, lon_deg, h_m, order)
+    data_at = gps_at + 2 + 12 * len(entries) + 4
+    gps_ifd, data = [len(entries).to_bytes(2, order)], b""
+    for tag, kind, n, value in entries:
+        field = tag.to_bytes(2, order) + kind.to_bytes(2, order) + n.to_bytes(4, order)
+        if len(value) <= 4:
+            gps_ifd.append(field + value.ljust(4, b"\x00"))
+        else:
+            gps_ifd.append(field + (data_at + len(data)).to_bytes(4, order))
+            data += value + b"\x00" * (len(value) & 1)
+    gps_ifd.append(bytes(4))  # no next IFD
+    pointer = (_TAG_GPS_IFD.to_bytes(2, order) + (4).to_bytes(2, order) + (1).to_bytes(4, order)
+               + gps_at.to_bytes(4, order))
+    new_ifd0 = sorted([*kept, pointer], key=lambda e: int.from_bytes(e[:2], order))
+    return (
+        tiff[:_TIFF_IFD0] + base.to_bytes(4, order) + tiff[_TIFF_IFD0 + 4 :]
+        + b"\x00" * (base - len(tiff))
+        + len(new_ifd0).to_bytes(2, order) + b"".join(new_ifd0) + next_ifd
+        + b"".join(gps_ifd) + data
+    )
+
+
+def _exif_segment(jpeg: bytes) -> tuple[int, int]:
+    """Where a JPEG's ``Exif`` APP1 segment is (start, end), or where one goes (start == end:
+    after SOI and a JFIF APP0).
+
+    Raises:
+        ExifError: not a JPEG, or damaged before its image data.
+    """
+    if jpeg[:2] != b"\xff\xd8":
+        raise ExifError("not a JPEG")
+    pos, insert_at = 2, 2
+    for _ in range(EXIF_MAX_SEGMENTS):
+        if pos + 4 > len(jpeg) or jpeg[pos] != 0xFF:
+            raise ExifError(f"damaged JPEG segment at byte {pos}")
+        marker = jpeg[pos + 1]
+        if marker in (0xD9, 0xDA):
+            return insert_at, insert_at
+        end = pos + 2 + int.from_bytes(jpeg[pos + 2 : pos + 4], "big")
+        if end > len(jpeg):
+            raise ExifError(f"JPEG segment at byte {pos} runs past the end")
+        if marker == 0xE1 and jpeg[pos + 4 : pos + 10] == b"Exif\x00\x00":
+            return pos, end
+        if marker == 0xE0 and pos == 2:
+            insert_at = end
+        pos = end
+    raise ExifError(f"no EXIF within the first {EXIF_MAX_SEGMENTS} JPEG segments")
+
+
+def jpeg_with_gps(jpeg: bytes, lat_deg: float, lon_deg: float, h_m: float) -> bytes:
+    """The JPEG with EXIF GPS position tags (WGS-84); the image data is not touched.
+
+    Raises:
+        ExifError: the JPEG or its EXIF is damaged, or the EXIF block would outgrow its
+            64 KiB segment.
+    """
+    start, end = _exif_segment(jpeg)
+    tiff = jpeg[start + 10 : end] if end > start else b""
+    body = b"Exif\x00\x00" + tiff_with_gps(tiff, lat_deg, lon_deg, h_m)
+    if len(body) + 2 > 0xFFFF:
+        raise ExifError("EXIF block too large to add GPS tags (over 64 KiB)")
+    segment = b"\xff\xe1" + (len(body) + 2).to_bytes(2, "big") + body
+    return jpeg[:start] + segment + jpeg[end:]
+
+
+def write_gps_copy(src: Path, dst: Path, lat_deg: float, lon_deg: float, h_m: float) -> bool:
+    """Copy a photo to ``dst`` with EXIF GPS position tags set; ``src`` is only read.
+
+    Returns:
+        Whether the copy was written; a photo whose EXIF cannot take the tags (damaged) is
+        skipped with one warning line naming it.
+
+    Raises:
+        InputError: ``dst`` is ``src``.
+    """
     if src.resolve() == dst.resolve():
         raise InputError(f"{dst}: refusing to overwrite the original photo")
-    img = Image(src.read_bytes())
-    img.gps_latitude = _dms(lat_deg)
-    img.gps_latitude_ref = "N" if lat_deg >= 0 else "S"
-    img.gps_longitude = _dms(lon_deg)
-    img.gps_longitude_ref = "E" if lon_deg >= 0 else "W"
-    img.gps_altitude = abs(round(h_m, 3))
-    img.gps_altitude_ref = 0 if h_m >= 0 else 1
-    img.gps_map_datum = "WGS-84"
-    dst.write_bytes(img.get_file())
-
+    try:
+        out = jpeg_with_gps(src.read_bytes(), lat_deg, lon_deg, h_m)
+    except ExifError as err:
+        log.warning("%s: no copy with GPS tags written: %s", src.name, err)
+        return False
+    dst.write_bytes(out)
+    return True

@@ -203,6 +203,90 @@ def test_gps_copy_leaves_the_original_alone(tmp_path: Path) -> None:
         photos.write_gps_copy(src, src, 0.0, 0.0, 0.0)
 
 
+def _jpeg_without_ifd1(when: str) -> bytes:
+    """A JPEG whose EXIF is IFD0 -> Exif IFD (DateTimeOriginal) and nothing else: no thumbnail
+    IFD (IFD1), as many cameras and editors write it (built by hand, big-endian)."""
+    value = when.encode() + b"\x00"  # 20 bytes
+    tiff = (
+        b"MM\x00*" + (8).to_bytes(4, "big")
+        # IFD0 at 8: one entry, ExifIFD pointer -> 26; next IFD 0
+        + (1).to_bytes(2, "big") + bytes.fromhex("8769 0004 00000001") + (26).to_bytes(4, "big")
+        + bytes(4)
+        # Exif IFD at 26: DateTimeOriginal, ASCII 20 at 44
+        + (1).to_bytes(2, "big") + bytes.fromhex("9003 0002 00000014") + (44).to_bytes(4, "big")
+        + bytes(4) + value
+    )
+    plain = photos.make_jpeg(None)
+    app1 = b"\xff\xe1" + (len(tiff) + 8).to_bytes(2, "big") + b"Exif\x00\x00" + tiff
+    return plain[:20] + app1 + plain[20:]  # after SOI and the 16-byte JFIF APP0
+
+
+def test_gps_copy_of_a_photo_without_thumbnail_ifd(tmp_path: Path) -> None:
+    src = tmp_path / "IMG_7.JPG"
+    src.write_bytes(_jpeg_without_ifd1("2018:10:09 12:26:24"))
+    assert photos.read_photo(src).exif_second_ns > 0
+    dst = tmp_path / "out.jpg"
+    assert photos.write_gps_copy(src, dst, -33.85678, 151.21530, -12.25)
+    from exif import Image
+
+    img = Image(dst.read_bytes())
+    d, m, sec = img.gps_latitude
+    assert img.gps_latitude_ref == "S" and d + m / 60 + sec / 3600 == pytest.approx(33.85678)
+    d, m, sec = img.gps_longitude
+    assert img.gps_longitude_ref == "E" and d + m / 60 + sec / 3600 == pytest.approx(151.2153)
+    assert img.gps_altitude == pytest.approx(12.25) and img.gps_altitude_ref == 1
+    assert img.gps_map_datum == "WGS-84"
+    # The capture time is still there and the image data is untouched.
+    assert photos.read_photo(dst).exif_second_ns == photos.read_photo(src).exif_second_ns
+    assert dst.read_bytes().endswith(src.read_bytes()[src.read_bytes().index(b"\xff\xdb"):])
+    # Written again (a re-run on a copy): the new position replaces the old.
+    again = tmp_path / "again.jpg"
+    assert photos.write_gps_copy(dst, again, 10.5, -20.25, 3.0)
+    img = Image(again.read_bytes())
+    assert img.gps_latitude == (10.0, 30.0, 0.0) and img.gps_longitude_ref == "W"
+
+
+def test_gps_copy_keeps_the_thumbnail_ifd(tmp_path: Path) -> None:
+    # Chain an IFD1 (one entry: Compression = 6, JPEG thumbnail) after IFD0 by hand.
+    plain = _jpeg_without_ifd1("2018:10:09 12:26:24")
+    at = plain.index(b"MM\x00*")
+    seg_len = int.from_bytes(plain[at - 8 : at - 6], "big")
+    tiff = bytearray(plain[at : at - 8 + seg_len])
+    ifd1_at = len(tiff)
+    tiff[22:26] = ifd1_at.to_bytes(4, "big")  # IFD0's next-IFD field
+    tiff += (1).to_bytes(2, "big") + bytes.fromhex("0103 0003 00000001 0006 0000") + bytes(4)
+    body = b"Exif\x00\x00" + bytes(tiff)
+    src = tmp_path / "a.jpg"
+    src.write_bytes(plain[: at - 10] + b"\xff\xe1" + (len(body) + 2).to_bytes(2, "big") + body
+                    + plain[at - 8 + seg_len :])
+    assert photos.read_photo(src).usable
+    dst = tmp_path / "b.jpg"
+    assert photos.write_gps_copy(src, dst, 1.0, 2.0, 3.0)
+    out = dst.read_bytes()
+    t = out[out.index(b"MM\x00*") :]
+    ifd0 = int.from_bytes(t[4:8], "big")
+    n = int.from_bytes(t[ifd0 : ifd0 + 2], "big")
+    assert int.from_bytes(t[ifd0 + 2 + 12 * n : ifd0 + 6 + 12 * n], "big") == ifd1_at
+    assert t[ifd1_at : ifd1_at + 18] == bytes(tiff[ifd1_at:])  # IFD1 as it was, still chained
+    from exif import Image
+
+    assert Image(out).gps_altitude == pytest.approx(3.0)
+
+
+def test_gps_copy_of_a_damaged_exif_is_skipped_with_a_warning(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    src = tmp_path / "IMG_9.JPG"
+    good = _jpeg_without_ifd1("2018:10:09 12:26:24")
+    at = good.index(b"MM\x00*")
+    src.write_bytes(good[: at + 4] + (9999).to_bytes(4, "big") + good[at + 8 :])  # IFD0 nowhere
+    dst = tmp_path / "out.jpg"
+    assert not photos.write_gps_copy(src, dst, 1.0, 2.0, 3.0)
+    assert not dst.exists()
+    warned = [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
+    assert len(warned) == 1 and warned[0].startswith("IMG_9.JPG: no copy with GPS tags written")
+
+
 def test_scan_requires_a_directory(tmp_path: Path) -> None:
     with pytest.raises(InputError):
         photos.scan_photos(tmp_path / "missing")
