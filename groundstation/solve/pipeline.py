@@ -119,7 +119,7 @@ class SolveResult:
             "photos_paired": len(self.match.pairs) if self.match else 0,
             "photos_unmatched": len(self.match.unmatched_photos) if self.match else 0,
             "orphan_marks": len(self.match.orphan_marks) if self.match else 0,
-            "clock_offset_s": self.match.offset_s if self.match else None,
+            "clock_offset_s": self.match.gps_minus_camera_s if self.match else None,
             "epochs": len(self.trajectory),
             "fixed_fraction": self.trajectory.fixed_fraction,
             "epsg": self.epsg,
