@@ -428,28 +428,15 @@ def _cost(photo_s: FloatArray, mark_sorted: FloatArray, offset: float, cap: floa
     return float(np.sum(np.minimum(np.abs(r), cap)))
 
 
-def estimate_offset(
-    photo_s: FloatArray, mark_s: FloatArray, max_pair_s: float = MAX_PAIR_S,
-    extra: Sequence[float] = (),
-) -> tuple[float, int]:
-    """Camera clock offset (UTC − camera, seconds) and how many photos it pairs within the window.
-
-    Voting picks candidates (:func:`_vote_offsets`), ``extra`` adds some; each is refined to
-    :data:`REFINE_STEP_S` within ±(window + one vote bin), at least ±:data:`REFINE_HALF_WIDTH_S`,
-    by minimising the capped residual sum; the candidate that pairs most photos wins (then the
-    smaller residual sum).
-    """
-    cands = _refined_candidates(photo_s, mark_s, max_pair_s, extra)
-    if not cands:
-        return 0.0, 0
-    best = max(cands, key=lambda c: (c[1], -c[2]))
-    return best[0], best[1]
-
-
 def _refined_candidates(
     photo_s: FloatArray, mark_s: FloatArray, max_pair_s: float, extra: Sequence[float] = ()
 ) -> list[tuple[float, int, float]]:
-    """(offset, photos paired within ±window, capped residual sum) of every refined candidate."""
+    """(offset, photos paired within ±window, capped residual sum) of every candidate.
+
+    Voting picks candidates (:func:`_vote_offsets`), ``extra`` adds some; each is refined to
+    :data:`REFINE_STEP_S` within ±(window + one vote bin), at least ±:data:`REFINE_HALF_WIDTH_S`,
+    by minimising the capped residual sum.
+    """
     ph = photo_s[np.isfinite(photo_s)]
     mk = np.unique(mark_s[np.isfinite(mark_s)])
     if ph.size == 0 or mk.size == 0:
@@ -548,14 +535,16 @@ def _fit(
                 frozenset((p.photo, p.mark) for p in pairs))
 
 
-def _near_equal(other: _Fit, best: _Fit, precise: bool) -> bool:
-    """``other`` is a different pairing that fits about as well as ``best``.
+def _near_equal(other: _Fit, best: _Fit, precise: bool, max_pair_s: float) -> bool:
+    """``other`` is a different pairing (an offset beyond the pairing window: photos moved to
+    other marks, not a burst paired in another order) that fits about as well as ``best``.
 
     As many photos paired is required. Whole-second photos say nothing finer than their second,
     so that is all; sub-second photos must also fit about as tightly (a shifted pairing picks
     up the jitter of the mark intervals, tens of ms).
     """
-    if other.paired < best.paired or other.pairs == best.pairs:
+    if (other.paired < best.paired or other.pairs == best.pairs
+            or abs(other.offset_s - best.offset_s) <= max_pair_s):
         return False
     if not precise:
         return True
@@ -570,8 +559,9 @@ def choose_offset(
     """The camera clock offset (UTC − camera), never a silent pick among equal pairings.
 
     Marks at regular intervals (a camera on a timer) make offsets a whole number of intervals
-    apart pair a subset of photos about equally well. The best fit (:func:`estimate_offset`)
-    is compared with every other candidate, including those at the plausible clock settings
+    apart pair a subset of photos about equally well. The best fit (most photos paired, then
+    the smallest capped residual sum; candidates from :func:`_refined_candidates`) is compared
+    with every other candidate, including those at the plausible clock settings
     (:func:`prior_offsets_s`). When others fit about as well (:func:`_near_equal`), the only
     one within :data:`PRIOR_RADIUS_S` of UTC or a whole-hour zone (else of GPS time) is taken,
     with a note; when none or several are, the one nearest a plausible setting is taken with a
@@ -596,7 +586,7 @@ def choose_offset(
         return OffsetChoice(0.0)
     best = max(fits.values(), key=lambda f: (f.paired, -f.cost))
     precise = int(np.sum(times.precise)) * 2 >= ph.size
-    near = [f for f in fits.values() if _near_equal(f, best, precise)]
+    near = [f for f in fits.values() if _near_equal(f, best, precise, max_pair_s)]
     if not near or best.paired == 0:
         return OffsetChoice(best.offset_s)
 
@@ -744,7 +734,7 @@ def match(
     """Pair photos (camera-clock times, best from :func:`photo_times`) with marks (GPS ns).
 
     Duplicate marks (same time as an earlier one) are set aside. The clock offset is estimated
-    (:func:`estimate_offset`) unless given. The pairing window is at most ``±max_pair_s`` and
+    (:func:`choose_offset`) unless given. The pairing window is at most ``±max_pair_s`` and
     narrower where the photo's timing says so:
 
     - photos with sub-second times: 5 robust σ of their first-pass residuals, at least
