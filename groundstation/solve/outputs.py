@@ -404,6 +404,6 @@ def write_exif_copies(
         if not src.is_file():
             raise InputError(f"{src}: photo vanished")
         dst = out_dir / r.photo
-        write_gps_copy(src, dst, r.lat_deg, r.lon_deg, r.h_m)
-        written.append(dst)
+        if write_gps_copy(src, dst, r.lat_deg, r.lon_deg, r.h_m):  # else a warning, skipped
+            written.append(dst)
     return written

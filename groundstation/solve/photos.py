@@ -2,13 +2,16 @@
 
 The matching core (:func:`match`) is sans-I/O: it takes photo times on the camera clock and mark
 times in GPS seconds. EXIF reading (a bounded parser of its own: a crafted photo must not hang
-the solver) and writing (the ``exif`` library) live here too, at the edge:
-:func:`read_photo`, :func:`scan_photos`, :func:`write_gps_copy`, :func:`make_jpeg`.
+the solver) and GPS tag writing (:func:`tiff_with_gps`, of its own too: the ``exif`` library
+cannot add tags to a file without a thumbnail IFD) live here too, at the edge:
+:func:`read_photo`, :func:`scan_photos`, :func:`write_gps_copy`, and :func:`make_jpeg` (test
+and demo photos, EXIF by the ``exif`` library).
 """
 
 from __future__ import annotations
 
 import datetime as dt
+import logging
 import math
 import re
 from collections.abc import Sequence
@@ -23,6 +26,7 @@ from groundstation import gpstime
 from groundstation.errors import InputError
 
 FloatArray = npt.NDArray[np.float64]
+log = logging.getLogger(__name__)
 
 MAX_PAIR_S = 0.75
 """A photo and a mark further apart than this (after the clock offset) are never paired."""
@@ -424,35 +428,205 @@ def _cost(photo_s: FloatArray, mark_sorted: FloatArray, offset: float, cap: floa
     return float(np.sum(np.minimum(np.abs(r), cap)))
 
 
-def estimate_offset(
-    photo_s: FloatArray, mark_s: FloatArray, max_pair_s: float = MAX_PAIR_S
-) -> tuple[float, int]:
-    """Camera clock offset (GPS − camera, seconds) and how many photos it pairs within the window.
+def _refined_candidates(
+    photo_s: FloatArray, mark_s: FloatArray, max_pair_s: float, extra: Sequence[float] = ()
+) -> list[tuple[float, int, float]]:
+    """(offset, photos paired within ±window, capped residual sum) of every candidate.
 
-    Voting picks candidates (:func:`_vote_offsets`); each is refined to :data:`REFINE_STEP_S`
-    within ±(window + one vote bin), at least ±:data:`REFINE_HALF_WIDTH_S`, by minimising the
-    capped residual sum; the candidate that pairs most photos wins (then the smaller residual
-    sum).
+    Voting picks candidates (:func:`_vote_offsets`), ``extra`` adds some; each is refined to
+    :data:`REFINE_STEP_S` within ±(window + one vote bin), at least ±:data:`REFINE_HALF_WIDTH_S`,
+    by minimising the capped residual sum.
     """
     ph = photo_s[np.isfinite(photo_s)]
     mk = np.unique(mark_s[np.isfinite(mark_s)])
     if ph.size == 0 or mk.size == 0:
-        return 0.0, 0
-    best: tuple[int, float, float] | None = None
+        return []
     # The vote is a box sum, flat over up to twice the window when marks are regular: search
     # the whole plateau, not just ±REFINE_HALF_WIDTH_S around its first bin.
     half = max(REFINE_HALF_WIDTH_S, max_pair_s + VOTE_BIN_S)
     steps = np.arange(-half, half + 1e-9, REFINE_STEP_S)
-    for cand in _vote_offsets(ph, mk, max_pair_s):
+    out: list[tuple[float, int, float]] = []
+    for cand in [*_vote_offsets(ph, mk, max_pair_s), *extra]:
         costs = [_cost(ph, mk, cand + s, max_pair_s) for s in steps.tolist()]
         k = int(np.argmin(costs))
-        off = cand + float(steps[k])
+        off = round((cand + float(steps[k])) / REFINE_STEP_S) * REFINE_STEP_S
         paired = int(np.sum(np.abs(_residuals(ph + off, mk)) <= max_pair_s))
-        key = (paired, -costs[k], off)
-        if best is None or key[:2] > best[:2]:
-            best = key
-    assert best is not None
-    return round(best[2] / REFINE_STEP_S) * REFINE_STEP_S, best[0]
+        out.append((off, paired, costs[k]))
+    return out
+
+
+PRIOR_RADIUS_S = 1.5
+"""How far (s) from a plausible clock setting (:func:`prior_offsets_s`) an offset may be for that
+setting to pick it among equally good pairings: a camera clock set by hand to within a second,
+its whole-second EXIF time put mid-second."""
+MAX_ZONE_HOURS = 14
+"""Whole-hour time zones a camera clock may be set to: UTC−14 h ... UTC+14 h."""
+
+
+def prior_offsets_s(leap_s: int) -> dict[float, str]:
+    """The offsets (UTC − camera, s) of a camera clock set to UTC or a whole-hour zone
+    (k × 3600 s, |k| <= :data:`MAX_ZONE_HOURS`) or to GPS time (−leap seconds), with what each
+    means. In GPS − camera terms: leap seconds + k × 3600 s, or 0."""
+    out = {float(-k * 3600): "UTC" if k == 0 else f"UTC{k:+d} h"
+           for k in range(-MAX_ZONE_HOURS, MAX_ZONE_HOURS + 1)}
+    out[float(-leap_s)] = "GPS time"
+    return out
+
+
+@dataclass(frozen=True, slots=True)
+class _Fit:
+    offset_s: float
+    paired: int
+    cost: float
+    sigma_s: float
+    pairs: frozenset[tuple[int, int]]
+
+
+@dataclass(frozen=True, slots=True)
+class OffsetChoice:
+    """The clock offset :func:`choose_offset` took, and what the surveyor must be told.
+
+    Attributes:
+        offset_s: UTC − camera, seconds.
+        notes: how an ambiguity was settled by the plausible clock settings.
+        warnings: an ambiguity nothing settled (the pairing may be shifted by whole marks).
+    """
+
+    offset_s: float
+    notes: tuple[str, ...] = ()
+    warnings: tuple[str, ...] = ()
+
+
+def _windows(
+    times: PhotoTimes, max_pair_s: float, tol_precise: float
+) -> tuple[FloatArray, FloatArray]:
+    """Per photo, how far below and above its time (plus the offset) its mark may be.
+
+    Sub-second photos: ``±tol_precise``. Whole-second photos: the shot happened inside its EXIF
+    second, so the residual lies in ``[-0.5 - spread, 0.5 - spread]`` (plus
+    :data:`TRUNCATION_MARGIN_S` for the offset); without a known spread, ``±max_pair_s``.
+    """
+    exact = times.precise
+    has_spread = np.isfinite(times.spread_s) & ~exact
+    spread = np.nan_to_num(times.spread_s)
+    lower = np.where(
+        exact, tol_precise,
+        np.where(has_spread, np.minimum(max_pair_s, 0.5 + spread + TRUNCATION_MARGIN_S),
+                 max_pair_s),
+    )
+    upper = np.where(
+        exact, tol_precise,
+        np.where(has_spread, np.minimum(max_pair_s, 0.5 - spread + TRUNCATION_MARGIN_S),
+                 max_pair_s),
+    )
+    return lower, upper
+
+
+def _fit(
+    times: PhotoTimes, marks: FloatArray, offset_s: float, max_pair_s: float, cost: float
+) -> _Fit:
+    """How one offset pairs the photos: count, spread of the residuals, which pairs."""
+    lower, upper = _windows(times, max_pair_s, max_pair_s)
+    pairs = greedy_pairs(times.t_s, marks, offset_s, lower, upper)
+    res = np.array([p.residual_s for p in pairs if times.precise[p.photo]], dtype=np.float64)
+    if res.size < 3:
+        res = np.array([p.residual_s for p in pairs], dtype=np.float64)
+    return _Fit(offset_s, len(pairs), cost, residual_sigma_s(res),
+                frozenset((p.photo, p.mark) for p in pairs))
+
+
+def _near_equal(other: _Fit, best: _Fit, precise: bool, max_pair_s: float) -> bool:
+    """``other`` is a different pairing (an offset beyond the pairing window: photos moved to
+    other marks, not a burst paired in another order) that fits about as well as ``best``.
+
+    As many photos paired is required. Whole-second photos say nothing finer than their second,
+    so that is all; sub-second photos must also fit about as tightly (a shifted pairing picks
+    up the jitter of the mark intervals, tens of ms).
+    """
+    if (other.paired < best.paired or other.pairs == best.pairs
+            or abs(other.offset_s - best.offset_s) <= max_pair_s):
+        return False
+    if not precise:
+        return True
+    if not (math.isfinite(other.sigma_s) and math.isfinite(best.sigma_s)):
+        return True
+    return other.sigma_s <= 2.0 * best.sigma_s + 0.002
+
+
+def choose_offset(
+    times: PhotoTimes, marks: FloatArray, leap_s: int, max_pair_s: float = MAX_PAIR_S
+) -> OffsetChoice:
+    """The camera clock offset (UTC − camera), never a silent pick among equal pairings.
+
+    Marks at regular intervals (a camera on a timer) make offsets a whole number of intervals
+    apart pair a subset of photos about equally well. The best fit (most photos paired, then
+    the smallest capped residual sum; candidates from :func:`_refined_candidates`) is compared
+    with every other candidate, including those at the plausible clock settings
+    (:func:`prior_offsets_s`). When others fit about as well (:func:`_near_equal`), the only
+    one within :data:`PRIOR_RADIUS_S` of UTC or a whole-hour zone (else of GPS time) is taken,
+    with a note; when none or several are, the one nearest a plausible setting is taken with a
+    warning.
+    """
+    ph = times.t_s[np.isfinite(times.t_s)]
+    mk = np.unique(marks[np.isfinite(marks)])
+    if ph.size == 0 or mk.size == 0:
+        return OffsetChoice(0.0)
+    priors = prior_offsets_s(leap_s)
+    lo, hi = float(mk[0] - ph.max()) - 1.0, float(mk[-1] - ph.min()) + 1.0
+    extra = [p + d for p in priors if lo <= p <= hi
+             for d in np.arange(-PRIOR_RADIUS_S, PRIOR_RADIUS_S + 1e-9, max_pair_s).tolist()]
+    usable = np.nan_to_num(marks, nan=-1e18)
+    fits: dict[frozenset[tuple[int, int]], _Fit] = {}
+    for off, _, cost in sorted(_refined_candidates(ph, mk, max_pair_s, extra),
+                               key=lambda c: (-c[1], c[2])):
+        f = _fit(times, usable, off, max_pair_s, cost)
+        if f.pairs not in fits or cost < fits[f.pairs].cost:
+            fits[f.pairs] = f
+    if not fits:
+        return OffsetChoice(0.0)
+    best = max(fits.values(), key=lambda f: (f.paired, -f.cost))
+    precise = int(np.sum(times.precise)) * 2 >= ph.size
+    near = [f for f in fits.values() if _near_equal(f, best, precise, max_pair_s)]
+    if not near or best.paired == 0:
+        return OffsetChoice(best.offset_s)
+
+    def prior_dist(f: _Fit, settings: dict[float, str]) -> tuple[float, str]:
+        p = min(settings, key=lambda q: abs(f.offset_s - q))
+        return abs(f.offset_s - p), settings[p]
+
+    # Cameras are set to UTC or local time; GPS time only when neither fits.
+    zones = {p: v for p, v in priors.items() if v != "GPS time"}
+    gps_time = {float(-leap_s): "GPS time"}
+    group = sorted([best, *near], key=lambda f: prior_dist(f, priors)[0])
+    # Only the best-voted candidates and those near plausible settings are tried: there may
+    # be more equal ones, hence "at least"; listed nearest a plausible setting first.
+    gps = [f"{f.offset_s + leap_s:+.2f}" for f in group]
+    shown = ", ".join(gps[:6]) + (f" and {len(gps) - 6} more" if len(gps) > 6 else "")
+    what = (f"at least {len(group)} camera clock offsets pair the photos about equally well "
+            f"({best.paired} paired each; marks at regular intervals): GPS - camera {shown} s")
+    for settings in (zones, gps_time):
+        fitting = [f for f in group if prior_dist(f, settings)[0] <= PRIOR_RADIUS_S]
+        if len(fitting) > 1:
+            break
+        if len(fitting) == 1:
+            chosen = fitting[0]
+            setting = prior_dist(chosen, settings)[1]
+            other = [f for f in group if f is not chosen
+                     and prior_dist(f, gps_time)[0] <= PRIOR_RADIUS_S]
+            also = (f" (a camera clock set to GPS time would give {other[0].offset_s + leap_s:+.2f}"
+                    " s instead)" if other else "")
+            return OffsetChoice(chosen.offset_s, notes=(
+                (f"photo pairing: {what}; took {chosen.offset_s + leap_s:+.2f} s, the one of a "
+                f"camera clock set to {setting} (within {PRIOR_RADIUS_S:g} s){also}. If the camera"
+                " clock was set otherwise, the photos are paired with the wrong marks: pair them"
+                " by hand."),))
+    chosen = group[0]
+    return OffsetChoice(chosen.offset_s, warnings=(
+        (f"photo pairing ambiguous: {what}; no single one fits a camera clock set to UTC or a "
+        f"whole-hour zone (within {PRIOR_RADIUS_S:g} s); took {chosen.offset_s + leap_s:+.2f} s, "
+        "the nearest to such a setting: the photos may be paired with marks a whole number of "
+        "intervals off. Check the pairing by hand (solve with all photos of the flight, or "
+        "photos whose first and last shots bracket a gap in the marks)."),))
 
 
 # -- pairing ------------------------------------------------------------------------------------
@@ -472,8 +646,9 @@ class MatchResult:
     """Photos paired with marks, and what is left over on each side.
 
     Attributes:
-        offset_s: camera clock offset, GPS − camera (after the declared UTC offset and leap
-            seconds): add it to a photo's time to get GPS time.
+        offset_s: camera clock error, UTC − camera (after the camera's declared UTC offset):
+            add it to a photo's time (:func:`photo_times`, already on the GPS scale: leap
+            seconds added) to get the mark's GPS time.
         tolerance_s: the pairing window used (adaptive, at most :data:`MAX_PAIR_S`).
         pairs: one-to-one pairs, in photo order.
         unmatched_photos: photo indices with no mark (including photos without a usable time).
@@ -482,6 +657,9 @@ class MatchResult:
         photo_s: the estimated capture time of each photo on the camera clock (GPS-scale s).
         residual_sigma_s: robust σ of the final pairs' residuals (:func:`residual_sigma_s`;
             NaN with fewer than 3 pairs).
+        leap_s: GPS − UTC leap seconds at the marks.
+        notes: how the offset was chosen among equally good pairings (:func:`choose_offset`).
+        warnings: an ambiguous pairing nothing settled: the surveyor must check it.
     """
 
     offset_s: float
@@ -492,6 +670,15 @@ class MatchResult:
     duplicate_marks: tuple[int, ...]
     photo_s: FloatArray
     residual_sigma_s: float
+    leap_s: int = 0
+    notes: tuple[str, ...] = ()
+    warnings: tuple[str, ...] = ()
+
+    @property
+    def gps_minus_camera_s(self) -> float:
+        """GPS time − camera time (EXIF read as UTC after its declared zone): leap seconds plus
+        :attr:`offset_s`."""
+        return self.leap_s + self.offset_s
 
     def mark_of_photo(self) -> dict[int, int]:
         return {p.photo: p.mark for p in self.pairs}
@@ -547,7 +734,7 @@ def match(
     """Pair photos (camera-clock times, best from :func:`photo_times`) with marks (GPS ns).
 
     Duplicate marks (same time as an earlier one) are set aside. The clock offset is estimated
-    (:func:`estimate_offset`) unless given. The pairing window is at most ``±max_pair_s`` and
+    (:func:`choose_offset`) unless given. The pairing window is at most ``±max_pair_s`` and
     narrower where the photo's timing says so:
 
     - photos with sub-second times: 5 robust σ of their first-pass residuals, at least
@@ -577,8 +764,11 @@ def match(
         seen.add(t)
     valid_marks = mark_s.copy()
     valid_marks[dups] = np.nan
-    if offset_s is None:
-        offset_s, _ = estimate_offset(photo_s, valid_marks, max_pair_s)
+    finite = valid_marks[np.isfinite(valid_marks)]
+    leap_s = gpstime.leap_seconds_at_gps(int(finite[0] * 1e9)) if finite.size else 0
+    choice = OffsetChoice(offset_s) if offset_s is not None else choose_offset(
+        times, valid_marks, leap_s, max_pair_s)
+    offset_s = choice.offset_s
     usable_marks = np.nan_to_num(valid_marks, nan=-1e18)
     first = greedy_pairs(photo_s, usable_marks, offset_s, max_pair_s)
     # The window for sub-second photos comes from their own first-pass spread; without 3 of
@@ -587,18 +777,7 @@ def match(
     if math.isnan(first_sigma):
         first_sigma = max_pair_s
     tol_precise = min(max_pair_s, max(MIN_PAIR_TOLERANCE_S, 5.0 * first_sigma))
-    has_spread = np.isfinite(times.spread_s) & ~exact
-    spread = np.nan_to_num(times.spread_s)
-    lower = np.where(
-        exact, tol_precise,
-        np.where(has_spread, np.minimum(max_pair_s, 0.5 + spread + TRUNCATION_MARGIN_S),
-                 max_pair_s),
-    )
-    upper = np.where(
-        exact, tol_precise,
-        np.where(has_spread, np.minimum(max_pair_s, 0.5 - spread + TRUNCATION_MARGIN_S),
-                 max_pair_s),
-    )
+    lower, upper = _windows(times, max_pair_s, tol_precise)
     tol = np.maximum(lower, upper)
     pairs = greedy_pairs(photo_s, usable_marks, offset_s, lower, upper)
     paired_p = {p.photo for p in pairs}
@@ -613,6 +792,7 @@ def match(
         offset_s, float(tol.max()) if tol.size else max_pair_s, tuple(pairs), unmatched,
         orphans, tuple(dups), photo_s,
         residual_sigma_s(np.array([p.residual_s for p in pairs], dtype=np.float64)),
+        leap_s, choice.notes, choice.warnings,
     )
 
 
@@ -621,8 +801,7 @@ def reconciliation_lines(
 ) -> list[str]:
     """Human-readable reconciliation: offset, counts, every unmatched photo and orphan mark."""
     lines = [
-        (f"camera clock offset (GPS - camera): {result.offset_s:+.2f} s "
-        f"({_hms(result.offset_s)})"),
+        clock_offset_text(result),
         (f"pairing window +/-{result.tolerance_s * 1e3:.0f} ms, timing residual sigma "
          f"{residual_sigma_text(result.residual_sigma_s)}"),
         (f"photos {len(photos)}, marks {len(mark_t_gps_ns)}: {len(result.pairs)} paired, "
@@ -640,6 +819,14 @@ def reconciliation_lines(
         t = mark_t_gps_ns[i]
         lines.append(f"  mark without photo: #{i} at {gpstime.format_gps(t) if t else '?'}")
     return lines
+
+
+def clock_offset_text(result: MatchResult) -> str:
+    """The camera clock offset as the printout and the report give it: GPS − camera, and what
+    it is made of (leap seconds GPS − UTC, the camera clock's error UTC − camera)."""
+    return (f"camera clock offset (GPS - camera): {result.gps_minus_camera_s:+.2f} s "
+            f"({_hms(result.gps_minus_camera_s)}) = {result.leap_s} s leap seconds (GPS - UTC) "
+            f"{result.offset_s:+.2f} s (UTC - camera)")
 
 
 def _skipped(photos: Sequence[Photo]) -> str:
@@ -702,19 +889,151 @@ def _dms(value: float) -> tuple[float, float, float]:
     return float(d), float(m), round(s, 6)
 
 
-def write_gps_copy(src: Path, dst: Path, lat_deg: float, lon_deg: float, h_m: float) -> None:
-    """Copy a photo to ``dst`` with EXIF GPS position tags set; ``src`` is only read."""
-    from exif import Image
+_BYTE, _ASCII, _RATIONAL = 1, 2, 5
+_TYPE_SIZE = {_BYTE: 1, _ASCII: 1, _RATIONAL: 8}
+_TIFF_IFD0 = 4  # where the TIFF header keeps IFD0's offset
 
+
+def _gps_entries(
+    lat_deg: float, lon_deg: float, h_m: float, order: Literal["little", "big"]
+) -> list[tuple[int, int, int, bytes]]:
+    """The GPS IFD's entries (tag, type, count, value bytes), in tag order."""
+
+    def rationals(*pairs: tuple[int, int]) -> bytes:
+        return b"".join(n.to_bytes(4, order) + d.to_bytes(4, order) for n, d in pairs)
+
+    def dms(v: float) -> bytes:
+        d, m, sec = _dms(v)
+        return rationals((int(d), 1), (int(m), 1), (round(sec * 1_000_000), 1_000_000))
+
+    return [
+        (0x0000, _BYTE, 4, bytes([2, 3, 0, 0])),  # GPSVersionID 2.3
+        (0x0001, _ASCII, 2, (b"N" if lat_deg >= 0 else b"S") + b"\x00"),
+        (0x0002, _RATIONAL, 3, dms(lat_deg)),
+        (0x0003, _ASCII, 2, (b"E" if lon_deg >= 0 else b"W") + b"\x00"),
+        (0x0004, _RATIONAL, 3, dms(lon_deg)),
+        (0x0005, _BYTE, 1, bytes([0 if h_m >= 0 else 1])),
+        (0x0006, _RATIONAL, 1, rationals((round(abs(h_m) * 1000), 1000))),
+        (0x0012, _ASCII, 7, b"WGS-84\x00"),
+    ]
+
+
+def tiff_with_gps(tiff: bytes, lat_deg: float, lon_deg: float, h_m: float) -> bytes:
+    """An EXIF TIFF block with a new GPS IFD; every byte already there stays where it was.
+
+    IFD0 cannot grow in place (what follows it would move, and with it every offset a maker
+    note keeps to itself). So a copy of IFD0 with the GPS pointer added (or replaced) and the
+    GPS IFD are appended at the end and the header points to the copy: the old IFD0 is left
+    unused, IFD1 (thumbnail) stays chained when there is one and nothing needs one when
+    there is none (the ``exif`` library refuses such files). A ``tiff`` of ``b""`` gives a
+    block of its own (the photo had no EXIF).
+
+    Raises:
+        ExifError: a damaged TIFF header or IFD0.
+    """
+    if not tiff:
+        tiff = b"II*\x00" + (8).to_bytes(4, "little") + bytes(6)  # empty IFD0, no IFD1
+    if len(tiff) < 8 or tiff[:4] not in (b"II*\x00", b"MM\x00*"):
+        raise ExifError("bad TIFF header in EXIF")
+    order: Literal["little", "big"] = "little" if tiff[:2] == b"II" else "big"
+
+    def u(off: int, n: int) -> int:
+        if off < 0 or off + n > len(tiff):
+            raise ExifError(f"EXIF offset {off} outside the {len(tiff)}-byte block")
+        return int.from_bytes(tiff[off : off + n], order)
+
+    ifd0 = u(_TIFF_IFD0, 4)
+    count = u(ifd0, 2)
+    if count > EXIF_MAX_ENTRIES:
+        raise ExifError(f"EXIF IFD0 with {count} entries")
+    u(ifd0 + 2 + 12 * count, 4)  # the whole IFD0 is inside the block
+    kept = [tiff[ifd0 + 2 + 12 * k : ifd0 + 14 + 12 * k] for k in range(count)]
+    kept = [e for e in kept if int.from_bytes(e[:2], order) != _TAG_GPS_IFD]
+    next_ifd = tiff[ifd0 + 2 + 12 * count : ifd0 + 6 + 12 * count]
+    base = len(tiff) + (len(tiff) & 1)  # IFDs start on a word boundary
+    new_ifd0_size = 2 + 12 * (len(kept) + 1) + 4
+    gps_at = base + new_ifd0_size
+    entries = _gps_entries(lat_deg, lon_deg, h_m, order)
+    data_at = gps_at + 2 + 12 * len(entries) + 4
+    gps_ifd, data = [len(entries).to_bytes(2, order)], b""
+    for tag, kind, n, value in entries:
+        field = tag.to_bytes(2, order) + kind.to_bytes(2, order) + n.to_bytes(4, order)
+        if len(value) <= 4:
+            gps_ifd.append(field + value.ljust(4, b"\x00"))
+        else:
+            gps_ifd.append(field + (data_at + len(data)).to_bytes(4, order))
+            data += value + b"\x00" * (len(value) & 1)
+    gps_ifd.append(bytes(4))  # no next IFD
+    pointer = (_TAG_GPS_IFD.to_bytes(2, order) + (4).to_bytes(2, order) + (1).to_bytes(4, order)
+               + gps_at.to_bytes(4, order))
+    new_ifd0 = sorted([*kept, pointer], key=lambda e: int.from_bytes(e[:2], order))
+    return (
+        tiff[:_TIFF_IFD0] + base.to_bytes(4, order) + tiff[_TIFF_IFD0 + 4 :]
+        + b"\x00" * (base - len(tiff))
+        + len(new_ifd0).to_bytes(2, order) + b"".join(new_ifd0) + next_ifd
+        + b"".join(gps_ifd) + data
+    )
+
+
+def _exif_segment(jpeg: bytes) -> tuple[int, int]:
+    """Where a JPEG's ``Exif`` APP1 segment is (start, end), or where one goes (start == end:
+    after SOI and a JFIF APP0).
+
+    Raises:
+        ExifError: not a JPEG, or damaged before its image data.
+    """
+    if jpeg[:2] != b"\xff\xd8":
+        raise ExifError("not a JPEG")
+    pos, insert_at = 2, 2
+    for _ in range(EXIF_MAX_SEGMENTS):
+        if pos + 4 > len(jpeg) or jpeg[pos] != 0xFF:
+            raise ExifError(f"damaged JPEG segment at byte {pos}")
+        marker = jpeg[pos + 1]
+        if marker in (0xD9, 0xDA):
+            return insert_at, insert_at
+        end = pos + 2 + int.from_bytes(jpeg[pos + 2 : pos + 4], "big")
+        if end > len(jpeg):
+            raise ExifError(f"JPEG segment at byte {pos} runs past the end")
+        if marker == 0xE1 and jpeg[pos + 4 : pos + 10] == b"Exif\x00\x00":
+            return pos, end
+        if marker == 0xE0 and pos == 2:
+            insert_at = end
+        pos = end
+    raise ExifError(f"no EXIF within the first {EXIF_MAX_SEGMENTS} JPEG segments")
+
+
+def jpeg_with_gps(jpeg: bytes, lat_deg: float, lon_deg: float, h_m: float) -> bytes:
+    """The JPEG with EXIF GPS position tags (WGS-84); the image data is not touched.
+
+    Raises:
+        ExifError: the JPEG or its EXIF is damaged, or the EXIF block would outgrow its
+            64 KiB segment.
+    """
+    start, end = _exif_segment(jpeg)
+    tiff = jpeg[start + 10 : end] if end > start else b""
+    body = b"Exif\x00\x00" + tiff_with_gps(tiff, lat_deg, lon_deg, h_m)
+    if len(body) + 2 > 0xFFFF:
+        raise ExifError("EXIF block too large to add GPS tags (over 64 KiB)")
+    segment = b"\xff\xe1" + (len(body) + 2).to_bytes(2, "big") + body
+    return jpeg[:start] + segment + jpeg[end:]
+
+
+def write_gps_copy(src: Path, dst: Path, lat_deg: float, lon_deg: float, h_m: float) -> bool:
+    """Copy a photo to ``dst`` with EXIF GPS position tags set; ``src`` is only read.
+
+    Returns:
+        Whether the copy was written; a photo whose EXIF cannot take the tags (damaged) is
+        skipped with one warning line naming it.
+
+    Raises:
+        InputError: ``dst`` is ``src``.
+    """
     if src.resolve() == dst.resolve():
         raise InputError(f"{dst}: refusing to overwrite the original photo")
-    img = Image(src.read_bytes())
-    img.gps_latitude = _dms(lat_deg)
-    img.gps_latitude_ref = "N" if lat_deg >= 0 else "S"
-    img.gps_longitude = _dms(lon_deg)
-    img.gps_longitude_ref = "E" if lon_deg >= 0 else "W"
-    img.gps_altitude = abs(round(h_m, 3))
-    img.gps_altitude_ref = 0 if h_m >= 0 else 1
-    img.gps_map_datum = "WGS-84"
-    dst.write_bytes(img.get_file())
-
+    try:
+        out = jpeg_with_gps(src.read_bytes(), lat_deg, lon_deg, h_m)
+    except ExifError as err:
+        log.warning("%s: no copy with GPS tags written: %s", src.name, err)
+        return False
+    dst.write_bytes(out)
+    return True

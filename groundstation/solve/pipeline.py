@@ -119,7 +119,7 @@ class SolveResult:
             "photos_paired": len(self.match.pairs) if self.match else 0,
             "photos_unmatched": len(self.match.unmatched_photos) if self.match else 0,
             "orphan_marks": len(self.match.orphan_marks) if self.match else 0,
-            "clock_offset_s": self.match.offset_s if self.match else None,
+            "clock_offset_s": self.match.gps_minus_camera_s if self.match else None,
             "epochs": len(self.trajectory),
             "fixed_fraction": self.trajectory.fixed_fraction,
             "epsg": self.epsg,
@@ -279,6 +279,10 @@ def _solve(s: SolveSettings, progress: Progress | None) -> SolveResult:
     traj = _positions(s, rec, notes, progress)
     times, mp = _positions_at_marks(s, traj, marks, notes, progress)
     photo_list, match, recon = _photos(s, times, progress)
+    if match is not None:  # an ambiguous pairing is said on stderr, in the printout and report
+        for w in match.warnings:
+            log.warning("%s", w)
+        notes.extend([*match.notes, *(f"WARNING {w}" for w in match.warnings)])
     if s.photos is None:
         notes.append(f"no photos given: marks named {outputs.MARK_NAME_PREFIX}NNNN (the "
                      "receiver's mark count) in geo.txt, reference.csv, pix4d.csv")
@@ -571,7 +575,9 @@ def _report(
         photos_total=len(photo_list), photos_unmatched=unmatched,
         photos_given=s.photos is not None, lost_marks=report.lost_marks(marks),
         orphan_marks=match.orphan_marks if match else (),
-        clock_offset_s=match.offset_s if match else None,
+        clock_offset_s=match.gps_minus_camera_s if match else None,
+        clock_leap_s=match.leap_s if match else 0,
+        pairing_warnings=match.warnings if match else (),
         pair_window_s=match.tolerance_s if match else None,
         pair_t_gps_ns=np.array([mp.t_gps_ns[p.mark] for p in match.pairs], dtype=np.int64)
         if match else np.zeros(0, np.int64),

@@ -113,7 +113,10 @@ class ReportInput:
             (marks the receiver counted but whose records never arrived: :func:`lost_marks`).
         photos_unmatched: (photo name, reason) of every photo without a mark.
         orphan_marks: mark indices without a photo.
-        clock_offset_s, pair_window_s: photo matching (None without photos).
+        clock_offset_s, pair_window_s: photo matching (None without photos); the clock offset
+            is GPS − camera (``MatchResult.gps_minus_camera_s``).
+        clock_leap_s: GPS − UTC leap seconds in ``clock_offset_s``.
+        pairing_warnings: an ambiguous photo pairing (``MatchResult.warnings``).
         pair_t_gps_ns, pair_residual_s: mark time and residual of every pair.
         track_*: the trajectory in the output CRS.
         radio_gaps, source_outages: link dropouts and source outages recorded by the station.
@@ -157,6 +160,8 @@ class ReportInput:
     photos_unmatched: tuple[tuple[str, str], ...] = ()
     orphan_marks: tuple[int, ...] = ()
     clock_offset_s: float | None = None
+    clock_leap_s: int = 0
+    pairing_warnings: tuple[str, ...] = ()
     pair_window_s: float | None = None
     pair_t_gps_ns: IntArray = field(default_factory=lambda: np.zeros(0, np.int64))
     pair_residual_s: FloatArray = field(default_factory=lambda: np.zeros(0))
@@ -274,6 +279,7 @@ def warnings(inp: ReportInput) -> list[str]:
         out.append("The positions are the receiver's own fix (metre level): not for mapping.")
     if inp.base_doubtful:
         out.append(f"Base coordinates doubtful: {inp.base_check}")
+    out.extend(f"{w[:1].upper()}{w[1:]}" for w in inp.pairing_warnings)
     if c["not_positioned"]:
         out.append(f"{c['not_positioned']} camera position(s) could not be computed (see the "
                    "flags column: outside the trajectory, no edge, or a photo without mark).")
@@ -415,7 +421,9 @@ def _summary(inp: ReportInput) -> str:
     ]
     if inp.clock_offset_s is not None:
         sigma = photos.residual_sigma_text(photos.residual_sigma_s(inp.pair_residual_s))
-        rows.append(("Camera clock", (f"GPS − camera {inp.clock_offset_s:+.3f} s; pairing window "
+        clock = (f"GPS − camera {inp.clock_offset_s:+.3f} s = {inp.clock_leap_s} s leap seconds "
+                 f"(GPS − UTC) {inp.clock_offset_s - inp.clock_leap_s:+.3f} s (UTC − camera)")
+        rows.append(("Camera clock", (f"{clock}; pairing window "
                      f"±{(inp.pair_window_s or 0) * 1e3:.0f} ms; timing residual σ {sigma}")))
     return _kv(rows)
 

@@ -182,3 +182,40 @@ def test_rtklib_engine_on_the_real_flight(jd: dict[str, Path], tmp_path: Path, e
           f"median difference {np.median(d) * 100:.1f} cm")
     assert len(ours) > 1500 and ours.fixed_fraction > 0.5
     assert both_fixed.sum() > 1000 and np.median(d) < 0.05
+
+
+@pytest.mark.parametrize(("first", "count"), [(99, 50), (0, 5)])
+def test_photo_subset_in_utc_is_not_shifted_by_whole_marks(
+    jd: dict[str, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str],
+    first: int, count: int,
+) -> None:
+    # The surveyor's check: whole-second photos stamped with the UTC second of some marks. The
+    # marks come every 2.0 s (a timer), so shifts by whole marks pair them as well; the camera
+    # clock set to UTC names the right one and the solve says so.
+    from groundstation.rules.marks import build_marks
+
+    marks = build_marks(pipeline.read_flight(jd["rover"]).timemarks)
+    d = tmp_path / "photos"
+    d.mkdir()
+    for i in range(first, first + count):
+        t = marks[i].falling_t_gps_ns
+        assert t is not None
+        sec = gpstime.gps_to_unix_ns(t) // 10**9
+        when = dt.datetime.fromtimestamp(sec, tz=dt.UTC).replace(tzinfo=None)
+        (d / f"IMG_{i + 1:04d}.JPG").write_bytes(photos.make_jpeg(when))
+    out = tmp_path / "out"
+    rc = main(["solve", str(jd["rover"]), "--positions", str(jd["pos"]), "--photos", str(d),
+               "--out-dir", str(out), "--no-progress"])
+    assert rc == 0
+    text = capsys.readouterr().out
+    assert f"{count} paired" in text
+    # GPS - camera is the 18 leap seconds less the half second the photos are put into theirs.
+    offset = next(ln for ln in text.splitlines() if ln.startswith("camera clock offset"))
+    gps_minus_camera = float(offset.split(":")[1].split()[0])
+    assert 17.0 < gps_minus_camera < 19.0, offset
+    assert "18 s leap seconds (GPS - UTC)" in offset
+    assert "camera clock set to UTC" in text and "ambiguous" not in text
+    lines = [ln for ln in (out / "cameras.csv").read_text().splitlines() if not ln.startswith("#")]
+    got = {r["photo"]: int(r["mark"]) for r in csv.DictReader(lines) if r["photo"]}
+    assert got == {f"IMG_{i + 1:04d}.JPG": i for i in range(first, first + count)}
+    assert f"GPS − camera {gps_minus_camera:+.2f}" in (out / "report.html").read_text()

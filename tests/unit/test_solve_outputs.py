@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import json
 import math
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -139,6 +140,13 @@ def test_write_all_and_report(out: outputs.SolveOutput, tmp_path: Path) -> None:
     assert "No lever arm applied" in html
     assert report.utc_text(T) == "2018-10-09 12:22:35.138"
     assert report.gps_text(T) == "2022 217373.138"
+    # Photo pairing: the clock offset as GPS - camera with its parts; an ambiguous pairing
+    # is a warning the reviewer reads first after the base.
+    amb = "photo pairing ambiguous: 3 camera clock offsets pair the photos about equally well"
+    inp = replace(inp, clock_offset_s=17.63, clock_leap_s=18, pairing_warnings=(amb,))
+    assert report.warnings(inp)[0] == "P" + amb[1:]
+    html = report.render_html(inp)
+    assert "GPS − camera +17.630 s = 18 s leap seconds (GPS − UTC) -0.370 s (UTC − camera)" in html
 
 
 def test_output_dir_inside_photos_is_refused(tmp_path: Path) -> None:
