@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import contextlib
 import difflib
 import glob
 import os
@@ -145,12 +146,18 @@ def run(args: argparse.Namespace) -> int:
     # directory that cannot be created is one line and exit 2, before anything starts.
     out_key = "--out-dir" if args.out_dir is not None else "recorder.out_dir"
     check_output_dir(settings.recorder.out_dir, key=out_key)
-    make_output_dir(settings.recorder.out_dir, out_key)
+    created = make_output_dir(settings.recorder.out_dir, out_key)
 
     def on_file(path: Path) -> None:
         print(f"recording to {path}", flush=True)
 
-    summary = asyncio.run(run_daemon(settings, handle_signals=True, on_file=on_file))
+    try:
+        summary = asyncio.run(run_daemon(settings, handle_signals=True, on_file=on_file))
+    except BaseException:
+        if created:  # a source refused at start (a FIFO as --port): no empty directory left
+            with contextlib.suppress(OSError):
+                settings.recorder.out_dir.rmdir()  # only if empty
+        raise
     empty = summary.bytes_in == 0
     # A device that was there and stayed silent keeps its files: they hold the session's
     # events (an operator's acknowledgement, the alerts).
