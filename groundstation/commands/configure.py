@@ -64,6 +64,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     _check_args(args)
     profile = load_profile(args.profile, args.profile_dir)
+    if not args.dry_run:
+        from groundstation.commands.run import port_problem
+
+        problem = port_problem(args.port, prog="groundstation configure")
+        if problem is not None:  # the daemon's one line, not pyserial's nested errno text
+            print(problem, file=sys.stderr, flush=True)
+            return 1
     out = sys.stdout
     out.write(f"profile {profile.name}: {profile.receiver}  ({profile.path})\n")
     if args.dry_run:

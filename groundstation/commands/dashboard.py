@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import errno
+import ipaddress
 import logging
 import signal
 import threading
@@ -40,6 +41,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         "the daemon's [monitor] ppk_ready_min, which its status carries)")
     parser.add_argument("--duration", type=float, metavar="S",
                         help="stop after S seconds (default: until Ctrl-C or SIGTERM)")
+
+
+def is_loopback(bind: str) -> bool:
+    """Whether a bind address serves this machine only (``127.0.0.1``, ``::1``, ``localhost``);
+    ``0.0.0.0``, ``::`` or a host name may be reached from the network."""
+    if bind == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(bind).is_loopback
+    except ValueError:
+        return False
 
 
 def settings_from_args(args: argparse.Namespace) -> tuple[DashboardSettings, float]:
@@ -84,6 +96,10 @@ def run(args: argparse.Namespace) -> int:
     with dashboard:
         dashboard.start()
         log.info("dashboard on %s (Zenoh %s)", dashboard.url, ", ".join(settings.bus.connect))
+        if not is_loopback(settings.bind):
+            log.warning("the dashboard is reachable from other machines on %s: the page has no "
+                        "authentication (anyone on the network can acknowledge alerts); keep "
+                        "--bind 127.0.0.1 in the field", settings.bind)
         print(f"dashboard: {dashboard.url}", flush=True)
         stop.wait(duration_s if duration_s > 0 else None)
     return 0

@@ -13,6 +13,7 @@ from groundstation.commands.simulate import add_profile_arguments, parse_speed
 from groundstation.config import DAEMON, DEFAULT_ENDPOINT
 from groundstation.errors import ConfigError
 from groundstation.invocation import command
+from groundstation.outpaths import check_output_dir, check_output_file, make_output_dir
 from groundstation.view.summary import status_lines
 
 NAME = "demo"
@@ -38,6 +39,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--photos", type=Path, metavar="DIR",
                         help="also write the camera's photos (JPEG with EXIF) for every "
                         f"exposure, to try `solve --photos`; {camera_clock_text()}")
+    parser.add_argument("--force", action="store_true",
+                        help="replace photos of the same names in --photos (never a recording)")
     parser.add_argument("--station", help="station name (default demo)")
     add_zenoh_daemon(parser)
     parser.add_argument("--serve-after", type=float, metavar="S",
@@ -47,7 +50,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from groundstation.live.demo import DemoOptions, demo_settings, run_demo
+    from groundstation.live.demo import DemoOptions, demo_settings, run_demo, simulate_flight
 
     cli = layer(args, {"station": "station"})
     if args.out_dir is not None:
@@ -67,6 +70,21 @@ def run(args: argparse.Namespace) -> int:
         profile=args.profile, severity=args.severity, duration_s=args.duration,
         settings=settings,
     )
+    sim = simulate_flight(opts)
+    # Every output is checked (and its directory made) before the flight: a refusal after it
+    # would leave a recording behind for a command that failed.
+    out_key = "--out-dir" if args.out_dir is not None else "recorder.out_dir"
+    check_output_dir(settings.recorder.out_dir, key=out_key)
+    if args.photos is not None:
+        check_photos(args.photos, _photo_names(sim), force=args.force)
+    made = make_output_dir(settings.recorder.out_dir, out_key)
+    if args.photos is not None:
+        try:
+            make_output_dir(args.photos, "--photos")
+        except ConfigError:
+            if made:
+                settings.recorder.out_dir.rmdir()
+            raise
     speed = "as fast as possible" if opts.speed is None else f"x{opts.speed:g}"
 
     def ready(info: dict[str, Any]) -> None:
@@ -85,9 +103,9 @@ def run(args: argparse.Namespace) -> int:
 
     interactive = sys.stdout.isatty() and not args.no_view
     if interactive:
-        result = _run_with_view(opts, ready)
+        result = _run_with_view(opts, sim, ready)
     else:
-        result = asyncio.run(run_demo(opts, on_payload=lambda k, p: None, ready=ready))
+        result = asyncio.run(run_demo(opts, sim=sim, on_payload=lambda k, p: None, ready=ready))
     photos = _write_photos(result, args.photos) if args.photos is not None else None
     _print_summary(result, photos)
     from groundstation.cli import EXIT_INTERRUPTED, INTERRUPTS
@@ -118,6 +136,38 @@ def camera_clock_text() -> str:
             "finds that offset itself")
 
 
+def _photo_names(sim: Any) -> list[str]:
+    """The names of the photos of every exposure of the flight (a cut run writes the first)."""
+    from groundstation.solve.photosim import photos_at_times
+
+    times = [e["falling_t_gps_ns"] for e in sim.truth["exposures"]]
+    return [p.name for p in photos_at_times(times, clock_error_s=CAMERA_CLOCK_ERROR_S,
+                                            zone_s=CAMERA_ZONE_S)]
+
+
+def check_photos(directory: Path, names: list[str], *, force: bool) -> None:
+    """Refuse a ``--photos`` directory that is a file, or where a photo the demo writes exists
+    (the camera's own ``IMG_NNNN.JPG``): outpaths' rule for each file, one line for all.
+
+    Raises:
+        ConfigError: naming ``--photos``.
+    """
+    check_output_dir(directory, key="--photos")
+    refused: list[tuple[str, ConfigError]] = []
+    for name in names if directory.is_dir() else ():  # a new directory: make_output_dir's
+        try:
+            check_output_file(directory / name, key="--photos", force=force)
+        except ConfigError as err:
+            refused.append((name, err))
+    if refused:
+        also = [name for name, _ in refused[1:4]]
+        if len(refused) > 4:
+            also.append(f"{len(refused) - 4} more")
+        more = f" (also {', '.join(also)})" if also else ""
+        raise ConfigError("--photos", f"{refused[0][1].message}{more}; name an empty or new "
+                          "directory" + ("" if force else " or pass --force"))
+
+
 def _write_photos(result: Any, directory: Path) -> Path:
     """The simulated camera's JPEGs, one per exposure of the truth (solve/photosim.py)."""
     from groundstation.solve.photosim import photos_at_times, write_photo_set
@@ -129,7 +179,7 @@ def _write_photos(result: Any, directory: Path) -> Path:
     return directory
 
 
-def _run_with_view(opts: Any, ready: Any) -> Any:
+def _run_with_view(opts: Any, sim: Any, ready: Any) -> Any:
     from rich.console import Console
     from rich.live import Live
 
@@ -150,7 +200,7 @@ def _run_with_view(opts: Any, ready: Any) -> Any:
 
             task = asyncio.create_task(refresh(), name="view")
             try:
-                return await run_demo(opts, on_payload=state.on_payload, ready=ready)
+                return await run_demo(opts, sim=sim, on_payload=state.on_payload, ready=ready)
             finally:
                 task.cancel()
                 live.update(render(state), refresh=True)

@@ -90,7 +90,8 @@ def format_summary(s: Summary) -> str:
         )
     if tm.records:
         lines.append(
-            f"          count {tm.first_count} .. {tm.last_count}, time base "
+            f"          count {tm.first_count} .. {tm.last_count} (the receiver's, at each "
+            f"falling edge: mark_NNNN), time base "
             f"{', '.join(tm.time_bases)}"
         )
     unknown = (f" (+ {s.unknown_slot_signals} measurements of GLONASS satellites the receiver "

@@ -45,7 +45,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--progress",
         choices=("auto", "always", "never"),
         default="auto",
-        help="progress on stderr (auto: for inputs over 4 MiB on a terminal or not)",
+        help="progress on stderr (auto: for inputs over 4 MiB, on a terminal only)",
     )
 
 
@@ -85,7 +85,7 @@ def run(args: argparse.Namespace) -> int:
                      writes=(f"{stem}.obs", f"{stem}.nav", f"{stem}.marks.csv"))
     show = args.progress == "always"
     if args.progress == "auto":
-        show = recording.size_bytes >= PROGRESS_MIN_BYTES
+        show = recording.size_bytes >= PROGRESS_MIN_BYTES and sys.stderr.isatty()
     out = Path(args.out_dir)
     created = make_output_dir(out, "--out-dir")
     prog = _Progress() if show else None

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import contextlib
 import difflib
 import glob
 import os
@@ -15,6 +16,7 @@ from typing import Any
 from groundstation.commands.options import add_config, add_zenoh_daemon, zenoh_layer
 from groundstation.config import DAEMON, Key, convert, load_settings
 from groundstation.live.daemon import RunSummary, run_daemon
+from groundstation.outpaths import check_output_dir, make_output_dir
 
 NAME = "run"
 HELP = "the live daemon: receive, decode and record a station's stream"
@@ -98,30 +100,32 @@ SERIAL_GLOBS = ("/dev/ttyUSB*", "/dev/ttyACM*", "/dev/ttyAMA*", "/dev/serial/by-
 """Where a receiver's serial port usually is (USB adapters, CDC-ACM, a Raspberry Pi's UART)."""
 
 
-def missing_port_line(port: str, present: Sequence[str] | None = None) -> str:
+def missing_port_line(port: str, present: Sequence[str] | None = None,
+                      prog: str = "groundstation run") -> str:
     """One line for a serial device that does not exist, naming the nearest of the ``present``
-    ones (default: those :data:`SERIAL_GLOBS` find)."""
+    ones (default: those :data:`SERIAL_GLOBS` find); ``prog`` starts it."""
     if present is None:
         present = sorted({p for g in SERIAL_GLOBS for p in glob.glob(g)})
     near = difflib.get_close_matches(port, present, n=3, cutoff=0.0)
     hint = (f"existing: {', '.join(near)}" if near
             else "no serial device present: none of " + ", ".join(SERIAL_GLOBS))
-    return (f"groundstation run: error: {port} does not exist ({hint}); plug the receiver in "
+    return (f"{prog}: error: {port} does not exist ({hint}); plug the receiver in "
             "or name its device with --port")
 
 
-def port_problem(port: str) -> str | None:
+def port_problem(port: str, prog: str = "groundstation run") -> str | None:
     """The one line that refuses to start on ``port``, or None when it can be opened.
 
     Checked before the daemon starts, so that nothing is recorded, announced or served over
     Zenoh for a session that cannot receive anything (a device that goes away later is waited
     for: the source reconnects). A path that is not a device is the source's configuration
     error (exit 2); a device held by another process is refused by the source's claim.
+    ``configure`` makes the same check (``prog`` names the command in the line).
     """
     if not os.path.exists(port):
-        return missing_port_line(port)
+        return missing_port_line(port, prog=prog)
     if not os.access(port, os.R_OK | os.W_OK):
-        return (f"groundstation run: error: cannot open {port}: permission denied (is this "
+        return (f"{prog}: error: cannot open {port}: permission denied (is this "
                 "user in the dialout group?)")
     return None
 
@@ -138,11 +142,22 @@ def run(args: argparse.Namespace) -> int:
     if problem is not None:
         print(problem, file=sys.stderr, flush=True)
         return 1
+    # The recording's directory, as every writer checks and makes it (outpaths): a file or a
+    # directory that cannot be created is one line and exit 2, before anything starts.
+    out_key = "--out-dir" if args.out_dir is not None else "recorder.out_dir"
+    check_output_dir(settings.recorder.out_dir, key=out_key)
+    created = make_output_dir(settings.recorder.out_dir, out_key)
 
     def on_file(path: Path) -> None:
         print(f"recording to {path}", flush=True)
 
-    summary = asyncio.run(run_daemon(settings, handle_signals=True, on_file=on_file))
+    try:
+        summary = asyncio.run(run_daemon(settings, handle_signals=True, on_file=on_file))
+    except BaseException:
+        if created:  # a source refused at start (a FIFO as --port): no empty directory left
+            with contextlib.suppress(OSError):
+                settings.recorder.out_dir.rmdir()  # only if empty
+        raise
     empty = summary.bytes_in == 0
     # A device that was there and stayed silent keeps its files: they hold the session's
     # events (an operator's acknowledgement, the alerts).

@@ -97,8 +97,10 @@ def run(args: argparse.Namespace) -> int:
             ("--base-out", args.base_out), ("--truth", args.truth)]
     given = [(opt, Path(v)) for opt, v in outs if v]
     for i, (opt, path) in enumerate(given):
-        others = [p for _, p in given[:i]]  # two options naming one file
-        check_output_file(path, others, key=opt, force=args.force)
+        for other_opt, other in given[:i]:  # two options naming one file: both are outputs
+            if path.resolve() == other.resolve():
+                raise ConfigError(opt, f"{path} is also the {other_opt} file: name another file")
+        check_output_file(path, key=opt, force=args.force)
     faults = FaultConfig.load(args.faults or DEFAULT_FAULTS[args.profile])
     speed = parse_speed(args.speed, live)
     started = time.monotonic()

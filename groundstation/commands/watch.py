@@ -24,7 +24,9 @@ def settings_from_args(args: argparse.Namespace) -> tuple[str, ZenohSettings, fl
     """Station, Zenoh settings and duration: defaults < file < environment < options."""
     values = resolve(WATCH, args.config, overrides=layer(
         args, {"station": "station", "duration": "duration_s"})).values
-    return (values[""].get("station", "station"), zenoh_settings(values["zenoh"]),
+    from groundstation.view.watch import DEFAULT_STATION
+
+    return (values[""].get("station", DEFAULT_STATION), zenoh_settings(values["zenoh"]),
             values[""].get("duration_s", 0.0))
 
 

@@ -177,18 +177,31 @@ class ViewSink:
                 self._marks += 1
 
 
+def simulate_flight(opts: DemoOptions) -> SimResult:
+    """The simulated flight (rover, base, truth) of ``opts``: computed before the daemon starts,
+    so that the command can check what it will write (the photos' names) first.
+
+    Raises:
+        ConfigError: the faults file.
+    """
+    faults = FaultConfig.load(opts.faults)
+    return simulate(sim_config(opts.profile, duration_s=opts.flight_s, seed=opts.seed,
+                               severity=opts.severity, faults=faults))
+
+
 async def run_demo(
     opts: DemoOptions,
     *,
+    sim: SimResult | None = None,
     on_payload: Callable[[str, bytes], None] | None = None,
     on_file: Callable[[Path], None] | None = None,
     ready: Callable[[dict[str, Any]], None] | None = None,
 ) -> DemoResult:
     """Simulate, feed the pty, run the pipeline until the flight ends, ``duration_s`` passes or
-    the process is interrupted; return what happened and where it went."""
-    faults = FaultConfig.load(opts.faults)
-    sim = simulate(sim_config(opts.profile, duration_s=opts.flight_s, seed=opts.seed,
-                              severity=opts.severity, faults=faults))
+    the process is interrupted; return what happened and where it went. ``sim``: the flight
+    :func:`simulate_flight` made of ``opts`` (default: simulated here)."""
+    if sim is None:
+        sim = simulate_flight(opts)
     settings = opts.settings or demo_settings(environ={}, overrides={
         "station": opts.station, "recorder": {"out_dir": opts.out_dir},
         "zenoh": {"enabled": opts.zenoh, "listen": list(opts.zenoh_listen),

@@ -194,8 +194,8 @@ def summarise_marks(records: list[TimeMark]) -> TimeMarkSummary:
         count_jumps=sum(m.lost_before > 0 for m in marks),
         missed_marks=sum(m.lost_before for m in marks),
         repeated_counts=tracker.duplicates,
-        first_count=records[0].count,
-        last_count=records[-1].count,
+        first_count=marks[0].number if marks else None,  # the marks' names (mark_NNNN)
+        last_count=marks[-1].number if marks else None,
         time_bases=tuple(sorted({r.time_base_name for r in records})),
     )
 

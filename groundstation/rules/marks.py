@@ -38,9 +38,10 @@ class Mark:
         utc_valid: the receiver said UTC was valid.
         acc_ns: accuracy estimate (ns).
         lost_before: marks lost just before this one, from jumps of ``count``.
-        number: the pulse's number in the receiver's count (:func:`mark_number`: ``count``
-            itself once the rising edge is counted, so a mark whose rising-edge record was
-            lost has the number it would have had); -1 when not made by the rule.
+        number: the pulse's number in the receiver's count (:func:`mark_number`: ``count`` of
+            its falling-edge record, whichever record made the mark); it names the mark
+            (``mark_0000``) and is the ``mark_count`` of the exports; -1 when not made by the
+            rule.
     """
 
     falling_t_gps_ns: int | None
@@ -63,10 +64,12 @@ class Mark:
 
 
 def mark_number(record: TimeMark) -> int:
-    """The rising-edge count a pulse has once its rising edge is counted: ``count`` itself on a
-    record that carries the pulse's rising edge, ``count + 1`` on a falling-edge-only record
-    (the receiver's counter counts rising edges)."""
-    return record.count if record.new_rising else (record.count + 1) & 0xFFFF
+    """The pulse's number in the receiver's own count: the rising edges it had counted when the
+    pulse's falling edge came, i.e. ``count`` of the falling-edge record (what u-center and
+    RTKLIB's event list show: the first pulse after power-up is 0). A record that carries the
+    pulse's rising edge has counted it already: ``count - 1`` there, so a pulse whose
+    falling-edge record was lost, or whose two edges came in one record, has the same number."""
+    return (record.count - 1) & 0xFFFF if record.new_rising else record.count
 
 
 def count_jump(mark: Mark) -> tuple[int, int] | None:

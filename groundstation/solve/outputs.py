@@ -67,7 +67,8 @@ class CameraRow:
     Attributes:
         photo: image file name ("" for a mark without photo).
         mark: index of the mark in the flight (0-based), -1 for a photo without mark.
-        mark_count: the receiver's TIM-TM2 edge counter of that mark.
+        mark_count: the receiver's count of that mark (``Mark.number``: its falling-edge
+            record's, as in ``mark_NNNN``).
         t_gps_ns: instant used (edge + shutter delay), -1 when none.
         lat_deg, lon_deg, h_m: projection centre, WGS84 (ellipsoidal height).
         x_m, y_m: projection centre in the output CRS.
@@ -125,7 +126,7 @@ def mark_names(numbers: Sequence[int]) -> list[str]:
     """Names of marks exported without photos: ``mark_`` and the receiver's pulse number
     (``mark_0031``), so that a mark the receiver missed leaves a gap in the names instead of
     shifting every later one against the camera's image numbers. A number seen again (the
-    receiver restarted and counts from 1 again) gets ``_2``, ``_3``, ... so names stay unique.
+    receiver restarted and counts from 0 again) gets ``_2``, ``_3``, ... so names stay unique.
     """
     seen: dict[str, int] = {}
     out = []

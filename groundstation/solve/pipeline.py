@@ -525,7 +525,7 @@ def _cameras(
         sd = mp.sd_enu_m[k] if k >= 0 else np.full(3, np.nan)
         m = marks[k] if k >= 0 else None
         rows.append(outputs.CameraRow(
-            photo=name, mark=k, mark_count=m.count if m else -1,
+            photo=name, mark=k, mark_count=m.number if m else -1,
             t_gps_ns=int(mp.t_gps_ns[k]) if k >= 0 else -1,
             lat_deg=float(lat[i]), lon_deg=float(lon[i]), h_m=float(cam[i, 2]),
             x_m=float(cam[i, 0]), y_m=float(cam[i, 1]),

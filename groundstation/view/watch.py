@@ -12,7 +12,7 @@ import threading
 import time
 from collections import deque
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from typing import Any
 
 from rich.console import Console, Group, RenderableType
@@ -23,9 +23,11 @@ from rich.text import Text
 
 from groundstation import gpstime, messages
 from groundstation.bus import Bus, key
-from groundstation.config import ZenohSettings
+from groundstation.config import Settings, ZenohSettings
 from groundstation.view.summary import ppk_label, ppk_thresholds, session_finished
 
+DEFAULT_STATION = str(next(f.default for f in fields(Settings) if f.name == "station"))
+"""The station name when none is configured (the daemon's, so watch finds it)."""
 STALE_AFTER_S = 3.0
 TIMELINE_S = 300
 TIMELINE_COLS = 60
@@ -200,7 +202,7 @@ def render(state: WatchState, now_s: float | None = None) -> RenderableType:
         alive = state.alive
         rejected, why = state.rejected, state.last_rejection
         daemons = len(state.instances)
-    title = Text(f"groundstation watch · station {state.station}", style="bold")
+    title = Text(f"groundstation watch · {station_label(state.station)}", style="bold")
     if st is None:
         msg = "waiting for status on " + key(state.station, "status")
         body: RenderableType = Text(msg, style="yellow")
@@ -335,6 +337,14 @@ def connect(
     for k, payload in bus.get(key(station, "q/status"), timeout_s=2.0):
         state.on_payload(k, payload)
     return bus
+
+
+def station_label(station: str) -> str:
+    """The title's station: ``station NAME``; the default name (``station``) said as such,
+    not "station station" (``--station`` names another)."""
+    if station == DEFAULT_STATION:
+        return f"default station {station!r}"
+    return f"station {station}"
 
 
 def acknowledge(bus: Bus, station: str, alert: str = "marks_missed") -> None:

@@ -132,7 +132,7 @@ CASES: list[Case] = [
     c("simulate-base-out-dir", "simulate --out new.ubx --base-out adir --duration 5", 2,
       "is a directory"),
     c("simulate-truth-is-out", "simulate --out new.ubx --truth new.ubx --duration 5", 2,
-      "is the input"),
+      "is also the --out file"),
     c("simulate-out-no-dir", "simulate --out nodir/x.ubx --duration 5", 2, "does not exist"),
     c("simulate-duration-zero", "simulate --out new.ubx --duration 0", 2, "duration"),
     c("simulate-faults-fifo", "simulate --out new.ubx --duration 5 --faults fifo", 2,

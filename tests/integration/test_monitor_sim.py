@@ -93,7 +93,9 @@ def test_every_missed_and_duplicate_mark_reported(faulty: SimResult) -> None:
     # Marks the receiver counted but that never reached the ground (the simulator's missed
     # marks, and marks whose every record was lost on the link) show as count jumps; a loss
     # after the last mark that arrives cannot.
-    lost = {int(e["count"]) for e in exposures
+    # The truth's count is the receiver's after the pulse's rising edge; a mark's number (the
+    # events' counts) is the count at its falling edge, one less (rules/marks.mark_number).
+    lost = {int(e["count"]) - 1 for e in exposures
             if not arrived(e) and int(e["count"]) < max(counts)}
     assert lost, "the default faults must lose whole marks"
     assert monitor.missed == len(lost)

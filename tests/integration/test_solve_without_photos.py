@@ -37,9 +37,10 @@ def solved(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
     proc = _cli(d, "solve", "f.ubx", "--base", "b.ubx", "--base-xyz", xyz, "--out", "out",
                 "--no-progress")
     assert proc.returncode == 0, proc.stderr
-    # The receiver counts every exposure from 1; the missed ones have no record.
-    missed = [k + 1 for k, e in enumerate(truth["exposures"]) if e.get("missed")]
-    sent = [k + 1 for k, e in enumerate(truth["exposures"]) if not e.get("missed")]
+    # The receiver's count at each exposure's falling edge is the exposures before it (from 0,
+    # as u-center and RTKLIB show it); the missed ones have no record.
+    missed = [k for k, e in enumerate(truth["exposures"]) if e.get("missed")]
+    sent = [k for k, e in enumerate(truth["exposures"]) if not e.get("missed")]
     assert missed, "the faults file must make the receiver miss marks"
     return {"out": d / "out", "stdout": proc.stdout, "missed": missed, "sent": sent}
 

@@ -68,7 +68,7 @@ def marks_csv(
         w.writerow(
             (
                 i,
-                m.count,
+                m.number,
                 m.channel,
                 *_gps_cols(m.falling_t_gps_ns),
                 *_gps_cols(m.rising_t_gps_ns),
