@@ -7,6 +7,7 @@ timeout, never a fixed sleep)."""
 from __future__ import annotations
 
 import os
+import select
 import signal
 import socket
 import subprocess
@@ -255,3 +256,21 @@ class StatusEventCollector(ItemCollector):
     name = "everything"
     accepts: frozenset[type] = frozenset({Event, Status})
     items: list[Event | Status]
+
+
+def read_terminal(master: int, timeout_s: float) -> str:
+    """Everything the terminal shows until its last writer closes it."""
+    out = b""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        ready, _, _ = select.select([master], [], [], 0.5)
+        if not ready:
+            continue
+        try:
+            data = os.read(master, 65536)
+        except OSError:  # EIO: the slave side is closed
+            break
+        if not data:
+            break
+        out += data
+    return out.decode(errors="replace")

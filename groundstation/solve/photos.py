@@ -14,7 +14,7 @@ import datetime as dt
 import logging
 import math
 import re
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import BinaryIO, Literal
@@ -136,6 +136,24 @@ class ExifError(ValueError):
     """A photo's EXIF block cannot be used (damaged, looping, over budget)."""
 
 
+def _tiff_reader(tiff: bytes) -> tuple[Literal["little", "big"], Callable[[int, int], int]]:
+    """A TIFF block's byte order and a bounds-checked reader of its unsigned integers.
+
+    Raises:
+        ExifError: not a TIFF header.
+    """
+    if len(tiff) < 8 or tiff[:4] not in (b"II*\x00", b"MM\x00*"):
+        raise ExifError("bad TIFF header in EXIF")
+    order: Literal["little", "big"] = "little" if tiff[:2] == b"II" else "big"
+
+    def u(off: int, n: int) -> int:
+        if off < 0 or off + n > len(tiff):
+            raise ExifError(f"EXIF offset {off} outside the {len(tiff)}-byte block")
+        return int.from_bytes(tiff[off : off + n], order)
+
+    return order, u
+
+
 def _exif_block(f: BinaryIO) -> bytes | None:
     """The TIFF data of a JPEG's ``Exif`` APP1 segment (``None``: the JPEG has none), found by
     walking the segment headers (seeking over their bodies).
@@ -183,14 +201,7 @@ def _exif_tags(tiff: bytes, deadline: float) -> dict[int, str]:
     """
     import time
 
-    if len(tiff) < 8 or tiff[:4] not in (b"II*\x00", b"MM\x00*"):
-        raise ExifError("bad TIFF header in EXIF")
-    order: Literal["little", "big"] = "little" if tiff[:2] == b"II" else "big"
-
-    def u(off: int, n: int) -> int:
-        if off < 0 or off + n > len(tiff):
-            raise ExifError(f"EXIF offset {off} outside the {len(tiff)}-byte block")
-        return int.from_bytes(tiff[off : off + n], order)
+    order, u = _tiff_reader(tiff)
 
     tags: dict[int, str] = {}
     seen: set[int] = set()
@@ -933,14 +944,7 @@ def tiff_with_gps(tiff: bytes, lat_deg: float, lon_deg: float, h_m: float) -> by
     """
     if not tiff:
         tiff = b"II*\x00" + (8).to_bytes(4, "little") + bytes(6)  # empty IFD0, no IFD1
-    if len(tiff) < 8 or tiff[:4] not in (b"II*\x00", b"MM\x00*"):
-        raise ExifError("bad TIFF header in EXIF")
-    order: Literal["little", "big"] = "little" if tiff[:2] == b"II" else "big"
-
-    def u(off: int, n: int) -> int:
-        if off < 0 or off + n > len(tiff):
-            raise ExifError(f"EXIF offset {off} outside the {len(tiff)}-byte block")
-        return int.from_bytes(tiff[off : off + n], order)
+    order, u = _tiff_reader(tiff)
 
     ifd0 = u(_TIFF_IFD0, 4)
     count = u(ifd0, 2)

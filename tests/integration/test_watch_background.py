@@ -12,13 +12,11 @@ from __future__ import annotations
 
 import os
 import pty
-import select
 import signal
 import sys
-import time
 from pathlib import Path
 
-from peers import REPO, Daemon, cli_env, free_port
+from peers import REPO, Daemon, cli_env, free_port, read_terminal
 
 from groundstation.view.watch import BACKGROUND_NOTE
 
@@ -37,24 +35,6 @@ print(f"\nSHELL: exit {os.waitstatus_to_exitcode(status)}", flush=True)
 """
 
 
-def _read_all(master: int, timeout_s: float) -> str:
-    """Everything the terminal shows until its last writer closes it."""
-    out = b""
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        ready, _, _ = select.select([master], [], [], 0.5)
-        if not ready:
-            continue
-        try:
-            data = os.read(master, 65536)
-        except OSError:  # EIO: the slave side is closed
-            break
-        if not data:
-            break
-        out += data
-    return out.decode(errors="replace")
-
-
 def test_watch_in_the_background_runs_and_says_keys_are_off(
     tmp_path: Path, daemons: list[Daemon],
 ) -> None:
@@ -70,7 +50,7 @@ def test_watch_in_the_background_runs_and_says_keys_are_off(
         os.chdir(REPO)
         os.execve(sys.executable, argv, env)
     try:
-        screen = _read_all(master, 60)
+        screen = read_terminal(master, 60)
     finally:
         os.close(master)
         ended, status = os.waitpid(pid, os.WNOHANG)
