@@ -44,6 +44,10 @@ MANIFEST_NAME = ".groundstation-result.json"
 """Lists (relative to the directory) the files of the run that wrote the directory's result."""
 STAGING_PREFIX = ".groundstation-staging-"
 """A run in progress writes into ``<dir>/<prefix><pid>``; moved into place when complete."""
+RECORD_SUFFIXES = (".pos", ".json", ".conf", ".html", ".txt")
+"""Text records a run may write naming its own files (an engine's input lines, a request):
+rewritten at the move to name the final place (:func:`unstaged`)."""
+RECORD_MAX_BYTES = 64 << 20
 LEGACY_NAMES = ("SOLVE_FAILED.txt",)
 """Notes earlier versions left beside a result; stale once a run completes."""
 
@@ -176,6 +180,26 @@ def staged_output(out: Path, key: str = "--out-dir") -> Iterator[Path]:
         raise
 
 
+def unstaged(text: str, stage: Path) -> str:
+    """``text`` with every path into the staging folder ``stage`` naming the final place (the
+    folder's name is unique, so any spelling of the path loses just that component; with
+    ``--out-dir .`` the path starts with it)."""
+    return text.replace(f"/{stage.name}", "").replace(f"{stage.name}/", "")
+
+
+def _unstage_records(stage: Path) -> None:
+    """Rewrite the run's text records that name the staging folder (:data:`RECORD_SUFFIXES`)."""
+    name = stage.name.encode()
+    for p in stage.rglob("*"):
+        if p.suffix.lower() not in RECORD_SUFFIXES or not p.is_file() or p.is_symlink():
+            continue
+        if p.stat().st_size > RECORD_MAX_BYTES:
+            continue
+        data = p.read_bytes()
+        if name in data:
+            p.write_bytes(data.replace(b"/" + name, b"").replace(name + b"/", b""))
+
+
 def _commit(stage: Path, out: Path) -> None:
     """Move the complete run in ``stage`` into ``out`` in place of the earlier result.
 
@@ -185,6 +209,7 @@ def _commit(stage: Path, out: Path) -> None:
     trash folder beside the stage, then the new files moved in; a failure or Ctrl-C on the way
     moves everything back. Only then is the trash removed.
     """
+    _unstage_records(stage)
     files = sorted(p.relative_to(stage).as_posix() for p in stage.rglob("*")
                    if p.is_file() or p.is_symlink())
     old = set(_manifest(out)) | set(files) | set(LEGACY_NAMES) | {MANIFEST_NAME}
@@ -193,6 +218,7 @@ def _commit(stage: Path, out: Path) -> None:
     shutil.rmtree(trash, ignore_errors=True)
     moved: list[tuple[Path, Path]] = []  # (from, to), undone in reverse
     made: list[Path] = []  # folders created in out, removed on undo
+    wrote_manifest = False
     try:
         for rel in gone:
             dst = trash / rel
@@ -207,10 +233,12 @@ def _commit(stage: Path, out: Path) -> None:
                     made.append(out / parent)
             (stage / rel).rename(dst)
             moved.append((stage / rel, dst))
+        wrote_manifest = True  # (before the write: a half-written one is ours to remove)
         (out / MANIFEST_NAME).write_bytes(jsonio.dumps({"files": files}))
     except BaseException:
-        with contextlib.suppress(OSError):
-            (out / MANIFEST_NAME).unlink()
+        if wrote_manifest:
+            with contextlib.suppress(OSError):
+                (out / MANIFEST_NAME).unlink()
         for src, dst in reversed(moved):
             with contextlib.suppress(OSError):
                 dst.rename(src)

@@ -238,10 +238,13 @@ def _relocated(r: SolveResult, stage: Path, out_dir: Path) -> SolveResult:
     ``out_dir``."""
     files = tuple(out_dir / p.relative_to(stage) if p.is_relative_to(stage) else p
                   for p in r.files)
-    notes = tuple(n.replace(str(stage), str(out_dir)) for n in r.notes)
-    traj = replace(r.trajectory, notes=tuple(n.replace(str(stage), str(out_dir))
-                                             for n in r.trajectory.notes))
-    return replace(r, files=files, notes=notes, trajectory=traj)
+    notes = tuple(outpaths.unstaged(n, stage) for n in r.notes)
+    return replace(r, files=files, notes=notes, trajectory=_traj_unstaged(r.trajectory, stage))
+
+
+def _traj_unstaged(traj: positions.Trajectory, stage: Path) -> positions.Trajectory:
+    """The trajectory with its notes naming the final place of the staging folder's files."""
+    return replace(traj, notes=tuple(outpaths.unstaged(n, stage) for n in traj.notes))
 
 
 def _solve(s: SolveSettings, progress: Progress | None,
@@ -326,7 +329,9 @@ def _positions(
         work_dir=s.out_dir / "rtklib", nav_solutions=rec.nav,
         engine=s.engine, rtk_conf=s.rtk_conf, rtklib_overrides=dict(s.rtk_options),
     )
-    traj = src.trajectory(opts, progress)
+    # The notes name the engine's files where they will be once the run is moved into place
+    # (the report quotes them).
+    traj = _traj_unstaged(src.trajectory(opts, progress), s.out_dir)
     if len(traj) == 0:
         raise InputError(f"{traj.source}: no epochs")
     notes.extend(traj.notes)

@@ -88,6 +88,12 @@ def test_base_100_m_off_warns(flight: dict[str, Path]) -> None:
     assert proc.returncode == 0, proc.stderr
     assert "WARNING base coordinates" in proc.stdout and "100." in proc.stdout
     assert "base coordinates doubtful" in proc.stderr
+    # The engine's records name its files where they are, not the run's staging folder.
+    out = flight["dir"] / "o_off"
+    records = [p for p in out.rglob("*") if p.suffix in (".pos", ".json", ".html")]
+    assert len(records) >= 3 and (out / "rtklib" / "engine.json").is_file()
+    assert not [p for p in records if b".groundstation-staging-" in p.read_bytes()]
+    assert ".groundstation-staging-" not in proc.stdout
 
 
 def test_flight_without_marks_exits_2(flight: dict[str, Path]) -> None:
