@@ -329,12 +329,13 @@ def _positions(
         work_dir=s.out_dir / "rtklib", nav_solutions=rec.nav,
         engine=s.engine, rtk_conf=s.rtk_conf, rtklib_overrides=dict(s.rtk_options),
     )
-    # The notes name the engine's files where they will be once the run is moved into place
-    # (the report quotes them).
-    traj = _traj_unstaged(src.trajectory(opts, progress), s.out_dir)
+    traj = src.trajectory(opts, progress)
     if len(traj) == 0:
         raise InputError(f"{traj.source}: no epochs")
-    notes.extend(traj.notes)
+    # The report quotes these notes: they name the engine's files where they will be once the
+    # run is moved into place (the trajectory's own notes name them where they are now, for
+    # the report to read engine.json; see _relocated).
+    notes.extend(outpaths.unstaged(n, s.out_dir) for n in traj.notes)
     if traj.metre_level:
         notes.append("positions are the receiver's own fix: metre level, not for mapping")
     return traj

@@ -94,6 +94,7 @@ def test_base_100_m_off_warns(flight: dict[str, Path]) -> None:
     assert len(records) >= 3 and (out / "rtklib" / "engine.json").is_file()
     assert not [p for p in records if b".groundstation-staging-" in p.read_bytes()]
     assert ".groundstation-staging-" not in proc.stdout
+    assert "<code>pos1-posmode = kinematic</code>" in (out / "report.html").read_text()  # read
 
 
 def test_flight_without_marks_exits_2(flight: dict[str, Path]) -> None:
