@@ -160,6 +160,7 @@ def staged_output(out: Path, key: str = "--out-dir") -> Iterator[Path]:
         ConfigError: naming ``key``: ``out`` cannot be created.
     """
     created = make_output_dir(out, key)
+    _remove_stale_stages(out)
     stage = out / f"{STAGING_PREFIX}{os.getpid()}"
     try:
         shutil.rmtree(stage, ignore_errors=True)  # a killed run of a recycled pid
@@ -178,6 +179,21 @@ def staged_output(out: Path, key: str = "--out-dir") -> Iterator[Path]:
             with contextlib.suppress(OSError):
                 out.rmdir()  # only if empty: nothing but ours could be in it
         raise
+
+
+def _remove_stale_stages(out: Path) -> None:
+    """Remove the staging folders of runs that were killed (SIGKILL, power loss): their
+    process is gone. A live run's (two solves into one folder) is left to it."""
+    for p in out.glob(f"{STAGING_PREFIX}*"):
+        pid = p.name.removeprefix(STAGING_PREFIX).removesuffix(".old")
+        if not pid.isdigit() or not p.is_dir() or p.is_symlink():
+            continue
+        try:
+            os.kill(int(pid), 0)
+        except ProcessLookupError:
+            shutil.rmtree(p, ignore_errors=True)
+        except (PermissionError, OverflowError):
+            continue  # alive (another user's) or not a pid: not ours to judge
 
 
 def unstaged(text: str, stage: Path) -> str:

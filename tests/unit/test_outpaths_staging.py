@@ -87,3 +87,20 @@ def test_records_naming_the_staging_folder_name_the_final_place(tmp_path: Path) 
     assert note == f"solution {out / 'rtklib' / 'rover.pos'}"
     assert (out / "rtklib" / "rover.pos").read_text() == f"% inp file  : {out}/rtklib/rover.obs\n"
     assert (out / "rtklib" / "rover.obs").read_text() == f"{stage}: not a record, left alone\n"
+
+
+def test_a_killed_runs_staging_folder_is_removed_by_the_next_run(tmp_path: Path) -> None:
+    import subprocess
+    import sys
+
+    dead = subprocess.Popen([sys.executable, "-c", "pass"])  # a pid that is gone
+    dead.wait()
+    out = tmp_path / "out"
+    stale = out / f"{outpaths.STAGING_PREFIX}{dead.pid}"
+    (stale / "rtklib").mkdir(parents=True)
+    (stale / "rtklib" / "rover.obs").write_text("half a killed run")
+    live = out / f"{outpaths.STAGING_PREFIX}1"  # pid 1 is alive: another run's, left alone
+    live.mkdir()
+    _run(out, {"geo.txt": "new"})
+    assert not stale.exists() and live.is_dir()
+    assert (out / "geo.txt").read_text() == "new"
