@@ -225,6 +225,8 @@ def solve(settings: SolveSettings, progress: Progress | None = None) -> SolveRes
         ConfigError: inconsistent settings (names the option).
         InputError: unreadable inputs, no marks, no epochs.
         positions.ToolMissingError: the RTKLIB engine was chosen and rnx2rtkp is missing.
+        positions.NoSolutionError: the engine positioned no epoch.
+        NothingPositionedError: no mark was positioned (nothing is written).
     """
     s = settings
     base_check = _validate(s)
