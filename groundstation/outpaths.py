@@ -17,14 +17,39 @@ the option (exit status 2), raised before anything is created.
 
 After those checks (and the inputs' own), :func:`make_output_dir` creates the directory: one that
 cannot be created (``/proc/x``, no permission, a file on the way) is a ``ConfigError`` too.
+
+A writer whose outputs are one run's result (``solve``) writes through :func:`staged_output`:
+the run fills a fresh staging folder inside the directory and is moved into place only when it
+is complete. Until then an earlier result stays whole; a run that fails or is interrupted
+leaves nothing of itself. Replacing an earlier result moves away only what is ours: the files
+the earlier run listed in its manifest (:data:`MANIFEST_NAME`) and the entries the new run
+writes under the same names; anything else in the directory (a user's own files) is untouched.
 """
 
 from __future__ import annotations
 
-from collections.abc import Collection, Iterable
+import contextlib
+import logging
+import os
+import shutil
+from collections.abc import Collection, Iterable, Iterator
 from pathlib import Path
 
+from groundstation import jsonio
 from groundstation.errors import ConfigError
+
+log = logging.getLogger("groundstation.outpaths")
+
+MANIFEST_NAME = ".groundstation-result.json"
+"""Lists (relative to the directory) the files of the run that wrote the directory's result."""
+STAGING_PREFIX = ".groundstation-staging-"
+"""A run in progress writes into ``<dir>/<prefix><pid>``; moved into place when complete."""
+RECORD_SUFFIXES = (".pos", ".json", ".conf", ".html", ".txt")
+"""Text records a run may write naming its own files (an engine's input lines, a request):
+rewritten at the move to name the final place (:func:`unstaged`)."""
+RECORD_MAX_BYTES = 64 << 20
+LEGACY_NAMES = ("SOLVE_FAILED.txt",)
+"""Notes earlier versions left beside a result; stale once a run completes."""
 
 RECORDING_MAGICS = (b"\x89MCAP0\r\n", b"\x1f\x8b", b"\xb5\x62")
 """First bytes of a recording: MCAP, gzip (``.ubx.gz``), UBX sync."""
@@ -117,6 +142,152 @@ def make_output_dir(out: Path, key: str = "--out-dir") -> bool:
     except OSError as err:
         raise ConfigError(key, f"cannot create {out}: {err.strerror or err}") from err
     return True
+
+
+def existing_outputs(out_dir: Path, writes: Iterable[str]) -> list[str]:
+    """The names of ``writes`` that already exist in ``out_dir`` (what a run would replace)."""
+    return [w for w in writes if (out_dir / w.rstrip("/")).exists()]
+
+
+@contextlib.contextmanager
+def staged_output(out: Path, key: str = "--out-dir") -> Iterator[Path]:
+    """Yield a fresh staging folder inside ``out`` (created if need be); when the block ends
+    normally its content replaces the earlier result in ``out`` (:func:`_commit`), and on any
+    exception (Ctrl-C too) it is removed and ``out`` is as it was (removed if this run created
+    it).
+
+    Raises:
+        ConfigError: naming ``key``: ``out`` cannot be created.
+    """
+    created = make_output_dir(out, key)
+    _remove_stale_stages(out)
+    stage = out / f"{STAGING_PREFIX}{os.getpid()}"
+    try:
+        shutil.rmtree(stage, ignore_errors=True)  # a killed run of a recycled pid
+        stage.mkdir()
+    except OSError as err:
+        if created:
+            with contextlib.suppress(OSError):
+                out.rmdir()
+        raise ConfigError(key, f"cannot write into {out}: {err.strerror or err}") from err
+    try:
+        yield stage
+        _commit(stage, out)
+    except BaseException:
+        shutil.rmtree(stage, ignore_errors=True)
+        if created:
+            with contextlib.suppress(OSError):
+                out.rmdir()  # only if empty: nothing but ours could be in it
+        raise
+
+
+def _remove_stale_stages(out: Path) -> None:
+    """Remove the staging folders of runs that were killed (SIGKILL, power loss): their
+    process is gone. A live run's (two solves into one folder) is left to it."""
+    for p in out.glob(f"{STAGING_PREFIX}*"):
+        pid = p.name.removeprefix(STAGING_PREFIX).removesuffix(".old")
+        if not pid.isdigit() or not p.is_dir() or p.is_symlink():
+            continue
+        try:
+            os.kill(int(pid), 0)
+        except ProcessLookupError:
+            shutil.rmtree(p, ignore_errors=True)
+        except (PermissionError, OverflowError):
+            continue  # alive (another user's) or not a pid: not ours to judge
+
+
+def unstaged(text: str, stage: Path) -> str:
+    """``text`` with every path into the staging folder ``stage`` naming the final place (the
+    folder's name is unique, so any spelling of the path loses just that component; with
+    ``--out-dir .`` the path starts with it)."""
+    return text.replace(f"/{stage.name}", "").replace(f"{stage.name}/", "")
+
+
+def _unstage_records(stage: Path) -> None:
+    """Rewrite the run's text records that name the staging folder (:data:`RECORD_SUFFIXES`)."""
+    name = stage.name.encode()
+    for p in stage.rglob("*"):
+        if p.suffix.lower() not in RECORD_SUFFIXES or not p.is_file() or p.is_symlink():
+            continue
+        if p.stat().st_size > RECORD_MAX_BYTES:
+            continue
+        data = p.read_bytes()
+        if name in data:
+            p.write_bytes(data.replace(b"/" + name, b"").replace(name + b"/", b""))
+
+
+def _commit(stage: Path, out: Path) -> None:
+    """Move the complete run in ``stage`` into ``out`` in place of the earlier result.
+
+    File by file, so that a folder of the user's that happens to share a name with one of ours
+    (``photos/``) loses nothing but the files this run writes. The earlier result's files (its
+    manifest's, and those the new run writes under the same names) are first moved into a
+    trash folder beside the stage, then the new files moved in; a failure or Ctrl-C on the way
+    moves everything back. Only then is the trash removed.
+    """
+    _unstage_records(stage)
+    files = sorted(p.relative_to(stage).as_posix() for p in stage.rglob("*")
+                   if p.is_file() or p.is_symlink())
+    old = set(_manifest(out)) | set(files) | set(LEGACY_NAMES) | {MANIFEST_NAME}
+    gone = sorted(r for r in old if (out / r).is_file() or (out / r).is_symlink())
+    trash = stage.with_name(stage.name + ".old")
+    shutil.rmtree(trash, ignore_errors=True)
+    moved: list[tuple[Path, Path]] = []  # (from, to), undone in reverse
+    made: list[Path] = []  # folders created in out, removed on undo
+    wrote_manifest = False
+    try:
+        for rel in gone:
+            dst = trash / rel
+            dst.parent.mkdir(parents=True, exist_ok=True)
+            (out / rel).rename(dst)
+            moved.append((out / rel, dst))
+        for rel in files:
+            dst = out / rel
+            for parent in reversed(Path(rel).parents):
+                if parent != Path(".") and not (out / parent).is_dir():
+                    (out / parent).mkdir()
+                    made.append(out / parent)
+            (stage / rel).rename(dst)
+            moved.append((stage / rel, dst))
+        wrote_manifest = True  # (before the write: a half-written one is ours to remove)
+        (out / MANIFEST_NAME).write_bytes(jsonio.dumps({"files": files}))
+    except BaseException:
+        if wrote_manifest:
+            with contextlib.suppress(OSError):
+                (out / MANIFEST_NAME).unlink()
+        for src, dst in reversed(moved):
+            with contextlib.suppress(OSError):
+                dst.rename(src)
+        for folder in reversed(made):
+            with contextlib.suppress(OSError):
+                folder.rmdir()
+        shutil.rmtree(trash, ignore_errors=True)
+        raise
+    earlier = [r for r in gone if r != MANIFEST_NAME]
+    if earlier:
+        log.warning("replacing the earlier result in %s (%d files: %s)", out, len(earlier),
+                    ", ".join(earlier[:5]) + (" ..." if len(earlier) > 5 else ""))
+    shutil.rmtree(trash, ignore_errors=True)
+    shutil.rmtree(stage, ignore_errors=True)  # empty folders only are left in it
+    for rel in sorted(gone, key=lambda r: -r.count("/")):  # the earlier run's emptied folders
+        for parent in Path(rel).parents:
+            if parent != Path("."):
+                with contextlib.suppress(OSError):
+                    (out / parent).rmdir()  # only if empty: a user's files keep it
+
+
+def _manifest(out: Path) -> list[str]:
+    """The files the earlier run in ``out`` listed (none without a readable manifest); names
+    leading out of ``out`` are ignored."""
+    try:
+        doc = jsonio.loads((out / MANIFEST_NAME).read_bytes())
+    except (OSError, ValueError):
+        return []
+    files = doc.get("files") if isinstance(doc, dict) else None
+    if not isinstance(files, list):
+        return []
+    return [f for f in files if isinstance(f, str) and f and not Path(f).is_absolute()
+            and ".." not in Path(f).parts]
 
 
 def _written(rel: str, writes: Collection[str]) -> bool:

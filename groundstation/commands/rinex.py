@@ -10,7 +10,7 @@ from pathlib import Path
 
 from groundstation.errors import ConfigError
 from groundstation.offline import rinex
-from groundstation.outpaths import check_output_dir, make_output_dir
+from groundstation.outpaths import check_output_dir, existing_outputs, make_output_dir
 from groundstation.rules.marks import MARK_EDGES
 from groundstation.storage.reading import Recording
 
@@ -81,8 +81,12 @@ def run(args: argparse.Namespace) -> int:
     stem = Path(args.input).name
     for suffix in (".gz", ".ubx", ".mcap", ".log"):  # rinex.convert's names
         stem = stem.removesuffix(suffix)
-    check_output_dir(Path(args.out_dir), recording.parts, key="--out-dir",
-                     writes=(f"{stem}.obs", f"{stem}.nav", f"{stem}.marks.csv"))
+    writes = (f"{stem}.obs", f"{stem}.nav", f"{stem}.marks.csv")
+    check_output_dir(Path(args.out_dir), recording.parts, key="--out-dir", writes=writes)
+    replaced = existing_outputs(Path(args.out_dir), writes)
+    if replaced:  # an earlier conversion (another RINEX version, another edge): not silently
+        print(f"rinex: replacing the earlier {', '.join(replaced)} in {args.out_dir}",
+              file=sys.stderr)
     show = args.progress == "always"
     if args.progress == "auto":
         show = recording.size_bytes >= PROGRESS_MIN_BYTES and sys.stderr.isatty()

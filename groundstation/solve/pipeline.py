@@ -4,20 +4,20 @@
 :class:`SolveSettings` and an optional progress callback and returns a :class:`SolveResult`.
 
 Every input is checked (its content too: a flight or base without UBX frames is refused as
-``inspect`` refuses it) before the output directory is created; a run that fails after that
-leaves no half outputs (:func:`_undone_on_failure`).
+``inspect`` refuses it; given base coordinates against the base receiver's own fixes) before
+the output directory is created. The run writes into a staging folder that replaces the
+earlier result in the output directory only when the run is complete
+(:func:`groundstation.outpaths.staged_output`): a run that fails or is interrupted leaves the
+directory as it was, and a result is always one run's, whole.
 """
 
 from __future__ import annotations
 
-import contextlib
 import gzip
 import logging
 import math
-import os
-import shutil
 import zlib
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -25,8 +25,9 @@ import numpy as np
 import numpy.typing as npt
 
 from groundstation import outpaths
-from groundstation.errors import ConfigError, InputError
+from groundstation.errors import ConfigError, GroundstationError, InputError
 from groundstation.geodesy import ecef_to_llh, enu_rotation
+from groundstation.gpstime import gps_to_datetime
 from groundstation.offline.inspect import require_ubx_frames
 from groundstation.records import NavSolution, TimeMark
 from groundstation.rules.marks import Mark, build_marks
@@ -40,10 +41,13 @@ from groundstation.ubx.framer import UbxFramer
 log = logging.getLogger("groundstation.solve")
 
 Progress = Callable[[str, float], None]
-FAILED_NAME = "SOLVE_FAILED.txt"
-"""Left in an output directory that existed when a run failed after rewriting some of its
-files (:func:`_undone_on_failure`)."""
+BaseCheck = tuple[str, bool]
+"""How the base coordinates were checked: (text, doubtful) (:func:`report.check_base`)."""
 _WANTED = {TIM_TM2, NAV_SOL, NAV_PVT, NAV_POSLLH}
+
+
+class NothingPositionedError(GroundstationError):
+    """The solve positioned no camera mark (exit status 1: a run that gave no result)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -158,7 +162,8 @@ def read_flight(path: Path, progress: Progress | None = None) -> FlightRecords:
     return FlightRecords(tuple(tms), tuple(nav), st.frames, st.bad_checksum + st.truncated)
 
 
-def _validate(s: SolveSettings) -> None:
+def _validate(s: SolveSettings) -> BaseCheck | None:
+    """Every check made before anything is written; the base check when it can be made now."""
     if s.interp not in mi.INTERPOLATORS:
         raise ConfigError("--interp", f"unknown method {s.interp!r}")
     if s.edge not in mi.EDGES:
@@ -185,6 +190,11 @@ def _validate(s: SolveSettings) -> None:
             _require_rinex_obs(s.base)
         else:
             require_ubx_frames(s.base)
+    if s.base is not None and s.base_ecef_m is not None:
+        # Before the engine: coordinates kilometres off give no solution at all, and a half
+        # hour of engine work before saying so (report.BASE_REFUSED_M).
+        return report.check_base(s.base, s.base_ecef_m, None, s.positions)
+    return None
 
 
 def _require_rinex_obs(path: Path) -> None:
@@ -205,55 +215,6 @@ def _require_rinex_obs(path: Path) -> None:
                          "header line)")
 
 
-@contextlib.contextmanager
-def _undone_on_failure(out_dir: Path, created: bool) -> Iterator[None]:
-    """Leave no half outputs of a failed run: a surveyor takes what is in an output folder
-    for results. A directory this run created is removed whole (the inputs are untouched, so
-    a run again rebuilds everything, and the error line says what failed). In a directory
-    that existed, the files this run added are removed; files of an earlier run that this one
-    replaced cannot be restored, so ``SOLVE_FAILED.txt`` names them."""
-    before = {} if created else _files(out_dir)
-    try:
-        yield
-    except BaseException as err:
-        if created:
-            shutil.rmtree(out_dir, ignore_errors=True)
-            raise
-        changed = []
-        for path, stamp in _files(out_dir).items():
-            if path not in before:
-                with contextlib.suppress(OSError):
-                    path.unlink()
-            elif stamp != before[path]:
-                changed.append(path)
-        for dirpath, _, _ in sorted(os.walk(out_dir), key=lambda w: -len(w[0])):
-            with contextlib.suppress(OSError):
-                if Path(dirpath) != out_dir:
-                    Path(dirpath).rmdir()  # only the empty ones: the earlier run's stay
-        if changed:
-            with contextlib.suppress(OSError):
-                (out_dir / FAILED_NAME).write_text(
-                    f"groundstation solve failed: {err or type(err).__name__}\n"
-                    "These files were rewritten by the failed run and are not results:\n"
-                    + "".join(f"  {p.relative_to(out_dir)}\n" for p in sorted(changed)),
-                    encoding="utf-8")
-        raise
-    with contextlib.suppress(OSError):
-        (out_dir / FAILED_NAME).unlink(missing_ok=True)  # an earlier failure's note is stale
-
-
-def _files(root: Path) -> dict[Path, tuple[int, int]]:
-    """Every file under ``root`` with its (mtime ns, size)."""
-    out: dict[Path, tuple[int, int]] = {}
-    for dirpath, _, names in os.walk(root):
-        for name in names:
-            p = Path(dirpath) / name
-            with contextlib.suppress(OSError):
-                st = p.lstat()
-                out[p] = (st.st_mtime_ns, st.st_size)
-    return out
-
-
 def solve(settings: SolveSettings, progress: Progress | None = None) -> SolveResult:
     """Run the whole chain and write every output into ``settings.out_dir``.
 
@@ -264,20 +225,39 @@ def solve(settings: SolveSettings, progress: Progress | None = None) -> SolveRes
         ConfigError: inconsistent settings (names the option).
         InputError: unreadable inputs, no marks, no epochs.
         positions.ToolMissingError: the RTKLIB engine was chosen and rnx2rtkp is missing.
+        positions.NoSolutionError: the engine positioned no epoch.
+        NothingPositionedError: no mark was positioned (nothing is written).
     """
     s = settings
-    _validate(s)
-    created = outpaths.make_output_dir(s.out_dir, "--out-dir")
-    with _undone_on_failure(s.out_dir, created):
-        return _solve(s, progress)
+    base_check = _validate(s)
+    with outpaths.staged_output(s.out_dir, "--out-dir") as stage:
+        result = _solve(replace(s, out_dir=stage), progress, base_check)
+    return _relocated(result, stage, s.out_dir)
 
 
-def _solve(s: SolveSettings, progress: Progress | None) -> SolveResult:
-    """:func:`solve` after the checks, into an existing ``s.out_dir``."""
+def _relocated(r: SolveResult, stage: Path, out_dir: Path) -> SolveResult:
+    """The result with the staging folder's paths (files, notes) as they are now, in
+    ``out_dir``."""
+    files = tuple(out_dir / p.relative_to(stage) if p.is_relative_to(stage) else p
+                  for p in r.files)
+    notes = tuple(outpaths.unstaged(n, stage) for n in r.notes)
+    return replace(r, files=files, notes=notes, trajectory=_traj_unstaged(r.trajectory, stage))
+
+
+def _traj_unstaged(traj: positions.Trajectory, stage: Path) -> positions.Trajectory:
+    """The trajectory with its notes naming the final place of the staging folder's files."""
+    return replace(traj, notes=tuple(outpaths.unstaged(n, stage) for n in traj.notes))
+
+
+def _solve(s: SolveSettings, progress: Progress | None,
+           base_check: BaseCheck | None) -> SolveResult:
+    """:func:`solve` after the checks, into the (staging) folder ``s.out_dir``."""
     notes: list[str] = []
     rec, marks = _marks(s, progress)
     traj = _positions(s, rec, notes, progress)
     times, mp = _positions_at_marks(s, traj, marks, notes, progress)
+    if mp.positioned == 0:  # every export would be empty: a failed run, nothing written
+        raise NothingPositionedError(_why_nothing(s, traj, marks, times))
     photo_list, match, recon = _photos(s, times, progress)
     if match is not None:  # an ambiguous pairing is said on stderr, in the printout and report
         for w in match.warnings:
@@ -291,7 +271,8 @@ def _solve(s: SolveSettings, progress: Progress | None) -> SolveResult:
         notes.append(report.lost_marks_text(jumps))
     cams = _cameras(s, marks, mp, traj, photo_list, match, notes)
     files = outputs.write_all(cams.output(traj, mp, notes), s.out_dir)
-    report_files, report_notes = _report(s, traj, marks, mp, photo_list, match, cams, notes)
+    report_files, report_notes = _report(s, traj, marks, mp, photo_list, match, cams, notes,
+                                         base_check)
     files.extend(report_files)
     notes.extend(report_notes)
     if s.exif_copies and s.photos is not None:
@@ -301,6 +282,31 @@ def _solve(s: SolveSettings, progress: Progress | None) -> SolveResult:
         cams.rows, marks, mp, traj, match, cams.lever, tuple(files), cams.epsg, tuple(notes),
         tuple(recon),
     )
+
+
+def _why_nothing(s: SolveSettings, traj: positions.Trajectory, marks: tuple[Mark, ...],
+                 times: list[int | None]) -> str:
+    """Why no mark was positioned, in one line: the time spans when they do not overlap."""
+    head = f"no camera position computed ({len(marks)} marks, 0 positioned)"
+    known = [t for t in times if t is not None]
+    if not known:
+        return f"{head}: no mark has a time" if marks else f"{head}: the flight has no marks"
+    p0, p1 = int(traj.t_gps_ns[0]), int(traj.t_gps_ns[-1])
+    m0, m1 = min(known), max(known)
+    spans = (f"the positions ({traj.source}) span {_utc_span(p0, p1)}, the marks "
+             f"{_utc_span(m0, m1)}")
+    if m1 < p0 or m0 > p1:
+        what = "another day's or flight's solution?" if s.positions else "wrong recordings?"
+        return f"{head}: {spans}: no overlap ({what})"
+    return (f"{head}: {spans}: every mark falls in a gap of the positions longer than "
+            f"--max-gap {s.max_gap_s:g} s")
+
+
+def _utc_span(t0_gps_ns: int, t1_gps_ns: int) -> str:
+    """``2018-10-09 12:21:05 - 12:58:40 UTC`` (the date again when it changes)."""
+    a, b = gps_to_datetime(t0_gps_ns), gps_to_datetime(t1_gps_ns)
+    end = b.strftime("%H:%M:%S") if a.date() == b.date() else b.strftime("%Y-%m-%d %H:%M:%S")
+    return f"{a:%Y-%m-%d %H:%M:%S} - {end} UTC"
 
 
 def _marks(s: SolveSettings, progress: Progress | None) -> tuple[FlightRecords, tuple[Mark, ...]]:
@@ -332,7 +338,10 @@ def _positions(
     traj = src.trajectory(opts, progress)
     if len(traj) == 0:
         raise InputError(f"{traj.source}: no epochs")
-    notes.extend(traj.notes)
+    # The report quotes these notes: they name the engine's files where they will be once the
+    # run is moved into place (the trajectory's own notes name them where they are now, for
+    # the report to read engine.json; see _relocated).
+    notes.extend(outpaths.unstaged(n, s.out_dir) for n in traj.notes)
     if traj.metre_level:
         notes.append("positions are the receiver's own fix: metre level, not for mapping")
     return traj
@@ -543,7 +552,7 @@ def _cameras(
 def _report(
     s: SolveSettings, traj: positions.Trajectory, marks: tuple[Mark, ...],
     mp: mi.MarkPositions, photo_list: list[photos.Photo], match: photos.MatchResult | None,
-    cams: _Cameras, notes: list[str],
+    cams: _Cameras, notes: list[str], base_check_made: BaseCheck | None,
 ) -> tuple[list[Path], list[str]]:
     """Stage 7: ``report.html`` and ``report.pdf`` (summary, counts, per-mark table, figures,
     warnings); returns the files written and notes on what could not be written."""
@@ -551,7 +560,8 @@ def _report(
     rows, epsg, lever_est = cams.rows, cams.epsg, cams.lever
     te, tn = proj.forward(traj_llh[:, 0], traj_llh[:, 1])
     engine, version, engine_opts = report.engine_of(traj, dict(s.rtk_options), s.positions)
-    base_check, base_doubtful = report.check_base(s.base, s.base_ecef_m, traj, s.positions)
+    base_check, base_doubtful = base_check_made or report.check_base(
+        s.base, s.base_ecef_m, traj, s.positions)
     if base_doubtful:
         notes.append(f"WARNING base coordinates: {base_check}")
         log.warning("base coordinates doubtful: %s", base_check)

@@ -20,7 +20,7 @@ import numpy as np
 import numpy.typing as npt
 
 from groundstation import gpstime
-from groundstation.errors import ConfigError, InputError
+from groundstation.errors import ConfigError, GroundstationError, InputError
 from groundstation.geodesy import ecef_to_llh, enu_rotation, llh_to_ecef
 from groundstation.records import NavSolution
 from groundstation.solve.engine import DEFAULT_ENGINE, run_engine
@@ -34,6 +34,14 @@ QUALITY_NAMES = {1: "fix", 2: "float", 3: "sbas", 4: "dgps", 5: "single", 6: "pp
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
+
+
+class EmptySolutionError(InputError):
+    """A solution file without a single solution row."""
+
+
+class NoSolutionError(GroundstationError):
+    """The engine ran and positioned no epoch (exit status 1: a run that gave no result)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -247,7 +255,7 @@ def parse_pos(
     header = [ln for ln in lines if ln.startswith("%")]
     rows = [ln.split() for ln in lines if ln.strip() and not ln.startswith(("%", "#"))]
     if not rows:
-        raise InputError(f"{source or 'pos'}: no solution rows")
+        raise EmptySolutionError(f"{source or 'pos'}: no solution rows")
     try:
         layout = _layout_from_header(header, rows[0])
     except (ValueError, IndexError) as err:
@@ -480,7 +488,13 @@ class RtklibSource:
             opts.engine, opts.flight, opts.base, opts.base_ecef_m, work,
             conf=opts.rtk_conf, overrides=opts.rtklib_overrides, progress=progress,
         )
-        traj = read_pos(run.pos_path)
+        try:
+            traj = read_pos(run.pos_path)
+        except EmptySolutionError as err:  # said in the user's terms, not the parser's
+            raise NoSolutionError(
+                f"the {run.engine} engine positioned no epoch of {opts.flight.name} against the "
+                f"base {opts.base.name} (its solution {run.pos_path.name} is empty): do rover "
+                "and base overlap in time, and is --base-xyz this base's position?") from err
         return Trajectory(
             traj.t_gps_ns, traj.ecef_m, traj.quality, traj.sd_enu_m, traj.ns, traj.ratio,
             run.engine, False,

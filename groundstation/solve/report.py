@@ -30,7 +30,7 @@ import numpy as np
 import numpy.typing as npt
 
 from groundstation import gpstime, jsonio
-from groundstation.errors import GroundstationError
+from groundstation.errors import ConfigError, GroundstationError
 from groundstation.rules.marks import Mark, count_jump
 from groundstation.solve import figures, photos
 from groundstation.solve.figures import QUALITY_COLOURS, Span
@@ -59,6 +59,13 @@ PDF_TIMEOUT_S = 120.0
 BASE_DOUBTFUL_M = 30.0
 """The given base coordinates are doubtful when this far from the base receiver's own fixes
 (a stand-alone fix is good to a few metres; a wrong base shifts every camera position)."""
+BASE_REFUSED_M = 500.0
+"""Given base coordinates this far from the base receiver's own fixes are refused before any
+work: the mean of a base's stand-alone fixes is good to a few metres (10 m in a bad hour), and
+mixing up the height reference (geoid instead of ellipsoid, <= 107 m anywhere) stays far below
+it; what lies beyond is another site's or day's coordinates or a typo, and the engine then
+positions nothing (5 km: no solution rows) or a result shifted by the same distance. Between
+:data:`BASE_DOUBTFUL_M` and this, the solve runs and warns."""
 LEVER_ARM_CONVENTION = (
     "The lever arm L = (x, y, z) is given in the camera frame, from the projection centre to the "
     "antenna phase centre: x along the image x axis (right), y along the image y axis (up), z "
@@ -895,16 +902,21 @@ def engine_of(
 def check_base(
     base: Path | None,
     base_ecef_m: tuple[float, float, float] | None,
-    traj: Trajectory,
+    traj: Trajectory | None,
     positions_file: Path | None,
 ) -> tuple[str, bool]:
     """How the base coordinates were checked: (text, doubtful).
 
     Given coordinates are compared with the mean of the base receiver's own fixes in a u-blox
-    base recording; an imported solution's reference position is taken from its header.
+    base recording (before the engine runs: ``traj`` is not needed then); an imported
+    solution's reference position is taken from its header.
+
+    Raises:
+        ConfigError: naming ``--base-xyz``: far from the base receiver's fixes
+            (:func:`compare_base`).
     """
     if base_ecef_m is None:
-        if traj.metre_level:
+        if traj is not None and traj.metre_level:
             return "no base (receiver's own fix)", False
         ref = pos_header(positions_file).ref_ecef_m
         if ref is not None:
@@ -940,11 +952,20 @@ def compare_base(
     base_ecef_m: tuple[float, float, float],
     how_given: str,
 ) -> tuple[str, bool]:
-    """How the base coordinates compare with the base receiver's own fixes: (text, doubtful)."""
+    """How the base coordinates compare with the base receiver's own fixes: (text, doubtful).
+
+    Raises:
+        ConfigError: naming ``--base-xyz``: more than :data:`BASE_REFUSED_M` away.
+    """
     if not base_fixes_ecef_m:
         return f"{how_given}; not checked (the base recording has no receiver fix)", False
     mean = np.mean(np.asarray(base_fixes_ecef_m, dtype=np.float64), axis=0)
     d = float(np.linalg.norm(mean - np.asarray(base_ecef_m)))
+    if d > BASE_REFUSED_M:
+        raise ConfigError("--base-xyz", (
+            f"{d / 1000:.2f} km from where the base receiver's own {len(base_fixes_ecef_m)} "
+            f"fixes put the base ({mean[0]:.1f},{mean[1]:.1f},{mean[2]:.1f}; stand-alone fixes "
+            f"are good to a few metres): not this base's coordinates (another day's or site's?)"))
     text = (f"{how_given}; {d:.1f} m from the mean of the base receiver's own "
             f"{len(base_fixes_ecef_m)} fixes (stand-alone, metre level)")
     return text, d > BASE_DOUBTFUL_M

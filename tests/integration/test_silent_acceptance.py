@@ -3,7 +3,8 @@
 Exit statuses (README "Exit status"): 2 for a bad option or configuration (names the option),
 1 for an input that cannot be used (a JPEG or an empty file instead of a recording, a flight
 without marks, a solve that positions nothing). A doubtful base is a warning with exit 0: the
-solution may still be usable, and the report says how far off the base is.
+solution may still be usable, and the report says how far off the base is; a base kilometres
+off (another day's coordinates) is refused before the engine runs (exit 2, names --base-xyz).
 """
 
 from __future__ import annotations
@@ -87,6 +88,13 @@ def test_base_100_m_off_warns(flight: dict[str, Path]) -> None:
     assert proc.returncode == 0, proc.stderr
     assert "WARNING base coordinates" in proc.stdout and "100." in proc.stdout
     assert "base coordinates doubtful" in proc.stderr
+    # The engine's records name its files where they are, not the run's staging folder.
+    out = flight["dir"] / "o_off"
+    records = [p for p in out.rglob("*") if p.suffix in (".pos", ".json", ".html")]
+    assert len(records) >= 3 and (out / "rtklib" / "engine.json").is_file()
+    assert not [p for p in records if b".groundstation-staging-" in p.read_bytes()]
+    assert ".groundstation-staging-" not in proc.stdout
+    assert "<code>pos1-posmode = kinematic</code>" in (out / "report.html").read_text()  # read
 
 
 def test_flight_without_marks_exits_2(flight: dict[str, Path]) -> None:
@@ -102,6 +110,7 @@ def test_flight_without_marks_exits_2(flight: dict[str, Path]) -> None:
 
 def test_solve_that_positions_nothing_exits_1(flight: dict[str, Path]) -> None:
     # A .pos from another day: every mark falls outside it, so every export would be empty.
+    # (GPST 2001-01-01 00:00:00 is 23:59:47 UTC the day before: 13 leap seconds.)
     (flight["dir"] / "other_day.pos").write_text(
         "%  GPST                      x-ecef(m)      y-ecef(m)      z-ecef(m)   Q  ns\n"
         "2001/01/01 00:00:00.000   4146349.2471    612312.5498   4791750.8505   1   8\n"
@@ -110,7 +119,20 @@ def test_solve_that_positions_nothing_exits_1(flight: dict[str, Path]) -> None:
     proc = _cli("solve", "f.ubx", "--positions", "other_day.pos", "--out-dir", "o_none",
                 "--no-progress", cwd=flight["dir"])
     assert proc.returncode == 1, proc.stdout + proc.stderr
-    assert "0 positioned" in proc.stderr and "exports" in proc.stderr
+    last = proc.stderr.strip().splitlines()[-1]
+    spans = "the positions (other_day.pos) span 2000-12-31 23:59:47 - 23:59:48 UTC, the marks "
+    assert "0 positioned" in last and spans in last and "no overlap" in last, proc.stderr
+    assert not (flight["dir"] / "o_none").exists()  # no empty exports left behind
+
+
+def test_base_kilometres_off_is_refused_before_any_work(flight: dict[str, Path]) -> None:
+    proc = _cli("solve", "f.ubx", "--base", "b.ubx", "--base-xyz", _base_xyz(flight, 5000.0),
+                "--out-dir", "o_5km", "--no-progress", cwd=flight["dir"])
+    assert proc.returncode == 2, proc.stderr
+    assert "configuration error: --base-xyz: 5.00 km from where the base receiver's own" \
+        in proc.stderr
+    assert "rnx2rtkp" not in proc.stderr and "engine" not in proc.stderr
+    assert not (flight["dir"] / "o_5km").exists()
 
 
 def test_positions_given_a_photo_says_so(flight: dict[str, Path]) -> None:

@@ -2,8 +2,9 @@
 
 The command line, in a subprocess, on a flight whose engine run fails after the rover and base
 were converted to RINEX (``good.ubx`` holds observations but no ephemerides): a directory the
-run created is gone; in a directory that existed, the files the run added are removed, the
-earlier ones stay, and ``SOLVE_FAILED.txt`` names any earlier file the run rewrote.
+run created is gone; in a directory that existed, everything is as it was, byte for byte (the
+run wrote into a staging folder, removed with it), and no failure note or staging folder is
+left.
 """
 
 from __future__ import annotations
@@ -51,13 +52,16 @@ def test_a_failed_run_in_an_existing_directory_keeps_the_earlier_files(tmp_path:
     assert (out / "cameras.csv").read_text() == "earlier run\n"
 
 
-def test_a_failed_run_that_rewrote_earlier_files_says_so(tmp_path: Path) -> None:
+def test_a_failed_run_leaves_an_earlier_result_untouched(tmp_path: Path) -> None:
     _workspace(tmp_path)
     out = tmp_path / "out"
     (out / "rtklib" / "rover").mkdir(parents=True)
-    (out / "rtklib" / "rover" / "good.obs").write_text("earlier run\n")
+    earlier = {"rtklib/rover/good.obs": "earlier run\n", "geo.txt": "earlier geo\n",
+               "report.pdf": "earlier report\n"}
+    for rel, text in earlier.items():
+        (out / rel).write_text(text)
     proc = _solve(tmp_path, "out")
-    assert proc.returncode == 1, proc.stderr
-    note = (out / "SOLVE_FAILED.txt").read_text()
-    assert "no navigation data" in note and "rtklib/rover/good.obs" in note, note
-    assert not (out / "rtklib" / "base").exists()  # what the run added is gone
+    assert proc.returncode == 1 and "no navigation data" in proc.stderr, proc.stderr
+    left = {p.relative_to(out).as_posix(): p.read_text() for p in out.rglob("*") if p.is_file()}
+    assert left == earlier  # nothing rewritten, nothing added (no SOLVE_FAILED.txt, no stage)
+    assert sorted(p.name for p in out.iterdir()) == ["geo.txt", "report.pdf", "rtklib"]
