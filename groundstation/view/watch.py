@@ -288,7 +288,7 @@ def _status_body(st: dict[str, Any], marks: list[dict[str, Any]],
     mark_line = Text()
     mark_line.append("MARKS ", style="bold")
     # the count received here beside the total: at 80 columns the line's tail wraps, not it
-    mark_line.append(f"{ms['marks']} ({len(marks)} received here)  last count "
+    mark_line.append(f"{ms['marks']} ({len(marks)} mark messages here)  last count "
                      f"{_fmt(ms.get('last_count'))}  ")
     lt = ms.get("last_falling_t_gps_ns")
     if lt:

@@ -1,5 +1,5 @@
 """The lines a surveyor reads say what they mean, not the u-blox message that carried it:
-"48 received here", "time-mark records", "GLONASS satellites the receiver had not identified
+"48 mark messages here", "time-mark records", "GLONASS satellites the receiver had not identified
 yet" rather than "TIM-TM2 records here" or "no slot number". Message names stay in the
 ``inspect`` table of messages (that is what it lists), debug logs and the docs.
 
@@ -38,7 +38,7 @@ def _watch_text() -> str:
 
 def test_the_terminal_view_counts_marks_in_plain_words() -> None:
     text = _watch_text()
-    assert "(3 received here)" in text
+    assert "(3 mark messages here)" in text
     assert not MESSAGE_NAME.search(text), MESSAGE_NAME.search(text)
 
 

@@ -325,7 +325,7 @@ function renderMarks(ms) {
     "  (" + num(ms.last_age_s, 0) + " s ago)" : "") : "none yet");
   $("marks-detail").textContent = "count " + num(ms.last_count) + " · pulse " +
     num(ms.last_pulse_width_ms, 1) + " ms · duplicates " + num(ms.duplicates) +
-    " · 2 in one epoch " + num(ms.multi_in_epoch) + " · received here " + num(ms.received);
+    " · 2 in one epoch " + num(ms.multi_in_epoch) + " · mark messages here " + num(ms.received);
 }
 
 // -- link timeline -----------------------------------------------------------------------
