@@ -246,7 +246,7 @@ class Pipeline:
         pace = getattr(self.source, "untimed_delay_s", None)
         try:
             async for chunk, t_host_ns in chunks:
-                if self._data_clock is None:
+                if t_host_ns == UNTIMED and self._data_clock is None:  # a .ubx file, once
                     self._data_clock = getattr(self.source, "data_clock", None)
                 for data, frames, t in self._timed(chunk, t_host_ns):
                     if t_host_ns == UNTIMED and callable(pace):

@@ -361,11 +361,6 @@ def photo_times(photos: Sequence[Photo]) -> PhotoTimes:
     return PhotoTimes(out, spread_out, precise)
 
 
-def photo_times_s(photos: Sequence[Photo]) -> FloatArray:
-    """Just the times of :func:`photo_times`."""
-    return photo_times(photos).t_s
-
-
 # -- clock offset -------------------------------------------------------------------------------
 
 

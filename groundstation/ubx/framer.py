@@ -377,11 +377,6 @@ class UbxFramer:
             pending_bytes=len(self._buf),
         )
 
-    @property
-    def stream_offset(self) -> int:
-        """Bytes consumed so far (the offset the next fed byte will have)."""
-        return self._c.bytes_in
-
     def feed(self, chunk: bytes | bytearray | memoryview, t_host_ns: int) -> list[Frame]:
         """Add a chunk; return the frames it completed, in stream order."""
         self._c.bytes_in += len(chunk)
