@@ -44,6 +44,7 @@ already marks every slip; SBAS has no orbit in our navigation files).
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 
@@ -51,7 +52,8 @@ import numpy as np
 import numpy.typing as npt
 
 from groundstation.gnss.ephemeris import BroadcastEphemeris
-from groundstation.gnss.orbit import C_M_S, L1_WAVELENGTH_M, rotate_earth, sat_state, toe_gps_ns
+from groundstation.gnss.geometry import SatGeometry
+from groundstation.gnss.orbit import L1_WAVELENGTH_M
 from groundstation.offline.rinex.observations import ObsSet
 from groundstation.rules.phase import LLI_HALF_CYCLE, LLI_SLIP
 
@@ -141,78 +143,8 @@ class ConditioningReport:
         }
 
 
-class _Geometry:
-    """Satellite positions and clocks at each measurement's transmission time, and the
-    receiver's single-point position where a jump is to be measured.
-
-    Only differences over at most :data:`MAX_BRIDGE_S` are formed, so the receiver position
-    need not be better than tens of metres: over 3 s a satellite's line of sight turns by
-    6e-4 rad, 6 mm for 10 m of position error.
-    """
-
-    def __init__(
-        self, t_ns: npt.NDArray[np.int64], svs: Sequence[int], pr: FloatArray,
-        ephs: Sequence[BroadcastEphemeris], approx_ecef_m: tuple[float, float, float],
-    ) -> None:
-        n_ep, n_sv = pr.shape
-        self.pos = np.full((n_ep, n_sv, 3), np.nan)
-        self.clk_m = np.full((n_ep, n_sv), np.nan)
-        self.pr = pr
-        by_sv: dict[int, list[BroadcastEphemeris]] = {}
-        for eph in ephs:
-            by_sv.setdefault(eph.sv, []).append(eph)
-        for j, sv in enumerate(svs):
-            cands = by_sv.get(sv)
-            rows = np.flatnonzero(pr[:, j] > 0)
-            if not cands or rows.size == 0:
-                continue
-            t_tx = t_ns[rows] - np.round(pr[rows, j] / C_M_S * 1e9).astype(np.int64)
-            toes = np.array([toe_gps_ns(x) for x in cands], dtype=np.int64)
-            pick = np.argmin(np.abs(t_tx[:, None] - toes[None, :]), axis=1)
-            for k in np.unique(pick).tolist():
-                sel = pick == k
-                st = sat_state(cands[k], (t_tx[sel] - toes[k]) / 1e9)
-                self.pos[rows[sel], j] = st.pos_m
-                self.clk_m[rows[sel], j] = C_M_S * st.clock_s
-        self.x = np.asarray(approx_ecef_m, dtype=np.float64)
-        self._spp: dict[int, FloatArray | None] = {}
-
-    def ranges(self, e: int, sats: npt.NDArray[np.int64], x: FloatArray
-               ) -> tuple[FloatArray, FloatArray]:
-        """Geometric range minus satellite clock [m] and lines of sight from ``x`` at ``e``."""
-        sp = self.pos[e, sats]
-        d = sp - x
-        tau = np.linalg.norm(d, axis=1) / C_M_S
-        d = rotate_earth(sp, tau) - x
-        rho = np.linalg.norm(d, axis=1)
-        return rho - self.clk_m[e, sats], d / rho[:, None]
-
-    def position(self, e: int) -> FloatArray | None:
-        """The receiver's single-point position at epoch ``e`` from its pseudoranges."""
-        if e in self._spp:
-            return self._spp[e]
-        sats = np.flatnonzero((self.pr[e] > 0) & ~np.isnan(self.clk_m[e]))
-        out: FloatArray | None = None
-        if sats.size >= 5:
-            x = self.x.copy() if np.any(self.x) else np.zeros(3)
-            b = 0.0
-            for _ in range(8):
-                rng, u = self.ranges(e, sats, x)
-                v = self.pr[e, sats] - (rng + b)
-                h = np.column_stack([-u, np.ones(sats.size)])
-                dx, *_ = np.linalg.lstsq(h, v, rcond=None)
-                x = x + dx[:3]
-                b += float(dx[3])
-                if float(np.linalg.norm(dx[:3])) < 0.1:
-                    out = x
-                    self.x = x
-                    break
-        self._spp[e] = out
-        return out
-
-
 def _jumps(
-    cp: FloatArray, geo: _Geometry, p: int, e: int, ref: npt.NDArray[np.int64],
+    cp: FloatArray, geo: SatGeometry, p: int, e: int, ref: npt.NDArray[np.int64],
     scale: FloatArray,
 ) -> tuple[FloatArray, FloatArray, FloatArray] | None:
     """Phase change from epoch ``p`` to ``e`` minus the satellites' own motion and clock, per
@@ -262,13 +194,70 @@ def _fit(
         clean = quiet & (np.abs(rough - med) < tol)
         if int(clean.sum()) >= max(MIN_REFERENCE_SATS, int(np.ceil(0.6 * quiet.sum()))):
             break
-    full = True
+    first = _refine(r, sig, u, clean)
+    if first[2] < MAX_CHI and int(first[1].sum()) >= int(np.ceil(0.6 * quiet.sum())):
+        return first
+    # The Doppler's integral misled the start (the copter accelerated through the gap: over
+    # 3 s of a turn it is several cycles off for every satellite): start instead from the
+    # largest set of quiet satellites one motion and one clock explain.
+    start = _consensus(r, sig, u, quiet)
+    if start is None:
+        return first
+    second = _refine(r, sig, u, start)
+    if second[2] < MAX_CHI and (first[2] >= MAX_CHI or second[1].sum() > first[1].sum()):
+        return second
+    return first
+
+
+CONSENSUS_SIZE = 5
+"""Satellites per trial of the consensus start: the motion (3) and the clock (1) plus one to
+check them."""
+MAX_CONSENSUS_TRIALS = 2000
+"""Trials at most (all subsets of 12 quiet satellites are 792)."""
+
+
+def _consensus(
+    r: FloatArray, sig: FloatArray, u: FloatArray, quiet: npt.NDArray[np.bool_],
+) -> npt.NDArray[np.bool_] | None:
+    """The satellites agreeing with the motion and clock of the best-supported subset of
+    :data:`CONSENSUS_SIZE` quiet satellites (most within :data:`K_SIGMA` of it; ties: the
+    smaller sum of squares), or None when there are too few quiet satellites."""
+    cand = np.flatnonzero(quiet)
+    if cand.size < max(CONSENSUS_SIZE, MIN_REFERENCE_SATS):
+        return None
+    combos = np.array(list(itertools.islice(
+        itertools.combinations(cand.tolist(), CONSENSUS_SIZE), MAX_CONSENSUS_TRIALS)))
+    a = np.column_stack([np.ones(r.size), u / L1_WAVELENGTH_M])
+    wgt = 1.0 / sig
+    aw = a[combos] * wgt[combos][..., None]  # (m, k, 4)
+    rw = r[combos] * wgt[combos]
+    normal = np.einsum("mki,mkj->mij", aw, aw)
+    ok = np.linalg.cond(normal) < 1e12
+    normal[~ok] = np.eye(4)
+    coef = np.linalg.solve(normal, np.einsum("mki,mk->mi", aw, rw)[..., None])[..., 0]
+    z = (r[None, :] - coef @ a.T) * wgt[None, :]  # (m, n)
+    inside = (np.abs(z) < K_SIGMA) & quiet[None, :] & ok[:, None]
+    count = inside.sum(axis=1)
+    sse = np.where(inside, z * z, 0.0).sum(axis=1)
+    best = int(np.lexsort((sse, -count))[0])
+    if count[best] < MIN_REFERENCE_SATS:
+        return None
+    return np.asarray(inside[best], dtype=bool)
+
+
+def _refine(
+    r: FloatArray, sig: FloatArray, u: FloatArray, clean: npt.NDArray[np.bool_],
+) -> tuple[FloatArray, npt.NDArray[np.bool_], float]:
+    """The fit from a starting set ``clean``: the worst satellite dropped one at a time,
+    those consistent after all re-admitted (see :func:`_fit`)."""
+    n = r.size
+    clean = clean.copy()
     wgt = 1.0 / sig
     for _ in range(3 * n + 3):
         k = int(clean.sum())
         if k == 0:
             return np.zeros(n), clean, np.inf
-        if full and k >= 6:
+        if k >= 6:
             a = np.column_stack([np.ones(n), u / L1_WAVELENGTH_M])
             dof = k - 4
         else:
@@ -333,7 +322,7 @@ def condition(
     row_of[ep, sj] = rows
     pr = np.zeros((n_ep, n_sv))
     pr[ep, sj] = obs.pr_m[rows]
-    geo = _Geometry(t_ns, svs, pr, ephemerides, approx_ecef_m)
+    geo = SatGeometry(t_ns, svs, pr, ephemerides, approx_ecef_m)
     names = [f"G{sv:02d}" for sv in svs]
     for nm in names:
         rep.satellites[nm] = SatReport()
@@ -439,7 +428,11 @@ def _bridge(
     half_cleared = bool(lli[p, j] & LLI_HALF_CYCLE) and not lli[e, j] & LLI_HALF_CYCLE
     if flagged:
         sr.receiver_slips += 1
-    half = round(2.0 * w) / 2.0
+    if not (np.isfinite(w) and np.isfinite(sig)):
+        # No measurement of the jump (the satellite had no geometry at one of the epochs, or
+        # too few references): nothing to round, the ambiguity starts again.
+        w, sig, good = np.inf, np.inf, False
+    half = round(2.0 * w) / 2.0 if np.isfinite(w) else np.inf
     noise = K_SIGMA * sig
     determined = (good and sig < MAX_JUMP_SIGMA_CYC
                   and abs(w - half) < min(noise, DETERMINE_CYC))
