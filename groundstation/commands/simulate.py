@@ -48,7 +48,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         "(GPS L1 RXM-RAW, LLI from the lock times, RXM-SFRB); original = its "
                         "own frames unchanged")
     add_profile_arguments(parser)
-    parser.add_argument("--truth", metavar="FILE", help="write the truth JSON here")
+    parser.add_argument("--truth", metavar="FILE", help="write the truth JSON here (with "
+                        "--from-recording: what was converted and what the link did)")
     parser.add_argument("--force", action="store_true",
                         help="replace existing output files (never a recording)")
 
