@@ -18,7 +18,13 @@ from groundstation.offline.ephemeris import collect_ephemerides
 from groundstation.records import Frame, RawEpoch, TimeMark
 from groundstation.rules.marks import mark_number
 from groundstation.sim.faults import FaultConfig
-from groundstation.sim.rewrite import LOCK_MAX_MS, RewriteConfig, RewriteResult, rewrite
+from groundstation.sim.rewrite import (
+    LOCK_MAX_MS,
+    RewriteConfig,
+    RewriteResult,
+    replay_frames,
+    rewrite,
+)
 from groundstation.ubx.decode import Decoder, message_name
 from groundstation.ubx.fastraw import index_frames
 from groundstation.ubx.framer import iter_frames
@@ -175,6 +181,14 @@ def test_every_epoch_of_the_other_recordings_becomes_an_rxm_raw(
     assert names["RXM-RAW"] == rawx == res.log["epochs"] > 500
     assert not {"RXM-RAWX", "RXM-SFRBX", "NAV-SVIN"} & set(names)
     assert all(s.gnss == 0 for r in _decoded(frames) if isinstance(r, RawEpoch) for s in r.sats)
+    # a LEA-6T's stream is sent as it is: rewriting it again changes nothing
+    assert replay_frames(frames).data == res.data
+
+
+def test_the_original_form_is_the_recordings_frames(rover: Path, original: list[Frame]) -> None:
+    res = rewrite(rover, RewriteConfig(form="original"))
+    assert res.data == b"".join(f.raw for f in original)  # NMEA between them not carried
+    assert res.log["epochs"] == 2072 and res.log["lock_events"] == []
 
 
 def test_same_seed_same_bytes(rover: Path) -> None:
