@@ -11,7 +11,8 @@ would have cost a real flight. Two forms (:data:`FORMS`):
     epoch without GPS becomes an empty RXM-RAW) at the recording's rate and time
     (``iTOW`` = ``rcvTow`` in whole ms; a ``rcvTow`` off the millisecond is moved onto it
     along the Doppler). A phase the u-blox 8 marks unusable (:func:`~groundstation.rules.phase.
-    rawx_cp_valid`) is written blank (0) with ``mesQI`` 4. RXM-RAW has no lock time: the LLI
+    rawx_cp_valid`) is written blank (0) with ``mesQI`` 4 and LLI 3, as a u-blox 6 flags a
+    measurement without carrier lock. RXM-RAW has no lock time: the LLI of a usable phase
     carries what the lock time said (:class:`LeaLli`, the rule and why).
   - RXM-SFRBX GPS L1 C/A subframes -> RXM-SFRB (02 11): the ten words parity-checked and
     stripped to their 24 data bits (:func:`~groundstation.offline.ephemeris.
@@ -103,6 +104,10 @@ MESQI_SLIP = 5
 """u-blox 6 ``mesQI`` < 6: "likely loss of carrier lock in the previous interval"."""
 MESQI_CODE_ONLY = 4
 """u-blox 6 ``mesQI`` 4: pseudorange and Doppler usable, carrier phase not."""
+LLI_CODE_ONLY = LLI_SLIP | LLI_HALF_CYCLE
+"""The LLI of a measurement without a usable phase: a u-blox 6 gives both bits with ``mesQI``
+4 and 5 (every such measurement of the NEO-6P recordings in ``../shared/data``; ``mesQI`` 6
+comes with bit 1 alone, 7 with none)."""
 CHIP_GEN_UBLOX6 = 2
 GNSS_GPS = 0
 SIG_GPS_L1CA = 0
@@ -160,9 +165,10 @@ class LeaLli:
     by half a cycle, with no loss of lock; the u-blox 8 reports the same event as a
     half-cycle-subtracted bit set where the half-cycle-valid bit comes on, and the phase moves
     by the same half cycle. Why a phase gap is a slip even where the lock time held: RXM-RAW
-    cannot say "continuous across epochs without a usable phase"; a LEA-6T reports such
-    epochs with ``mesQI`` < 5 and the phase after them is not to be trusted blindly (8 such
-    cases on 2018-10-09, 475 gaps where the lock time restarted too).
+    cannot say "continuous across epochs without a usable phase"; a u-blox 6 flags such epochs
+    with ``mesQI`` 4 and both LLI bits (:data:`LLI_CODE_ONLY`), and the phase after them is not
+    to be trusted blindly (8 such cases on 2018-10-09, 475 gaps where the lock time restarted
+    too).
     """
 
     def __init__(self) -> None:
@@ -338,7 +344,7 @@ class _Converter:
             cno = min(r["cno"], 127)
             if not usable:
                 st.phase_blank += 1
-                out.append((0.0, pr, do, sv, MESQI_CODE_ONLY, cno, 0))
+                out.append((0.0, pr, do, sv, MESQI_CODE_ONLY, cno, LLI_CODE_ONLY))
                 continue
             lli, kind = self.lli.measurement(sv, tow_ms, r["locktime"], r["trkStat"])
             if kind is not None:

@@ -123,7 +123,7 @@ def test_rawx_becomes_gps_l1_rxm_raw() -> None:
     g3, g5 = first.sats
     assert (g3.carrier_phase_cyc, g3.pseudorange_m, g3.mes_qi, g3.lli) == (1.1e8, 2.1e7, 5, 1)
     assert g3.doppler_hz == pytest.approx(-1234.5) and g3.cno_dbhz == 44
-    assert (g5.carrier_phase_cyc, g5.mes_qi, g5.lli) == (0.0, 4, 0)  # blank phase
+    assert (g5.carrier_phase_cyc, g5.mes_qi, g5.lli) == (0.0, 4, 3)  # no carrier lock
     assert [(s.sv, s.lli, s.mes_qi) for s in second.sats] == [(3, 0, 7), (5, LLI_SLIP, 5)]
     st = conv.stats
     assert (st.gps_measurements, st.no_pseudorange, st.other_signals, st.phase_blank) == (
