@@ -467,7 +467,7 @@ class RewriteResult:
         Path(path).write_bytes(jsonio.dumps(self.log))
 
 
-def read_frames(path: str | Path) -> list[Frame]:
+def _read_frames(path: str | Path) -> list[Frame]:
     """The intact UBX frames of a recording (``.ubx``, ``.ubx.gz``, ``.mcap``).
 
     Raises:
@@ -487,7 +487,7 @@ def rewrite(path: str | Path, config: RewriteConfig = RewriteConfig()) -> Rewrit
     Raises:
         InputError: the file cannot be read, or holds no measurement epoch with a GPS week.
     """
-    return replay_frames(read_frames(path), config, source=str(path))
+    return replay_frames(_read_frames(path), config, source=str(path))
 
 
 def replay_frames(

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import pytest
 from pyubx2 import UBXReader
+from real_files import real_bytes
 
 from groundstation import jsonio
 from groundstation.cli import main
@@ -41,10 +42,8 @@ def rover(shared_data: Path) -> Path:
 
 
 @pytest.fixture(scope="module")
-def original(rover: Path) -> list[Frame]:
-    from groundstation.sim.rewrite import read_frames
-
-    return read_frames(rover)
+def original(shared_data: Path) -> list[Frame]:
+    return iter_frames(real_bytes(shared_data, ROVER.removeprefix("real/")))
 
 
 @pytest.fixture(scope="module")
