@@ -49,6 +49,7 @@ rising-edge records together).
 from __future__ import annotations
 
 import math
+import struct
 from collections import Counter
 from collections.abc import Iterable
 from dataclasses import asdict, dataclass, field
@@ -112,6 +113,9 @@ CHIP_GEN_UBLOX6 = 2
 GNSS_GPS = 0
 SIG_GPS_L1CA = 0
 GPS_SVS = range(1, 33)
+WEEK_MS = 604_800_000
+MAX_RAW_WEEK = 32_767
+"""RXM-RAW's ``week`` is an I2."""
 
 _PR_VALID = TRK_PR_VALID
 _HALF_VALID = TRK_HALF_VALID
@@ -124,6 +128,8 @@ _PASS_LEA6T = {
     L.NAV_POSLLH.key,
 }  # fmt: skip
 """Messages a LEA-6T sends as the recording has them (u-blox 6 messages, same layout)."""
+_UNFIT = (ValueError, struct.error, ArithmeticError)
+"""A frame that passed its checksum but whose payload or values do not fit (as the decoder)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -280,6 +286,9 @@ class _Converter:
         self.out.stats.frames_in += 1
         key = frame.key
         name = message_name(frame.cls, frame.id)
+        if self.form == "original":
+            self._original(frame, name)
+            return
         try:
             if key == L.RXM_RAWX.key:
                 self._rawx(frame, name)
@@ -288,12 +297,7 @@ class _Converter:
                 self._epoch(head["week"], head["iTOW"] * 1_000_000)
                 self._emit(name, frame.raw, head["iTOW"])
             elif key == L.TIM_TM2.key:
-                record = self.decoder.decode(frame)
-                self._emit(name, frame.raw,
-                           mark_number(record) if isinstance(record, TimeMark) else 0)
-            elif self.form == "original":
-                self._emit(name, frame.raw, frame.payload[1] if key in (
-                    L.RXM_SFRBX.key, L.RXM_SFRB.key) and len(frame.payload) > 1 else 0)
+                self._emit(name, frame.raw, self._mark(frame))
             elif key in _PASS_LEA6T:
                 sv = frame.payload[1] if key == L.RXM_SFRB.key and len(frame.payload) > 1 else 0
                 self._emit(name, frame.raw, sv)
@@ -305,8 +309,33 @@ class _Converter:
                 self._pvt(frame, name)
             else:
                 self._not_sent[name] += 1
-        except ValueError:  # a payload shorter than its layout: not sent, counted
+        except _UNFIT:  # does not fit its layout or its values: not sent, counted
             self._undecodable[name] += 1
+
+    def _mark(self, frame: Frame) -> int:
+        record = self.decoder.decode(frame)
+        return mark_number(record) if isinstance(record, TimeMark) else 0
+
+    def _original(self, frame: Frame, name: str) -> None:
+        """Every frame as it is; an epoch's time (and a mark's number) read where it can be."""
+        key = frame.key
+        tag = 0
+        try:
+            if key == L.RXM_RAWX.key:
+                head, _ = L.RXM_RAWX.unpack(frame.payload)
+                tag = round(head["rcvTow"] * 1000)
+                self._epoch(head["week"], round(head["rcvTow"] * 1e9))
+            elif key == L.RXM_RAW.key:
+                head, _ = L.RXM_RAW.unpack(frame.payload)
+                tag = head["iTOW"]
+                self._epoch(head["week"], tag * 1_000_000)
+            elif key == L.TIM_TM2.key:
+                tag = self._mark(frame)
+            elif key in (L.RXM_SFRBX.key, L.RXM_SFRB.key) and len(frame.payload) > 1:
+                tag = frame.payload[1]
+        except _UNFIT:  # does not fit its layout or its values: sent all the same, counted
+            self._undecodable[name] += 1
+        self._emit(name, frame.raw, tag)
 
     # -- measurements -------------------------------------------------------------------------
 
@@ -315,10 +344,8 @@ class _Converter:
         week = head["week"]
         rcv_tow_s = head["rcvTow"]
         tow_ms = round(rcv_tow_s * 1000)
-        if self.form == "original":
-            self._epoch(week, round(rcv_tow_s * 1e9))
-            self._emit(name, frame.raw, tow_ms)
-            return
+        if not (0 <= tow_ms < WEEK_MS and week <= MAX_RAW_WEEK):  # before any state changes
+            raise ValueError(f"rcvTow {rcv_tow_s} s, week {week}: not an RXM-RAW time")
         self._epoch(week, tow_ms * 1_000_000)
         st = self.out.stats
         # RXM-RAW's time is whole ms: a measurement off it is moved onto it along the Doppler

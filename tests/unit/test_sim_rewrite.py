@@ -274,6 +274,20 @@ def test_link_gaps_are_runs_of_lost_epochs() -> None:
     ]
 
 
+def test_frames_that_do_not_fit_are_counted_not_fatal() -> None:
+    good = _rawx(217331.0, [_meas(0, 3, LOCKED)])
+    nan = _rawx(float("nan"), [_meas(0, 3, LOCKED)])
+    huge = _rawx(1e300, [_meas(0, 3, LOCKED)])
+    short = _frame(build_frame(0x02, 0x15, bytes(10)))  # RXM-RAWX shorter than its header
+    conv = convert_frames([nan, huge, short, good])
+    assert [n for _, n, _, _ in conv.messages] == ["RXM-RAW"]
+    assert conv.stats.undecodable == {"RXM-RAWX": 3}
+    assert conv.epoch_t_gps_ns == [WEEK * NS_PER_WEEK + 217_331 * 10**9]
+    conv = convert_frames([nan, huge, short, good], "original")
+    assert [raw for _, _, raw, _ in conv.messages] == [f.raw for f in (nan, huge, short, good)]
+    assert conv.stats.undecodable == {"RXM-RAWX": 3} and len(conv.epoch_t_gps_ns) == 1
+
+
 def test_a_recording_without_epochs_is_refused() -> None:
     from groundstation.errors import InputError
 
