@@ -17,6 +17,9 @@ the option (exit status 2), raised before anything is created.
 
 After those checks (and the inputs' own), :func:`make_output_dir` creates the directory: one that
 cannot be created (``/proc/x``, no permission, a file on the way) is a ``ConfigError`` too.
+A writer of single files writes them through :func:`staged_files`: a file that cannot be
+created there is a ``ConfigError`` before anything is written, and an existing file is replaced
+only by a complete one.
 
 A writer whose outputs are one run's result (``solve``) writes through :func:`staged_output`:
 the run fills a fresh staging folder inside the directory and is moved into place only when it
@@ -32,8 +35,9 @@ import contextlib
 import logging
 import os
 import shutil
-from collections.abc import Collection, Iterable, Iterator
+from collections.abc import Collection, Iterable, Iterator, Sequence
 from pathlib import Path
+from typing import BinaryIO
 
 from groundstation import jsonio
 from groundstation.errors import ConfigError
@@ -142,6 +146,42 @@ def make_output_dir(out: Path, key: str = "--out-dir") -> bool:
     except OSError as err:
         raise ConfigError(key, f"cannot create {out}: {err.strerror or err}") from err
     return True
+
+
+@contextlib.contextmanager
+def staged_files(outputs: Sequence[tuple[str, Path]]) -> Iterator[list[BinaryIO]]:
+    """Open a hidden sibling of each output file (``(option, path)``, after every check) and
+    yield them, in order, open for writing.
+
+    A sibling that cannot be created (no permission, ``/proc``, a read-only file system) is a
+    :class:`ConfigError` naming its option, and nothing is left of the others: the check that
+    the directory is writable is the creation itself. When the block ends normally the
+    siblings replace the outputs; on any exception (Ctrl-C too) they are removed and the
+    outputs are as they were.
+
+    Raises:
+        ConfigError: naming the option of the file that cannot be written.
+    """
+    opened: list[tuple[Path, Path, BinaryIO]] = []
+    try:
+        for key, out in outputs:
+            tmp = out.with_name(f"{STAGING_PREFIX}{os.getpid()}-{out.name}")
+            try:
+                handle: BinaryIO = tmp.open("wb")
+            except OSError as err:
+                raise ConfigError(key, f"cannot write {out}: {err.strerror or err}") from err
+            opened.append((tmp, out, handle))
+        yield [h for _, _, h in opened]
+        for _, _, h in opened:
+            h.close()
+        for tmp, out, _ in opened:
+            os.replace(tmp, out)
+    except BaseException:
+        for tmp, _, h in opened:
+            h.close()
+            with contextlib.suppress(OSError):
+                tmp.unlink()
+        raise
 
 
 def existing_outputs(out_dir: Path, writes: Iterable[str]) -> list[str]:

@@ -45,7 +45,9 @@ EXAMPLES: dict[str, str] = {
            "groundstation run --tcp 127.0.0.1:5000 --station rover --out-dir flights\n"
            "groundstation run --file rover.ubx --no-zenoh",
     "simulate": "groundstation simulate --out sim.ubx --duration 300 --truth truth.json\n"
-                "groundstation simulate --pty --speed 1",
+                "groundstation simulate --pty --speed 1\n"
+                "groundstation simulate --from-recording rover.ubx.gz --faults seed --seed 3 "
+                "--out rover_lea6t.ubx --truth link.json",
     "rinex": "groundstation rinex flights/rover_20250101T120000Z.mcap --out-dir rinex/",
     "configure": "groundstation configure --port /dev/wi232 --profile lea6t-5hz --dry-run",
     "watch": "groundstation watch --station rover\n"

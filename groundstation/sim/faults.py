@@ -7,7 +7,8 @@ short. Everything is drawn from one seeded generator, so a seed reproduces the s
 
 The log says exactly what a correct framer must report: how many frames survive intact, how many
 sync words lie in damaged bytes (each is one damaged-frame count for a resynchronising framer),
-which RXM-RAW epochs and which TIM-TM2 counts did not arrive intact.
+which epochs (RXM-RAW, or RXM-RAWX in a replayed u-blox 8 recording) and which TIM-TM2 marks did
+not arrive intact.
 """
 
 from __future__ import annotations
@@ -25,6 +26,8 @@ from groundstation.errors import ConfigError
 from groundstation.sim.messages import TimedMessage
 
 DEFAULT_BAUD = 115_200
+EPOCH_MESSAGES = ("RXM-RAW", "RXM-RAWX")
+"""The messages that carry a measurement epoch (their ``tag`` is the epoch's time of week, ms)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -210,18 +213,23 @@ def apply_link_faults(
     rng: np.random.Generator,
     baud: int = DEFAULT_BAUD,
     flight_ns: tuple[int, int] | None = None,
+    span_ns: tuple[int, int] | None = None,
 ) -> tuple[list[tuple[int, bytes]], FaultLog]:
     """Damage the byte stream; returns ``(t_gps_ns, chunk)`` pieces in order and the log.
 
     Each message's bytes leave the UART at ``t_gps_ns + i * 10 / baud`` seconds; a byte sent
     during an outage is lost. ``flight_ns`` (take-off, landing) is where the
-    ``flight_dropout_per_min`` outages fall.
+    ``flight_dropout_per_min`` outages fall. ``span_ns`` is where the ``dropout_per_min``
+    outages fall and what the per-minute rates count (default: the first message to a second
+    after the last). The outages are drawn first: with the same span and the generator in the
+    same state, two streams of the same data (RXM-RAW or RXM-RAWX) get the same outages.
     """
     log = FaultLog()
     if not messages:
         return [], log
     byte_ns = 10 * 1_000_000_000 / baud
-    t0, t1 = messages[0].t_gps_ns, messages[-1].t_gps_ns + 1_000_000_000
+    t0, t1 = span_ns if span_ns is not None else (
+        messages[0].t_gps_ns, messages[-1].t_gps_ns + 1_000_000_000)
     dropouts = _dropouts(t0, t1, config, rng)
     if flight_ns is not None and config.flight_dropout_per_min > 0:
         # Sorted by start; a flight profile sets dropout_per_min = 0, so they do not overlap.
@@ -263,7 +271,7 @@ def apply_link_faults(
                 entry = drop_logs[k]
                 entry["bytes_lost"] += int(hit.sum())
                 entry["frames_hit"] += 1
-                if msg.name == "RXM-RAW":
+                if msg.name in EPOCH_MESSAGES:
                     entry["epochs_lost_tow_ms"].append(msg.tag)
                 if msg.name == "TIM-TM2":
                     entry["marks_lost"].append(msg.tag)
@@ -294,7 +302,7 @@ def apply_link_faults(
             log.frames_lost += 1
         else:
             log.frames_damaged += 1
-        if msg.name == "RXM-RAW":
+        if msg.name in EPOCH_MESSAGES:
             log.epochs_lost_tow_ms.append(msg.tag)
         if msg.name == "TIM-TM2":
             log.marks_lost_in_link.append(msg.tag)

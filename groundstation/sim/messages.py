@@ -1,12 +1,14 @@
 """UBX frames a LEA-6T sends: RXM-RAW, RXM-SFRB, NAV-SOL, NAV-SVINFO, TIM-TM2, packed from the
-protocol layouts of :mod:`groundstation.ubx.layouts` (the decoder reads the same tables)."""
+protocol layouts of :mod:`groundstation.ubx.layouts` (the decoder reads the same tables), and the
+UART that puts them on the wire in time (:class:`Uart`)."""
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from groundstation.gpstime import NS_PER_WEEK
+from groundstation.gpstime import NS_PER_S, NS_PER_WEEK
 from groundstation.ubx import layouts as L
 
 _TM2 = L.TIM_TM2_FLAGS
@@ -31,6 +33,22 @@ class TimedMessage:
     raw: bytes
     tag: int
     receiver: str = "rover"
+
+
+class Uart:
+    """Spaces messages in time as a UART at ``baud`` would: each leaves when it is ready and
+    the one before it has been sent (10 bits a byte)."""
+
+    def __init__(self, baud: int, receiver: str) -> None:
+        self.byte_ns = 10 * NS_PER_S / baud
+        self.cursor = 0
+        self.receiver = receiver
+        self.out: list[TimedMessage] = []
+
+    def send(self, ready_ns: int, name: str, raw: bytes, tag: int) -> None:
+        t = max(self.cursor, ready_ns)
+        self.out.append(TimedMessage(t, name, raw, tag, self.receiver))
+        self.cursor = t + int(math.ceil(len(raw) * self.byte_ns))
 
 
 @dataclass(frozen=True, slots=True)

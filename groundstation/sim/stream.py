@@ -8,7 +8,6 @@ stream as timed chunks, the base's clean stream, the truth dictionary, and the c
 from __future__ import annotations
 
 import datetime as dt
-import math
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -136,21 +135,6 @@ def _week_tow_ms(t_ns: int) -> tuple[int, int]:
     return week, tow_ns // 1_000_000
 
 
-class _Uart:
-    """Spaces messages in time as a UART at ``baud`` would."""
-
-    def __init__(self, baud: int, receiver: str) -> None:
-        self.byte_ns = 10 * NS_PER_S / baud
-        self.cursor = 0
-        self.receiver = receiver
-        self.out: list[TimedMessage] = []
-
-    def send(self, ready_ns: int, name: str, raw: bytes, tag: int) -> None:
-        t = max(self.cursor, ready_ns)
-        self.out.append(TimedMessage(t, name, raw, tag, self.receiver))
-        self.cursor = t + int(math.ceil(len(raw) * self.byte_ns))
-
-
 def _messages(
     obs: Observations,
     constellation: Constellation,
@@ -159,7 +143,7 @@ def _messages(
     rng: np.random.Generator,
     baud: int,
 ) -> list[TimedMessage]:
-    uart = _Uart(baud, obs.name)
+    uart = ubx.Uart(baud, obs.name)
     interval = int(obs.t_rx_ns[1] - obs.t_rx_ns[0]) if len(obs.t_rx_ns) > 1 else NS_PER_S // 5
     epochs_per_sf = int(6 * NS_PER_S // interval)
     mark_i = 0

@@ -141,6 +141,44 @@ CASES: list[Case] = [
       2, "faults"),
     c("simulate-faults-negative", "simulate --out new.ubx --duration 5 --faults neg.toml", 2,
       "faults.dropout_per_min"),
+    # -- simulate --from-recording ------------------------------------------------------------
+    c("simulate-from-missing", "simulate --from-recording nope.ubx --out new.ubx", 2,
+      "nope.ubx: no such file"),
+    c("simulate-from-dir", "simulate --from-recording adir --out new.ubx", 2, "is a directory"),
+    c("simulate-from-fifo", "simulate --from-recording fifo --out new.ubx", 2, "is a FIFO"),
+    c("simulate-from-text", "simulate --from-recording notes.txt --out new.ubx", 2,
+      "notes.txt: no UBX frames in this file"),
+    c("simulate-from-jpeg", "simulate --from-recording X/a.jpg --out new.ubx", 2,
+      "a JPEG image"),
+    c("simulate-from-no-epochs", "simulate --from-recording nav_only.ubx --out new.ubx", 2,
+      "no measurement epochs"),
+    c("simulate-from-out-is-input", "simulate --from-recording good.ubx --out good.ubx --force",
+      2, "is the input"),
+    c("simulate-from-out-recording", "simulate --from-recording good.ubx --out rec.mcap --force",
+      2, "existing recording"),
+    c("simulate-from-out-exists", "simulate --from-recording good.ubx --out notes.txt", 2,
+      "without --force"),
+    c("simulate-from-truth-is-out",
+      "simulate --from-recording good.ubx --out new.ubx --truth new.ubx", 2,
+      "is also the --out file"),
+    c("simulate-from-out-no-dir", "simulate --from-recording good.ubx --out nodir/x.ubx", 2,
+      "does not exist"),
+    c("simulate-from-out-in-proc", "simulate --from-recording good.ubx --out /proc/x.ubx", 2,
+      "--out: cannot write /proc/x.ubx"),
+    c("simulate-from-truth-in-proc",
+      "simulate --from-recording good.ubx --out new.ubx --truth /proc/x.json", 2,
+      "--truth: cannot write /proc/x.json"),
+    c("simulate-from-no-out", "simulate --from-recording good.ubx", 2, "needs --out"),
+    c("simulate-from-with-profile",
+      "simulate --from-recording good.ubx --out new.ubx --profile seed", 2, "--profile"),
+    c("simulate-from-with-base-out",
+      "simulate --from-recording good.ubx --out new.ubx --base-out b.ubx", 2, "--base-out"),
+    c("simulate-from-faults-missing",
+      "simulate --from-recording good.ubx --out new.ubx --faults nope.toml", 2, "faults"),
+    c("simulate-from-bad-form", "simulate --from-recording good.ubx --out new.ubx --as lea4t",
+      2, "invalid choice"),
+    c("simulate-as-without-recording", "simulate --as original --out new.ubx --duration 5", 2,
+      "--as"),
     # -- solve --------------------------------------------------------------------------------
     c("solve-out-is-a-file", "solve good.ubx --positions x.pos --out good.ubx", 2,
       "not a directory"),
@@ -224,6 +262,8 @@ def _workspace(root: Path) -> None:
     """The inputs every case may name."""
     data, _ = flight_stream(10)
     (root / "good.ubx").write_bytes(data)
+    (root / "nav_only.ubx").write_bytes(bytes.fromhex(  # one NAV-POSLLH, no epoch
+        "b56201021c00" + "00" * 28 + "1fa6"))
     (root / "rec.mcap").write_bytes(MCAP_MAGIC + b"\x00" * 32)
     (root / "notes.txt").write_text("mine\n")
     (root / "bad.obs").write_text("not RINEX\n")

@@ -264,6 +264,30 @@ def test_output_paths_never_replace_inputs_or_recordings(tmp_path: Path) -> None
                                    force=True)
 
 
+def test_staged_files_appear_complete_or_not_at_all(tmp_path: Path) -> None:
+    old = tmp_path / "old.txt"
+    old.write_text("earlier")
+    new = tmp_path / "new.ubx"
+    with pytest.raises(RuntimeError), outpaths.staged_files([("--out", new),
+                                                             ("--truth", old)]) as (a, b):
+        a.write(b"half")
+        b.write(b"half")
+        raise RuntimeError("disk full")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["old.txt"]
+    assert old.read_text() == "earlier"
+    with outpaths.staged_files([("--out", new), ("--truth", old)]) as (a, b):
+        a.write(b"stream")
+        b.write(b"log")
+        assert not new.exists() and old.read_text() == "earlier"  # not before the end
+    assert (new.read_bytes(), old.read_text()) == (b"stream", "log")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["new.ubx", "old.txt"]
+    unwritable = [("--out", tmp_path / "x"), ("--truth", tmp_path / "no" / "y")]
+    with pytest.raises(ConfigError, match="--truth: cannot write"), \
+            outpaths.staged_files(unwritable):
+        pass
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["new.ubx", "old.txt"]
+
+
 def test_host_header_check() -> None:
     hosts = frozenset({"127.0.0.1", "localhost", "::1"})
     assert host_ok("127.0.0.1:8080", hosts, 8080) and host_ok("localhost:8080", hosts, 8080)
