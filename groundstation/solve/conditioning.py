@@ -376,8 +376,13 @@ def condition(
                 model, clean, chi = _fit(r, sig, u, rough, quiet)
             need = max(MIN_REFERENCE_SATS, int(np.ceil(0.5 * ref.size)))
             good = chi < MAX_CHI and int(clean.sum()) >= need
-            # over a short span the Doppler must tell the same jump (a second opinion)
+            # over a short span the Doppler must tell the same jump (a second opinion), as
+            # well as it tells the satellites without one: a walker's steps or a copter's
+            # jolts between epochs put the Doppler's trapezoid off for every satellite alike
             rj = rough - float(np.median(rough[clean])) if clean.any() else rough
+            w_all = r - model
+            spread = (1.4826 * float(np.median(np.abs((rj - w_all)[clean])))
+                      if int(clean.sum()) >= MIN_REFERENCE_SATS else 0.0)
             pos = {int(s): i for i, s in enumerate(ref.tolist())}
             for j in group.tolist():
                 i = pos.get(j)
@@ -386,7 +391,7 @@ def condition(
                             resolved, out_cp, rep, names[j], t_ns)
                     continue
                 w = float(r[i] - model[i])
-                tol = ROUGH_SHORT_CYC + ROUGH_PER_S_CYC * dt
+                tol = max(ROUGH_SHORT_CYC + ROUGH_PER_S_CYC * dt, K_SIGMA * spread)
                 agree = dt > ROUGH_CHECK_S or abs(float(rj[i]) - w) < tol
                 if (not good and dt <= ROUGH_CHECK_S and not lli[e, j] & LLI_SLIP
                         and not (lli[e, j] ^ lli[p, j]) & LLI_HALF_CYCLE

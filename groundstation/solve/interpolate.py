@@ -18,6 +18,7 @@ import numpy.typing as npt
 from groundstation.errors import ConfigError
 from groundstation.geodesy import ecef_to_llh, enu_rotation
 from groundstation.rules.marks import edge_time_ns
+from groundstation.solve.integrity import grade as gr
 from groundstation.solve.positions import Q_FIX, Q_FLOAT, Q_SINGLE, Trajectory
 
 FloatArray = npt.NDArray[np.float64]
@@ -84,6 +85,9 @@ class MarkPositions:
         bracket_s: seconds between the bracketing epochs (0 on an epoch, NaN outside).
         flags: bit mask per mark (``FLAG_*``).
         method: interpolation method name.
+        grade: grade code (``integrity.grade.GRADE_NAMES``), the worse of the bracketing
+            epochs', and float where the mark's own sigma is not a centimetre one.
+        check: the check that decided the grade (``integrity.grade.CHECK_NAMES``).
     """
 
     t_gps_ns: IntArray
@@ -93,6 +97,8 @@ class MarkPositions:
     bracket_s: FloatArray
     flags: IntArray
     method: str
+    grade: IntArray
+    check: IntArray
 
     def __len__(self) -> int:
         return int(self.t_gps_ns.size)
@@ -134,6 +140,8 @@ class _Brackets:
     bracket_s: FloatArray
     flags: IntArray
     quality: IntArray
+    grade: IntArray
+    check: IntArray
 
 
 def _brackets(
@@ -172,9 +180,15 @@ def _brackets(
     flags |= np.where(inside & (quality != Q_FIX), FLAG_NOT_FIXED, 0)
     if traj.metre_level:
         flags |= np.where(inside, FLAG_METRE_LEVEL, 0)
+    g, c = traj.grades(), traj.checks()
+    gl = np.where(w < 1.0, g[lo], 0)
+    gh = np.where(w > 0.0, g[hi], 0)
+    grade = np.where(inside, np.maximum(gl, gh), gr.NONE)
+    check = np.where(inside, np.where(gh > gl, c[hi], c[lo]), 0)
     return _Brackets(
         inside, lo.astype(np.int64), hi.astype(np.int64), w, tm_s,
         np.where(inside, bracket, np.nan), flags.astype(np.int64), quality.astype(np.int64),
+        grade.astype(np.int64), check.astype(np.int64),
     )
 
 
@@ -191,16 +205,41 @@ def _bracket_sd(traj: Trajectory, b: _Brackets) -> FloatArray:
     return np.asarray(sd, dtype=np.float64)
 
 
+def _interpolation_sd(traj: Trajectory, b: _Brackets) -> FloatArray:
+    """What a straight line through the two bracketing epochs may miss the antenna by:
+    ``a h^2 / 8`` with ``h`` the bracket and ``a`` the larger acceleration measured at either
+    epoch (over +-1 s: a vehicle's acceleration changes over seconds, so across a radio gap it
+    is the one on either side); where neither can be measured, the largest the flight shows."""
+    from groundstation.solve.engine.dynamics import local_acceleration
+
+    acc = local_acceleration(traj.t_gps_ns, traj.ecef_m)
+    peak = float(np.nanmax(acc)) if np.isfinite(acc).any() else 0.0
+    a = np.fmax(acc[b.lo], acc[b.hi])
+    a = np.where(np.isfinite(a), a, peak)
+    h = np.nan_to_num(b.bracket_s)
+    return np.asarray(a * h * h / 8.0, dtype=np.float64)
+
+
 def _finish(
     traj: Trajectory, loc: _Local, b: _Brackets, enu: FloatArray, sd: FloatArray,
-    times: Sequence[int | None], method: str,
+    times: Sequence[int | None], method: str, interpolation_sd: FloatArray | None = None,
 ) -> MarkPositions:
     ecef = loc.to_ecef(enu)
     ecef[~b.valid] = np.nan
     sd = sd.copy()
+    if interpolation_sd is not None:
+        sd = np.sqrt(sd * sd + interpolation_sd[:, None] ** 2)
     sd[~b.valid] = np.nan
     t_ns = np.array([t if t is not None else -1 for t in times], np.int64)
-    return MarkPositions(t_ns, ecef, sd, b.quality, b.bracket_s, b.flags, method)
+    grade, check = b.grade.copy(), b.check.copy()
+    # A mark between two fixed epochs is itself a centimetre position only if its own sigma
+    # says so (a gap bridged, a quick manoeuvre between 5 Hz epochs).
+    loose = (grade == gr.FIXED) & ~np.all(sd <= gr.FIXED_MAX_SIGMA_M, axis=1)
+    grade[loose] = gr.FLOAT
+    check[loose] = gr.C_DEM_INTERP
+    quality = np.where(loose, Q_FLOAT, b.quality)
+    flags = np.where(loose, b.flags | FLAG_NOT_FIXED, b.flags)
+    return MarkPositions(t_ns, ecef, sd, quality, b.bracket_s, flags, method, grade, check)
 
 
 def _check(traj: Trajectory) -> None:
@@ -217,7 +256,8 @@ def interpolate_linear(
     _check(traj)
     loc = _local(traj)
     b = _brackets(traj, loc, times, max_gap_s)
-    return _finish(traj, loc, b, _linear_enu(loc, b), _bracket_sd(traj, b), times, "linear")
+    return _finish(traj, loc, b, _linear_enu(loc, b), _bracket_sd(traj, b), times, "linear",
+                   _interpolation_sd(traj, b))
 
 
 def _segments(t_s: FloatArray, max_gap_s: float) -> list[tuple[int, int]]:
@@ -292,7 +332,8 @@ def interpolate_spline(
         enu[sel] = (
             A * y[lo] + B * y[hi] + ((A**3 - A) * m2[lo] + (B**3 - B) * m2[hi]) * hh
         )
-    return _finish(traj, loc, b, enu, _bracket_sd(traj, b), times, "spline")
+    return _finish(traj, loc, b, enu, _bracket_sd(traj, b), times, "spline",
+                   _interpolation_sd(traj, b))
 
 
 def _ca_matrices(dt: float, q: FloatArray) -> tuple[FloatArray, FloatArray]:

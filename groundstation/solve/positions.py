@@ -26,6 +26,7 @@ from groundstation.records import NavSolution
 from groundstation.solve.engine import DEFAULT_ENGINE, run_engine
 from groundstation.solve.engine import EngineError as EngineError  # re-exported for callers
 from groundstation.solve.engine import ToolMissingError as ToolMissingError
+from groundstation.solve.integrity import grade as gr
 
 log = logging.getLogger("groundstation.solve")
 
@@ -57,6 +58,10 @@ class Trajectory:
         ratio: ambiguity validation ratio (NaN when unknown).
         source: where it came from (file name or engine).
         metre_level: the receiver's own fix, not a carrier-phase solution.
+        grade: grade code per epoch from the integrity stage
+            (:data:`groundstation.solve.integrity.grade.GRADE_NAMES`); None: derived from the
+            quality (:meth:`grades`).
+        check: the check that decided each epoch's grade (``CHECK_NAMES`` code); None: none.
     """
 
     t_gps_ns: IntArray
@@ -68,13 +73,38 @@ class Trajectory:
     source: str
     metre_level: bool = False
     notes: tuple[str, ...] = ()
+    grade: IntArray | None = None
+    check: IntArray | None = None
 
     def __len__(self) -> int:
         return int(self.t_gps_ns.size)
 
+    def grades(self) -> IntArray:
+        """Grade code per epoch: the integrity stage's, or from the quality where it did not
+        run (a fix is then fixed-unchecked: nothing checked it)."""
+        if self.grade is not None:
+            return self.grade
+        return grades_of_quality(self.quality)
+
+    def checks(self) -> IntArray:
+        """Check code per epoch (:data:`~groundstation.solve.integrity.grade.CHECK_NAMES`)."""
+        if self.check is not None:
+            return self.check
+        return np.where(self.quality == Q_FIX, gr.C_UNCHECKED, 0).astype(np.int64)
+
     @property
     def fixed_fraction(self) -> float:
         return float(np.mean(self.quality == Q_FIX)) if len(self) else 0.0
+
+
+def grades_of_quality(quality: IntArray) -> IntArray:
+    """Grade codes of RTKLIB qualities nothing has checked."""
+    q = np.asarray(quality)
+    out = np.full(q.shape, gr.NONE, dtype=np.int64)
+    out[q == Q_FIX] = gr.FIXED_UNCHECKED
+    out[q == Q_FLOAT] = gr.FLOAT
+    out[(q >= Q_SBAS) & (q <= Q_PPP)] = gr.SINGLE
+    return out
 
 
 def make_trajectory(
@@ -88,6 +118,8 @@ def make_trajectory(
     source: str = "",
     metre_level: bool = False,
     notes: Iterable[str] = (),
+    grade: IntArray | None = None,
+    check: IntArray | None = None,
 ) -> Trajectory:
     """A :class:`Trajectory` from columns, sorted by time, duplicate epochs dropped (first kept)."""
     t = np.asarray(t_gps_ns, dtype=np.int64)
@@ -103,7 +135,9 @@ def make_trajectory(
     keep[1:] = np.diff(t) > 0
     idx = order[keep]
     return Trajectory(
-        t[keep], xyz[idx], q[idx], sd[idx], nsv[idx], rat[idx], source, metre_level, tuple(notes)
+        t[keep], xyz[idx], q[idx], sd[idx], nsv[idx], rat[idx], source, metre_level, tuple(notes),
+        None if grade is None else np.asarray(grade, np.int64).reshape(n)[idx],
+        None if check is None else np.asarray(check, np.int64).reshape(n)[idx],
     )
 
 
@@ -495,11 +529,17 @@ class RtklibSource:
                 f"the {run.engine} engine positioned no epoch of {opts.flight.name} against the "
                 f"base {opts.base.name} (its solution {run.pos_path.name} is empty): do rover "
                 "and base overlap in time, and is --base-xyz this base's position?") from err
-        return Trajectory(
-            traj.t_gps_ns, traj.ecef_m, traj.quality, traj.sd_enu_m, traj.ns, traj.ratio,
-            run.engine, False,
-            (*traj.notes, f"engine {run.engine}: {run.version}", f"solution {run.pos_path}",
-             f"engine options in {run.info_path}", *run.notes),
+        notes = (*traj.notes, f"engine {run.engine}: {run.version}", f"solution {run.pos_path}",
+                 f"engine options in {run.info_path}", *run.notes)
+        ig = run.integrity
+        if ig is None or ig.t_gps_ns.size == 0:
+            return Trajectory(
+                traj.t_gps_ns, traj.ecef_m, traj.quality, traj.sd_enu_m, traj.ns, traj.ratio,
+                run.engine, False, notes,
+            )
+        return make_trajectory(
+            ig.t_gps_ns, ig.ecef_m, ig.quality, sd_enu_m=ig.sd_enu_m(), source=run.engine,
+            notes=notes, grade=ig.grade, check=ig.check,
         )
 
 

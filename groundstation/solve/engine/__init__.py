@@ -38,6 +38,7 @@ DEFAULT_ENGINE = "demo5"
 if TYPE_CHECKING:
     from groundstation.offline.rinex.convert import ObsHook as rinex_hook
     from groundstation.offline.rinex.observations import ObsSet
+    from groundstation.solve.integrity.assess import EngineSolution, IntegrityResult
 
 
 class ToolMissingError(GroundstationError):
@@ -77,6 +78,8 @@ class EngineRun:
     """The rover's measured dynamics and the acceleration noise chosen (None: not derived)."""
     combination: dict[str, object] | None = None
     """How forward and backward were combined here (None: the engine's own solution type)."""
+    integrity: IntegrityResult | None = None
+    """The graded trajectory of the integrity stage (None: it could not run)."""
 
 
 class Engine(Protocol):
@@ -342,6 +345,7 @@ def run_engine(
     timeout_s: float = 3600.0,
     condition: bool = True,
     dynamics: bool = True,
+    integrity: bool = True,
 ) -> EngineRun:
     """Convert rover and base to RINEX if needed, run the engine, record how.
 
@@ -362,16 +366,24 @@ def run_engine(
     from groundstation.solve import conditioning
 
     cond_report: conditioning.ConditioningReport | None = None
+    seen: dict[str, tuple[ObsSet, Sequence[BroadcastEphemeris]]] = {}
 
     def hook(obs: ObsSet, ephs: Sequence[BroadcastEphemeris],
              approx: tuple[float, float, float]) -> ObsSet:
         nonlocal cond_report
-        out, cond_report = conditioning.condition(obs, ephs, approx)
+        out = obs
+        if condition:
+            out, cond_report = conditioning.condition(obs, ephs, approx)
+        seen["rover"] = (out, ephs)
         return out
 
-    rover_obs, rover_nav = _to_rinex(rover, work_dir / "rover", progress,
-                                     hook if condition else None)
-    base_obs, base_nav = _to_rinex(base, work_dir / "base", progress)
+    def base_hook(obs: ObsSet, ephs: Sequence[BroadcastEphemeris],
+                  approx: tuple[float, float, float]) -> ObsSet:
+        seen["base"] = (obs, ephs)
+        return obs
+
+    rover_obs, rover_nav = _to_rinex(rover, work_dir / "rover", progress, hook)
+    base_obs, base_nav = _to_rinex(base, work_dir / "base", progress, base_hook)
     nav = tuple(rover_nav + base_nav)
     if not nav:
         raise EngineError("no navigation data (ephemerides) in the rover or base recording")
@@ -392,6 +404,10 @@ def run_engine(
     wall = time.perf_counter() - t0
     if progress is not None:
         progress(engine.name, 1.0)
+    integ: IntegrityResult | None = None
+    if integrity and base_ecef_m is not None:
+        integ, integ_note = _integrity(seen, base_ecef_m, run.pos_path, job.work_dir, progress)
+        notes.append(integ_note)
     cond = cond_report.as_dict() if cond_report is not None else None
     if cond_report is not None:
         tot = cond_report.totals()
@@ -421,13 +437,63 @@ def run_engine(
         "conditioning": cond,
         "dynamics": dyn_info,
         "combination": comb_info,
+        "integrity": integ.summary if integ is not None else None,
     }
     run.info_path.write_bytes(jsonio.dumps(info, indent=1) + b"\n")
     _stamp_header(run.pos_path, run.engine, run.version, run.options)
     return EngineRun(
         run.engine, run.version, run.pos_path, run.info_path, run.options, wall,
-        (*notes, *run.notes), cond, dyn_info, comb_info,
+        (*notes, *run.notes), cond, dyn_info, comb_info, integ,
     )
+
+
+def engine_solution(pos: Path) -> EngineSolution | None:
+    """An engine's ``.pos`` (xyz layout) as the integrity stage's columns; None when it is in
+    another layout or missing."""
+    from groundstation.solve.engine.combine import parse_solutions
+    from groundstation.solve.integrity.assess import EngineSolution
+
+    if not pos.is_file():
+        return None
+    try:
+        _, sols = parse_solutions(pos.read_text(encoding="ascii", errors="replace"))
+    except ValueError:
+        return None
+    t = np.round(sols.t_s * 1e9).astype(np.int64)
+    return EngineSolution(t, sols.xyz, sols.q, sols.cov)
+
+
+def _integrity(
+    seen: Mapping[str, tuple[ObsSet, Sequence[BroadcastEphemeris]]],
+    base_ecef_m: tuple[float, float, float], pos: Path, work_dir: Path,
+    progress: Progress | None,
+) -> tuple[IntegrityResult | None, str]:
+    """The integrity stage on the engine's solutions (:mod:`groundstation.solve.integrity`):
+    the graded trajectory, written to ``integrity.pos`` beside the engine's ``.pos``, and a
+    note saying what it did (or why it could not run)."""
+    from groundstation.solve.integrity.assess import assess
+    from groundstation.solve.integrity.pos import write_pos
+
+    merged = engine_solution(pos)
+    if "rover" not in seen or "base" not in seen or merged is None:
+        why = ("the rover or base was given as RINEX (no raw observations to check with)"
+               if merged is not None else "the engine's solution is not in RTKLIB's xyz layout")
+        return None, f"integrity stage: not run ({why}); fixes are graded fixed-unchecked"
+    if progress is not None:
+        progress("integrity", 0.0)
+    rover_obs, rover_ephs = seen["rover"]
+    base_obs, base_ephs = seen["base"]
+    ephs = list(rover_ephs) + [e for e in base_ephs if e not in set(rover_ephs)]
+    fwd = engine_solution(work_dir / "forward" / "rover.pos")
+    bwd = engine_solution(work_dir / "backward" / "rover.pos")
+    result = assess(rover_obs, base_obs, ephs, base_ecef_m, merged, fwd, bwd)
+    write_pos(work_dir / "integrity.pos", result)
+    if progress is not None:
+        progress("integrity", 1.0)
+    counts = result.summary["grades"]
+    assert isinstance(counts, dict)
+    grades = ", ".join(f"{k} {v}" for k, v in counts.items())
+    return result, f"integrity stage: epochs {grades} (rule and checks in engine.json)"
 
 
 def _stamp_header(pos: Path, engine: str, version: str, opts: Mapping[str, str]) -> None:

@@ -118,6 +118,28 @@ def _nearest(t: npt.NDArray[np.int64], target: npt.NDArray[np.int64]) -> npt.NDA
     return np.where(np.abs(t[hi] - target) < np.abs(t[lo] - target), hi, lo)
 
 
+def _second_difference(
+    t: npt.NDArray[np.int64], enu: FloatArray, baseline_s: float,
+) -> tuple[npt.NDArray[np.bool_], FloatArray]:
+    """The acceleration at each epoch from the epochs nearest to +-``baseline_s`` (accepted
+    within a quarter of it): ``2 ((p+ - p) / h+ - (p - p-) / h-) / (h+ + h-)``; (which epochs
+    have both neighbours, their accelerations)."""
+    h_ns = int(round(baseline_s * 1e9))
+    jp, jm = _nearest(t, t + h_ns), _nearest(t, t - h_ns)
+    hp = (t[jp] - t) / 1e9
+    hm = (t - t[jm]) / 1e9
+    good = (np.abs(hp - baseline_s) <= baseline_s / 4) & (np.abs(hm - baseline_s) <= baseline_s / 4)
+    hp, hm = hp[good, None], hm[good, None]
+    p0 = enu[good]
+    a = 2.0 * ((enu[jp[good]] - p0) / hp - (p0 - enu[jm[good]]) / hm) / (hp + hm)
+    return good, np.asarray(a, dtype=np.float64)
+
+
+def _local_enu(ecef_m: FloatArray) -> FloatArray:
+    lat, lon, _ = ecef_to_llh(*(float(v) for v in ecef_m[0]))
+    return np.asarray(ecef_m @ np.asarray(enu_rotation(lat, lon)).T, dtype=np.float64)
+
+
 def accelerations(
     t_gps_ns: npt.NDArray[np.int64], ecef_m: FloatArray, usable: npt.NDArray[np.bool_],
     baseline_s: float = BASELINE_S,
@@ -136,17 +158,8 @@ def accelerations(
     if int(ok.sum()) < 3:
         return np.zeros(0), np.zeros(0), np.zeros(0)
     t = np.asarray(t_gps_ns, dtype=np.int64)[ok]
-    xyz = np.asarray(ecef_m, dtype=np.float64)[ok]
-    lat, lon, _ = ecef_to_llh(*(float(v) for v in xyz[0]))
-    enu = xyz @ np.asarray(enu_rotation(lat, lon)).T
-    h_ns = int(round(baseline_s * 1e9))
-    jp, jm = _nearest(t, t + h_ns), _nearest(t, t - h_ns)
-    hp = (t[jp] - t) / 1e9
-    hm = (t - t[jm]) / 1e9
-    good = (np.abs(hp - baseline_s) <= baseline_s / 4) & (np.abs(hm - baseline_s) <= baseline_s / 4)
-    hp, hm = hp[good, None], hm[good, None]
-    p0 = enu[good]
-    a = 2.0 * ((enu[jp[good]] - p0) / hp - (p0 - enu[jm[good]]) / hm) / (hp + hm)
+    enu = _local_enu(np.asarray(ecef_m, dtype=np.float64)[ok])
+    good, a = _second_difference(t, enu, baseline_s)
     ts = t[good] / 1e9
     if ts.size < 2:
         return np.zeros(0), np.zeros(0), np.zeros(0)
@@ -154,6 +167,21 @@ def accelerations(
     weight = np.minimum(np.concatenate([half[:1], half]) + np.concatenate([half, half[-1:]]),
                         MAX_WEIGHT_S)
     return np.hypot(a[:, 0], a[:, 1]), np.abs(a[:, 2]), weight
+
+
+def local_acceleration(
+    t_gps_ns: npt.NDArray[np.int64], ecef_m: FloatArray, baseline_s: float = 1.0,
+) -> FloatArray:
+    """|acceleration| (3-D) at each epoch over +-``baseline_s`` (NaN where an epoch lacks a
+    neighbour there): what a straight line between two epochs misses by (``a h^2 / 8``)."""
+    t = np.asarray(t_gps_ns, dtype=np.int64)
+    out = np.full(t.size, np.nan)
+    if t.size < 3:
+        return out
+    good, a = _second_difference(t, _local_enu(np.asarray(ecef_m, dtype=np.float64)),
+                                 baseline_s)
+    out[good] = np.linalg.norm(a, axis=1)
+    return out
 
 
 def exceeded_for(values: FloatArray, weight_s: FloatArray, seconds: float = EXCEEDED_S) -> float:

@@ -1,0 +1,94 @@
+"""Our own carrier-phase solution over whole arcs: the check of every fix, and fixes of its own.
+
+The package turns a rover's conditioned observations and its base's into positions whose
+"fixed" is argued from the whole flight's data rather than from a filter's ratio test:
+
+- :mod:`.table`: the between-receiver phase and code per epoch and GPS satellite, in arcs;
+- :mod:`.normal`: every arc's constant from all epochs at once (float), epochs eliminated;
+- :mod:`.steps`: slips nobody flagged, found as steps and split off;
+- :mod:`.lattice`: the sure integer combinations (LAMBDA decorrelation, partial bootstrapping);
+- :mod:`.epochs`: each epoch's position given the constants, with their uncertainty.
+
+:func:`resolve` runs them in that order.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from groundstation.solve.integrity import normal, steps
+from groundstation.solve.integrity.epochs import EpochSolution, solve_epochs
+from groundstation.solve.integrity.lattice import Lattice, resolve_lattice
+from groundstation.solve.integrity.table import PhaseTable
+
+FloatArray = npt.NDArray[np.float64]
+
+MAX_SPLIT_ROUNDS = 6
+"""Rounds of step tests (each splits at most one step per arc)."""
+
+
+@dataclass(frozen=True, slots=True)
+class Resolution:
+    """What :func:`resolve` found.
+
+    Attributes:
+        tab: the table with arcs split where steps were found.
+        float_arcs: the arcs' float constants.
+        lattice: the constants with the sure integer combinations held.
+        solution: positions per epoch with them.
+        steps: (satellite, GPS ns of the first epoch after it) of each split.
+        code_inflation: the code's variance factor for its correlation in time.
+    """
+
+    tab: PhaseTable
+    float_arcs: normal.FloatArcs
+    lattice: Lattice
+    solution: EpochSolution
+    steps: tuple[tuple[int, int], ...]
+    code_inflation: float
+
+
+def resolve(tab: PhaseTable, x0: FloatArray) -> Resolution:
+    """The whole solution from a table and positions to linearise at (metre level will do)."""
+    found_all: list[tuple[int, int]] = []
+    x = np.array(x0, dtype=np.float64, copy=True)
+    code_infl = 1.0
+    nominal = float(np.median(np.diff(tab.t_ns))) / 1e9 if tab.n_epochs > 1 else 1.0
+    fl = normal.float_arcs(tab, normal.epoch_system(tab, x, code_infl))
+    for _ in range(MAX_SPLIT_ROUNDS):
+        system = normal.epoch_system(tab, x, code_infl)
+        fl = normal.float_arcs(tab, system)
+        sol = solve_epochs(tab, x, _float_lattice(fl), code_infl)
+        x = np.where(np.isfinite(sol.x), sol.x, x)
+        code_infl = max(1.0, normal.code_correlation(tab, x, normal.clock_m(tab, x, fl.a)))
+        found = steps.step_tests(tab, system, fl, nominal)
+        if not found:
+            break
+        cut = [(a, r) for a, r, _, _ in found]
+        found_all += [(int(tab.arc_sv[a]), int(tab.t_ns[r])) for a, r in cut]
+        tab = steps.split_arcs(tab, cut)
+    system = normal.epoch_system(tab, x, code_infl)
+    fl = normal.float_arcs(tab, system)
+    lat = resolve_lattice(fl.a, fl.q, fl.informed, tab.lattice_cyc)
+    sol = solve_epochs(tab, x, lat, code_infl)
+    return Resolution(tab, fl, lat, sol, tuple(found_all), code_infl)
+
+
+def _float_lattice(fl: normal.FloatArcs) -> Lattice:
+    """The float constants as a lattice with nothing fixed (covariance relative to the best
+    determined arc, as :func:`resolve_lattice` gives it)."""
+    ok = np.flatnonzero(fl.informed)
+    na = fl.a.size
+    if ok.size == 0:
+        return Lattice(np.full(na, np.nan), np.zeros((na, na)), -1, 0, 0, "float", 0.0)
+    ref = int(ok[np.argmin(np.diag(fl.q)[ok])])
+    t = np.eye(na)
+    t[:, ref] -= 1.0
+    cov = t @ fl.q @ t.T
+    cov[ref, :] = cov[:, ref] = 0.0
+    cov[~fl.informed, :] = 0.0
+    cov[:, ~fl.informed] = 0.0
+    return Lattice(fl.a, cov, ref, 0, int(ok.size) - 1, "float", 0.0)

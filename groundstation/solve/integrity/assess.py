@@ -1,0 +1,171 @@
+"""The integrity stage: our whole-arc solution, the engine's runs, one graded trajectory.
+
+What this module owns: running the stage on a rover's (conditioned) observations, its base's,
+the ephemerides and the engine's forward, backward and combined solutions, and what it says
+about itself (:class:`IntegrityResult`: the graded epochs and a summary for ``engine.json``,
+the report and the printout).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from groundstation.geodesy import ecef_to_llh, enu_rotation
+from groundstation.gnss.ephemeris import BroadcastEphemeris
+from groundstation.offline.rinex.observations import ObsSet
+from groundstation.solve.integrity import grade as gr
+from groundstation.solve.integrity import resolve
+from groundstation.solve.integrity.normal import code_positions
+from groundstation.solve.integrity.smooth import smooth
+from groundstation.solve.integrity.table import build_table
+
+FloatArray = npt.NDArray[np.float64]
+IntArray = npt.NDArray[np.int64]
+
+MATCH_NS = 25_000_000
+"""An engine solution within this of an observation epoch is that epoch's (RTKLIB's DTTOL)."""
+
+
+@dataclass(frozen=True, slots=True)
+class EngineSolution:
+    """An engine's solution, as columns (a ``positions.Trajectory`` has these)."""
+
+    t_gps_ns: IntArray
+    ecef_m: FloatArray
+    quality: IntArray
+    cov: FloatArray  # (n, 3, 3) ECEF
+
+
+@dataclass(frozen=True, slots=True)
+class IntegrityResult:
+    """The graded trajectory and what decided it.
+
+    Attributes:
+        t_gps_ns, ecef_m, cov, quality, grade, check: per epoch (see :class:`grade.Graded`).
+        summary: JSON-ready figures for ``engine.json`` and the report.
+    """
+
+    t_gps_ns: IntArray
+    ecef_m: FloatArray
+    cov: FloatArray
+    quality: IntArray
+    grade: IntArray
+    check: IntArray
+    summary: dict[str, object]
+
+    def sd_enu_m(self) -> FloatArray:
+        """(n, 3) standard deviations east, north, up."""
+        ok = np.all(np.isfinite(self.ecef_m), axis=1)
+        if not ok.any():
+            return np.full((self.t_gps_ns.size, 3), np.nan)
+        lat, lon, _ = ecef_to_llh(*(float(v) for v in self.ecef_m[ok][0]))
+        rot = np.asarray(enu_rotation(lat, lon))
+        c = np.einsum("ij,ejk,lk->eil", rot, self.cov, rot)
+        return np.asarray(np.sqrt(np.clip(np.einsum("eii->ei", c), 0.0, None)), np.float64)
+
+
+def _at(sol: EngineSolution | None, t_ns: IntArray) -> gr.Candidate | None:
+    """The engine solution at the observation epochs (nearest within :data:`MATCH_NS`)."""
+    if sol is None:
+        return None
+    n = t_ns.size
+    x = np.full((n, 3), np.nan)
+    cov = np.full((n, 3, 3), np.nan)
+    q = np.zeros(n, dtype=np.int64)
+    if sol.t_gps_ns.size:
+        hi = np.clip(np.searchsorted(sol.t_gps_ns, t_ns), 1, max(sol.t_gps_ns.size - 1, 1))
+        lo = np.maximum(hi - 1, 0)
+        hi = np.minimum(hi, sol.t_gps_ns.size - 1)
+        j = np.where(np.abs(sol.t_gps_ns[lo] - t_ns) <= np.abs(sol.t_gps_ns[hi] - t_ns), lo, hi)
+        hit = np.abs(sol.t_gps_ns[j] - t_ns) <= MATCH_NS
+        x[hit] = sol.ecef_m[j[hit]]
+        cov[hit] = sol.cov[j[hit]]
+        q[hit] = sol.quality[j[hit]]
+    return gr.Candidate(x, cov, q)
+
+
+def assess(
+    rover: ObsSet, base: ObsSet, ephemerides: Sequence[BroadcastEphemeris],
+    base_ecef_m: tuple[float, float, float], merged: EngineSolution,
+    forward: EngineSolution | None = None, backward: EngineSolution | None = None,
+) -> IntegrityResult:
+    """Run the stage (see the package doc and :mod:`.grade`)."""
+    t0 = time.perf_counter()
+    tab = build_table(rover, base, ephemerides, base_ecef_m)
+    t_ns = tab.t_ns
+    m = _at(merged, t_ns)
+    assert m is not None
+    start = m.x.copy()
+    missing = ~np.all(np.isfinite(start), axis=1)
+    if missing.any():
+        code = code_positions(tab, np.asarray(base_ecef_m, dtype=np.float64))
+        start[missing] = code[missing]
+    start = np.where(np.isfinite(start), start, np.asarray(base_ecef_m, dtype=np.float64))
+    tab = build_table(rover, base, ephemerides, base_ecef_m, start)
+    res = resolve(tab, start)
+    sol = res.solution
+    # our fixed epochs, smoothed over their runs in a local frame
+    ok = np.all(np.isfinite(sol.x), axis=1)
+    origin = sol.x[ok][0] if ok.any() else np.asarray(base_ecef_m, dtype=np.float64)
+    lat, lon, _ = ecef_to_llh(*(float(v) for v in origin))
+    rot = np.asarray(enu_rotation(lat, lon))
+    enu = (sol.x - origin) @ rot.T
+    var = np.einsum("eii->ei", np.einsum("ij,ejk,lk->eil", rot, sol.cov, rot))
+    t_s = (t_ns - t_ns[0]) / 1e9
+    sm = smooth(t_s, enu, var, sol.fixed)
+    smoothed = np.all(np.isfinite(sm.enu), axis=1)
+    ours_x = sol.x.copy()
+    ours_cov = sol.cov.copy()
+    ours_x[smoothed] = origin + sm.enu[smoothed] @ rot
+    ours_cov[smoothed] = np.einsum("ji,ej,jk->eik", rot, sm.var[smoothed], rot)
+    sd = np.sqrt(np.clip(np.einsum("eii->ei", np.einsum("ij,ejk,lk->eil", rot, ours_cov, rot)),
+                         0.0, None))
+    precise = np.all(sd <= gr.FIXED_MAX_SIGMA_M, axis=1)
+    ours_fixed = sol.fixed & precise
+    g = gr.grade(ours_fixed, gr.Candidate(ours_x, ours_cov, np.where(ours_fixed, 1, 0)),
+                 _at(forward, t_ns), _at(backward, t_ns), m)
+    # the epochs' times: the engine's (receiver clock removed) where it has the epoch
+    t_out = t_ns.copy()
+    if merged.t_gps_ns.size:
+        j = np.clip(np.searchsorted(merged.t_gps_ns, t_ns), 0, merged.t_gps_ns.size - 1)
+        j0 = np.maximum(j - 1, 0)
+        j = np.where(np.abs(merged.t_gps_ns[j0] - t_ns) < np.abs(merged.t_gps_ns[j] - t_ns), j0, j)
+        near = np.abs(merged.t_gps_ns[j] - t_ns) <= MATCH_NS
+        t_out[near] = merged.t_gps_ns[j[near]]
+    keep = np.all(np.isfinite(g.x), axis=1)
+    lat_res = res.lattice
+    summary: dict[str, object] = {
+        "epochs": int(keep.sum()),
+        "grades": {gr.GRADE_NAMES[k]: int(np.sum(g.grade[keep] == k)) for k in gr.GRADE_NAMES
+                   if np.any(g.grade[keep] == k)},
+        "checks": g.counts,
+        "arcs": {
+            "satellites": [f"G{s:02d}" for s in tab.svs],
+            "arcs": res.tab.n_arcs,
+            "lattice_cycles": res.tab.lattice_cyc,
+            "integer_combinations": lat_res.combinations,
+            "fixed_combinations": lat_res.fixed_combinations,
+            "stopped_by": lat_res.stopped_by,
+            "first_float_sigma_steps": round(lat_res.ratio_to_lattice, 3),
+            "slips_found_as_steps": [
+                {"satellite": f"G{sv:02d}", "t_gps_ns": t} for sv, t in res.steps],
+            "code_variance_factor": round(res.code_inflation, 2),
+            "epochs_fixed": int(sol.fixed.sum()),
+            "epochs_fixed_precise": int(ours_fixed.sum()),
+        },
+        "smoothing": {
+            "jerk_density_h_m2_s5": sm.jerk_h, "jerk_density_v_m2_s5": sm.jerk_v,
+            "runs": sm.runs, "epochs_left_unsmoothed": sm.rejected,
+        },
+        "float_sigma_factor": {"horizontal": round(g.float_factor[0], 3),
+                               "vertical": round(g.float_factor[1], 3),
+                               "from": g.factor_source},
+        "wall_s": round(time.perf_counter() - t0, 3),
+    }
+    return IntegrityResult(t_out[keep], g.x[keep], g.cov[keep], g.quality[keep],
+                           g.grade[keep], g.check[keep], summary)

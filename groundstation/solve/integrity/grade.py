@@ -1,0 +1,272 @@
+"""Grades: what each position may be called, which check decided it, and an honest sigma.
+
+What this module owns: the grade names and codes every output uses, the rule that combines our
+whole-arc solution (:mod:`groundstation.solve.integrity`) with the PPK engine's forward and
+backward runs into one graded trajectory, and the calibration of float sigmas on the flight's
+own data.
+
+The rule, per epoch:
+
+1. Our whole-arc solution fixed the epoch (integer combinations sure to 5 sigma, six satellites
+   on fixed constants, its residuals passing their chi-square test): **fixed**, checked by
+   ``arcs``; the engine's own fix there, if any, must agree within the two covariances or it
+   is counted as rejected.
+2. Otherwise the engine fixed it in both directions and the two agree (the full-covariance test
+   of :mod:`groundstation.solve.engine.combine`): **fixed**, checked by ``both-directions``.
+3. Otherwise the engine fixed it in one direction only and the other direction's float
+   position agrees with that fix within its calibrated covariance (chi-square, 3 degrees of
+   freedom, 0.1 %): **fixed**, checked by ``other-direction-float``.
+4. Otherwise a fix of the engine is **demoted** to float (its check names why), and the epoch
+   gets the engine's combined float position with the calibrated float sigma.
+
+A float sigma is the engine's formal one times a factor measured on this flight: at epochs
+where a position is fixed and checked, each direction's float position there is compared with
+it; the factor makes 99 % of those comparisons fall within 3 sigma per axis (never below 1).
+With too few comparisons the factor is :data:`DEFAULT_FLOAT_FACTOR`, measured over the
+benchmark's flights (``benchmarks/RESULTS.md``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import numpy.typing as npt
+
+FloatArray = npt.NDArray[np.float64]
+IntArray = npt.NDArray[np.int64]
+BoolArray = npt.NDArray[np.bool_]
+
+FIXED, FIXED_UNCHECKED, FLOAT, SINGLE, NONE = 1, 2, 3, 4, 5
+GRADE_NAMES: dict[int, str] = {
+    FIXED: "fixed", FIXED_UNCHECKED: "fixed-unchecked", FLOAT: "float", SINGLE: "single",
+    NONE: "none",
+}
+"""Grade code -> name, best first (a mark takes the worse of its two epochs)."""
+GRADE_MEANING: dict[str, str] = {
+    "fixed": "integer carrier-phase solution that passed a check independent of the engine's "
+             "ratio test; centimetre sigma",
+    "fixed-unchecked": "the engine's integer fix with nothing to check it against (a .pos "
+                       "file given with --positions); its sigma is the engine's",
+    "float": "carrier-phase float solution, or an engine fix that failed its check; sigma "
+             "calibrated on the flight's own checked fixes",
+    "single": "code only (single point, DGPS, the receiver's own fix): metre level",
+    "none": "no position",
+}
+
+CHECK_NAMES: tuple[str, ...] = (
+    "",                         # 0: no check made
+    "arcs",                     # 1: our whole-arc integer solution
+    "both-directions",          # 2: the engine fixed forward and backward, consistently
+    "other-direction-float",    # 3: one direction fixed, the other's float agrees
+    "demoted:directions-disagree",   # 4: both directions fixed, inconsistent
+    "demoted:float-disagrees",  # 5: one direction fixed, the other's float disagrees
+    "demoted:arcs-disagree",    # 6: the engine's fix disagrees with our fixed solution
+    "demoted:one-direction",    # 7: one direction fixed, nothing to compare with
+    "float",                    # 8: no fix anywhere
+    "unchecked",                # 9: no observations to check with (a .pos file)
+    "demoted:interpolation",    # 10: fixed epochs, but the mark between them is not a
+                                #     centimetre position (a gap, a quick manoeuvre)
+)
+"""Check code -> name: which check decided an epoch's grade."""
+C_ARCS, C_BOTH, C_OTHER_FLOAT = 1, 2, 3
+C_DEM_DIRECTIONS, C_DEM_FLOAT, C_DEM_ARCS, C_DEM_ONE, C_FLOAT, C_UNCHECKED = 4, 5, 6, 7, 8, 9
+C_DEM_INTERP = 10
+
+FIXED_MAX_SIGMA_M = 0.1 / 3
+"""A position is called fixed only where its sigma on every axis is below this: a fixed camera
+position promises to be within 10 cm at 3 sigma. An integer solution with weak geometry, or a
+mark interpolated across a gap, is not a centimetre position even when its ambiguities are
+right (it keeps its honest sigma, graded float)."""
+CHI2_3_AGREE = 16.27
+"""Chi-square, 3 degrees of freedom, 0.1 %: two estimates of one position agree below this."""
+DEFAULT_FLOAT_FACTOR = 3.0
+"""Float sigma factor when the flight gives too few comparisons (``benchmarks/RESULTS.md``:
+the factor measured on the simulated and real flights of the sweep, its 90th percentile)."""
+MIN_CALIBRATION_SAMPLES = 50
+"""Comparisons a flight needs before its own float factor is used."""
+
+
+@dataclass(frozen=True, slots=True)
+class Candidate:
+    """One source of positions at the graded epochs (NaN where it has none).
+
+    Attributes:
+        x: (n, 3) ECEF.
+        cov: (n, 3, 3) covariance (ECEF).
+        q: (n,) RTKLIB quality (1 fix, 2 float, ...; 0 none).
+    """
+
+    x: FloatArray
+    cov: FloatArray
+    q: IntArray
+
+
+@dataclass(frozen=True, slots=True)
+class Graded:
+    """The graded trajectory.
+
+    Attributes:
+        x, cov: (n, 3) ECEF and (n, 3, 3) covariance (float sigmas calibrated).
+        quality: RTKLIB Q as it should be read: 1 only where the grade is fixed.
+        grade: grade code per epoch (:data:`GRADE_NAMES`).
+        check: check code per epoch (:data:`CHECK_NAMES`).
+        float_factor: (horizontal, vertical) factor the float sigmas were multiplied by.
+        factor_source: "flight (N comparisons)" or "default".
+        counts: epochs per check name.
+    """
+
+    x: FloatArray
+    cov: FloatArray
+    quality: IntArray
+    grade: IntArray
+    check: IntArray
+    float_factor: tuple[float, float]
+    factor_source: str
+    counts: dict[str, int] = field(default_factory=dict)
+
+
+def _agree(xa: FloatArray, ca: FloatArray, xb: FloatArray, cb: FloatArray) -> BoolArray:
+    """Per epoch: the two positions agree within their summed covariance (chi-square 3 dof)."""
+    d = xa - xb
+    s = ca + cb
+    ok = np.all(np.isfinite(d), axis=1) & np.all(np.isfinite(s), axis=(1, 2))
+    out = np.zeros(d.shape[0], dtype=bool)
+    if ok.any():
+        s_ok = s[ok] + np.eye(3) * 1e-10
+        sol = np.linalg.solve(s_ok, d[ok][..., None])[..., 0]
+        out[ok] = np.einsum("ei,ei->e", d[ok], sol) <= CHI2_3_AGREE
+    return out
+
+
+def _enu_rot(x: FloatArray) -> FloatArray:
+    from groundstation.geodesy import ecef_to_llh, enu_rotation
+
+    ok = np.all(np.isfinite(x), axis=1)
+    if not ok.any():
+        return np.eye(3)
+    lat, lon, _ = ecef_to_llh(*(float(v) for v in x[ok][0]))
+    return np.asarray(enu_rotation(lat, lon), dtype=np.float64)
+
+
+def float_factor(truth_x: FloatArray, floats: list[Candidate], rot: FloatArray
+                 ) -> tuple[tuple[float, float], int]:
+    """(horizontal, vertical) factor making 99 % of the float positions' differences from
+    the checked fixes ``truth_x`` fall within 3 factor-scaled sigmas, and how many
+    comparisons it rests on."""
+    ratios_h: list[FloatArray] = []
+    ratios_v: list[FloatArray] = []
+    for c in floats:
+        sel = (c.q == 2) & np.all(np.isfinite(truth_x), axis=1) & np.all(np.isfinite(c.x), axis=1)
+        if not sel.any():
+            continue
+        d = (c.x[sel] - truth_x[sel]) @ rot.T
+        cov = np.einsum("ij,ejk,lk->eil", rot, c.cov[sel], rot)
+        sd = np.sqrt(np.maximum(np.einsum("eii->ei", cov), 1e-12))
+        z = np.abs(d) / sd
+        ratios_h.append(np.maximum(z[:, 0], z[:, 1]))
+        ratios_v.append(z[:, 2])
+    n = int(sum(r.size for r in ratios_h))
+    if n < MIN_CALIBRATION_SAMPLES:
+        return (DEFAULT_FLOAT_FACTOR, DEFAULT_FLOAT_FACTOR), n
+    zh = np.concatenate(ratios_h)
+    zv = np.concatenate(ratios_v)
+    fh = max(1.0, float(np.quantile(zh, 0.99)) / 3.0)
+    fv = max(1.0, float(np.quantile(zv, 0.99)) / 3.0)
+    return (fh, fv), n
+
+
+def _scale_cov(cov: FloatArray, rot: FloatArray, fh: float, fv: float) -> FloatArray:
+    """Covariances scaled by ``fh`` horizontally and ``fv`` vertically (in the local frame)."""
+    s = np.diag([fh, fh, fv])
+    m = rot.T @ s @ rot
+    return np.asarray(m @ cov @ m.T, dtype=np.float64)
+
+
+def grade(ours_fixed: BoolArray, ours: Candidate, forward: Candidate | None,
+          backward: Candidate | None, merged: Candidate) -> Graded:
+    """The rule of the module doc.
+
+    Args:
+        ours_fixed: (n,) epochs our whole-arc solution fixed (and smoothed where it could).
+        ours: our positions and covariances at those epochs.
+        forward, backward: the engine's two directions (None when it did not run them).
+        merged: the engine's combined solution.
+    """
+    n = merged.q.size
+    rot = _enu_rot(np.where(np.isfinite(ours.x), ours.x, merged.x))
+    gradec = np.full(n, NONE, dtype=np.int64)
+    check = np.zeros(n, dtype=np.int64)
+    x = np.full((n, 3), np.nan)
+    cov = np.full((n, 3, 3), np.nan)
+
+    # 1. ours
+    x[ours_fixed] = ours.x[ours_fixed]
+    cov[ours_fixed] = ours.cov[ours_fixed]
+    gradec[ours_fixed] = FIXED
+    check[ours_fixed] = C_ARCS
+    rest = ~ours_fixed
+    fwd_fix = forward is not None and True
+    f_fix = (forward.q == 1) if forward is not None else np.zeros(n, dtype=bool)
+    b_fix = (backward.q == 1) if backward is not None else np.zeros(n, dtype=bool)
+    m_fix = merged.q == 1
+    del fwd_fix
+    # an engine fix where ours is fixed must agree with ours (counted; ours stands)
+    arcs_reject = ours_fixed & m_fix & ~_agree(ours.x, ours.cov, merged.x, merged.cov)
+
+    # calibration of the float sigmas against the positions fixed so far (ours and the
+    # engine's both-direction fixes that agree)
+    both = rest & f_fix & b_fix & m_fix
+    if forward is not None and backward is not None:
+        both &= _agree(forward.x, forward.cov, backward.x, backward.cov)
+    anchor = np.where((ours_fixed | both)[:, None], np.where(ours_fixed[:, None], ours.x,
+                                                             merged.x), np.nan)
+    floats = [c for c in (forward, backward) if c is not None]
+    (fh, fv), n_cal = float_factor(anchor, floats, rot)
+    source = f"flight ({n_cal} comparisons)" if n_cal >= MIN_CALIBRATION_SAMPLES else "default"
+
+    def scaled(c: Candidate) -> FloatArray:
+        return _scale_cov(c.cov, rot, fh, fv)
+
+    # 2. both directions
+    x[both] = merged.x[both]
+    cov[both] = merged.cov[both]
+    gradec[both] = FIXED
+    check[both] = C_BOTH
+    # 3. one direction fixed, the other's float agrees
+    one = rest & ~both & m_fix & (f_fix ^ b_fix)
+    if forward is not None and backward is not None:
+        fixed_x = np.where(f_fix[:, None], forward.x, backward.x)
+        fixed_c = np.where(f_fix[:, None, None], forward.cov, backward.cov)
+        other = np.where(f_fix[:, None], backward.x, forward.x)
+        other_q = np.where(f_fix, backward.q, forward.q)
+        other_c = np.where(f_fix[:, None, None], scaled(backward), scaled(forward))
+        agree = _agree(fixed_x, fixed_c, other, other_c) & (other_q == 2)
+        ok1 = one & agree
+        x[ok1] = fixed_x[ok1]
+        cov[ok1] = fixed_c[ok1]
+        gradec[ok1] = FIXED
+        check[ok1] = C_OTHER_FLOAT
+        dem_float = one & ~agree & (other_q == 2)
+        dem_one = one & ~agree & (other_q != 2)
+    else:
+        dem_float = np.zeros(n, dtype=bool)
+        dem_one = one
+    # 4. the rest: the engine's combined solution as float, demotions named
+    left = (gradec == NONE) & (merged.q > 0) & np.all(np.isfinite(merged.x), axis=1)
+    x[left] = merged.x[left]
+    cov[left] = scaled(merged)[left]
+    is_float = left & (merged.q <= 2)
+    gradec[is_float] = FLOAT
+    gradec[left & (merged.q > 2)] = SINGLE
+    check[left] = C_FLOAT
+    check[left & m_fix & f_fix & b_fix] = C_DEM_DIRECTIONS
+    check[left & dem_float] = C_DEM_FLOAT
+    check[left & dem_one] = C_DEM_ONE
+    quality = np.where(gradec == FIXED, 1,
+                       np.where(gradec == FLOAT, 2, np.where(gradec == SINGLE, 5, 0)))
+    counts = {CHECK_NAMES[k]: int(np.sum(check == k)) for k in range(1, len(CHECK_NAMES))
+              if np.any(check == k)}
+    if arcs_reject.any():
+        counts["engine fixes rejected by arcs"] = int(arcs_reject.sum())
+    return Graded(x, cov, quality.astype(np.int64), gradec, check, (fh, fv), source, counts)
