@@ -13,6 +13,7 @@ from groundstation.solve import engine as ppk
 from groundstation.solve import interpolate as interp
 from groundstation.solve.photos import JPEG_SUFFIXES
 from groundstation.solve.pipeline import SolveResult, SolveSettings, solve
+from groundstation.solve.report import grades_text
 from groundstation.solve.report_notes import printed_notes
 
 NAME = "solve"
@@ -171,11 +172,14 @@ def run(args: argparse.Namespace) -> int:
 
 def format_result(r: SolveResult) -> str:
     s = r.summary()
+    checked = r.trajectory.grade is not None
+    fixed_word = "fixed and checked" if checked else "fixed"
     lines = [
-        (f"positions  {r.trajectory.source}: {s['epochs']} epochs, "
-        f"{float(s['fixed_fraction']):.1%} fixed"),  # type: ignore[arg-type]
-        (f"marks      {s['marks']}: {s['marks_positioned']} positioned, {s['marks_fixed']} fixed, "
-        f"{s['marks_in_gap']} in data gaps"),
+        (f"positions  {r.trajectory.source}{' + integrity stage' if checked else ''}: "
+         f"{s['epochs']} epochs, {float(s['fixed_fraction']):.1%} {fixed_word}"),  # type: ignore[arg-type]
+        (f"marks      {s['marks']}: {s['marks_positioned']} positioned, {s['marks_fixed']} "
+         f"{fixed_word}, {s['marks_in_gap']} in data gaps"),
+        f"grades     {grades_text(r.rows)}",
     ]
     if r.match is not None:
         lines.extend(r.reconciliation[:3])

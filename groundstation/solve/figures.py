@@ -41,6 +41,9 @@ IntArray = npt.NDArray[np.int64]
 QUALITY_COLOURS = {1: "#1a9850", 2: "#f39c12", 3: "#74add1", 4: "#4575b4", 5: "#d73027",
                    6: "#8073ac", 0: "#7f7f7f"}
 """Colour per RTKLIB quality (fix green, float orange, single red), shared by every figure."""
+GRADE_COLOURS = {"fixed": "#1a9850", "fixed-unchecked": "#2c7fb8", "float": "#f39c12",
+                 "single": "#d73027", "none": "#7f7f7f"}
+"""Colour per grade (the integrity stage's; checked fixes green, unchecked ones blue)."""
 WIDTH_IN = 7.2
 """Figure width: fits an A4 page between 12 mm margins at 100 %."""
 _RC: dict[Any, Any] = {
@@ -127,8 +130,10 @@ def _nice(x: float) -> float:
 def trajectory(
     x_m: FloatArray, y_m: FloatArray, quality: IntArray, t_gps_ns: IntArray,
     cam_x_m: FloatArray, cam_y_m: FloatArray, *, max_gap_s: float, crs: str, projected: bool,
+    cam_grade: Sequence[str] | None = None,
 ) -> str:
-    """Trajectory coloured by quality with the camera positions, in the output CRS."""
+    """Trajectory coloured by quality with the camera positions (outlined in their grade's
+    colour when ``cam_grade`` is given), in the output CRS."""
     ok = np.isfinite(x_m) & np.isfinite(y_m)
     cam_ok = np.isfinite(cam_x_m) & np.isfinite(cam_y_m)
     xs = np.concatenate([x_m[ok], cam_x_m[cam_ok]])
@@ -153,8 +158,12 @@ def trajectory(
             ax.scatter(x_m[lone], y_m[lone], s=4,
                        c=[QUALITY_COLOURS.get(int(q), "#7f7f7f") for q in quality[lone]],
                        zorder=2)
+        edge: list[str] | str = "black"
+        if cam_grade is not None:
+            edge = [GRADE_COLOURS.get(g, "#7f7f7f")
+                    for g, k in zip(cam_grade, cam_ok.tolist(), strict=True) if k]
         ax.scatter(cam_x_m[cam_ok], cam_y_m[cam_ok], s=14, facecolors="none",
-                   edgecolors="black", linewidths=0.7, zorder=3)
+                   edgecolors=edge, linewidths=0.9, zorder=3)
         ax.set_aspect("equal", adjustable="datalim")
         ax.autoscale_view()
         ax.apply_aspect()  # the final limits, which the scale bar and the corners depend on
@@ -172,8 +181,13 @@ def trajectory(
             Line2D([], [], color=QUALITY_COLOURS.get(q, "#7f7f7f"), lw=2,
                    label=QUALITY_NAMES.get(q, str(q))) for q in present
         ]
-        handles.append(Line2D([], [], ls="", marker="o", mfc="none", mec="black",
-                              label="camera positions"))
+        if cam_grade is None:
+            handles.append(Line2D([], [], ls="", marker="o", mfc="none", mec="black",
+                                  label="camera positions"))
+        else:
+            for g in [g for g in GRADE_COLOURS if g in set(cam_grade)]:
+                handles.append(Line2D([], [], ls="", marker="o", mfc="none",
+                                      mec=GRADE_COLOURS[g], label=f"camera: {g}"))
         ax.legend(handles=handles, loc="upper left", bbox_to_anchor=(0.0, -0.09 * 4.9 / height),
                   ncols=len(handles), frameon=False)
         corners = _free_corners(ax, xs, ys)
@@ -240,8 +254,10 @@ def _runs(values: IntArray) -> list[tuple[int, int]]:
 def quality_timeline(
     t_gps_ns: IntArray, quality: IntArray, *, max_gap_s: float, radio_gaps: Sequence[Span],
     outages: Sequence[Span], mark_t_gps_ns: IntArray, events_recorded: bool = True,
+    mark_grade: Sequence[str] | None = None,
 ) -> str:
-    """Solution quality per epoch, solution gaps, radio gaps, source outages and the marks."""
+    """Solution quality per epoch, solution gaps, radio gaps, source outages and the marks
+    (in their grade's colour when ``mark_grade`` is given)."""
     with matplotlib.rc_context(_RC):
         fig, ax = plt.subplots(figsize=(WIDTH_IN, 2.9), layout="constrained")
         if t_gps_ns.size == 0:
@@ -269,17 +285,26 @@ def quality_timeline(
                 ax.text(0.5, rows[row], "not recorded in this file (plain UBX, not a station "
                         "session)", transform=ax.get_yaxis_transform(), ha="center",
                         va="center", fontsize=8, color="#666")
-        md = _dates(mark_t_gps_ns[mark_t_gps_ns >= 0])
-        ax.vlines(md, rows["marks"] - 0.35, rows["marks"] + 0.35, color="#333", lw=0.4)
+        has_t = mark_t_gps_ns >= 0
+        md = _dates(mark_t_gps_ns[has_t])
+        colours: list[str] | str = "#333"
+        if mark_grade is not None:
+            colours = [GRADE_COLOURS.get(g, "#7f7f7f")
+                       for g, k in zip(mark_grade, has_t.tolist(), strict=True) if k]
+        ax.vlines(md, rows["marks"] - 0.35, rows["marks"] + 0.35, color=colours, lw=0.6)
         ax.set_yticks(list(rows.values()), list(rows))
         ax.set_ylim(-0.6, 3.6)
         ax.grid(axis="y", visible=False)
         _time_axes(ax, int(t_gps_ns[0]))
         present = sorted(set(quality.tolist()))
-        handles = [Patch(color=QUALITY_COLOURS.get(q, "#7f7f7f"),
-                         label=QUALITY_NAMES.get(q, str(q))) for q in present]
+        handles: list[Line2D | Patch] = [
+            Patch(color=QUALITY_COLOURS.get(q, "#7f7f7f"), label=QUALITY_NAMES.get(q, str(q)))
+            for q in present]
         handles.append(Patch(facecolor="white", edgecolor="black", hatch="////",
                              label=f"no epoch for > {max_gap_s:g} s"))
+        if mark_grade is not None:
+            handles += [Line2D([], [], color=GRADE_COLOURS[g], lw=2, label=f"mark: {g}")
+                        for g in GRADE_COLOURS if g in set(mark_grade)]
         ax.legend(handles=handles, loc="upper left", bbox_to_anchor=(1.0, 1.0), frameon=False)
         return to_svg(fig, "quality")
 

@@ -80,6 +80,9 @@ class CameraRow:
         antenna_x_m, antenna_y_m, antenna_h_m: antenna position before the lever arm.
         mark_name: without photos, the name the mark's row carries in the photogrammetry
             exports (:func:`mark_names`); "" otherwise.
+        grade: what the position may be called (``fixed``, ``fixed-unchecked``, ``float``,
+            ``single``, ``none``: :data:`groundstation.solve.integrity.grade.GRADE_MEANING`).
+        check: the check that decided the grade (``arcs``, ``both-directions``, ...).
     """
 
     photo: str
@@ -104,6 +107,8 @@ class CameraRow:
     antenna_y_m: float = math.nan
     antenna_h_m: float = math.nan
     mark_name: str = ""
+    grade: str = "none"
+    check: str = ""
 
     @property
     def positioned(self) -> bool:
@@ -168,8 +173,8 @@ def _utc(t_gps_ns: int) -> str:
 CAMERAS_COLUMNS = (
     "photo", "mark", "mark_count", "gps_week", "gps_tow_s", "utc",
     "x_m", "y_m", "h_m", "lat_deg", "lon_deg", "sd_e_m", "sd_n_m", "sd_u_m",
-    "quality", "quality_name", "flags", "omega_deg", "phi_deg", "kappa_deg", "attitude",
-    "antenna_x_m", "antenna_y_m", "antenna_h_m",
+    "quality", "quality_name", "grade", "check", "flags", "omega_deg", "phi_deg", "kappa_deg",
+    "attitude", "antenna_x_m", "antenna_y_m", "antenna_h_m",
 )
 """Columns of ``cameras.csv``; x/y are in the output EPSG, h is WGS84 ellipsoidal."""
 
@@ -212,7 +217,8 @@ def cameras_csv(out: SolveOutput) -> str:
             _f(r.x_m, nd_xy), _f(r.y_m, nd_xy), _f(r.h_m, 3),
             _f(r.lat_deg, 9), _f(r.lon_deg, 9),
             _f(r.sd_e_m, 3), _f(r.sd_n_m, 3), _f(r.sd_u_m, 3),
-            r.quality, QUALITY_NAMES.get(r.quality, str(r.quality)), r.flag_text,
+            r.quality, QUALITY_NAMES.get(r.quality, str(r.quality)), r.grade, r.check,
+            r.flag_text,
             _f(r.omega_deg, 4), _f(r.phi_deg, 4), _f(r.kappa_deg, 4), r.attitude,
             _f(r.antenna_x_m, nd_xy), _f(r.antenna_y_m, nd_xy), _f(r.antenna_h_m, 3),
         ])
@@ -252,7 +258,7 @@ def geo_txt(out: SolveOutput) -> str:
 
 REFERENCE_COLUMNS = (
     "label", "x_east", "y_north", "z_height", "sd_x_m", "sd_y_m", "sd_z_m",
-    "omega_deg", "phi_deg", "kappa_deg",
+    "omega_deg", "phi_deg", "kappa_deg", "grade",
 )
 
 
@@ -267,7 +273,7 @@ def reference_csv(out: SolveOutput) -> str:
         w.writerow([
             text_cell(r.label), _f(r.x_m, nd), _f(r.y_m, nd), _f(r.h_m, 3),
             _f(r.sd_e_m, 3), _f(r.sd_n_m, 3), _f(r.sd_u_m, 3),
-            _f(r.omega_deg, 4), _f(r.phi_deg, 4), _f(r.kappa_deg, 4),
+            _f(r.omega_deg, 4), _f(r.phi_deg, 4), _f(r.kappa_deg, 4), r.grade,
         ])
     return buf.getvalue()
 
@@ -321,13 +327,15 @@ def geojson(out: SolveOutput) -> str:
                     },
                 })
             start = i
+    grade_of_mark = {r.mark: r.grade for r in out.rows if r.mark >= 0}
     for k, (a, b, h) in enumerate(out.mark_llh.tolist()):
         if not math.isfinite(a):
             continue
         feats.append({
             "type": "Feature",
             "geometry": {"type": "Point", "coordinates": [round(b, 9), round(a, 9), round(h, 3)]},
-            "properties": {"kind": "mark", "mark": k, "utc": _utc(int(out.mark_t_gps_ns[k]))},
+            "properties": {"kind": "mark", "mark": k, "utc": _utc(int(out.mark_t_gps_ns[k])),
+                           "grade": grade_of_mark.get(k, "")},
         })
     for r in out.rows:
         if not r.photo or not r.positioned:
@@ -340,7 +348,8 @@ def geojson(out: SolveOutput) -> str:
             },
             "properties": {
                 "kind": "photo", "photo": r.photo, "mark": r.mark, "utc": _utc(r.t_gps_ns),
-                "quality": r.quality, "flags": r.flag_text, "sd_e_m": _clean(r.sd_e_m),
+                "quality": r.quality, "grade": r.grade, "check": r.check,
+                "flags": r.flag_text, "sd_e_m": _clean(r.sd_e_m),
                 "sd_n_m": _clean(r.sd_n_m), "sd_u_m": _clean(r.sd_u_m), "attitude": r.attitude,
             },
         })

@@ -34,6 +34,7 @@ from groundstation.rules.marks import Mark, build_marks
 from groundstation.solve import interpolate as mi
 from groundstation.solve import leverarm, outputs, photos, positions, report
 from groundstation.solve.engine import DEFAULT_ENGINE, is_rinex_obs_name
+from groundstation.solve.integrity import grade as gr
 from groundstation.storage.reading import Recording, check_regular
 from groundstation.ubx.decode import NAV_POSLLH, NAV_PVT, NAV_SOL, TIM_TM2, Decoder
 from groundstation.ubx.framer import UbxFramer
@@ -120,6 +121,9 @@ class SolveResult:
             "marks_positioned": mp.positioned,
             "marks_in_gap": int(np.sum((mp.flags & mi.FLAG_GAP) != 0)),
             "marks_fixed": int(np.sum(mp.quality == positions.Q_FIX)),
+            "marks_by_grade": {name: int(np.sum(mp.grade == code))
+                               for code, name in gr.GRADE_NAMES.items()
+                               if np.any(mp.grade == code)},
             "photos_paired": len(self.match.pairs) if self.match else 0,
             "photos_unmatched": len(self.match.unmatched_photos) if self.match else 0,
             "orphan_marks": len(self.match.orphan_marks) if self.match else 0,
@@ -545,6 +549,8 @@ def _cameras(
             attitude=attitude[i],
             antenna_x_m=float(ant_x[i]), antenna_y_m=float(ant_y[i]), antenna_h_m=float(ant_h[i]),
             mark_name=names[k] if names is not None and k >= 0 else "",
+            grade=gr.GRADE_NAMES[int(mp.grade[k])] if k >= 0 else "none",
+            check=gr.CHECK_NAMES[int(mp.check[k])] if k >= 0 else "",
         ))
     return _Cameras(tuple(rows), epsg, proj, traj_llh, mark_llh, cam, lever_est)
 
@@ -597,6 +603,7 @@ def _report(
         lever_residual_m=lever_est.residual_m if lever_est else np.zeros(0),
         lever_outlier=lever_est.outlier if lever_est else np.zeros(0, bool),
         metre_level=traj.metre_level, notes=tuple(notes),
+        integrity=(report.engine_info(traj) or {}).get("integrity"),
     )
     cond = report.conditioning_of(traj)
     if cond is not None:  # the receiver's flags plus the slips hidden in radio gaps

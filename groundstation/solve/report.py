@@ -34,6 +34,7 @@ from groundstation.errors import ConfigError, GroundstationError
 from groundstation.rules.marks import Mark, count_jump
 from groundstation.solve import figures, photos
 from groundstation.solve.figures import QUALITY_COLOURS, Span
+from groundstation.solve.integrity.grade import GRADE_MEANING, GRADE_NAMES
 from groundstation.solve.interpolate import FLAG_GAP
 from groundstation.solve.outputs import CameraRow
 from groundstation.solve.positions import (
@@ -182,6 +183,9 @@ class ReportInput:
     lever_outlier: BoolArray = field(default_factory=lambda: np.zeros(0, bool))
     metre_level: bool = False
     notes: tuple[str, ...] = ()
+    integrity: dict[str, Any] | None = None
+    """The integrity stage's summary (``engine.json``'s ``integrity``), None when it did not
+    run."""
 
 
 QUALITY_KEYS = {Q_FIX: "fixed", Q_FLOAT: "float", Q_SBAS: "sbas", Q_DGPS: "dgps",
@@ -468,7 +472,8 @@ def _result(inp: ReportInput) -> str:
     unmatched = c["photos_unmatched"]
     lines = [
         ("Fixed", (f'<b class="big">{fixed} of {n_pos}</b> computed camera positions '
-                   f"ambiguity-fixed{share}")),
+                   f"fixed and checked{share}")),
+        ("Grades", _e(grades_text(inp.rows))),
         ("Marks positioned", f"<b>{positioned} of {len(marks)}</b> marks in the flight"
          + (f"; {c['not_positioned']} camera position(s) not computed"
             if c["not_positioned"] else "")),
@@ -478,6 +483,74 @@ def _result(inp: ReportInput) -> str:
         lines.append(("Photos without a mark", str(unmatched) if unmatched else "none"))
     lines.append(("Accuracy", _e(accuracy_text(inp))))
     return _kv(lines, "kv result")
+
+
+def grades_text(rows: Sequence[CameraRow]) -> str:
+    """Camera positions per grade, with the checks that decided them:
+    ``fixed 636 (arcs 600, both-directions 36); float 21 (demoted:interpolation 14, ...)``."""
+    pos = [r for r in rows if r.positioned]
+    if not pos:
+        return "no camera position"
+    parts = []
+    for name in GRADE_NAMES.values():
+        mine = [r for r in pos if r.grade == name]
+        if not mine:
+            continue
+        by: dict[str, int] = {}
+        for r in mine:
+            by[r.check or "no check"] = by.get(r.check or "no check", 0) + 1
+        detail = ", ".join(f"{k} {v}" for k, v in sorted(by.items(), key=lambda kv: -kv[1]))
+        parts.append(f"{name} {len(mine)} ({detail})")
+    return "; ".join(parts)
+
+
+INTEGRITY_TEXT = (
+    "A camera position is called fixed only when its integer carrier-phase solution passed a "
+    "check that does not rest on the engine's ratio test: our own solution over whole arcs of "
+    "phase (every arc's ambiguity from the whole flight, integer combinations fixed only when "
+    "sure to 5 sigma, at least six satellites on fixed ambiguities and their residuals "
+    "passing a chi-square test), or the engine's forward and backward runs agreeing (both "
+    "fixed within their covariances, or one fixed and the other's float agreeing within its "
+    "calibrated covariance). A fix that fails is demoted to float. Every sigma is meant to "
+    "cover the error (|error| <= 3 sigma for 99 % of camera positions): float sigmas are the "
+    "engine's multiplied by a factor measured on this flight's own checked fixes, and a mark "
+    "between two epochs adds what a straight line may miss (a h^2/8). A position whose sigma "
+    "is over 3.3 cm on any axis is not called fixed.")
+"""The rule, as the report states it (docs/integrity.md has the details)."""
+
+
+def _integrity(inp: ReportInput) -> str:
+    """The integrity section: the rule, and what it found on this flight."""
+    ig = inp.integrity
+    head = f"<p>{_e(INTEGRITY_TEXT)}</p>"
+    meaning = _kv([(name, _e(text)) for name, text in GRADE_MEANING.items()])
+    if not ig:
+        return (head + meaning + '<p class="muted">The integrity stage did not run for this '
+                "solution (an imported .pos file, RINEX inputs or the receiver's own fix): "
+                "fixes are graded fixed-unchecked.</p>")
+    arcs = ig.get("arcs", {})
+    fac = ig.get("float_sigma_factor", {})
+    sm = ig.get("smoothing", {})
+    steps = arcs.get("slips_found_as_steps", [])
+    rows = [
+        ("Epochs", _e(", ".join(f"{k} {v}" for k, v in ig.get("grades", {}).items()))),
+        ("Decided by", _e(", ".join(f"{k} {v}" for k, v in ig.get("checks", {}).items()))),
+        ("Whole-arc solution", _e(
+            f"{arcs.get('arcs')} arcs of GPS phase; {arcs.get('fixed_combinations')} of "
+            f"{arcs.get('integer_combinations')} integer combinations fixed (lattice "
+            f"{arcs.get('lattice_cycles')} cycle; stopped: {arcs.get('stopped_by')}); "
+            f"{arcs.get('epochs_fixed_precise')} epochs fixed by it; {len(steps)} slip(s) "
+            "nobody flagged found and split off")),
+        ("Smoothing", _e(
+            f"jerk density {sm.get('jerk_density_h_m2_s5')} / {sm.get('jerk_density_v_m2_s5')} "
+            f"m^2/s^5 horizontal / vertical (the most likely for the flight's quickest "
+            f"20 s); {sm.get('epochs_left_unsmoothed')} epochs left unsmoothed where the "
+            "model did not fit")),
+        ("Float sigma factor", _e(
+            f"{fac.get('horizontal')} horizontal, {fac.get('vertical')} vertical, from "
+            f"{fac.get('from')}")),
+    ]
+    return head + _kv(rows) + meaning
 
 
 def _options(inp: ReportInput) -> str:
@@ -542,7 +615,8 @@ def _counts_table(inp: ReportInput) -> str:
 
 
 MARK_COLUMNS = ("photo", "mark", "count", "UTC", "GPS week s", "E (m)", "N (m)", "h (m)",
-                "σE (m)", "σN (m)", "σU (m)", "quality", "Δt epoch (s)", "flags")
+                "σE (m)", "σN (m)", "σU (m)", "quality", "grade", "check", "Δt epoch (s)",
+                "flags")
 """Header of the per-mark table (the test reads the table back by these names)."""
 
 
@@ -584,7 +658,7 @@ def _marks_table(inp: ReportInput) -> str:
         ]
         tds = "".join(f'<td class="n">{c}</td>' if i > 0 else f"<td>{c}</td>"
                       for i, c in enumerate(cells))
-        tds += f"<td>{_quality_dot(q)}</td>"
+        tds += f"<td>{_quality_dot(q)}</td><td>{_e(r.grade)}</td><td>{_e(r.check)}</td>"
         tds += f'<td class="n">{_num(dt_s, 3)}</td><td>{_e(r.flag_text)}</td>'
         body.append(f'<tr class="{cls}">{tds}</tr>')
     return (f'<table class="marks" id="marks"><thead><tr>{head}</tr></thead>'
@@ -601,19 +675,21 @@ def _figures(inp: ReportInput) -> list[tuple[str, str, str]]:
         "Trajectory",
         figures.trajectory(inp.track_x_m, inp.track_y_m, inp.track_quality, inp.track_t_gps_ns,
                            cam_x, cam_y, max_gap_s=inp.max_gap_s,
-                           crs=f"EPSG:{inp.epsg} {inp.crs_name}", projected=inp.projected),
-        ("Antenna trajectory in the output CRS, coloured by solution quality; circles are the "
-        "camera positions (after the lever arm). Equal scale on both axes; north arrow points "
-        "to grid north."),
+                           crs=f"EPSG:{inp.epsg} {inp.crs_name}", projected=inp.projected,
+                           cam_grade=[r.grade for r in rows]),
+        ("Antenna trajectory in the output CRS, coloured by solution quality (fixed: fixed and "
+        "checked); circles are the camera positions (after the lever arm) in their grade's "
+        "colour. Equal scale on both axes; north arrow points to grid north."),
     ), (
         "Quality over time",
         figures.quality_timeline(inp.track_t_gps_ns, inp.track_quality,
                                  max_gap_s=inp.max_gap_s, radio_gaps=inp.radio_gaps,
                                  outages=inp.source_outages, mark_t_gps_ns=t_rows,
-                                 events_recorded=inp.station_events),
+                                 events_recorded=inp.station_events,
+                                 mark_grade=[r.grade for r in rows]),
         ("Solution quality per epoch (hatched: no solved epoch for longer than the gap limit), "
         "radio dropouts and source outages recorded by the ground station, and the camera "
-        "marks. Bottom axis UTC, top axis GPS seconds of week."),
+        "positions in their grade's colour. Bottom axis UTC, top axis GPS seconds of week."),
     )]
     sats = inp.satellites
     if sats is not None:
@@ -674,6 +750,8 @@ def render_html(inp: ReportInput) -> str:
         f"<h2>Warnings</h2>{warn_html}"
         f"<h2>Summary</h2>{_summary(inp)}"
         f"<h2>Counts</h2>{_counts_table(inp)}"
+        f'<section class="integrity" id="integrity"><h2>Integrity</h2>{_integrity(inp)}'
+        "</section>"
         f'<section class="figs"><h2>Figures</h2>{figs}</section>'
         f'<section class="positions"><h2>Camera positions</h2>'
         f'<p class="muted">One row per photo (then per mark without photo), as in cameras.csv. '

@@ -17,7 +17,8 @@ from groundstation.solve.engine.dynamics import EXCEEDED_S
 from groundstation.solve.positions import Trajectory
 from groundstation.solve.report import engine_info
 
-ENGINE_NOTE_PREFIXES = ("phase conditioning", "acceleration noise", "combined: ")
+ENGINE_NOTE_PREFIXES = ("phase conditioning", "acceleration noise", "combined: ",
+                        "integrity stage")
 """How the engine's notes on its conditioning, dynamics and combination begin
 (``solve/engine/__init__.py``); the plain lines below stand for them on the terminal."""
 POS_FORMAT_PREFIX = "RTKLIB .pos ("
@@ -58,7 +59,22 @@ def engine_lines(info: Mapping[str, Any]) -> list[str]:
     comb = info.get("combination")
     if isinstance(comb, Mapping):
         out.append(_combination(comb))
+    integ = info.get("integrity")
+    if isinstance(integ, Mapping):
+        out.append(_integrity(integ))
     return out
+
+
+def _integrity(ig: Mapping[str, Any]) -> str:
+    arcs = ig.get("arcs") or {}
+    fac = ig.get("float_sigma_factor") or {}
+    grades = ", ".join(f"{k} {v}" for k, v in dict(ig.get("grades") or {}).items())
+    return (f"every fix checked without trusting the engine's ratio test: epochs {grades}; "
+            f"our own whole-arc phase solution fixed {arcs.get('epochs_fixed_precise', 0)} "
+            f"epochs ({arcs.get('fixed_combinations', 0)} of "
+            f"{arcs.get('integer_combinations', 0)} ambiguity combinations sure); float sigmas "
+            f"x{fac.get('horizontal')} horizontal, x{fac.get('vertical')} vertical "
+            f"(from {fac.get('from')})")
 
 
 def _conditioning(cond: Mapping[str, Any]) -> list[str]:

@@ -87,7 +87,7 @@ def test_reference_and_pix4d(out: outputs.SolveOutput) -> None:
     assert ref[0].startswith("# EPSG:25832")
     assert ref[1] == ",".join(outputs.REFERENCE_COLUMNS)
     assert ref[2].startswith("IMG_0001.JPG,500000.000,")
-    assert ref[2].endswith(",0.0000,0.0000,45.0000")
+    assert ref[2].endswith(",0.0000,0.0000,45.0000,none")
     pix = outputs.pix4d_csv(out).splitlines()
     # PIX4Dmatic: no header row, the column names in a '#' comment (with CRS and datum)
     assert pix[0].startswith("#imagename,Y,X,Z,accuracy_horz,accuracy_vert ; EPSG:25832")
