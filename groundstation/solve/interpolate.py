@@ -206,10 +206,11 @@ def _bracket_sd(traj: Trajectory, b: _Brackets) -> FloatArray:
 
 
 def _interpolation_sd(traj: Trajectory, b: _Brackets) -> FloatArray:
-    """What a straight line through the two bracketing epochs may miss the antenna by:
-    ``a h^2 / 8`` with ``h`` the bracket and ``a`` the larger acceleration measured at either
-    epoch (over +-1 s: a vehicle's acceleration changes over seconds, so across a radio gap it
-    is the one on either side); where neither can be measured, the largest the flight shows."""
+    """What a straight line through the two bracketing epochs misses the antenna by:
+    ``a w (1 - w) h^2 / 2`` (``h^2 a / 8`` at mid-bracket) with ``h`` the bracket, ``w`` the
+    mark's place in it and ``a`` the larger acceleration measured at either epoch (over +-1 s:
+    a vehicle's acceleration changes over seconds, so across a radio gap it is the one on
+    either side); where neither can be measured, the largest the flight shows."""
     from groundstation.solve.engine.dynamics import local_acceleration
 
     acc = local_acceleration(traj.t_gps_ns, traj.ecef_m)
@@ -217,7 +218,8 @@ def _interpolation_sd(traj: Trajectory, b: _Brackets) -> FloatArray:
     a = np.fmax(acc[b.lo], acc[b.hi])
     a = np.where(np.isfinite(a), a, peak)
     h = np.nan_to_num(b.bracket_s)
-    return np.asarray(a * h * h / 8.0, dtype=np.float64)
+    w = np.clip(b.w, 0.0, 1.0)
+    return np.asarray(a * w * (1.0 - w) * h * h / 2.0, dtype=np.float64)
 
 
 def _finish(

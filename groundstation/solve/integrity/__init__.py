@@ -28,6 +28,16 @@ FloatArray = npt.NDArray[np.float64]
 
 MAX_SPLIT_ROUNDS = 6
 """Rounds of step tests (each splits at most one step per arc)."""
+MAX_ARC_CHECK_ROUNDS = 4
+"""Rounds of fixing, checking every fixed arc against the fixed solution, leaving out the
+arcs that do not fit."""
+ARC_MISFIT_CYC = 0.1
+"""A fixed arc whose residuals average more than this does not fit (2 cm; the noise of one
+epoch's between-receiver phase, multipath included, averages well below it over an arc)."""
+ARC_MISFIT_T = 5.0
+"""... and the average must be this many standard errors from zero."""
+MIN_ARC_EPOCHS = 3
+"""Fewer epochs than this and an arc's average says nothing."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -41,6 +51,11 @@ class Resolution:
         solution: positions per epoch with them.
         steps: (satellite, GPS ns of the first epoch after it) of each split.
         code_inflation: the code's variance factor for its correlation in time.
+        misfits: arcs left out of the fixing because their phase did not fit the fixed
+            solution.
+        phase_factor: the phase's variance factor (its scatter,
+            :func:`normal.phase_variance_factor`, times its correlation in time,
+            :func:`normal.time_correlation`).
     """
 
     tab: PhaseTable
@@ -49,6 +64,8 @@ class Resolution:
     solution: EpochSolution
     steps: tuple[tuple[int, int], ...]
     code_inflation: float
+    misfits: tuple[int, ...] = ()
+    phase_factor: float = 1.0
 
 
 def resolve(tab: PhaseTable, x0: FloatArray) -> Resolution:
@@ -72,9 +89,50 @@ def resolve(tab: PhaseTable, x0: FloatArray) -> Resolution:
         tab = steps.split_arcs(tab, cut)
     system = normal.epoch_system(tab, x, code_infl)
     fl = normal.float_arcs(tab, system)
-    lat = resolve_lattice(fl.a, fl.q, fl.informed, tab.lattice_cyc)
-    sol = solve_epochs(tab, x, lat, code_infl)
-    return Resolution(tab, fl, lat, sol, tuple(found_all), code_infl)
+    # The phase's own residuals say how noisy it is and how many independent looks at the
+    # geometry the flight holds (multipath drifts over tens of seconds on a real antenna):
+    # both scale its weight, so that slow errors are not taken for geometry.
+    e_m = normal.float_phase_residuals(tab, system, x, fl)
+    phase_fac = (normal.phase_variance_factor(tab, e_m)
+                 * max(1.0, normal.time_correlation(tab.t_ns, e_m)))
+    if phase_fac > 1.0:
+        system = normal.epoch_system(tab, x, code_infl, np.sqrt(phase_fac))
+        fl = normal.float_arcs(tab, system)
+    usable = fl.informed.copy()
+    suspects: list[int] = []
+    for _ in range(MAX_ARC_CHECK_ROUNDS):
+        lat = resolve_lattice(fl.a, fl.q, usable, tab.lattice_cyc)
+        sol = solve_epochs(tab, x, lat, code_infl, phase_fac)
+        bad = arc_misfits(tab, sol)
+        if not bad:
+            break
+        suspects += bad
+        usable[bad] = False
+    return Resolution(tab, fl, lat, sol, tuple(found_all), code_infl, tuple(suspects),
+                      phase_fac)
+
+
+def arc_misfits(tab: PhaseTable, sol: EpochSolution) -> list[int]:
+    """Arcs held fixed whose phase does not fit the fixed solution over their length: the
+    mean of their residuals is off by more than :data:`ARC_MISFIT_CYC` (a wrong whole or half
+    cycle shows as a share of a lattice step once the position has taken its part) and more
+    than :data:`ARC_MISFIT_T` standard errors of that mean (the residuals' own scatter)."""
+    r = np.where(sol.slot_fixed, sol.residual_cyc, np.nan)
+    out: list[int] = []
+    ok = np.isfinite(r) & (tab.arc >= 0)
+    if not ok.any():
+        return out
+    arcs = tab.arc[ok]
+    vals = r[ok]
+    n = np.bincount(arcs, minlength=tab.n_arcs)
+    s1 = np.bincount(arcs, weights=vals, minlength=tab.n_arcs)
+    s2 = np.bincount(arcs, weights=vals * vals, minlength=tab.n_arcs)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = s1 / n
+        sd = np.sqrt(np.maximum(s2 / n - mean * mean, 0.0))
+        t = np.abs(mean) / np.maximum(sd / np.sqrt(n), 1e-4)
+    bad = (n >= MIN_ARC_EPOCHS) & (np.abs(mean) > ARC_MISFIT_CYC) & (t > ARC_MISFIT_T)
+    return [int(a) for a in np.flatnonzero(bad)]
 
 
 def _float_lattice(fl: normal.FloatArcs) -> Lattice:

@@ -128,7 +128,8 @@ def assess(
     precise = np.all(sd <= gr.FIXED_MAX_SIGMA_M, axis=1)
     ours_fixed = sol.fixed & precise
     g = gr.grade(ours_fixed, gr.Candidate(ours_x, ours_cov, np.where(ours_fixed, 1, 0)),
-                 _at(forward, t_ns), _at(backward, t_ns), m)
+                 _at(forward, t_ns), _at(backward, t_ns), m,
+                 ours_alone=res.phase_factor <= gr.PHASE_MODEL_FACTOR)
     # the epochs' times: the engine's (receiver clock removed) where it has the epoch
     t_out = t_ns.copy()
     if merged.t_gps_ns.size:
@@ -155,6 +156,9 @@ def assess(
             "slips_found_as_steps": [
                 {"satellite": f"G{sv:02d}", "t_gps_ns": t} for sv, t in res.steps],
             "code_variance_factor": round(res.code_inflation, 2),
+            "phase_variance_factor": round(res.phase_factor, 2),
+            "stands_alone": bool(res.phase_factor <= gr.PHASE_MODEL_FACTOR),
+            "arcs_left_out_misfit": len(res.misfits),
             "epochs_fixed": int(sol.fixed.sum()),
             "epochs_fixed_precise": int(ours_fixed.sum()),
         },

@@ -50,6 +50,8 @@ class EpochSolution:
         n_fixed: satellites whose constant is fixed (:data:`FIXED_SLOT_SIGMA_CYC`).
         n_phase: satellites with a phase.
         fixed: fixed epoch: :data:`MIN_FIXED_SATS` fixed satellites and the test passed.
+        residual_cyc: (n_ep, n_sv) phase residuals [cycles] (NaN where no phase was used).
+        slot_fixed: (n_ep, n_sv) the satellite's constant counts as fixed there.
     """
 
     x: FloatArray
@@ -59,6 +61,8 @@ class EpochSolution:
     n_fixed: IntArray
     n_phase: IntArray
     fixed: BoolArray
+    residual_cyc: FloatArray
+    slot_fixed: BoolArray
 
 
 def solve_epochs(
@@ -122,5 +126,6 @@ def solve_epochs(
     n_fixed = np.sum(slot_fixed, axis=1)
     x[~ok] = np.nan
     fixed = ok & chi_ok & (n_fixed >= MIN_FIXED_SATS)
+    resid = np.where(use_p & ok[:, None], vp / LAM, np.nan)
     return EpochSolution(x, cov4[:, :3, :3], chi_dof, chi_ok, n_fixed,
-                         np.sum(use_p, axis=1), fixed)
+                         np.sum(use_p, axis=1), fixed, resid, slot_fixed)

@@ -8,14 +8,19 @@ own data.
 The rule, per epoch:
 
 1. Our whole-arc solution fixed the epoch (integer combinations sure to 5 sigma, six satellites
-   on fixed constants, its residuals passing their chi-square test): **fixed**, checked by
-   ``arcs``; the engine's own fix there, if any, must agree within the two covariances or it
-   is counted as rejected.
+   on fixed constants, its residuals passing their chi-square test) and no fix of the engine
+   in either direction contradicts it: **fixed**, checked by ``arcs`` (``arcs-and-engine``
+   where an engine fix agrees; only those where the phase did not behave as modelled,
+   :data:`PHASE_MODEL_FACTOR`). Where the engine fixed
+   the epoch elsewhere (beyond the two covariances, chi-square 3 dof at 0.1 %), neither is
+   trusted: **demoted**, ``demoted:arcs-disagree``.
 2. Otherwise the engine fixed it in both directions and the two agree (the full-covariance test
    of :mod:`groundstation.solve.engine.combine`): **fixed**, checked by ``both-directions``.
 3. Otherwise the engine fixed it in one direction only and the other direction's float
-   position agrees with that fix within its calibrated covariance (chi-square, 3 degrees of
-   freedom, 0.1 %): **fixed**, checked by ``other-direction-float``.
+   position, precise enough to tell a wrong integer set (calibrated sigma under
+   :data:`FIXED_MAX_SIGMA_M` on every axis), agrees with that fix within its calibrated
+   covariance (chi-square, 3 degrees of freedom, 0.1 %): **fixed**, checked by
+   ``other-direction-float``.
 4. Otherwise a fix of the engine is **demoted** to float (its check names why), and the epoch
    gets the engine's combined float position with the calibrated float sigma.
 
@@ -61,17 +66,25 @@ CHECK_NAMES: tuple[str, ...] = (
     "other-direction-float",    # 3: one direction fixed, the other's float agrees
     "demoted:directions-disagree",   # 4: both directions fixed, inconsistent
     "demoted:float-disagrees",  # 5: one direction fixed, the other's float disagrees
-    "demoted:arcs-disagree",    # 6: the engine's fix disagrees with our fixed solution
-    "demoted:one-direction",    # 7: one direction fixed, nothing to compare with
+    "demoted:arcs-disagree",    # 6: our fixed solution and an engine fix disagree
+    "demoted:one-direction",    # 7: one direction fixed, nothing precise to compare with
     "float",                    # 8: no fix anywhere
     "unchecked",                # 9: no observations to check with (a .pos file)
     "demoted:interpolation",    # 10: fixed epochs, but the mark between them is not a
                                 #     centimetre position (a gap, a quick manoeuvre)
+    "arcs-and-engine",          # 11: our fix and an engine fix in one direction agree
 )
 """Check code -> name: which check decided an epoch's grade."""
 C_ARCS, C_BOTH, C_OTHER_FLOAT = 1, 2, 3
 C_DEM_DIRECTIONS, C_DEM_FLOAT, C_DEM_ARCS, C_DEM_ONE, C_FLOAT, C_UNCHECKED = 4, 5, 6, 7, 8, 9
 C_DEM_INTERP = 10
+C_ARCS_ENGINE = 11
+PHASE_MODEL_FACTOR = 2.0
+"""Our whole-arc fix stands on its own only where the phase behaved as its noise model says
+(its variance factor, scatter times correlation in time, at most this): a real antenna whose
+phase drifts with multipath for tens of seconds can lead the whole-arc solution to a wrong
+integer set that fits (measured on the 2018-10-09 flight); there our fix counts only where
+the engine fixed the same position in one direction at least."""
 
 FIXED_MAX_SIGMA_M = 0.1 / 3
 """A position is called fixed only where its sigma on every axis is below this: a fixed camera
@@ -184,7 +197,7 @@ def _scale_cov(cov: FloatArray, rot: FloatArray, fh: float, fv: float) -> FloatA
 
 
 def grade(ours_fixed: BoolArray, ours: Candidate, forward: Candidate | None,
-          backward: Candidate | None, merged: Candidate) -> Graded:
+          backward: Candidate | None, merged: Candidate, ours_alone: bool = True) -> Graded:
     """The rule of the module doc.
 
     Args:
@@ -192,6 +205,8 @@ def grade(ours_fixed: BoolArray, ours: Candidate, forward: Candidate | None,
         ours: our positions and covariances at those epochs.
         forward, backward: the engine's two directions (None when it did not run them).
         merged: the engine's combined solution.
+        ours_alone: our fix may stand without an engine fix beside it (the phase behaved as
+            modelled: :data:`PHASE_MODEL_FACTOR`).
     """
     n = merged.q.size
     rot = _enu_rot(np.where(np.isfinite(ours.x), ours.x, merged.x))
@@ -200,23 +215,35 @@ def grade(ours_fixed: BoolArray, ours: Candidate, forward: Candidate | None,
     x = np.full((n, 3), np.nan)
     cov = np.full((n, 3, 3), np.nan)
 
-    # 1. ours
-    x[ours_fixed] = ours.x[ours_fixed]
-    cov[ours_fixed] = ours.cov[ours_fixed]
-    gradec[ours_fixed] = FIXED
-    check[ours_fixed] = C_ARCS
-    rest = ~ours_fixed
+    # 1. ours, unless a fix of the engine in either direction contradicts it: two integer
+    # solutions that disagree cannot both be right, and nothing says which is wrong
+    f_fix0 = (forward.q == 1) if forward is not None else np.zeros(n, dtype=bool)
+    b_fix0 = (backward.q == 1) if backward is not None else np.zeros(n, dtype=bool)
+    contradicted = np.zeros(n, dtype=bool)
+    for c, fx in ((forward, f_fix0), (backward, b_fix0), (merged, merged.q == 1)):
+        if c is not None:
+            contradicted |= ours_fixed & fx & ~_agree(ours.x, ours.cov, c.x, c.cov)
+    ours_ok = ours_fixed & ~contradicted
+    corroborated = np.zeros(n, dtype=bool)
+    for c, fx in ((forward, f_fix0), (backward, b_fix0)):
+        if c is not None:
+            corroborated |= ours_ok & fx & _agree(ours.x, ours.cov, c.x, c.cov)
+    if not ours_alone:
+        ours_ok = corroborated
+    x[ours_ok] = ours.x[ours_ok]
+    cov[ours_ok] = ours.cov[ours_ok]
+    gradec[ours_ok] = FIXED
+    check[ours_ok] = np.where(corroborated[ours_ok], C_ARCS_ENGINE, C_ARCS)
+    rest = ~ours_ok
     fwd_fix = forward is not None and True
     f_fix = (forward.q == 1) if forward is not None else np.zeros(n, dtype=bool)
     b_fix = (backward.q == 1) if backward is not None else np.zeros(n, dtype=bool)
     m_fix = merged.q == 1
     del fwd_fix
-    # an engine fix where ours is fixed must agree with ours (counted; ours stands)
-    arcs_reject = ours_fixed & m_fix & ~_agree(ours.x, ours.cov, merged.x, merged.cov)
 
     # calibration of the float sigmas against the positions fixed so far (ours and the
     # engine's both-direction fixes that agree)
-    both = rest & f_fix & b_fix & m_fix
+    both = rest & ~contradicted & f_fix & b_fix & m_fix
     if forward is not None and backward is not None:
         both &= _agree(forward.x, forward.cov, backward.x, backward.cov)
     anchor = np.where((ours_fixed | both)[:, None], np.where(ours_fixed[:, None], ours.x,
@@ -234,21 +261,27 @@ def grade(ours_fixed: BoolArray, ours: Candidate, forward: Candidate | None,
     gradec[both] = FIXED
     check[both] = C_BOTH
     # 3. one direction fixed, the other's float agrees
-    one = rest & ~both & m_fix & (f_fix ^ b_fix)
+    one = rest & ~contradicted & ~both & m_fix & (f_fix ^ b_fix)
     if forward is not None and backward is not None:
         fixed_x = np.where(f_fix[:, None], forward.x, backward.x)
         fixed_c = np.where(f_fix[:, None, None], forward.cov, backward.cov)
         other = np.where(f_fix[:, None], backward.x, forward.x)
         other_q = np.where(f_fix, backward.q, forward.q)
         other_c = np.where(f_fix[:, None, None], scaled(backward), scaled(forward))
-        agree = _agree(fixed_x, fixed_c, other, other_c) & (other_q == 2)
+        # The other direction's float can only confirm the fix to its own precision: a
+        # wrong integer set is a decimetre or more off, so the float must be sure to
+        # FIXED_MAX_SIGMA_M (10 cm at 3 sigma) on every axis for its agreement to count.
+        other_sd = np.sqrt(np.clip(np.einsum("eii->ei", np.einsum(
+            "ij,ejk,lk->eil", rot, np.nan_to_num(other_c), rot)), 0.0, None))
+        precise = np.all(other_sd <= FIXED_MAX_SIGMA_M, axis=1)
+        agree = _agree(fixed_x, fixed_c, other, other_c) & (other_q == 2) & precise
         ok1 = one & agree
         x[ok1] = fixed_x[ok1]
         cov[ok1] = fixed_c[ok1]
         gradec[ok1] = FIXED
         check[ok1] = C_OTHER_FLOAT
-        dem_float = one & ~agree & (other_q == 2)
-        dem_one = one & ~agree & (other_q != 2)
+        dem_float = one & ~agree & (other_q == 2) & precise
+        dem_one = one & ~agree & ~((other_q == 2) & precise)
     else:
         dem_float = np.zeros(n, dtype=bool)
         dem_one = one
@@ -263,10 +296,9 @@ def grade(ours_fixed: BoolArray, ours: Candidate, forward: Candidate | None,
     check[left & m_fix & f_fix & b_fix] = C_DEM_DIRECTIONS
     check[left & dem_float] = C_DEM_FLOAT
     check[left & dem_one] = C_DEM_ONE
+    check[left & contradicted] = C_DEM_ARCS
     quality = np.where(gradec == FIXED, 1,
                        np.where(gradec == FLOAT, 2, np.where(gradec == SINGLE, 5, 0)))
     counts = {CHECK_NAMES[k]: int(np.sum(check == k)) for k in range(1, len(CHECK_NAMES))
               if np.any(check == k)}
-    if arcs_reject.any():
-        counts["engine fixes rejected by arcs"] = int(arcs_reject.sum())
     return Graded(x, cov, quality.astype(np.int64), gradec, check, (fh, fv), source, counts)

@@ -33,6 +33,8 @@ FIX_SIGMA = 0.1
 """Largest conditional standard deviation of a combination that is rounded, in lattice steps."""
 FIX_DISTANCE = 0.25
 """A rounded combination must lie this close to the lattice, in lattice steps."""
+MAX_LAMBDA = 60
+"""Largest number of groups the decorrelating stage takes on (its cost grows as the cube)."""
 
 
 def ldl(q: FloatArray) -> tuple[FloatArray, FloatArray]:
@@ -91,6 +93,55 @@ def decorrelate(q: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
     return z, low, d
 
 
+def _lambda_stage(x: FloatArray, c: FloatArray, reps: list[int], step: float
+                  ) -> tuple[FloatArray, FloatArray, int, str, float]:
+    """Decorrelate the representatives' differences (to the first) and bootstrap them from the
+    most precise combination on, until the first that is not sure or not on the lattice.
+
+    Returns:
+        (constants and covariance conditioned on what was fixed, how many combinations were
+        fixed, why it stopped, the first float combination's deviation in steps).
+    """
+    n = x.size
+    m = len(reps) - 1
+    t = np.zeros((m, n))
+    t[np.arange(m), reps[1:]] = 1.0
+    t[:, reps[0]] = -1.0
+    dd = t @ x / step
+    qd = t @ c @ t.T / (step * step)
+    qd = 0.5 * (qd + qd.T)
+    try:
+        z, low, dvar = decorrelate(qd)
+    except np.linalg.LinAlgError:
+        return x, c, 0, "sigma", float("inf")
+    zh = z.T @ dd
+    cond = zh.copy()
+    fixed_vals = np.full(m, np.nan)
+    k = 0
+    why, sig = "sure", 0.0
+    for i in range(m - 1, -1, -1):
+        cond[i] = zh[i] - float(low[i + 1 :, i] @ (cond[i + 1 :] - fixed_vals[i + 1 :]))
+        s = float(np.sqrt(max(dvar[i], 0.0)))
+        r = round(cond[i])
+        if s >= FIX_SIGMA:
+            why, sig = "sigma", s
+            break
+        if abs(cond[i] - r) >= FIX_DISTANCE:
+            why, sig = "off-lattice", s
+            break
+        fixed_vals[i] = r
+        k += 1
+    if k:
+        g = (z[:, m - k :].T @ t) / step  # (k, n): the fixed combinations of the constants
+        vals = fixed_vals[m - k :]
+        mm = g @ c @ g.T
+        gain = c @ g.T @ np.linalg.inv(mm)
+        x = x - gain @ (g @ x - vals)
+        c = c - gain @ g @ c
+        c = 0.5 * (c + c.T)
+    return x, c, k, why, sig
+
+
 @dataclass(frozen=True, slots=True)
 class Lattice:
     """The constants with the sure integer combinations held.
@@ -118,57 +169,78 @@ class Lattice:
 
 def resolve_lattice(a: FloatArray, q: FloatArray, informed: BoolArray,
                     step_cyc: float) -> Lattice:
-    """Decorrelate and bootstrap the differences of the constants ``a`` (covariance ``q``)
-    on a lattice of ``step_cyc`` cycles (see the module doc)."""
+    """Pairwise integer bootstrapping of the constants ``a`` (covariance ``q``) on a lattice
+    of ``step_cyc`` cycles.
+
+    Only differences of constants are integers, and what a position needs is the differences
+    among the arcs it sees at once: those are the best determined (arcs that live together
+    move together with the position error). So the difference fixed next is, among all pairs
+    of arcs not yet tied together, the one with the smallest conditional standard deviation;
+    it is rounded if that deviation is below :data:`FIX_SIGMA` lattice steps and its value
+    within :data:`FIX_DISTANCE` of the lattice, every constant is conditioned on it, and the
+    two arcs' groups are joined. A sure difference that lies off the lattice is not used (one
+    of its arcs is wrong somewhere) and the next pair is tried; the first pair not sure enough
+    ends the fixing. The pairs fixed form a spanning forest of the arcs: within a group every
+    difference is known, between groups nothing is claimed.
+    """
     na = a.size
     ok = np.flatnonzero(informed)
     if ok.size == 0:
         return Lattice(np.full(na, np.nan), np.zeros((na, na)), -1, 0, 0, "sure", 0.0)
     ref = int(ok[np.argmin(np.diag(q)[ok])])
-    idx = ok[ok != ref]
-    t = np.zeros((idx.size, na))
-    t[np.arange(idx.size), idx] = 1.0
-    t[:, ref] = -1.0
-    an = np.nan_to_num(a)
-    dd = t @ an / step_cyc
-    qd = t @ q @ t.T / (step_cyc * step_cyc)
-    qd = 0.5 * (qd + qd.T)
-    n = idx.size
+    x = np.nan_to_num(a[ok]).copy()
+    c = np.array(q[np.ix_(ok, ok)], dtype=np.float64, copy=True)
+    n = ok.size
+    group = np.arange(n)
+    skip = np.zeros((n, n), dtype=bool)
     fixed_n = 0
     stopped = "sure"
     first_float = 0.0
-    if n:
-        try:
-            z, low, dvar = decorrelate(qd)
-        except np.linalg.LinAlgError:
-            z, low, dvar = np.eye(n), np.eye(n), np.full(n, np.inf)
-        zh = z.T @ dd
-        cond = zh.copy()
-        fixed_vals = np.full(n, np.nan)
-        for i in range(n - 1, -1, -1):
-            # conditional value given the ones already fixed (after i)
-            cond[i] = zh[i] - float(low[i + 1 :, i] @ (cond[i + 1 :] - fixed_vals[i + 1 :]))
-            s = float(np.sqrt(max(dvar[i], 0.0)))
-            r = round(cond[i])
-            if s >= FIX_SIGMA:
-                stopped, first_float = "sigma", s
-                break
-            if abs(cond[i] - r) >= FIX_DISTANCE:
-                stopped, first_float = "off-lattice", s
-                break
-            fixed_vals[i] = r
-            fixed_n += 1
-        if fixed_n:
-            zk = z[:, n - fixed_n :]
-            vals = fixed_vals[n - fixed_n :]
-            m = zk.T @ qd @ zk
-            gain = qd @ zk @ np.linalg.inv(m)
-            dd = dd - gain @ (zk.T @ dd - vals)
-            qd = qd - gain @ zk.T @ qd
-            qd = 0.5 * (qd + qd.T)
+    for _ in range(4 * n):
+        dg = np.diag(c)
+        var = dg[:, None] + dg[None, :] - 2.0 * c
+        same = group[:, None] == group[None, :]
+        var = np.where(same | skip, np.inf, var)
+        k = int(np.argmin(var))
+        i, j = divmod(k, n)
+        if not np.isfinite(var[i, j]):
+            break
+        s = float(np.sqrt(max(var[i, j], 0.0))) / step_cyc
+        if s >= FIX_SIGMA:
+            stopped, first_float = "sigma", s
+            break
+        d = (x[i] - x[j]) / step_cyc
+        r = round(d)
+        if abs(d - r) >= FIX_DISTANCE:
+            skip[i, j] = skip[j, i] = True
+            continue
+        g = np.zeros(n)
+        g[i], g[j] = 1.0, -1.0
+        cg = c @ g
+        den = float(g @ cg)
+        gain = cg / den
+        x = x + gain * (r * step_cyc - (x[i] - x[j]))
+        c = c - np.outer(gain, cg)
+        c = 0.5 * (c + c.T)
+        gi, gj = group[i], group[j]
+        group[group == gj] = gi
+        fixed_n += 1
+    # Stage 2: the groups left apart, as one small integer problem (their representatives'
+    # differences), decorrelated by LAMBDA: combinations of several groups can be sure where
+    # no single pair is.
+    reps = sorted({int(np.flatnonzero(group == g)[0]) for g in set(group.tolist())})
+    if len(reps) > 1 and len(reps) <= MAX_LAMBDA:
+        x, c, more, why, sig = _lambda_stage(x, c, reps, step_cyc)
+        fixed_n += more
+        if more or why != "sure":
+            stopped, first_float = why, sig
     const = np.full(na, np.nan)
-    const[ref] = a[ref]
-    const[idx] = a[ref] + dd * step_cyc
+    const[ok] = x
     cov = np.zeros((na, na))
-    cov[np.ix_(idx, idx)] = qd * step_cyc * step_cyc
-    return Lattice(const, cov, ref, fixed_n, n, stopped, first_float)
+    # relative to the reference: a shift common to all arcs goes to each epoch's clock
+    t = np.eye(n)
+    r_ok = int(np.flatnonzero(ok == ref)[0])
+    t[:, r_ok] -= 1.0
+    rel = t @ c @ t.T
+    cov[np.ix_(ok, ok)] = 0.5 * (rel + rel.T)
+    return Lattice(const, cov, ref, fixed_n, n - 1, stopped, first_float)

@@ -145,29 +145,8 @@ def float_arcs(tab: PhaseTable, sys: EpochSystem) -> FloatArcs:
 def code_correlation(tab: PhaseTable, x: FloatArray, clock_m: FloatArray,
                      max_lag_s: float = 120.0) -> float:
     """How many times the code's variance must be multiplied for its errors' correlation in
-    time: ``1 + 2 sum(rho_k)`` of the code residuals' autocorrelation over the lags where it
-    stays positive (at most ``max_lag_s``); 1 for white noise."""
-    rc = tab.code_residuals(x) - clock_m[:, None]
-    if tab.n_epochs < 3:
-        return 1.0
-    dt = float(np.median(np.diff(tab.t_ns))) / 1e9
-    have = np.isfinite(rc)
-    count = np.maximum(have.sum(axis=0), 1)
-    rc = rc - (np.where(have, rc, 0.0).sum(axis=0) / count)[None, :]
-    total = 1.0
-    max_k = max(1, int(max_lag_s / max(dt, 1e-3)))
-    var = np.nanmean(rc * rc)
-    if not np.isfinite(var) or var <= 0:
-        return 1.0
-    k = 1
-    while k < min(max_k, tab.n_epochs - 1):
-        prod = rc[k:] * rc[:-k]
-        rho = float(np.nanmean(prod)) / var
-        if not np.isfinite(rho) or rho < 0.05:
-            break
-        total += 2.0 * rho
-        k = k + 1 if k < 10 else int(k * 1.25)
-    return total
+    time (:func:`time_correlation` of the code residuals)."""
+    return time_correlation(tab.t_ns, tab.code_residuals(x) - clock_m[:, None], max_lag_s)
 
 
 def clock_m(tab: PhaseTable, x: FloatArray, a: FloatArray) -> FloatArray:
@@ -202,3 +181,53 @@ def code_positions(tab: PhaseTable, start: FloatArray, iterations: int = 5) -> F
         x = x + d[:, :3]
     x[~ok] = np.nan
     return x
+
+
+def float_phase_residuals(tab: PhaseTable, system: EpochSystem, x: FloatArray,
+                          fl: FloatArcs) -> FloatArray:
+    """The whole-flight float solution's phase residuals [m] (NaN where no phase was used)."""
+    a_slot = np.where(system.phase_used & (tab.arc >= 0),
+                      np.nan_to_num(fl.a)[np.maximum(tab.arc, 0)], 0.0)
+    inv = np.linalg.inv(system.nxx)
+    dx = np.einsum("eij,ej->ei", inv, system.bx - np.einsum("eis,es->ei", system.nxa, a_slot))
+    res, los = tab.residuals(x)
+    h = np.concatenate([-np.nan_to_num(los), np.ones((*los.shape[:2], 1))], axis=2)
+    e = (res - a_slot) * LAM - np.einsum("esi,ei->es", h, dx)
+    return np.where(system.phase_used, e, np.nan)
+
+
+def phase_variance_factor(tab: PhaseTable, e_m: FloatArray) -> float:
+    """How much larger the phase's scatter is than :attr:`PhaseTable.sigma_cyc` says, from
+    the float solution's residuals ``e_m``: the median of the squared standardised residuals
+    over its value for a normal distribution (0.455), at least 1. Multipath and the base's
+    age make a real antenna's phase noisier than its C/N0 alone (the simulator's is not)."""
+    sp = np.maximum(tab.sigma_cyc * LAM, PHASE_FLOOR_M)
+    z = (e_m / sp)[np.isfinite(e_m)]
+    if z.size < 20:
+        return 1.0
+    return max(1.0, float(np.median(z * z)) / 0.455)
+
+
+def time_correlation(t_ns: IntArray, e: FloatArray, max_lag_s: float = 120.0) -> float:
+    """``1 + 2 sum(rho_k)`` of residuals ``e`` (epochs x satellites, NaN: none) over the lags
+    where their autocorrelation stays positive (at most ``max_lag_s``): by how much averaging
+    N epochs of them is worth fewer than N independent ones; 1 for white noise."""
+    if t_ns.size < 3:
+        return 1.0
+    dt = float(np.median(np.diff(t_ns))) / 1e9
+    have = np.isfinite(e)
+    count = np.maximum(have.sum(axis=0), 1)
+    r = np.where(have, e - (np.where(have, e, 0.0).sum(axis=0) / count)[None, :], np.nan)
+    var = float(np.nanmean(r * r)) if have.any() else 0.0
+    if not np.isfinite(var) or var <= 0:
+        return 1.0
+    total = 1.0
+    max_k = max(1, int(max_lag_s / max(dt, 1e-3)))
+    k = 1
+    while k < min(max_k, t_ns.size - 1):
+        rho = float(np.nanmean(r[k:] * r[:-k])) / var
+        if not np.isfinite(rho) or rho < 0.05:
+            break
+        total += 2.0 * rho
+        k = k + 1 if k < 10 else int(k * 1.25)
+    return total
