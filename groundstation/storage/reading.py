@@ -26,6 +26,10 @@ new part after a write failure such as a full disk) is followed automatically. T
   in the parts' order. Sidecars hold no reception times.
 - A missing part (a number skipped) or a missing sidecar is reported as a warning and skipped:
   the bytes on either side of the hole are still read (the framer resynchronises).
+- A damaged stretch in the middle of an MCAP part (a chunk that fails its CRC or does not
+  decompress, a broken record header) is read past (:func:`~groundstation.storage.mcapio.
+  iter_messages`): one warning line names the byte range and the time span lost, and
+  :attr:`Recording.skipped` lists them for the tools that report them (``inspect``).
 - Any other file (no groundstation metadata, another program's MCAP, a plain log) is read alone.
   ``follow_parts=False`` reads only the given file.
 """
@@ -42,6 +46,7 @@ from pathlib import Path
 from typing import BinaryIO, Literal
 
 from groundstation.errors import InputError
+from groundstation.storage.skipped import Skipped
 
 log = logging.getLogger("groundstation.reading")
 
@@ -227,6 +232,11 @@ class Recording:
         """Bytes on disk of all parts (compressed), for progress."""
         self._done_bytes = 0
         self._current: BinaryIO | None = None
+        self.skipped: list[Skipped] = []
+        """Damaged stretches of MCAP parts read past by :meth:`chunks` (each one also logged
+        as a warning naming its byte range and the time span lost)."""
+        self.orphan_messages = 0
+        """Messages whose channel was defined only in a skipped stretch (not read)."""
 
     @property
     def bytes_read(self) -> int:
@@ -254,6 +264,8 @@ class Recording:
                 holds).
         """
         self._done_bytes = 0
+        self.skipped = []
+        self.orphan_messages = 0
         for part in self.parts:
             yield from self._part_chunks(part, chunk_bytes)
             self._done_bytes += _size(part)
@@ -265,9 +277,14 @@ class Recording:
                 self._current = f
                 if fmt == "mcap":
                     # imported here: the mcap library is not needed for a .ubx (rinex, inspect)
-                    from groundstation.storage.mcapio import iter_raw_chunks
+                    from groundstation.storage.mcapio import ReadReport, iter_raw_chunks
 
-                    yield from iter_raw_chunks(f)
+                    report = ReadReport()
+                    try:
+                        yield from iter_raw_chunks(f, report=report)
+                    finally:
+                        self.skipped += report.skipped
+                        self.orphan_messages += report.orphan_messages
                 elif fmt == "gzip":
                     with gzip.GzipFile(fileobj=f, mode="rb") as gz:
                         try:
