@@ -1,4 +1,4 @@
-"""Crafted MCAP recordings: a damaged middle is read past and said.
+"""Crafted MCAP recordings: a damaged middle is read past and said, parts stay in their directory.
 
 Real recordings written by the session recorder, then damaged on disk the way a bad sector, a
 bit flip or a bad copy would: a chunk whose compressed bytes or header are garbled, a chunk
@@ -7,12 +7,17 @@ the chunk that defines the channels. Finished files (the summary names every chu
 ones (a linear search for the next whole chunk) both go on after the damage, and every tool says
 how much was skipped: the warning line (byte range, time span), ``inspect`` and ``inspect
 --json``; ``rinex`` and the solver read every epoch and mark after it.
+
+A session's later parts are followed only inside the recording's own directory: a neighbouring
+part's metadata naming ``../secret.txt`` or an absolute path, or a part or sidecar that is a
+symbolic link out of the directory, is refused with a warning and never read.
 """
 
 from __future__ import annotations
 
 import json
 import logging
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -21,11 +26,11 @@ import pytest
 from mcap.reader import make_reader
 from mcap.records import ChunkIndex
 from peers import cli_env
-from streams import flight_stream
+from streams import flight_stream, tim_tm2
 
 from groundstation.offline.inspect import inspect_path
 from groundstation.solve.pipeline import read_flight
-from groundstation.storage.mcapio import ReadReport, iter_messages
+from groundstation.storage.mcapio import McapFileWriter, ReadReport, iter_messages
 from groundstation.storage.reading import Recording, iter_chunks
 from groundstation.storage.session import SessionRecorder
 
@@ -253,3 +258,98 @@ def test_inspect_rinex_and_the_solver_read_past_a_damaged_chunk(
         records = read_flight(bad)
     assert len(records.timemarks) == marks
     assert where in caplog.text
+
+
+# -- a session's parts stay in their directory -------------------------------------------------
+
+SECRET = tim_tm2(4242, 2300, 1000, 0, None)  # a valid frame: read, it would show in the bytes
+
+
+def neighbour(directory: Path, rec: SessionRecorder, *, sidecar: str, name: str = "") -> Path:
+    """A crafted part 2 of ``rec``'s session in ``directory``, naming ``sidecar``."""
+    path = directory / (name or f"{rec.station}_29991231T235959Z.mcap")
+    with McapFileWriter(path) as w:
+        w.add_metadata("groundstation", {
+            "station": rec.station, "session_id": rec.session_id, "part": "2",
+            "sidecar": sidecar,
+        })
+    return path
+
+
+@pytest.fixture()
+def session(tmp_path: Path) -> tuple[Path, SessionRecorder, bytes, Path]:
+    """A one-part session in ``flights/`` and a secret file beside the directory."""
+    data, frames = flight_stream(20)
+    rec = record(tmp_path / "flights", frames)
+    secret = tmp_path / "secret.txt"
+    secret.write_bytes(SECRET)
+    return tmp_path / "flights", rec, data, secret
+
+
+@pytest.mark.parametrize("named", ["../secret.txt", "../secret.ubx", "ABSOLUTE", "sub/x.ubx",
+                                   "..", "a\\..\\b.ubx"])
+def test_a_sidecar_named_as_a_path_in_a_parts_metadata_is_refused(
+    session: tuple[Path, SessionRecorder, bytes, Path], caplog: pytest.LogCaptureFixture,
+    named: str,
+) -> None:
+    flights, rec, data, secret = session
+    (flights.parent / "secret.ubx").write_bytes(SECRET)
+    (flights / "sub").mkdir()
+    (flights / "sub" / "x.ubx").write_bytes(SECRET)
+    name = str(secret) if named == "ABSOLUTE" else named
+    neighbour(flights, rec, sidecar=name)
+    (side,) = rec.stats.sidecars
+    with caplog.at_level(logging.WARNING, "groundstation.reading"):
+        got = raw_of(side)
+    assert got == data  # part 1's sidecar; nothing of the "sidecar" part 2 names
+    assert SECRET not in got
+    assert f"names its sidecar {name!r}" in caplog.text and "refused" in caplog.text
+
+
+def test_a_part_or_sidecar_linked_out_of_the_directory_is_not_followed(
+    session: tuple[Path, SessionRecorder, bytes, Path], caplog: pytest.LogCaptureFixture,
+) -> None:
+    flights, rec, data, secret = session
+    outside = flights.parent / "elsewhere"
+    outside.mkdir()
+    # part 2 itself a link to a real part lying elsewhere, with a real sidecar beside it
+    (outside / "p2.ubx").write_bytes(SECRET)
+    target = neighbour(outside, rec, sidecar="p2.ubx")
+    linked = flights / target.name
+    linked.symlink_to(target)
+    (mcap,), (side,) = rec.stats.files, rec.stats.sidecars
+    with caplog.at_level(logging.WARNING, "groundstation.reading"):
+        assert Recording(mcap).parts == (mcap,)
+        assert SECRET not in raw_of(side)
+    assert "symbolic link out of the recording's directory" in caplog.text
+    assert str(linked) in caplog.text
+    # part 2 in the directory, its sidecar a link out of it
+    linked.unlink()
+    caplog.clear()
+    neighbour(flights, rec, sidecar="p2.ubx")
+    (flights / "p2.ubx").symlink_to(secret)
+    with caplog.at_level(logging.WARNING, "groundstation.reading"):
+        got = raw_of(side)
+    assert got == data and SECRET not in got
+    assert "the sidecar of part 2" in caplog.text and "refused" in caplog.text
+    # a link that stays in the directory is still followed
+    (flights / "p2.ubx").unlink()
+    (flights / "real-p2.ubx").write_bytes(SECRET)
+    os.symlink("real-p2.ubx", flights / "p2.ubx")
+    assert raw_of(side) == data + SECRET
+
+
+def test_the_solver_service_reads_no_part_outside_its_roots(
+    session: tuple[Path, SessionRecorder, bytes, Path], tmp_path: Path,
+) -> None:
+    """The service checks the recording it is given against ``recording_roots``; the parts
+    followed from there stay in that recording's directory, so inside the roots too."""
+    from groundstation.solve.service import confine
+
+    flights, rec, _, secret = session
+    neighbour(flights, rec, sidecar=str(secret))
+    (side,) = rec.stats.sidecars
+    real, why = confine(side, (flights,))
+    assert real is not None, why
+    assert all(p.resolve().parent == flights.resolve() for p in Recording(real).parts)
+    assert SECRET not in raw_of(real)
