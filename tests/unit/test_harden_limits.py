@@ -1,0 +1,79 @@
+"""Limits that must hold whatever a peer, the clock or the user does.
+
+- The recording server's bookkeeping of what it sent costs ``O(log n)`` comparisons a query,
+  not a sort of every range so far (20 000 one-byte queries took 22 s of CPU): counted here
+  with integers that count their own comparisons, no timing.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+import random
+from typing import Any
+
+import pytest
+
+from groundstation.live.serve import SentRanges
+
+# -- the recording server's ranges --------------------------------------------------------------
+
+
+class Counted(int):
+    """An int that counts the comparisons made with it (bisect, sort, min and max use them)."""
+
+    compares = 0
+
+    def _count(self) -> None:
+        Counted.compares += 1
+
+    def __lt__(self, other: Any) -> bool:
+        self._count()
+        return int(self) < int(other)
+
+    def __le__(self, other: Any) -> bool:
+        self._count()
+        return int(self) <= int(other)
+
+    def __gt__(self, other: Any) -> bool:
+        self._count()
+        return int(self) > int(other)
+
+    def __ge__(self, other: Any) -> bool:
+        self._count()
+        return int(self) >= int(other)
+
+
+@pytest.mark.parametrize("order", ["forward", "reverse", "shuffled"])
+def test_sent_ranges_cost_log_n_comparisons_a_query(order: str) -> None:
+    n = 4000
+    offsets = [2 * k for k in range(n)]  # one byte at every other offset: nothing merges
+    if order == "reverse":
+        offsets.reverse()
+    elif order == "shuffled":
+        random.Random(7).shuffle(offsets)
+    sent = SentRanges()
+    Counted.compares = 0
+    for off in offsets:
+        sent.add(Counted(off), Counted(off + 1))
+    assert len(sent) == n
+    # two binary searches a query: 2 * log2(n) each, and a few to merge
+    bound = n * (2 * math.ceil(math.log2(n)) + 4)
+    assert Counted.compares <= bound, (Counted.compares, bound)  # before: ~n * n / 2
+
+
+def test_sent_ranges_merge_like_a_set_of_bytes() -> None:
+    rng = random.Random(3)
+    for _ in range(200):
+        size = rng.randint(1, 300)
+        sent, covered = SentRanges(), set()
+        for _ in range(rng.randint(1, 40)):
+            a = rng.randrange(size)
+            b = min(size, a + rng.randint(1, 40))
+            sent.add(a, b)
+            covered |= set(range(a, b))
+            # disjoint, sorted, never touching (touching ranges merge)
+            assert all(e < s for e, s in zip(sent.ends, sent.starts[1:], strict=False))
+            assert set(itertools.chain.from_iterable(
+                range(s, e) for s, e in zip(sent.starts, sent.ends, strict=True))) == covered
+        assert sent.covers(size) == (covered == set(range(size)))
