@@ -3,6 +3,8 @@
 - The recording server's bookkeeping of what it sent costs ``O(log n)`` comparisons a query,
   not a sort of every range so far (20 000 one-byte queries took 22 s of CPU): counted here
   with integers that count their own comparisons, no timing.
+- A backward step of the wall clock postpones neither the next part (rotation by duration)
+  nor the next flush.
 """
 
 from __future__ import annotations
@@ -10,11 +12,13 @@ from __future__ import annotations
 import itertools
 import math
 import random
+from pathlib import Path
 from typing import Any
 
 import pytest
 
 from groundstation.live.serve import SentRanges
+from groundstation.storage.session import SessionRecorder
 
 # -- the recording server's ranges --------------------------------------------------------------
 
@@ -77,3 +81,38 @@ def test_sent_ranges_merge_like_a_set_of_bytes() -> None:
             assert set(itertools.chain.from_iterable(
                 range(s, e) for s, e in zip(sent.starts, sent.ends, strict=True))) == covered
         assert sent.covers(size) == (covered == set(range(size)))
+
+
+# -- the recorder's clock stepping back -------------------------------------------------------
+
+T0_NS = 1_700_000_000_000_000_000
+S = 1_000_000_000
+
+
+class SteppingClock:
+    def __init__(self) -> None:
+        self.now = T0_NS
+
+    def __call__(self) -> int:
+        return self.now
+
+
+def test_a_clock_stepped_back_postpones_neither_rotation_nor_flush(tmp_path: Path) -> None:
+    clock = SteppingClock()
+    rec = SessionRecorder(tmp_path, "st1", rotate_duration_ns=10 * S, clock=clock,
+                          flush_interval_ns=S // 2)
+    rec.open()
+    rec.write_raw(b"a" * 100, clock.now)
+    clock.now += 4 * S
+    rec.write_raw(b"b" * 100, clock.now)
+    assert rec.maybe_flush()
+    clock.now -= 3600 * S  # NTP (or an operator) steps the clock back an hour
+    rec.write_raw(b"c" * 100, clock.now)
+    clock.now += S  # 5 s of the file gone by
+    assert rec.maybe_flush()  # before: not for an hour
+    assert rec.file_count == 1
+    clock.now += 5 * S  # 10 s gone by: the next part
+    rec.write_raw(b"d" * 100, clock.now)
+    assert rec.file_count == 2  # before: an hour and 10 s after the start
+    assert rec.clock_steps_back == 1
+    rec.close()
