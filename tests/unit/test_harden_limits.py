@@ -5,6 +5,8 @@
   with integers that count their own comparisons, no timing.
 - A backward step of the wall clock postpones neither the next part (rotation by duration)
   nor the next flush.
+- A configuration bound is printed as a person writes it (``1048576 (1 MiB)``, not
+  ``1.04858e+06``), for every numeric key of every command.
 """
 
 from __future__ import annotations
@@ -12,11 +14,21 @@ from __future__ import annotations
 import itertools
 import math
 import random
+import re
 from pathlib import Path
 from typing import Any
 
 import pytest
 
+from groundstation.config import (
+    DAEMON_SCHEMA,
+    DASHBOARD_SCHEMA,
+    ROUTER_SCHEMA,
+    SOLVER_SCHEMA,
+    WATCH_SCHEMA,
+    convert,
+)
+from groundstation.errors import ConfigError
 from groundstation.live.serve import SentRanges
 from groundstation.storage.session import SessionRecorder
 
@@ -116,3 +128,34 @@ def test_a_clock_stepped_back_postpones_neither_rotation_nor_flush(tmp_path: Pat
     assert rec.file_count == 2  # before: an hour and 10 s after the start
     assert rec.clock_steps_back == 1
     rec.close()
+
+
+# -- configuration bounds ----------------------------------------------------------------------
+
+SCHEMAS = {"run": DAEMON_SCHEMA, "solver": SOLVER_SCHEMA, "watch": WATCH_SCHEMA,
+           "dashboard": DASHBOARD_SCHEMA, "router": ROUTER_SCHEMA}
+NUMERIC = [(f"{scope}:{section}.{name}", spec)
+           for scope, schema in SCHEMAS.items() for section, keys in schema.items()
+           for name, spec in keys.items()
+           if spec.kind in ("int", "float") and (spec.lo is not None or spec.hi is not None)]
+
+
+@pytest.mark.parametrize(("name", "spec"), NUMERIC, ids=[n for n, _ in NUMERIC])
+def test_configuration_bounds_read_as_written(name: str, spec: Any) -> None:
+    key = name.split(":", 1)[1]
+    beyond = (spec.hi * 2 + 1) if spec.hi is not None else (spec.lo - 1)
+    value = int(beyond) if spec.kind == "int" else float(beyond)
+    with pytest.raises(ConfigError) as info:
+        convert(spec, key, value)
+    text = str(info.value)
+    rule = text.split("must be ", 1)[1].split(", got", 1)[0]
+    assert not re.search(r"\de[+-]?\d", rule), text  # no 1.04858e+06
+    for bound in (spec.lo, spec.hi):
+        if bound is not None:  # every bound printed reads back exactly
+            assert any(float(tok) == bound for tok in re.findall(r"-?\d+(?:\.\d+)?", rule)), text
+
+
+def test_a_byte_bound_says_its_unit() -> None:
+    spec = DAEMON_SCHEMA["source"]["read_size_bytes"]
+    with pytest.raises(ConfigError, match=r"<= 1048576 \(1 MiB\), got 2000000"):
+        convert(spec, "source.read_size_bytes", 2_000_000)
