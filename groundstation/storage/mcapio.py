@@ -737,8 +737,10 @@ _FOOTER = struct.Struct("<BQQQI")  # opcode, length, summary start, offsets star
 _FOOTER_TAIL = _FOOTER.size + len(_MAGIC)
 _DATA_END_SIZE = _RECORD_HEAD.size + 4
 _COMPRESSIONS = (b"", b"zstd", b"lz4")
+_ZSTD_MAGIC = b"\x28\xb5\x2f\xfd"
+_LZ4_MAGIC = b"\x04\x22\x4d\x18"
 _SCAN_BLOCK = 1 << 20
-_SCAN_OVERLAP = _RECORD_HEAD.size + _CHUNK_MIN + 16
+_SCAN_OVERLAP = _RECORD_HEAD.size + _CHUNK_MIN + 16 + 4
 
 
 def _string(buf: bytes, pos: int, end: int) -> tuple[str, int]:
@@ -1122,10 +1124,23 @@ class _Reader:
         first, last, _, _, name_len = _CHUNK_FIXED.unpack_from(buf, i + _RECORD_HEAD.size)
         if first > last or name_len > 16:
             return False
-        if buf[at_name : at_name + name_len] not in _COMPRESSIONS:
+        name = buf[at_name : at_name + name_len]
+        if name not in _COMPRESSIONS:
             return False
         (records_len,) = _U64.unpack_from(buf, at_name + name_len)
-        return bool(_CHUNK_MIN + name_len + records_len == length)
+        if _CHUNK_MIN + name_len + records_len != length:
+            return False
+        # the data's own first bytes, before a whole chunk is read: a frame's magic number,
+        # or (uncompressed) a record that may open a chunk
+        data = at_name + name_len + 8
+        head = buf[data : data + 4]
+        if len(head) < 4:
+            return True  # at the block's end: the whole chunk decides
+        if name == b"zstd":
+            return head == _ZSTD_MAGIC
+        if name == b"lz4":
+            return head == _LZ4_MAGIC
+        return head[0] in (_OP_SCHEMA, _OP_CHANNEL, _MESSAGE_OPCODE)
 
     def _chunk_at(self, at: int) -> bool:
         try:

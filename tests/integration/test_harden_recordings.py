@@ -168,6 +168,21 @@ def test_an_uncompressed_chunk_with_changed_bytes_is_caught_by_its_crc(
     assert "CRC mismatch" in caplog.text
 
 
+@pytest.mark.parametrize("compression", ["none", "lz4"])
+def test_an_unfinished_file_of_other_compressions_is_read_past_its_damage(
+    tmp_path: Path, compression: str,
+) -> None:
+    """The linear search for the next chunk knows each compression's first bytes."""
+    _, frames = flight_stream(100)
+    (mcap,) = record(tmp_path / "rec", frames, compression=compression).stats.files
+    lost = middle(mcap)
+    bad = unfinished(garble(mcap, tmp_path / "bad.mcap", lost), tmp_path / "torn.mcap")
+    recording = Recording(bad)
+    assert b"".join(c for c, _ in recording.chunks()) == b"".join(survivors(frames, lost))
+    (skipped,) = recording.skipped
+    assert skipped.start_byte == lost.chunk_start_offset and not skipped.to_end
+
+
 def test_the_chunk_defining_the_channels_lost(
     tmp_path: Path, caplog: pytest.LogCaptureFixture,
 ) -> None:
