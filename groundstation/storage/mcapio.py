@@ -1093,6 +1093,13 @@ class _Reader:
         self.pending = None
         p = replace(p, read_after_ns=read_after_ns)
         self.rep.skipped.append(p)
+        said = (p.file, p.start_byte, p.end_byte)
+        if said in _SAID:  # a tool reading the file again (solve: marks, then RINEX)
+            log.debug("%s", p.describe())
+            return
+        if len(_SAID) >= 1000:
+            _SAID.clear()
+        _SAID.add(said)
         log.warning("%s", p.describe())
 
     def _scan(self, start: int) -> int | None:
@@ -1215,6 +1222,11 @@ class _Reader:
             data_end = None
         return _FileSummary(tuple(chunks), tuple(c.start for c in chunks), data_end,
                             channels, schemas)
+
+
+_SAID: set[tuple[str, int, int]] = set()
+"""Damaged stretches already warned about by this process: each is one warning line, however
+often the file is read."""
 
 
 def _least(a: int | None, b: int | None) -> int | None:

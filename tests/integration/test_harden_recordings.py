@@ -236,6 +236,21 @@ def test_a_torn_tail_stays_quiet(tmp_path: Path, caplog: pytest.LogCaptureFixtur
     assert recording.skipped == [] and caplog.text == ""
 
 
+def test_a_damaged_stretch_is_said_once_however_often_it_is_read(
+    flight: tuple[Path, list[bytes]], tmp_path: Path, caplog: pytest.LogCaptureFixture,
+) -> None:
+    """``solve`` reads a recording for its marks, then for RINEX: one warning, not two."""
+    mcap, _ = flight
+    bad = garble(mcap, tmp_path / "bad.mcap", middle(mcap))
+    with caplog.at_level(logging.WARNING, "groundstation.storage"):
+        for _ in range(3):
+            recording = Recording(bad)
+            for _chunk in recording.chunks():
+                pass
+            assert len(recording.skipped) == 1  # listed every time
+    assert len([r for r in caplog.records if r.levelno == logging.WARNING]) == 1
+
+
 def _cli(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
     return subprocess.run([sys.executable, "-m", "groundstation.cli", *args], cwd=cwd,
                           capture_output=True, text=True, timeout=120, env=cli_env())
