@@ -20,6 +20,7 @@ carrying ``schema`` (:data:`~groundstation.records.STATUS_SCHEMA_VERSION`) and `
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import random
 import re
@@ -296,8 +297,17 @@ class Bus:
                         query.reply_err(reply.payload)
                     else:
                         query.reply(reply.key, reply.payload, attachment=reply.attachment)
-            except Exception:  # a failing reply must not kill Zenoh's thread
-                log.exception("queryable %s failed", key_expr)
+            except Exception as err:  # a failing reply must not kill Zenoh's thread
+                # nor leave the querier waiting for its timeout: it is told, in one line
+                log.error("queryable %s failed: %s: %s", key_expr, type(err).__name__, err)
+                log.debug("queryable %s failed", key_expr, exc_info=True)
+                with contextlib.suppress(Exception):  # the query may be gone already
+                    query.reply_err(f"failed: {type(err).__name__}".encode())
+            finally:
+                # the query ends here, even if a traceback kept in a log record still holds
+                # it (the querier would otherwise wait for its timeout)
+                with contextlib.suppress(Exception):
+                    query.drop()
 
         self._add(lambda s: self._declared.append(s.declare_queryable(key_expr, handler)))
 

@@ -604,11 +604,29 @@ def convert(spec: Key, name: str, value: Any, *, from_text: bool = False, origin
     if spec.kind in ("int", "float"):
         low_bad = spec.lo is not None and (out <= spec.lo if spec.lo_open else out < spec.lo)
         if low_bad or (spec.hi is not None and out > spec.hi):
-            low = "" if spec.lo is None else f"{'>' if spec.lo_open else '>='} {spec.lo:g}"
-            high = "" if spec.hi is None else f"<= {spec.hi:g}"
+            unit = name.endswith("_bytes")
+            low = ("" if spec.lo is None
+                   else f"{'>' if spec.lo_open else '>='} {bound_text(spec.lo, bytes_=unit)}")
+            high = "" if spec.hi is None else f"<= {bound_text(spec.hi, bytes_=unit)}"
             rule = " and ".join(r for r in (low, high) if r)
             raise ConfigError(name, f"must be {rule}, got {out!r}{where}")
     return out
+
+
+def bound_text(value: float, *, bytes_: bool = False) -> str:
+    """A bound as a person writes it: ``1048576``, ``3600``, ``0.05``, never ``1.04858e+06``
+    (``:g`` keeps 6 digits); a byte count of whole KiB, MiB or GiB also in those units
+    (``268435456 (256 MiB)``)."""
+    if isinstance(value, int) or (math.isfinite(value) and value.is_integer()
+                                  and abs(value) < 1e18):
+        n = int(value)
+        text = str(n)
+        if bytes_ and n >= 1024:
+            for unit, size in (("GiB", 1 << 30), ("MiB", 1 << 20), ("KiB", 1 << 10)):
+                if n % size == 0:
+                    return f"{text} ({n // size} {unit})"
+        return text
+    return repr(float(value))  # the shortest text that reads back as the same float
 
 
 def _dotted(section: str, key: str) -> str:

@@ -96,7 +96,8 @@ CATALOGUE: Final[dict[str, Kind]] = {
         Kind(MARK_IN_DROPOUT, "warning", "a mark inside a link dropout (interpolation gap)"),
         Kind(ALERT_RAISED, "warning", "an alert (see ALERTS) is raised"),
         Kind(ALERT_CLEARED, "info", "an alert is cleared"),
-        Kind(OPERATOR_ACK, "info", "an operator acknowledged an alert (data: alert, by)"),
+        Kind(OPERATOR_ACK, "info", "an operator acknowledged an alert (data: alert, by; "
+             "dropped_before: acknowledgements over the rate limit since the last)"),
         Kind(RECORDER_FILE_OPENED, "info", "the recorder opened a recording file"),
         Kind(RECORDER_WRITE_FAILED, "error", "writing the recording failed; data held in memory"),
         Kind(RECORDER_DROPPED, "error", "data the recorder could not hold was dropped"),

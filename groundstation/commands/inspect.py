@@ -56,6 +56,15 @@ def format_summary(s: Summary) -> str:
         f"(bad checksum {s.damage['bad_checksum']}, too long {s.damage['too_long']}, "
         f"truncated {s.damage['truncated']}), {s.garbage_bytes:,} garbage bytes"
     )
+    if s.skipped:
+        lost = sum(k.bytes for k in s.skipped)
+        many = "es" if len(s.skipped) > 1 else ""
+        lines.append(f"unread    {len(s.skipped)} damaged stretch{many} of the file skipped "
+                     f"({lost:,} bytes): what they held is missing below")
+        lines.extend(f"  {k.describe()}" for k in s.skipped)
+    if s.orphan_messages:
+        lines.append(f"          {s.orphan_messages:,} messages after them on channels defined "
+                     "only in the skipped bytes: not read")
     if s.nmea_sentences or s.rtcm3_frames:
         lines.append(f"foreign   {s.nmea_sentences} NMEA sentences, {s.rtcm3_frames} RTCM3 frames")
     if s.undecodable:

@@ -52,6 +52,40 @@ RETRY_S = 5.0
 FLUSH_BEFORE_CLOSE_S = 0.3
 LINK_CHECK_S = 1.0
 LINK_GRACE_S = 2.0  # connecting takes a moment; a peer restarting in under this goes unsaid
+ACK_BURST = 5
+ACK_PER_S = 1.0
+"""Acknowledgements taken: a burst of 5, then one a second. Each one is an ``operator.ack``
+event in the recording and on the bus; a peer putting 50 000 a second must not add megabytes
+to the recording or flood the event loop. What goes beyond is counted and said."""
+
+
+class RateLimit:
+    """A token bucket: at most ``burst`` at once and ``per_s`` a second on average
+    (thread-safe: Zenoh threads ask). ``dropped`` counts the refusals."""
+
+    def __init__(self, per_s: float, burst: int,
+                 clock: Callable[[], float] = time.monotonic) -> None:
+        self.per_s = per_s
+        self.burst = burst
+        self._clock = clock
+        self._tokens = float(burst)
+        self._at = clock()
+        self._lock = threading.Lock()
+        self.dropped = 0
+
+    def allow(self) -> bool:
+        """Take one token if there is one; count a refusal otherwise."""
+        with self._lock:
+            now = self._clock()
+            # elapsed time only forward (a monotonic clock; a step back adds nothing)
+            self._tokens = min(float(self.burst),
+                               self._tokens + max(0.0, now - self._at) * self.per_s)
+            self._at = now
+            if self._tokens >= 1.0:
+                self._tokens -= 1.0
+                return True
+            self.dropped += 1
+            return False
 
 
 class ZenohPublisherSink:
@@ -97,6 +131,9 @@ class ZenohPublisherSink:
         self.conflict: tuple[str, ...] = ()
         """The other daemons' ids claiming this station, as last reported."""
         self.server = RecordingServer(station) if settings.serve_recordings else None
+        self.acks = RateLimit(ACK_PER_S, ACK_BURST)
+        """Acknowledgements taken from the bus (:data:`ACK_BURST`, :data:`ACK_PER_S`)."""
+        self._acks_dropped_said = 0
         self._hashing: set[asyncio.Task[None]] = set()
 
     def _on_token(self, key_expr: str, alive: bool) -> None:
@@ -165,6 +202,12 @@ class ZenohPublisherSink:
         bus.subscribe_liveliness(key(st, "alive/**"), self._on_token)
 
         def on_ack(_key: str, payload: bytes) -> None:  # a Zenoh thread: hand over to the loop
+            if not self.acks.allow():  # before anything else: a flood costs a counter each
+                dropped = self.acks.dropped
+                if dropped == 1 or dropped % 10_000 == 0:
+                    log.warning("acknowledgements beyond %d at once or %g a second: %d dropped "
+                                "so far", ACK_BURST, ACK_PER_S, dropped)
+                return
             loop.call_soon_threadsafe(self._on_ack, payload, publish)
 
         bus.subscribe(key(st, "ack"), on_ack)
@@ -187,10 +230,16 @@ class ZenohPublisherSink:
             log.warning("ignoring a malformed acknowledgement: %s", err)
             return
         alert, by = str(msg.get("alert", ""))[:64], str(msg.get("by", ""))[:64]
-        log.info("operator acknowledged %s (%s)", alert or "all alerts", by or "unnamed view")
+        dropped = self.acks.dropped - self._acks_dropped_said
+        self._acks_dropped_said += dropped
+        log.info("operator acknowledged %s (%s)%s", alert or "all alerts", by or "unnamed view",
+                 f"; {dropped} acknowledgements dropped before it (rate limit)" if dropped
+                 else "")
+        data: dict[str, Any] = {"alert": alert, "by": by}
+        if dropped:
+            data["dropped_before"] = dropped
         ev = Event(kinds.OPERATOR_ACK, self._clock(),
-                   f"{alert or 'alerts'} acknowledged by {by or 'an operator'}", "info",
-                   {"alert": alert, "by": by})
+                   f"{alert or 'alerts'} acknowledged by {by or 'an operator'}", "info", data)
         publish(ev)  # to the monitor and the recorder; the fanout never hands it back to us
         self._put("event", encode("event", ev, station=self.station))
 

@@ -18,6 +18,7 @@ Refusals are answered with a one-line error, counted and logged sparingly.
 
 from __future__ import annotations
 
+import bisect
 import logging
 import os
 import threading
@@ -30,6 +31,9 @@ from groundstation.bus import Bus, Reply, key
 from groundstation.storage import transfer
 
 log = logging.getLogger("groundstation.serve")
+
+MAX_RANGES = 100_000
+"""Separate byte ranges of one file noted as sent (:class:`SentRanges`)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -61,7 +65,7 @@ class RecordingServer:
         self.chunk_bytes = chunk_bytes
         self.session_id = ""
         self._files: dict[str, ServedFile] = {}
-        self._sent: dict[str, list[tuple[int, int]]] = {}  # merged [start, end) ranges sent
+        self._sent: dict[str, SentRanges] = {}  # what of each file has been sent
         self._lock = threading.Lock()
         self.queries = 0
         self.refused = 0
@@ -99,7 +103,7 @@ class RecordingServer:
         with self._lock:
             self.session_id = session_id
             self._files.setdefault(name, served)
-            self._sent.setdefault(name, [])
+            self._sent.setdefault(name, SentRanges())
         log.info("serving %s (%d bytes) on %s", name, size,
                  key(self.station, f"q/recording/{session_id}"))
         return served
@@ -113,7 +117,7 @@ class RecordingServer:
         """Every served file has been sent whole at least once (to anyone)."""
         with self._lock:
             return bool(self._files) and all(
-                self._sent[n] == [(0, f.size)] or f.size == 0 for n, f in self._files.items())
+                self._sent[n].covers(f.size) for n, f in self._files.items())
 
     def _refuse(self, query_key: str, why: str) -> list[Reply]:
         with self._lock:
@@ -154,18 +158,47 @@ class RecordingServer:
             return self._refuse(query_key, f"{req.file}: cannot read it ({err.strerror})")
         with self._lock:
             self.sent_bytes += len(data)
-            self._sent[req.file] = _merge(self._sent[req.file], req.offset,
-                                          req.offset + len(data))
+            self._sent[req.file].add(req.offset, req.offset + len(data))
         return [Reply(query_key, data,
                       transfer.chunk_attachment(req.file, req.offset, data, served.size))]
 
 
-def _merge(ranges: list[tuple[int, int]], start: int, end: int) -> list[tuple[int, int]]:
-    """``ranges`` (sorted, disjoint) with ``[start, end)`` added and neighbours merged."""
-    out: list[tuple[int, int]] = []
-    for a, b in sorted([*ranges, (start, end)]):
-        if out and a <= out[-1][1]:
-            out[-1] = (out[-1][0], max(out[-1][1], b))
-        else:
-            out.append((a, b))
-    return out
+class SentRanges:
+    """The byte ranges of a file sent so far, merged: sorted, disjoint ``[start, end)``.
+
+    Each :meth:`add` finds its place by binary search and touches only the ranges it merges
+    with: ``n`` queries cost ``O(n log n)`` comparisons, plus the list insertion (a C memmove).
+    Re-sorting every range per query, as before, cost ``O(n² log n)``: 20 000 one-byte queries
+    at every other byte took 22 s of the daemon's CPU. At most :data:`MAX_RANGES` separate
+    ranges are kept (a peer asking for every other byte must not grow the daemon without
+    bound); a range beyond that is not noted (``untracked``), so the file is not taken as sent
+    in full on its account: the daemon then serves until ``serve_after_s``, the safe side.
+    """
+
+    __slots__ = ("starts", "ends", "untracked")
+
+    def __init__(self) -> None:
+        self.starts: list[int] = []
+        self.ends: list[int] = []  # sorted too: the ranges are disjoint
+        self.untracked = 0
+
+    def add(self, start: int, end: int) -> None:
+        """Add ``[start, end)``, merged with every range it overlaps or touches."""
+        starts, ends = self.starts, self.ends
+        i = bisect.bisect_left(ends, start)  # the first range ending at or after start
+        j = bisect.bisect_right(starts, end)  # past the last range starting at or before end
+        if i < j:
+            start, end = min(start, starts[i]), max(end, ends[j - 1])
+        elif len(starts) >= MAX_RANGES:
+            self.untracked += 1
+            return
+        starts[i:j] = [start]
+        ends[i:j] = [end]
+
+    def covers(self, size: int) -> bool:
+        """Whether ``[0, size)`` has been sent whole."""
+        return size == 0 or (len(self.starts) == 1 and self.starts[0] == 0
+                             and self.ends[0] >= size)
+
+    def __len__(self) -> int:
+        return len(self.starts)

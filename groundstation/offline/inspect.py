@@ -17,6 +17,7 @@ from groundstation.records import Frame, RawEpoch, TimeMark, UndecodedFrame, sv_
 from groundstation.rules.epochs import Gap, find_gaps, nominal_interval_ns
 from groundstation.rules.marks import track_marks
 from groundstation.storage.reading import Recording
+from groundstation.storage.skipped import Skipped
 from groundstation.ubx.decode import Decoder, message_name
 from groundstation.ubx.framer import DEFAULT_MAX_PAYLOAD, FramerStats, UbxFramer
 
@@ -80,9 +81,14 @@ class Summary:
     """Size on disk of the recording (all parts); ``bytes`` is the raw stream inside it."""
     unknown_slot_signals: int = 0
     """GLONASS measurements without a known slot (u-blox svId 255): not a satellite name."""
+    skipped: tuple[Skipped, ...] = ()
+    """Damaged stretches of the file read past: their bytes are not in ``bytes``."""
+    orphan_messages: int = 0
+    """Messages whose channel was defined only in a skipped stretch (not read)."""
 
     def as_json(self) -> dict[str, Any]:
         d = asdict(self)
+        d["skipped"] = [k.as_json() for k in self.skipped]
         d["gaps"] = [gap_json(g) for g in self.gaps]
         d["timemarks"] = asdict(self.timemarks)
         d["satellites"] = list(self.satellites)
@@ -214,7 +220,8 @@ def inspect_path(path: str | Path, max_payload: int = DEFAULT_MAX_PAYLOAD) -> Su
     for frame in framer.flush(last_t):
         insp.add(frame)
     out = insp.summary(framer.stats, path=str(p), fmt=recording.format)
-    return replace(out, file_bytes=recording.size_bytes)
+    return replace(out, file_bytes=recording.size_bytes, skipped=tuple(recording.skipped),
+                   orphan_messages=recording.orphan_messages)
 
 
 FILE_SIGNATURES: tuple[tuple[bytes, str], ...] = (

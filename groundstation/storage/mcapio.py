@@ -21,6 +21,7 @@ the first chunk (the session's part number, for following a session's parts).
 
 from __future__ import annotations
 
+import bisect
 import collections
 import contextlib
 import errno
@@ -29,7 +30,7 @@ import os
 import struct
 import zlib
 from collections.abc import Callable, Iterable, Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, BinaryIO, Protocol
 
@@ -38,19 +39,18 @@ import zstandard
 from mcap.data_stream import RecordBuilder
 from mcap.reader import make_reader
 from mcap.records import (
-    Channel,
     Chunk,
     ChunkIndex,
     DataEnd,
     Message,
     MessageIndex,
     Metadata,
-    Schema,
 )
 from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, IndexType, Writer
 
 from groundstation import jsonio
+from groundstation.storage.skipped import Skipped
 
 log = logging.getLogger("groundstation.storage")
 
@@ -694,13 +694,547 @@ class McapMessage:
 
 @dataclass(slots=True)
 class ReadReport:
-    """Filled in while :func:`iter_messages` runs: how the file ended."""
+    """Filled in while :func:`iter_messages` runs: how the file ended and what was skipped."""
 
     finished: bool = False
+    """The footer was read: the file was finished by its writer."""
     truncated: bool = False
+    """The file ends in a torn record (its writer stopped mid-write): read up to there."""
     error: str = ""
     messages: int = 0
     metadata: dict[str, dict[str, str]] = field(default_factory=dict)
+    skipped: list[Skipped] = field(default_factory=list)
+    """Damaged stretches read past (each one also logged as a warning)."""
+    orphan_messages: int = 0
+    """Messages on channels defined only in a skipped stretch: their topic is unknown, so
+    they are not returned (counted, and logged as a warning)."""
+
+
+class _Damage(Exception):
+    """A record that cannot be read where it stands."""
+
+    def __init__(self, reason: str, *, torn: bool = False) -> None:
+        super().__init__(reason)
+        self.reason = reason
+        self.torn = torn
+        """The record runs past the end of the file: what a killed writer leaves."""
+
+
+_MAGIC = b"\x89MCAP0\r\n"
+_OP_FOOTER = 0x02
+_OP_SCHEMA = 0x03
+_OP_CHANNEL = 0x04
+_OP_METADATA = 0x0C
+_OP_DATA_END = 0x0F
+_SKIPPED_OPS = frozenset({0x01, 0x08, 0x09, 0x0A, 0x0B, 0x0D, 0x0E})
+"""Header, chunk index, attachment and the summary's records: nothing to read in them here."""
+_RECORD_LIMIT = 1 << 29
+"""A longer record is damage: the recorder's chunks are at most 256 MiB (its bound)."""
+_CHUNK_FIXED = struct.Struct("<QQQII")  # times, uncompressed size, CRC, compression name length
+_CHUNK_MIN = _CHUNK_FIXED.size + 8  # + records length
+_CHUNK_INDEX_FIXED = struct.Struct("<QQQQ")  # times, chunk start, chunk length
+_FOOTER = struct.Struct("<BQQQI")  # opcode, length, summary start, offsets start, CRC
+_FOOTER_TAIL = _FOOTER.size + len(_MAGIC)
+_DATA_END_SIZE = _RECORD_HEAD.size + 4
+_COMPRESSIONS = (b"", b"zstd", b"lz4")
+_ZSTD_MAGIC = b"\x28\xb5\x2f\xfd"
+_LZ4_MAGIC = b"\x04\x22\x4d\x18"
+_SCAN_BLOCK = 1 << 20
+_SCAN_OVERLAP = _RECORD_HEAD.size + _CHUNK_MIN + 16 + 4
+
+
+def _string(buf: bytes, pos: int, end: int) -> tuple[str, int]:
+    """A length-prefixed UTF-8 string of ``buf`` at ``pos`` and the position after it."""
+    if pos + 4 > end:
+        raise _Damage("a string runs past its record")
+    (n,) = struct.unpack_from("<I", buf, pos)
+    pos += 4
+    if pos + n > end:
+        raise _Damage("a string runs past its record")
+    try:
+        return buf[pos : pos + n].decode(), pos + n
+    except UnicodeDecodeError as err:
+        raise _Damage("a string is not UTF-8") from err
+
+
+def _string_map(buf: bytes, pos: int, end: int) -> tuple[dict[str, str], int]:
+    if pos + 4 > end:
+        raise _Damage("a map runs past its record")
+    (n,) = struct.unpack_from("<I", buf, pos)
+    pos += 4
+    stop = pos + n
+    if stop > end:
+        raise _Damage("a map runs past its record")
+    out: dict[str, str] = {}
+    while pos < stop:
+        key, pos = _string(buf, pos, stop)
+        out[key], pos = _string(buf, pos, stop)
+    return out, pos
+
+
+@dataclass(frozen=True, slots=True)
+class _Channel:
+    topic: str
+    message_encoding: str
+    schema_id: int
+
+
+def _channel(buf: bytes, pos: int, end: int) -> tuple[int, _Channel]:
+    if pos + 4 > end:
+        raise _Damage("channel record cut")
+    cid, schema_id = struct.unpack_from("<HH", buf, pos)
+    topic, pos = _string(buf, pos + 4, end)
+    encoding, pos = _string(buf, pos, end)
+    _string_map(buf, pos, end)
+    return cid, _Channel(topic, encoding, schema_id)
+
+
+def _schema(buf: bytes, pos: int, end: int) -> tuple[int, str]:
+    if pos + 2 > end:
+        raise _Damage("schema record cut")
+    (sid,) = struct.unpack_from("<H", buf, pos)
+    name, _ = _string(buf, pos + 2, end)
+    return sid, name
+
+
+def _chunk_data(body: bytes) -> bytes:
+    """The records of a chunk record's body, decompressed and checked against its CRC."""
+    if len(body) < _CHUNK_MIN:
+        raise _Damage("chunk header cut")
+    _, _, size, crc, name_len = _CHUNK_FIXED.unpack_from(body, 0)
+    at = _CHUNK_FIXED.size + name_len
+    if name_len > 16 or at + 8 > len(body):
+        raise _Damage("chunk header damaged")
+    name = body[_CHUNK_FIXED.size : at]
+    (records_len,) = _U64.unpack_from(body, at)
+    at += 8
+    if at + records_len != len(body) or size > _RECORD_LIMIT:
+        raise _Damage("chunk header damaged (its lengths do not agree)")
+    if name not in _COMPRESSIONS:
+        raise _Damage(f"chunk compressed with unknown {name!r}")
+    packed = memoryview(body)[at:]
+    try:
+        if name == b"zstd":
+            # the frame's own size claim first: a damaged one must not allocate gigabytes
+            claimed = zstandard.frame_content_size(packed)
+            if claimed not in (-1, size):
+                raise _Damage("chunk does not decompress (sizes disagree)")
+            data = zstandard.ZstdDecompressor().decompress(packed, max_output_size=size)
+        elif name == b"lz4":
+            data = lz4.frame.decompress(bytes(packed))
+        else:
+            data = bytes(packed)
+    except _Damage:
+        raise
+    except Exception as err:  # each decompressor has its own errors for damaged input
+        raise _Damage(f"chunk does not decompress: {err}") from err
+    if len(data) != size:
+        raise _Damage("chunk decompresses to another size than its header says")
+    if crc and zlib.crc32(data) != crc:
+        raise _Damage("chunk CRC mismatch")
+    return data
+
+
+@dataclass(frozen=True, slots=True)
+class _ChunkPlace:
+    start: int
+    length: int
+    first_ns: int
+    last_ns: int
+
+
+@dataclass(frozen=True, slots=True)
+class _FileSummary:
+    """What a finished file's summary says about where its chunks are."""
+
+    chunks: tuple[_ChunkPlace, ...]
+    starts: tuple[int, ...]
+    data_end: int | None
+    """Where the data-end record stands (the data section's last record), if found."""
+    channels: dict[int, _Channel]
+    schemas: dict[int, str]
+
+    def after(self, pos: int) -> tuple[int | None, list[_ChunkPlace]]:
+        """Where reading goes on after damage at ``pos`` (the next chunk, or the data-end
+        record), and the chunks lost in between (those starting at or after ``pos``, and one
+        that ``pos`` falls inside)."""
+        i = bisect.bisect_right(self.starts, pos)
+        resume = self.starts[i] if i < len(self.starts) else self.data_end
+        if resume is not None and resume <= pos:
+            resume = None
+        lost = [c for c in self.chunks
+                if (pos <= c.start and (resume is None or c.start < resume))
+                or c.start < pos < c.start + c.length]
+        return resume, lost
+
+
+class _Reader:
+    """One linear pass over an MCAP file that reads past damage (:func:`iter_messages`)."""
+
+    def __init__(self, f: BinaryIO, name: str, wanted: set[str] | None,
+                 rep: ReadReport) -> None:
+        self.f = f
+        self.name = name
+        self.wanted = wanted
+        self.rep = rep
+        self.start = f.tell()
+        f.seek(0, os.SEEK_END)
+        self.size = f.tell()
+        f.seek(self.start)
+        self.channels: dict[int, _Channel] = {}
+        self.schemas: dict[int, str] = {}
+        self.last_log_ns: int | None = None
+        self.pending: Skipped | None = None  # damage read past, waiting for the next message
+        self._summary: _FileSummary | None = None
+        self._summary_read = False
+
+    # -- the pass --
+
+    def messages(self) -> Iterator[McapMessage]:
+        rep = self.rep
+        f = self.f
+        if f.read(len(_MAGIC)) != _MAGIC:
+            rep.truncated = True
+            rep.error = "not an MCAP file (no magic at its start)"
+            return
+        pos: int | None = self.start + len(_MAGIC)
+        data_ended = False
+        try:
+            while pos is not None:
+                try:
+                    got = self._record(pos)
+                except _Damage as err:
+                    if data_ended:  # the summary is damaged: every message was read
+                        rep.truncated, rep.error = True, err.reason
+                        log.debug("%s: summary unreadable after the data: %s", self.name,
+                                  err.reason)
+                        return
+                    pos = self._skip(pos, err)
+                    continue
+                if got is None:  # the file ends on a record boundary
+                    if not data_ended:
+                        rep.truncated, rep.error = True, "ends without a footer"
+                    return
+                opcode, length, body = got
+                after = pos + _RECORD_HEAD.size + length
+                if data_ended or opcode in _SKIPPED_OPS:
+                    if opcode == _OP_FOOTER:
+                        rep.finished = True
+                        return
+                elif opcode == _CHUNK_OPCODE:
+                    try:
+                        msgs, data = self._chunk(body)
+                    except _Damage as err:
+                        pos = self._skip(pos, err)
+                        continue
+                    yield from self._deliver(msgs, data)
+                elif opcode == _MESSAGE_OPCODE:  # outside a chunk (an unchunked file)
+                    if len(body) < _MESSAGE_FIXED:
+                        pos = self._skip(pos, _Damage("message record cut"))
+                        continue
+                    msg = (*_MESSAGE_BODY.unpack_from(body, 0), _MESSAGE_FIXED, len(body))
+                    yield from self._deliver([msg], body)
+                elif opcode == _INDEX_OPCODE:
+                    if len(body) < 6 or struct.unpack_from("<I", body, 2)[0] + 6 != len(body):
+                        pos = self._skip(pos, _Damage("message index damaged"))
+                        continue
+                elif opcode in (_OP_SCHEMA, _OP_CHANNEL, _OP_METADATA):
+                    try:
+                        self._definition(opcode, body, 0, len(body))
+                    except _Damage as err:
+                        pos = self._skip(pos, err)
+                        continue
+                elif opcode == _OP_DATA_END:
+                    data_ended = True
+                elif opcode == _OP_FOOTER:
+                    rep.finished = True
+                    return
+                else:
+                    pos = self._skip(pos, _Damage(f"record of unknown type 0x{opcode:02x}"))
+                    continue
+                pos = after
+        finally:
+            self._close_pending()
+            if rep.orphan_messages:
+                log.warning("%s: %d messages on channels defined only in the skipped bytes "
+                            "could not be read (their topic is unknown)", self.name,
+                            rep.orphan_messages)
+
+    def _record(self, pos: int) -> tuple[int, int, bytes] | None:
+        """``(opcode, length, body)`` of the record at ``pos`` (the body left empty for the
+        records nothing is read from); ``None`` at the end of the file."""
+        f = self.f
+        if f.tell() != pos:
+            f.seek(pos)
+        head = f.read(_RECORD_HEAD.size)
+        if not head:
+            return None
+        if len(head) < _RECORD_HEAD.size:
+            raise _Damage("a record header cut by the end of the file", torn=True)
+        opcode, length = _RECORD_HEAD.unpack(head)
+        if length > self.size - pos - _RECORD_HEAD.size:
+            raise _Damage(f"a record of {length:,} bytes runs past the end of the file",
+                          torn=True)
+        if length > _RECORD_LIMIT:
+            raise _Damage(f"a record of {length:,} bytes (implausible)")
+        if opcode in _SKIPPED_OPS:
+            f.seek(length, os.SEEK_CUR)
+            return opcode, length, b""
+        return opcode, length, f.read(length)
+
+    def _chunk(self, record: bytes) -> tuple[list[tuple[int, int, int, int, int, int]], bytes]:
+        """A chunk's messages (``(channel, sequence, log ns, publish ns, data start, data
+        end)`` into the returned data), its definitions taken in; all or nothing."""
+        data = _chunk_data(record)
+        msgs: list[tuple[int, int, int, int, int, int]] = []
+        defs: list[tuple[int, int, int]] = []
+        head = _RECORD_HEAD.unpack_from
+        message = _MESSAGE_BODY.unpack_from
+        pos, end = 0, len(data)
+        while pos < end:
+            if pos + _RECORD_HEAD.size > end:
+                raise _Damage("chunk records cut")
+            opcode, length = head(data, pos)
+            body = pos + _RECORD_HEAD.size
+            pos = body + length
+            if pos > end:
+                raise _Damage("a record runs past the end of its chunk")
+            if opcode == _MESSAGE_OPCODE:
+                if length < _MESSAGE_FIXED:
+                    raise _Damage("message record cut")
+                msgs.append((*message(data, body), body + _MESSAGE_FIXED, pos))
+            elif opcode in (_OP_SCHEMA, _OP_CHANNEL):
+                defs.append((opcode, body, pos))
+        channels: dict[int, _Channel] = {}
+        schemas: dict[int, str] = {}
+        for opcode, a, b in defs:  # checked before any is taken in
+            if opcode == _OP_CHANNEL:
+                cid, ch = _channel(data, a, b)
+                channels[cid] = ch
+            else:
+                sid, name = _schema(data, a, b)
+                schemas[sid] = name
+        self.channels.update(channels)
+        self.schemas.update(schemas)
+        return msgs, data
+
+    def _definition(self, opcode: int, body: bytes, a: int, b: int) -> None:
+        if opcode == _OP_CHANNEL:
+            cid, ch = _channel(body, a, b)
+            self.channels[cid] = ch
+        elif opcode == _OP_SCHEMA:
+            sid, name = _schema(body, a, b)
+            self.schemas[sid] = name
+        else:
+            name, pos = _string(body, a, b)
+            self.rep.metadata[name], _ = _string_map(body, pos, b)
+
+    def _deliver(self, msgs: list[tuple[int, int, int, int, int, int]],
+                 data: bytes) -> Iterator[McapMessage]:
+        if not msgs:
+            return
+        if self.pending is not None:
+            self._close_pending(msgs[0][2])
+        rep = self.rep
+        wanted = self.wanted
+        channels = self.channels
+        for cid, sequence, log_ns, publish_ns, a, b in msgs:
+            ch = channels.get(cid)
+            if ch is None:
+                rep.orphan_messages += 1
+                continue
+            if wanted is not None and ch.topic not in wanted:
+                continue
+            rep.messages += 1
+            yield McapMessage(ch.topic, ch.message_encoding, self.schemas.get(ch.schema_id, ""),
+                              log_ns, publish_ns, sequence, data[a:b])
+        self.last_log_ns = msgs[-1][2]
+
+    # -- damage --
+
+    def _skip(self, pos: int, err: _Damage) -> int | None:
+        """Where reading goes on after damage at ``pos`` (``None``: nowhere), the skipped
+        stretch noted."""
+        summary = self._file_summary()
+        lost: list[_ChunkPlace] = []
+        if summary is not None:
+            resume, lost = summary.after(pos)
+        else:
+            resume = self._scan(pos + 1)
+        if resume is None and err.torn and summary is None:
+            # the file of a killed writer: its last record cut short, nothing after it
+            self.rep.truncated, self.rep.error = True, err.reason
+            log.debug("%s: readable part ends at byte %d: %s", self.name, pos, err.reason)
+            return None
+        end = resume if resume is not None else self.size
+        chunks = len(lost) if summary is not None else None
+        first = min((c.first_ns for c in lost), default=None)
+        last = max((c.last_ns for c in lost), default=None)
+        p = self.pending
+        if p is not None and p.end_byte == pos:  # one stretch, damaged twice over
+            self.pending = replace(
+                p, end_byte=end, to_end=resume is None,
+                chunks=None if chunks is None else (p.chunks or 0) + chunks,
+                lost_first_ns=_least(p.lost_first_ns, first),
+                lost_last_ns=_most(p.lost_last_ns, last))
+        else:
+            self._close_pending()
+            self.pending = Skipped(
+                self.name, pos, end, err.reason, chunks=chunks, lost_first_ns=first,
+                lost_last_ns=last, read_before_ns=self.last_log_ns, to_end=resume is None)
+        if resume is None:
+            self._close_pending()
+        return resume
+
+    def _close_pending(self, read_after_ns: int | None = None) -> None:
+        p = self.pending
+        if p is None:
+            return
+        self.pending = None
+        p = replace(p, read_after_ns=read_after_ns)
+        self.rep.skipped.append(p)
+        said = (p.file, p.start_byte, p.end_byte)
+        if said in _SAID:  # a tool reading the file again (solve: marks, then RINEX)
+            log.debug("%s", p.describe())
+            return
+        if len(_SAID) >= 1000:
+            _SAID.clear()
+        _SAID.add(said)
+        log.warning("%s", p.describe())
+
+    def _scan(self, start: int) -> int | None:
+        """The next place from ``start`` on where a whole, valid chunk begins (a linear
+        reader's resynchronisation: a chunk opens with its opcode and a header whose lengths
+        agree with each other and with the file, and it must decompress to its CRC)."""
+        f = self.f
+        pos = start
+        while pos < self.size:
+            f.seek(pos)
+            buf = f.read(_SCAN_BLOCK + _SCAN_OVERLAP)
+            limit = min(_SCAN_BLOCK, len(buf))
+            i = buf.find(b"\x06", 0, limit)
+            while i >= 0:
+                if self._looks_like_chunk(buf, i, pos + i) and self._chunk_at(pos + i):
+                    return pos + i
+                i = buf.find(b"\x06", i + 1, limit)
+            pos += _SCAN_BLOCK
+        return None
+
+    def _looks_like_chunk(self, buf: bytes, i: int, at: int) -> bool:
+        """A chunk's header at ``buf[i:]`` (file offset ``at``) whose lengths agree."""
+        at_name = i + _RECORD_HEAD.size + _CHUNK_FIXED.size
+        if at_name + 16 + 8 > len(buf):  # only at the end of the file (the blocks overlap)
+            return False
+        _, length = _RECORD_HEAD.unpack_from(buf, i)
+        if not _CHUNK_MIN <= length <= min(_RECORD_LIMIT, self.size - at - _RECORD_HEAD.size):
+            return False
+        first, last, _, _, name_len = _CHUNK_FIXED.unpack_from(buf, i + _RECORD_HEAD.size)
+        if first > last or name_len > 16:
+            return False
+        name = buf[at_name : at_name + name_len]
+        if name not in _COMPRESSIONS:
+            return False
+        (records_len,) = _U64.unpack_from(buf, at_name + name_len)
+        if _CHUNK_MIN + name_len + records_len != length:
+            return False
+        # the data's own first bytes, before a whole chunk is read: a frame's magic number,
+        # or (uncompressed) a record that may open a chunk
+        data = at_name + name_len + 8
+        head = buf[data : data + 4]
+        if len(head) < 4:
+            return True  # at the block's end: the whole chunk decides
+        if name == b"zstd":
+            return head == _ZSTD_MAGIC
+        if name == b"lz4":
+            return head == _LZ4_MAGIC
+        return head[0] in (_OP_SCHEMA, _OP_CHANNEL, _MESSAGE_OPCODE)
+
+    def _chunk_at(self, at: int) -> bool:
+        try:
+            got = self._record(at)
+            if got is None or got[0] != _CHUNK_OPCODE:
+                return False
+            _chunk_data(got[2])
+        except _Damage:
+            return False
+        return True
+
+    def _file_summary(self) -> _FileSummary | None:
+        """The chunk places a finished file's summary gives (read once, at the first damage);
+        ``None`` for an unfinished file or a damaged summary."""
+        if self._summary_read:
+            return self._summary
+        self._summary_read = True
+        here = self.f.tell()
+        try:
+            self._summary = self._read_summary()
+        except (_Damage, struct.error) as err:
+            log.debug("%s: summary unusable: %s", self.name, err)
+        finally:
+            self.f.seek(here)
+        if self._summary is not None:
+            for cid, ch in self._summary.channels.items():  # lost with a damaged chunk
+                self.channels.setdefault(cid, ch)
+            for sid, name in self._summary.schemas.items():
+                self.schemas.setdefault(sid, name)
+        return self._summary
+
+    def _read_summary(self) -> _FileSummary | None:
+        f, size = self.f, self.size
+        if size - self.start < len(_MAGIC) + _FOOTER_TAIL:
+            return None
+        f.seek(size - _FOOTER_TAIL)
+        tail = f.read(_FOOTER_TAIL)
+        opcode, length, summary_start, _, crc = _FOOTER.unpack_from(tail, 0)
+        if tail[_FOOTER.size :] != _MAGIC or opcode != _OP_FOOTER or length != 20:
+            return None
+        if not self.start < summary_start <= size - _FOOTER_TAIL:
+            return None
+        f.seek(summary_start)
+        data = f.read(size - _FOOTER_TAIL - summary_start)
+        if crc and zlib.crc32(tail[: _FOOTER.size - 4], zlib.crc32(data)) != crc:
+            raise _Damage("summary CRC mismatch")
+        chunks: list[_ChunkPlace] = []
+        channels: dict[int, _Channel] = {}
+        schemas: dict[int, str] = {}
+        pos, end = 0, len(data)
+        while pos < end:
+            opcode, rec_len = _RECORD_HEAD.unpack_from(data, pos)
+            body = pos + _RECORD_HEAD.size
+            pos = body + rec_len
+            if pos > end:
+                raise _Damage("summary record cut")
+            if opcode == _CHUNK_INDEX_OPCODE:
+                first, last, start, chunk_len = _CHUNK_INDEX_FIXED.unpack_from(data, body)
+                chunks.append(_ChunkPlace(start, chunk_len, first, last))
+            elif opcode == _OP_CHANNEL:
+                cid, ch = _channel(data, body, pos)
+                channels[cid] = ch
+            elif opcode == _OP_SCHEMA:
+                sid, name = _schema(data, body, pos)
+                schemas[sid] = name
+        if not chunks:
+            return None
+        chunks.sort(key=lambda c: c.start)
+        data_end: int | None = summary_start - _DATA_END_SIZE
+        f.seek(summary_start - _DATA_END_SIZE)
+        if f.read(_RECORD_HEAD.size) != _RECORD_HEAD.pack(_OP_DATA_END, 4):
+            data_end = None
+        return _FileSummary(tuple(chunks), tuple(c.start for c in chunks), data_end,
+                            channels, schemas)
+
+
+_SAID: set[tuple[str, int, int]] = set()
+"""Damaged stretches already warned about by this process: each is one warning line, however
+often the file is read."""
+
+
+def _least(a: int | None, b: int | None) -> int | None:
+    return b if a is None else a if b is None else min(a, b)
+
+
+def _most(a: int | None, b: int | None) -> int | None:
+    return b if a is None else a if b is None else max(a, b)
 
 
 def iter_messages(
@@ -708,10 +1242,17 @@ def iter_messages(
     topics: Iterable[str] | None = None,
     report: ReadReport | None = None,
 ) -> Iterator[McapMessage]:
-    """Every message of an MCAP file in file order, finished or not.
+    """Every message of an MCAP file in file order, finished or not, read past damage.
 
     A file whose writer was killed ends in a torn record; everything before the last complete
-    chunk is returned and the tail is reported in ``report`` (not raised).
+    chunk is returned and the tail is reported in ``report`` (``truncated``, not raised).
+
+    A damaged stretch in the middle (a chunk that fails its CRC or does not decompress, a
+    record whose length or type makes no sense) is skipped and reading goes on: at the next
+    chunk the summary names (a finished file), or else at the next place where a whole, valid
+    chunk begins (a linear search). Each stretch is logged as one warning line naming the
+    file's byte range and the time span lost, and listed in ``report.skipped``. Chunks are
+    checked against their CRC, so damaged bytes are never returned as messages.
 
     Args:
         path: the MCAP file, or a binary file open at its start (left open; its position
@@ -721,41 +1262,9 @@ def iter_messages(
     """
     wanted = None if topics is None else set(topics)
     rep = report if report is not None else ReadReport()
-    schemas: dict[int, Schema] = {}
-    channels: dict[int, Channel] = {}
+    name = str(path) if isinstance(path, (str, os.PathLike)) else str(getattr(path, "name", "?"))
     with _opened(path) as f:
-        records = StreamReader(f, skip_magic=False).records
-        while True:
-            try:
-                record = next(records)
-            except StopIteration:
-                rep.finished = True
-                return
-            except Exception as err:
-                # A torn tail fails in the record parser, the decompressor or a length check,
-                # depending on where the writer stopped: all of them end the readable part.
-                rep.truncated = True
-                rep.error = f"{type(err).__name__}: {err}"
-                log.debug("%s: readable part ends: %s", path, rep.error)
-                return
-            if isinstance(record, Message):
-                ch = channels.get(record.channel_id)
-                if ch is None:
-                    continue
-                if wanted is not None and ch.topic not in wanted:
-                    continue
-                schema = schemas.get(ch.schema_id)
-                rep.messages += 1
-                yield McapMessage(
-                    ch.topic, ch.message_encoding, schema.name if schema else "",
-                    record.log_time, record.publish_time, record.sequence, bytes(record.data),
-                )
-            elif isinstance(record, Channel):
-                channels[record.id] = record
-            elif isinstance(record, Schema):
-                schemas[record.id] = record
-            elif isinstance(record, Metadata):
-                rep.metadata[record.name] = dict(record.metadata)
+        yield from _Reader(f, name, wanted, rep).messages()
 
 
 @contextlib.contextmanager
@@ -788,12 +1297,15 @@ def read_head_metadata(path: Path | str) -> dict[str, dict[str, str]]:
     return out
 
 
-def iter_raw_chunks(path: Path | str | BinaryIO) -> Iterator[tuple[bytes, int]]:
+def iter_raw_chunks(
+    path: Path | str | BinaryIO, report: ReadReport | None = None,
+) -> Iterator[tuple[bytes, int]]:
     """The ``/ubx/raw`` chunks of a recording as ``(data, log_time_ns)``, finished or not.
 
-    Concatenating the data gives exactly the bytes the daemon received, in order.
+    Concatenating the data gives exactly the bytes the daemon received, in order (less any
+    damaged stretch read past: ``report.skipped``).
     """
-    for msg in iter_messages(path, topics=(RAW_TOPIC,)):
+    for msg in iter_messages(path, topics=(RAW_TOPIC,), report=report):
         yield msg.data, msg.log_time_ns
 
 

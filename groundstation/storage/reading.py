@@ -26,6 +26,15 @@ new part after a write failure such as a full disk) is followed automatically. T
   in the parts' order. Sidecars hold no reception times.
 - A missing part (a number skipped) or a missing sidecar is reported as a warning and skipped:
   the bytes on either side of the hole are still read (the framer resynchronises).
+- Parts are confined to the recording's own directory: a sidecar is a plain ``.ubx`` file
+  name there (a metadata record naming ``../x`` or ``/etc/x`` is refused), and a part or a
+  sidecar that is a symbolic link leading out of the directory is not followed. Each refusal
+  is a warning naming the file and why; the solver service's ``recording_roots`` hold for
+  every part read, not only the one it was given.
+- A damaged stretch in the middle of an MCAP part (a chunk that fails its CRC or does not
+  decompress, a broken record header) is read past (:func:`~groundstation.storage.mcapio.
+  iter_messages`): one warning line names the byte range and the time span lost, and
+  :attr:`Recording.skipped` lists them for the tools that report them (``inspect``).
 - Any other file (no groundstation metadata, another program's MCAP, a plain log) is read alone.
   ``follow_parts=False`` reads only the given file.
 """
@@ -34,6 +43,7 @@ from __future__ import annotations
 
 import gzip
 import logging
+import os
 import stat
 import zlib
 from collections.abc import Iterator
@@ -42,6 +52,7 @@ from pathlib import Path
 from typing import BinaryIO, Literal
 
 from groundstation.errors import InputError
+from groundstation.storage.skipped import Skipped
 
 log = logging.getLogger("groundstation.reading")
 
@@ -127,7 +138,14 @@ def _mcap_parts(path: Path, info: PartInfo) -> list[tuple[int, Path]]:
     for cand in path.parent.iterdir():
         name = cand.name
         if (cand == path or not name.endswith(".mcap") or not name.startswith(prefix)
-                or name[: -len(".mcap")] < info.session_id or not cand.is_file()):
+                or name[: -len(".mcap")] < info.session_id):
+            continue
+        refused = _outside(cand, path.parent)
+        if refused:
+            log.warning("session %s: %s %s: not read as one of its parts", info.session_id,
+                        cand, refused)
+            continue
+        if not cand.is_file():
             continue
         try:
             if detect_format(cand) != "mcap":
@@ -151,13 +169,46 @@ def _mcap_parts(path: Path, info: PartInfo) -> list[tuple[int, Path]]:
     return ordered
 
 
+def _is_sidecar_name(name: str) -> bool:
+    """A sidecar's name as the recorder writes it: a plain ``.ubx`` file name (no directory,
+    no separator, not ``.`` or ``..``)."""
+    return (name.endswith(".ubx") and "\0" not in name
+            and not any(sep in name for sep in ("/", "\\", os.sep, os.altsep or "/")))
+
+
+def _outside(cand: Path, directory: Path) -> str:
+    """Why ``cand``, a name in ``directory``, may not be read as part of the recording there
+    (``""``: it may): followed through symbolic links, it must stay in that directory."""
+    if not cand.is_symlink():
+        return ""
+    try:
+        real = cand.resolve()
+        home = directory.resolve()
+    except (OSError, RuntimeError) as err:  # a loop of links
+        return f"is a symbolic link that cannot be followed ({err})"
+    if real.parent != home:
+        return f"is a symbolic link out of the recording's directory (to {real})"
+    return ""
+
+
 def _sidecar_of(mcap: Path, info: PartInfo, gz: bool) -> Path | None:
-    """The sidecar of a part (as named in its metadata), plain or gzipped."""
+    """The sidecar of a part (as named in its metadata), plain or gzipped: a file name in the
+    part's own directory, never a path (the metadata is the file's word, not the user's)."""
     if not info.sidecar:
+        return None
+    if not _is_sidecar_name(info.sidecar):
+        log.warning("session %s: part %d (%s) names its sidecar %r, not a .ubx file name in "
+                    "%s: refused, not read", info.session_id, info.part, mcap.name,
+                    info.sidecar, mcap.parent)
         return None
     plain = mcap.parent / info.sidecar
     zipped = mcap.parent / (info.sidecar + ".gz")
     for cand in ((zipped, plain) if gz else (plain, zipped)):
+        refused = _outside(cand, mcap.parent)
+        if refused:
+            log.warning("session %s: the sidecar of part %d, %s, %s: refused, not read",
+                        info.session_id, info.part, cand, refused)
+            continue
         if cand.is_file():
             return cand
     return None
@@ -187,7 +238,14 @@ def session_parts(path: Path, *, follow_parts: bool = True) -> tuple[Path, ...]:
     if not base.endswith(".ubx"):
         return (path,)
     partner = path.with_name(base[: -len(".ubx")] + ".mcap")
-    if not partner.is_file() or detect_format(partner) != "mcap":
+    if not partner.is_file():
+        return (path,)
+    refused = _outside(partner, path.parent)
+    if refused:
+        log.warning("%s %s: refused, the session's later parts are not followed", partner,
+                    refused)
+        return (path,)
+    if detect_format(partner) != "mcap":
         return (path,)
     info = part_info(partner)
     if info is None or info.sidecar != base:
@@ -227,6 +285,11 @@ class Recording:
         """Bytes on disk of all parts (compressed), for progress."""
         self._done_bytes = 0
         self._current: BinaryIO | None = None
+        self.skipped: list[Skipped] = []
+        """Damaged stretches of MCAP parts read past by :meth:`chunks` (each one also logged
+        as a warning naming its byte range and the time span lost)."""
+        self.orphan_messages = 0
+        """Messages whose channel was defined only in a skipped stretch (not read)."""
 
     @property
     def bytes_read(self) -> int:
@@ -254,6 +317,8 @@ class Recording:
                 holds).
         """
         self._done_bytes = 0
+        self.skipped = []
+        self.orphan_messages = 0
         for part in self.parts:
             yield from self._part_chunks(part, chunk_bytes)
             self._done_bytes += _size(part)
@@ -265,9 +330,14 @@ class Recording:
                 self._current = f
                 if fmt == "mcap":
                     # imported here: the mcap library is not needed for a .ubx (rinex, inspect)
-                    from groundstation.storage.mcapio import iter_raw_chunks
+                    from groundstation.storage.mcapio import ReadReport, iter_raw_chunks
 
-                    yield from iter_raw_chunks(f)
+                    report = ReadReport()
+                    try:
+                        yield from iter_raw_chunks(f, report=report)
+                    finally:
+                        self.skipped += report.skipped
+                        self.orphan_messages += report.orphan_messages
                 elif fmt == "gzip":
                     with gzip.GzipFile(fileobj=f, mode="rb") as gz:
                         try:

@@ -30,7 +30,12 @@ class RotationPolicy:
     def due(self, *, size_bytes: int, data_bytes: int, closed_chunks: int, started_ns: int,
             now_ns: int) -> bool:
         """Whether the current file (``size_bytes`` on disk, ``data_bytes`` in the chunk in
-        progress, ``closed_chunks`` closed by flushes, started at ``started_ns``) is done."""
+        progress, ``closed_chunks`` closed by flushes, started at ``started_ns``) is done.
+
+        ``started_ns`` and ``now_ns`` must come from a clock that does not step back: the
+        session recorder moves ``started_ns`` back with a step of its wall clock
+        (:meth:`~groundstation.storage.session.SessionRecorder._now`), so a step of an hour
+        does not keep a file open an hour longer."""
         if self.size_bytes and size_bytes >= self.size_bytes:
             return True
         chunks = closed_chunks + data_bytes // self.chunk_size_bytes

@@ -184,6 +184,9 @@ class SessionRecorder:
         self._sidecars: list[Path] = []
         self._file_start_ns = 0
         self._last_flush_ns = 0
+        self._latest_ns = 0  # the latest time the clock gave (a step back is told by it)
+        self.clock_steps_back = 0
+        """Times the clock stepped back (NTP, an operator): intervals went on across them."""
         # RotationPolicy.limits of the current file (module docstring: the write path)
         self._due_now = True
         self._data_limit = self._time_limit = 0
@@ -209,6 +212,30 @@ class SessionRecorder:
         self._idents: list[tuple[Path, tuple[int, int]]] = []  # the current pair's inodes
         self._lost: dict[Path, None] = {}  # ordered set
 
+    # -- the clock ------------------------------------------------------------------------------
+
+    def _now(self) -> int:
+        """The wall clock (file names, event times). Intervals (rotation by duration, the flush
+        and retry intervals) are measured on its forward progress only: when it steps back,
+        their starting points move back with it, so a step of an hour neither postpones the
+        next flush nor the next part by an hour."""
+        now = self._clock()
+        if now < self._latest_ns:
+            self._stepped_back(self._latest_ns - now)
+        self._latest_ns = now
+        return now
+
+    def _stepped_back(self, step_ns: int) -> None:
+        self.clock_steps_back += 1
+        self._file_start_ns -= step_ns
+        self._last_flush_ns -= step_ns
+        if self._next_retry_ns:
+            self._next_retry_ns -= step_ns
+        self._set_limits()
+        if step_ns >= 1_000_000_000:  # not the jitter of a clock being slewed
+            log.info("the clock stepped back %.3f s: rotation, flush and retry intervals go "
+                     "on from where they were", step_ns / 1e9)
+
     # -- lifecycle ------------------------------------------------------------------------------
 
     def open(self) -> Path:
@@ -217,7 +244,7 @@ class SessionRecorder:
         Raises:
             OSError: if the first file cannot be created (nothing is recorded yet).
         """
-        now = self._clock()
+        now = self._now()
         self.out_dir.mkdir(parents=True, exist_ok=True)
         self.session_id = new_session_id(self.station, now)
         return self._open_file(now)
@@ -322,9 +349,9 @@ class SessionRecorder:
         if self._closed:
             return
         if self._failure is None and self._mcap is not None:
-            self._pair_gone(self._clock())
+            self._pair_gone(self._now())
         if self._failure is not None:
-            self._recover(self._clock(), budget_bytes=None)
+            self._recover(self._now(), budget_bytes=None)
         if self._failure is None:
             try:
                 self._close_file()
@@ -365,7 +392,7 @@ class SessionRecorder:
             self._events += 1
         mcap = self._mcap
         if mcap is not None and self._failure is None:
-            now = self._clock()
+            now = self._now()
             if (now < self._time_limit and mcap.data_bytes < self._data_limit
                     and not self._due_now):  # _write's check; encoded straight into the chunk
                 try:
@@ -414,7 +441,7 @@ class SessionRecorder:
     def _write(self, msg: Msg) -> None:
         mcap = self._mcap
         if mcap is not None and self._failure is None:
-            now = self._clock()
+            now = self._now()
             if (now < self._time_limit and mcap.data_bytes < self._data_limit
                     and not self._due_now):  # no rotation due (RotationPolicy.limits)
                 spec, data, log_ns, publish_ns = msg
@@ -435,7 +462,7 @@ class SessionRecorder:
         if self._failure is not None:
             self._backlog.hold(msg)
             return
-        self._write_at(msg, self._clock())
+        self._write_at(msg, self._now())
 
     def _write_at(self, msg: Msg, now: int) -> None:
         """:meth:`_write` when a rotation may be due at ``now``."""
@@ -468,7 +495,7 @@ class SessionRecorder:
 
     def _fail(self, err: OSError) -> None:
         """A write failed: abandon the current pair and hold everything not safely written."""
-        now = self._clock()
+        now = self._now()
         first = self._failure is None
         self._failure = err
         self._failures += first
@@ -666,7 +693,7 @@ class SessionRecorder:
         except OSError as err:
             self._fail(err)
             return
-        now = self._clock()
+        now = self._now()
         if self._pair_gone(now):  # what was just written went nowhere: it is still pending
             return
         self._mark_flushed(now)
@@ -686,7 +713,7 @@ class SessionRecorder:
     def maybe_flush(self) -> bool:
         """Flush if the flush interval has passed (after a failure: retry writing when the
         retry interval has passed); True if it flushed."""
-        now = self._clock()
+        now = self._now()
         if self._failure is not None:
             if now >= self._next_retry_ns and not self._closed:
                 self._recover(now)

@@ -59,7 +59,8 @@ class Request:
 
 def _int(params: Mapping[str, str | None], name: str, lo: int, hi: int) -> int:
     text = params.get(name)
-    if text is None or not text.isdigit() or len(text) > 19:  # no sign, no spaces, no 1e9
+    # ASCII digits only: str.isdigit() also takes "²" or "٣", which int() refuses or reads
+    if text is None or not (text.isascii() and text.isdigit()) or len(text) > 19:
         raise BadRequest(f"{name}: expected an integer in [{lo}, {hi}], got {str(text)[:40]!r}")
     value = int(text)
     if not lo <= value <= hi:

@@ -82,11 +82,12 @@ class WatchState:
             self._reject(key_expr, str(err))
             return
         kind = msg.get("type")
-        if kind == "status":
-            try:  # a status the screen cannot draw would stop the view at its next refresh
-                _draw(_status_body(msg, [], [], None, None, stale=False))
+        if kind in ("status", "event"):
+            try:  # one the screen cannot draw would stop the view at its next refresh
+                _draw(_status_body(msg, [], [], None, None, stale=False) if kind == "status"
+                      else event_line(msg))
             except Exception as err:
-                self._reject(key_expr, f"status not drawable: {type(err).__name__}: {err}")
+                self._reject(key_expr, f"{kind} not drawable: {type(err).__name__}: {err}")
                 return
         now_s = time.monotonic() if now_s is None else now_s
         with self.lock:
@@ -182,6 +183,16 @@ def timeline(link: dict[str, Any], cols: int = TIMELINE_COLS, span_s: int = TIME
         else:
             text.append("▇" if not b else "▁", style="green" if not b else "bold red")
     return text
+
+
+def event_line(e: dict[str, Any]) -> Text:
+    """One event as the EVENTS panel shows it. Any value may be ``null`` (``messages.py``
+    allows it for every field): an event without a host time shows ``--:--:--``."""
+    t = e.get("t_host_ns")
+    when = (time.strftime("%H:%M:%S", time.localtime(t / 1e9)) if isinstance(t, int)
+            else "--:--:--")
+    return Text(f"{when} {e.get('kind') or '?':<22} {e.get('message') or ''}\n",
+                style="yellow" if e.get("severity") == "warning" else "")
 
 
 def _draw(renderable: RenderableType) -> None:
@@ -309,9 +320,7 @@ def _status_body(st: dict[str, Any], marks: list[dict[str, Any]],
         alert_text.append(" no alerts", style="green")
     ev_text = Text()
     for e in events[-6:]:
-        when = time.strftime("%H:%M:%S", time.localtime(e.get("t_host_ns", 0) / 1e9))
-        ev_text.append(f"{when} {e.get('kind', '?'):<22} {e.get('message', '')}\n",
-                       style="yellow" if e.get("severity") == "warning" else "")
+        ev_text.append_text(event_line(e))
     if any("mark" in a for a in alerts) and not finished:
         alert_text.append(" press a to acknowledge the missed marks\n", style="dim")
     # ALERTS right under the head: a short terminal (80x24) cuts the bottom, never the alerts.

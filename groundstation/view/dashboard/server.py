@@ -14,8 +14,10 @@ from __future__ import annotations
 import logging
 import queue
 import shutil
+import sys
 import threading
 import time
+from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass
 from http import HTTPStatus
@@ -40,6 +42,14 @@ SSE_RETRY_MS = 1000
 CATCH_UP_TIMEOUT_S = 2.0
 FILE_INFO_TTL_S = 2.0
 MAX_STATIONS = 256
+MAX_CONNECTIONS = 32
+"""Connections served at once, each on its own thread (an open page holds one for its event
+stream); one more is answered 503 at once and closed, without a thread."""
+IDLE_TIMEOUT_S = 10.0
+"""A client that sends nothing (or takes no bytes of the event stream) for this long is
+dropped: a slow or stalled client cannot keep a thread for ever."""
+MAX_BODY_BYTES = 4096
+"""The largest request body read (``POST /api/ack`` needs none)."""
 OVERFLOW_STATION = "_more"
 """Where payloads of stations beyond :data:`MAX_STATIONS` are counted."""
 STATIC_TYPES = {
@@ -72,6 +82,23 @@ def allowed_hosts(bind: str) -> frozenset[str]:
     names = {bind.lower().strip("[]"), "localhost", "127.0.0.1", "::1",
              socket.gethostname().lower()}
     return frozenset(n for n in names if n)
+
+
+def origin_ok(header: str | None, hosts: frozenset[str], port: int) -> bool:
+    """Whether a request's ``Origin`` header (sent by browsers) is this server's own origin:
+    ``http://<a name of ours or an IP literal>:<our port>``. No header is no browser page (a
+    page's ``fetch`` and form posts always send one), so nothing to check; ``null`` (a
+    sandboxed or file page) is refused."""
+    if header is None:
+        return True
+    try:
+        parts = urlsplit(header.strip())
+        got_port = parts.port or 80
+    except ValueError:
+        return False
+    if parts.scheme != "http" or parts.path not in ("", "/") or got_port != port:
+        return False
+    return host_ok(parts.netloc, hosts, port)
 
 
 def host_ok(header: str | None, hosts: frozenset[str], port: int) -> bool:
@@ -334,7 +361,17 @@ class _Handler(BaseHTTPRequestHandler):
     protocol_version = "HTTP/1.1"
     server: DashboardHTTPServer
 
+    def setup(self) -> None:
+        super().setup()
+        self.connection.settimeout(self.server.idle_timeout_s)  # every read and write
+
     def log_message(self, format: str, *args: Any) -> None:  # noqa: A002 (stdlib signature)
+        log.debug("%s " + format, self.address_string(), *args)
+
+    def log_error(self, format: str, *args: Any) -> None:  # noqa: A002 (stdlib signature)
+        """The standard library's own refusals (a malformed request line or header, a request
+        that timed out): counted, logged at debug."""
+        self.server.count("bad_requests")
         log.debug("%s " + format, self.address_string(), *args)
 
     def end_headers(self) -> None:
@@ -342,12 +379,35 @@ class _Handler(BaseHTTPRequestHandler):
             self.send_header(name, value)
         super().end_headers()
 
+    def _foreign(self, *, origin: bool) -> bool:
+        """Refuse (421, and True) a request that does not name this server: its ``Host``,
+        and for a state-changing request its ``Origin`` too (``docs/security.md``: a page of
+        another origin whose name resolves to us, DNS rebinding, names itself in both)."""
+        srv = self.server
+        host = self.headers.get("Host")
+        if not host_ok(host, srv.hosts, srv.server_port):
+            what = f"Host {host!r}"
+        elif origin and not origin_ok(self.headers.get("Origin"), srv.hosts, srv.server_port):
+            what = f"Origin {self.headers.get('Origin')!r}"
+        else:
+            return False
+        srv.count("refused_foreign")
+        log.warning("refused a %s request for %s from %s (DNS rebinding?)", self.command, what,
+                    self.address_string())
+        self.close_connection = True
+        self._send(HTTPStatus.MISDIRECTED_REQUEST, b"unknown host\n", "text/plain; charset=utf-8")
+        return True
+
+    def _bad_request(self, why: str) -> None:
+        """A malformed request: 400 with the reason, the connection closed (what follows on
+        it cannot be trusted to start a request); counted, logged at debug."""
+        self.server.count("bad_requests")
+        log.debug("bad request from %s: %s", self.address_string(), why)
+        self.close_connection = True
+        self._send(HTTPStatus.BAD_REQUEST, why.encode() + b"\n", "text/plain; charset=utf-8")
+
     def do_GET(self) -> None:
-        if not host_ok(self.headers.get("Host"), self.server.hosts, self.server.server_port):
-            log.warning("refused a request for Host %r from %s (DNS rebinding?)",
-                        self.headers.get("Host"), self.address_string())
-            self._send(HTTPStatus.MISDIRECTED_REQUEST, b"unknown host\n",
-                       "text/plain; charset=utf-8")
+        if self._foreign(origin=False):
             return
         url = urlsplit(self.path)
         query = parse_qs(url.query)
@@ -372,11 +432,21 @@ class _Handler(BaseHTTPRequestHandler):
         """``POST /api/ack?station=S&alert=A``: the operator's acknowledgement. The custom
         header makes a cross-site form or fetch impossible without a CORS preflight, which
         this server never grants, so only the dashboard page itself can acknowledge."""
+        if self._foreign(origin=True):
+            return
         url = urlsplit(self.path)
         query = parse_qs(url.query)
-        length = int(self.headers.get("Content-Length") or 0)
+        declared = (self.headers.get("Content-Length") or "0").strip()
+        # digits only: int() takes "+5", " 5", "5_0" and other scripts' digits ("²" fails)
+        if not (declared.isascii() and declared.isdigit()):
+            self._bad_request(f"bad Content-Length {declared[:20]!r}")
+            return
+        length = int(declared)
+        if length > MAX_BODY_BYTES:
+            self._bad_request(f"body of {length} bytes (at most {MAX_BODY_BYTES})")
+            return
         if length:
-            self.rfile.read(min(length, 4096))
+            self.rfile.read(length)
         if url.path != "/api/ack" or self.headers.get("X-Groundstation") != "ack":
             self._send(HTTPStatus.NOT_FOUND, b"not found\n", "text/plain; charset=utf-8")
             return
@@ -453,15 +523,75 @@ class _Handler(BaseHTTPRequestHandler):
 
 
 class DashboardHTTPServer(ThreadingHTTPServer):
-    """``ThreadingHTTPServer`` that knows its hub."""
+    """``ThreadingHTTPServer`` that knows its hub, serves at most ``max_connections`` at once
+    (:data:`MAX_CONNECTIONS`) and takes a client's going away quietly.
+
+    What the clients did wrong is counted in :attr:`stats` (``disconnects``, ``bad_requests``
+    (timed out included), ``refused_busy``, ``refused_foreign``, ``errors``; ``connections``
+    served) and logged at debug: a client that
+    disconnects, times out or sends a malformed request is routine for a web server, never a
+    traceback on the operator's terminal.
+    """
 
     daemon_threads = True
     block_on_close = False
+    request_queue_size = 64  # the listen backlog: a burst of connections waits, not retries
 
-    def __init__(self, address: tuple[str, int], hub: Hub) -> None:
+    def __init__(self, address: tuple[str, int], hub: Hub,
+                 max_connections: int = MAX_CONNECTIONS) -> None:
         self.hub = hub
         self.hosts = allowed_hosts(address[0])
+        self.max_connections = max_connections
+        self.idle_timeout_s = IDLE_TIMEOUT_S
+        self._slots = threading.BoundedSemaphore(max_connections)
+        self.stats: Counter[str] = Counter()
+        self._stats_lock = threading.Lock()
         super().__init__(address, _Handler)
+
+    def count(self, what: str) -> None:
+        with self._stats_lock:
+            self.stats[what] += 1
+
+    def process_request(self, request: Any, client_address: Any) -> None:
+        """A thread for the connection while fewer than ``max_connections`` are served;
+        otherwise a 503 written at once (non-blocking) and the connection closed."""
+        if not self._slots.acquire(blocking=False):
+            self.count("refused_busy")
+            log.debug("busy: %d connections served; refused %s", self.max_connections,
+                      client_address)
+            try:
+                request.setblocking(False)
+                request.send(b"HTTP/1.1 503 Service Unavailable\r\nContent-Length: 5\r\n"
+                             b"Retry-After: 1\r\nConnection: close\r\n\r\nbusy\n")
+            except OSError:
+                pass  # the client's buffer is full or it is gone: closing says enough
+            self.shutdown_request(request)
+            return
+        self.count("connections")
+        try:
+            super().process_request(request, client_address)
+        except BaseException:
+            self._slots.release()  # no thread was started to release it
+            raise
+
+    def process_request_thread(self, request: Any, client_address: Any) -> None:
+        try:
+            super().process_request_thread(request, client_address)
+        finally:
+            self._slots.release()
+
+    def handle_error(self, request: Any, client_address: Any) -> None:
+        """What a handler raised (``socketserver`` would print a traceback): a client gone or
+        too slow is counted and logged at debug; anything else is one warning line, its
+        traceback at debug."""
+        err = sys.exc_info()[1]
+        if isinstance(err, (ConnectionError, TimeoutError)):
+            self.count("disconnects")
+            log.debug("client %s went away: %s", client_address, err)
+            return
+        self.count("errors")
+        log.warning("request from %s failed: %s: %s", client_address, type(err).__name__, err)
+        log.debug("request from %s failed", client_address, exc_info=True)
 
     @property
     def url(self) -> str:
