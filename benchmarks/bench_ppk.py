@@ -3,6 +3,17 @@
 Run: python benchmarks/bench_ppk.py [--seed-s 1200] [--seeds 1,2,3] [--severities 0.5,1,2]
          [--only KEY] [--ours-opt KEY=VALUE ...]
      python benchmarks/bench_ppk.py --hour [--repeat 2]
+     python benchmarks/bench_ppk.py --sweep [--sweep-seeds 501-530] [--sweep-severities
+         0.5,1,1.5,2] [--real-seeds 1-5] [--out FILE.jsonl]
+
+``--sweep`` (issue 22): the whole ``solve`` (engine, integrity stage, marks) on many flights,
+judged at the camera positions: the seed profile's default 50-min flight at each severity for
+every seed of ``--sweep-seeds``, against the simulator's truth; and the real 2018-10-09 and
+2018-10-04 run-2 flights rewritten as a LEA-6T (``groundstation.sim.rewrite``), without faults
+and through the seed link with each of ``--real-seeds``, against the solve of the untouched
+recording (its fixed camera positions). Per run: camera positions fixed (share), wrong fixes
+(fixed and more than 10 cm off), positions off by more than 5 cm and more than 3 sigma on an
+axis, the worst error of a fixed one, wall time; then minimum, median and maximum per group.
 
 Engines (rows per dataset):
 - ``b34``: Debian's rnx2rtkp 2.4.3 b34 with the project's former options (GPS L1, combined,
@@ -306,6 +317,191 @@ def hour(args: argparse.Namespace) -> None:
               f"({best_const / best_b34:.2f}); dynamics {run.dynamics}")
 
 
+# -- the sweep (issue 22) ----------------------------------------------------------------------
+
+JD_SWEEP = {
+    "2018-10-09": ("20181009", "rover-20181009-1221", "base-20181009-1220", JD_BASE_1009),
+    "2018-10-04 run 2": ("20181004", "rover-20181004-1532", "base-20181004-1452",
+                         JD_BASE_1004),
+}
+
+
+def _span(text: str) -> list[int]:
+    """``501-530`` or ``1,2,7`` -> the integers."""
+    if "-" in text and "," not in text:
+        a, b = (int(v) for v in text.split("-"))
+        return list(range(a, b + 1))
+    return [int(v) for v in text.split(",") if v]
+
+
+def _judge(res: Any, ref_xyz: FloatArray, ref_fixed: npt.NDArray[np.bool_],
+           t0: float) -> dict[str, Any]:
+    """Camera positions of a ``SolveResult`` against reference positions per mark."""
+    mp = res.mark_positions
+    pos = np.isfinite(mp.ecef_m[:, 0]) & np.all(np.isfinite(ref_xyz), axis=1) & ref_fixed
+    lat, lon, _ = ecef_to_llh(*(float(v) for v in ref_xyz[pos][0])) if pos.any() else (0, 0, 0)
+    d = _enu(mp.ecef_m - ref_xyz, ref_xyz[pos][0]) if pos.any() else np.zeros((0, 3))
+    del lat, lon
+    err = np.linalg.norm(d, axis=1)
+    fixed = mp.quality == Q_FIX
+    beyond = np.any(np.abs(d) > 3 * mp.sd_enu_m, axis=1) & (err > 0.05)
+    n = int(pos.sum())
+    return {
+        "marks": n,
+        "fixed": int((fixed & pos).sum()),
+        "fixed_share": round(float((fixed & pos).sum()) / max(n, 1), 4),
+        "wrong": int((fixed & pos & (err > WRONG_M)).sum()),
+        "worst_fixed_m": round(float(np.max(np.where(fixed & pos, err, 0.0), initial=0.0)), 3),
+        "beyond": int((beyond & pos).sum()),
+        "beyond_share": round(float((beyond & pos).sum()) / max(n, 1), 4),
+        "wall_s": round(time.perf_counter() - t0, 1),
+    }
+
+
+def _solve(rover: Path, base: Path, base_xyz: tuple[float, float, float], out: Path) -> Any:
+    from groundstation.solve.pipeline import SolveSettings, solve
+
+    return solve(SolveSettings(flight=rover, out_dir=out, base=base, base_ecef_m=base_xyz))
+
+
+def sweep_sim(work: Path, seed: int, severity: float) -> dict[str, Any]:
+    """One seed-profile flight (the profile's default span), solved and judged at the marks
+    against the truth's exposures."""
+    cfg = sim_config("seed", seed=seed, severity=severity)
+    sim = simulate(cfg)
+    work.mkdir(parents=True, exist_ok=True)
+    (work / "rover.ubx").write_bytes(sim.rover_bytes)
+    (work / "base.ubx").write_bytes(sim.base_bytes)
+    base = tuple(float(v) for v in sim.truth["base"]["ecef_m"])
+    t0 = time.perf_counter()
+    row: dict[str, Any] = {"flight": f"sim severity {severity:g}", "seed": seed}
+    try:
+        res = _solve(work / "rover.ubx", work / "base.ubx", base, work / "out")  # type: ignore[arg-type]
+    except Exception as err:  # recorded: the sweep must say every failure
+        row["error"] = f"{type(err).__name__}: {err}"
+        return row
+    ex = [e for e in sim.truth["exposures"] if not e.get("missed")]
+    fall = np.array([e["falling_t_gps_ns"] for e in ex], dtype=np.int64)
+    txyz = np.array([e["ecef_m"] for e in ex], dtype=np.float64)
+    t = res.mark_positions.t_gps_ns
+    j = np.clip(np.searchsorted(fall, t), 0, fall.size - 1)
+    j0 = np.maximum(j - 1, 0)
+    j = np.where(np.abs(fall[j0] - t) < np.abs(fall[j] - t), j0, j)
+    hit = np.abs(fall[j] - t) < 1_000
+    ref = np.where(hit[:, None], txyz[j], np.nan)
+    row.update(_judge(res, ref, hit, t0))
+    return row
+
+
+def _reference(work: Path, day: str, rover: str, base: str,
+               base_xyz: tuple[float, float, float]) -> tuple[dict[int, Any], Path, Path]:
+    """The untouched recording's solve: fixed antenna position per mark number."""
+    src = SHARED / "real" / "jdesbonnet__GNSS_RTK_data" / day
+    res = _solve(src / f"{rover}.ubx.gz", src / f"{base}.ubx.gz", base_xyz, work / "reference")
+    ref = {}
+    for m, x, q in zip(res.marks, res.mark_positions.ecef_m, res.mark_positions.quality,
+                       strict=True):
+        if q == Q_FIX:
+            ref[m.number] = x
+    return ref, src / f"{rover}.ubx.gz", src / f"{base}.ubx.gz"
+
+
+def sweep_real(work: Path, name: str, fault_seeds: list[int]) -> list[dict[str, Any]]:
+    """A real flight as a LEA-6T: without faults and with the seed link per seed, judged at
+    the marks against the untouched recording's fixed positions."""
+    from groundstation.sim.faults import FaultConfig
+    from groundstation.sim.rewrite import RewriteConfig, rewrite
+
+    day, rover, base, base_xyz = JD_SWEEP[name]
+    if not (SHARED / "real").is_dir():
+        return [{"flight": name, "error": "../shared/data absent"}]
+    work.mkdir(parents=True, exist_ok=True)
+    ref, rover_src, base_src = _reference(work, day, rover, base, base_xyz)
+    base_lea = work / "base.ubx"
+    base_lea.write_bytes(rewrite(base_src, RewriteConfig()).data)
+    rows = []
+    for seed in [0, *fault_seeds]:
+        faults = FaultConfig.none() if seed == 0 else FaultConfig.seed()
+        rv = work / f"rover-{seed}.ubx"
+        rv.write_bytes(rewrite(rover_src, RewriteConfig(faults=faults, seed=max(seed, 1))).data)
+        t0 = time.perf_counter()
+        row: dict[str, Any] = {"flight": f"{name} as LEA-6T", "seed": seed,
+                               "faults": "seed link" if seed else "none",
+                               "reference_fixed": len(ref)}
+        try:
+            res = _solve(rv, base_lea, base_xyz, work / f"out-{seed}")
+        except Exception as err:
+            row["error"] = f"{type(err).__name__}: {err}"
+            rows.append(row)
+            continue
+        refx = np.array([ref.get(m.number, np.full(3, np.nan)) for m in res.marks])
+        has = np.all(np.isfinite(refx), axis=1)
+        row.update(_judge(res, refx, has, t0))
+        row["fixed_of_reference"] = round(row["fixed"] / max(len(ref), 1), 4)
+        rows.append(row)
+    return rows
+
+
+def _summary(rows: list[dict[str, Any]]) -> None:
+    """Minimum, median and maximum per group, as a markdown table."""
+    groups: dict[str, list[dict[str, Any]]] = {}
+    for r in rows:
+        key = r["flight"] + (f" ({r['faults']})" if "faults" in r else "")
+        groups.setdefault(key, []).append(r)
+    print("\n| flights | runs | failed | fixed (min / median / max) | wrong fixes (total, "
+          "worst run) | worst fixed error | beyond 3 sigma and 5 cm (min / median / max) "
+          "| wall s (min / median / max) |")
+    print("|---|---:|---:|---|---|---:|---|---|")
+    for key, rs in groups.items():
+        ok = [r for r in rs if "error" not in r]
+        if not ok:
+            print(f"| {key} | {len(rs)} | {len(rs)} | | | | | |")
+            continue
+        share = "fixed_of_reference" if "fixed_of_reference" in ok[0] else "fixed_share"
+
+        wrong = [r["wrong"] for r in ok]
+        print(f"| {key} | {len(rs)} | {len(rs) - len(ok)} | {_mmm(ok, share)} | {sum(wrong)}, "
+              f"{max(wrong)} | {max(r['worst_fixed_m'] for r in ok):.3f} m | "
+              f"{_mmm(ok, 'beyond_share')} | {_mmm(ok, 'wall_s', False)} |")
+
+
+def _mmm(rows: list[dict[str, Any]], key: str, share: bool = True) -> str:
+    """``min / median / max`` of ``key`` over ``rows`` (as percentages for shares)."""
+    v = np.array([r[key] for r in rows], dtype=float)
+
+    def fmt(x: float) -> str:
+        return f"{x:.1%}" if share else f"{x:.1f}"
+
+    return f"{fmt(float(v.min()))} / {fmt(float(np.median(v)))} / {fmt(float(v.max()))}"
+
+
+def sweep(args: argparse.Namespace) -> None:
+    import json
+
+    rows: list[dict[str, Any]] = []
+    out = open(args.out, "w", encoding="utf-8") if args.out else None  # noqa: SIM115
+    with tempfile.TemporaryDirectory(prefix="bench-sweep-") as tmp:
+        work = Path(tmp)
+
+        def keep(r: dict[str, Any]) -> None:
+            rows.append(r)
+            print(json.dumps(r), flush=True)
+            if out is not None:
+                out.write(json.dumps(r) + "\n")
+                out.flush()
+
+        for name in JD_SWEEP if args.real_seeds != "none" else ():
+            for r in sweep_real(work / name.replace(" ", "_"), name, _span(args.real_seeds)):
+                keep(r)
+        for sev in [float(v) for v in args.sweep_severities.split(",")]:
+            for seed in _span(args.sweep_seeds):
+                keep(sweep_sim(work / f"s{sev:g}_{seed}", seed, sev))
+                shutil.rmtree(work / f"s{sev:g}_{seed}", ignore_errors=True)
+    if out is not None:
+        out.close()
+    _summary(rows)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
     ap.add_argument("--seed-s", type=float, default=1200.0)
@@ -316,9 +512,17 @@ def main() -> None:
                     help="an engine option for the 'ours' rows only (repeatable)")
     ap.add_argument("--hour", action="store_true")
     ap.add_argument("--repeat", type=int, default=2)
+    ap.add_argument("--sweep", action="store_true", help="issue 22's sweep (see the doc)")
+    ap.add_argument("--sweep-seeds", default="501-530")
+    ap.add_argument("--sweep-severities", default="0.5,1,1.5,2")
+    ap.add_argument("--real-seeds", default="1-5", help="fault seeds of the real flights, or "
+                    "none")
+    ap.add_argument("--out", default="", help="write every run as a JSON line here")
     args = ap.parse_args()
     if args.hour:
         hour(args)
+    elif args.sweep:
+        sweep(args)
     else:
         table(args)
 

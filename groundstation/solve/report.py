@@ -615,8 +615,7 @@ def _counts_table(inp: ReportInput) -> str:
 
 
 MARK_COLUMNS = ("photo", "mark", "count", "UTC", "GPS week s", "E (m)", "N (m)", "h (m)",
-                "σE (m)", "σN (m)", "σU (m)", "quality", "grade", "check", "Δt epoch (s)",
-                "flags")
+                "σE (m)", "σN (m)", "σU (m)", "quality", "grade", "Δt epoch (s)", "flags")
 """Header of the per-mark table (the test reads the table back by these names)."""
 
 
@@ -658,7 +657,9 @@ def _marks_table(inp: ReportInput) -> str:
         ]
         tds = "".join(f'<td class="n">{c}</td>' if i > 0 else f"<td>{c}</td>"
                       for i, c in enumerate(cells))
-        tds += f"<td>{_quality_dot(q)}</td><td>{_e(r.grade)}</td><td>{_e(r.check)}</td>"
+        check = (f'<br><span class="muted">{_e(r.check.replace(":", ": "))}</span>'
+                 if r.check else "")
+        tds += f"<td>{_quality_dot(q)}</td><td>{_e(r.grade)}{check}</td>"
         tds += f'<td class="n">{_num(dt_s, 3)}</td><td>{_e(r.flag_text)}</td>'
         body.append(f'<tr class="{cls}">{tds}</tr>')
     return (f'<table class="marks" id="marks"><thead><tr>{head}</tr></thead>'

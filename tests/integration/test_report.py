@@ -180,6 +180,8 @@ def test_per_mark_table_equals_cameras_csv(flight: dict[str, Any]) -> None:
         assert (cell["σE (m)"], cell["σN (m)"], cell["σU (m)"]) == (
             want["sd_e_m"], want["sd_n_m"], want["sd_u_m"])
         assert cell["quality"] == (want["quality_name"] if want["x_m"] else "none")
+        assert cell["grade"].startswith(want["grade"])
+        assert want["check"].replace(":", ": ") in cell["grade"]
         assert cell["flags"] == want["flags"]
         if want["utc"]:
             assert 0.0 <= float(cell["Δt epoch (s)"]) < 600.0
@@ -263,7 +265,7 @@ def test_the_result_comes_first_and_the_full_options_last(flight: dict[str, Any]
     # do not pull it down.
     positioned = [r for r in rows if r["x_m"]]
     share = f"{fixed / len(positioned):.0%}"
-    assert (f"{fixed} of {len(positioned)}</b> computed camera positions ambiguity-fixed "
+    assert (f"{fixed} of {len(positioned)}</b> computed camera positions fixed and checked "
             f"({share})") in result
     unmatched = sum(bool(r["photo"] and not r["mark"]) for r in rows)
     if flight["name"] == "demo":

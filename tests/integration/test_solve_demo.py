@@ -101,7 +101,7 @@ def test_every_output_is_written_and_named(solved: dict[str, Any]) -> None:
         assert f"wrote      {out / name}" in solved["stdout"]
     n = len(solved["truth"]["exposures"])
     assert f"{n} paired, 0 photos without mark, 0 marks without photo" in solved["stdout"]
-    assert "positions  demo5:" in solved["stdout"]
+    assert "positions  demo5 + integrity stage:" in solved["stdout"]
     assert "engine demo5: RTKLIB EX" in solved["stdout"]
     engine_json = json.loads((out / "rtklib" / "engine.json").read_text())
     assert engine_json["engine"] == "demo5" and engine_json["options"]["pos1-frequency"] == "l1"

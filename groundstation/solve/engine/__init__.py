@@ -475,6 +475,8 @@ def _integrity(
     from groundstation.solve.integrity.pos import write_pos
 
     merged = engine_solution(pos)
+    if merged is not None and merged.t_gps_ns.size == 0:
+        return None, "integrity stage: not run (the engine positioned no epoch)"
     if "rover" not in seen or "base" not in seen or merged is None:
         why = ("the rover or base was given as RINEX (no raw observations to check with)"
                if merged is not None else "the engine's solution is not in RTKLIB's xyz layout")

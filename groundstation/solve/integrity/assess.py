@@ -98,6 +98,11 @@ def assess(
     t0 = time.perf_counter()
     tab = build_table(rover, base, ephemerides, base_ecef_m)
     t_ns = tab.t_ns
+    if t_ns.size == 0:
+        empty = np.zeros(0, dtype=np.int64)
+        return IntegrityResult(empty, np.zeros((0, 3)), np.zeros((0, 3, 3)), empty, empty,
+                               empty, {"epochs": 0, "grades": {}, "checks": {},
+                                       "note": "no rover observation epochs"})
     m = _at(merged, t_ns)
     assert m is not None
     start = m.x.copy()

@@ -21,7 +21,9 @@ The rule, per epoch:
    :data:`FIXED_MAX_SIGMA_M` on every axis), agrees with that fix within its calibrated
    covariance (chi-square, 3 degrees of freedom, 0.1 %): **fixed**, checked by
    ``other-direction-float``.
-4. Otherwise a fix of the engine is **demoted** to float (its check names why), and the epoch
+4. An engine that combined its two directions itself (``--engine rnx2rtkp``) cannot be
+   checked this way: its remaining fixes are **fixed-unchecked** (its own sigma, Q 1).
+5. Otherwise a fix of the engine is **demoted** to float (its check names why), and the epoch
    gets the engine's combined float position with the calibrated float sigma.
 
 A float sigma is the engine's formal one times a factor measured on this flight: at epochs
@@ -52,7 +54,8 @@ GRADE_MEANING: dict[str, str] = {
     "fixed": "integer carrier-phase solution that passed a check independent of the engine's "
              "ratio test; centimetre sigma",
     "fixed-unchecked": "the engine's integer fix with nothing to check it against (a .pos "
-                       "file given with --positions); its sigma is the engine's",
+                       "file given with --positions, RINEX inputs, an engine that combined "
+                       "its directions itself); its sigma is the engine's",
     "float": "carrier-phase float solution, or an engine fix that failed its check; sigma "
              "calibrated on the flight's own checked fixes",
     "single": "code only (single point, DGPS, the receiver's own fix): metre level",
@@ -285,6 +288,14 @@ def grade(ours_fixed: BoolArray, ours: Candidate, forward: Candidate | None,
     else:
         dem_float = np.zeros(n, dtype=bool)
         dem_one = one
+    # an engine that combined its directions itself (rnx2rtkp): its fixes cannot be checked
+    # against either direction; they are what it says, graded unchecked
+    if forward is None or backward is None:
+        unchecked = (gradec == NONE) & m_fix & ~contradicted
+        x[unchecked] = merged.x[unchecked]
+        cov[unchecked] = merged.cov[unchecked]
+        gradec[unchecked] = FIXED_UNCHECKED
+        check[unchecked] = C_UNCHECKED
     # 4. the rest: the engine's combined solution as float, demotions named
     left = (gradec == NONE) & (merged.q > 0) & np.all(np.isfinite(merged.x), axis=1)
     x[left] = merged.x[left]
@@ -297,7 +308,7 @@ def grade(ours_fixed: BoolArray, ours: Candidate, forward: Candidate | None,
     check[left & dem_float] = C_DEM_FLOAT
     check[left & dem_one] = C_DEM_ONE
     check[left & contradicted] = C_DEM_ARCS
-    quality = np.where(gradec == FIXED, 1,
+    quality = np.where((gradec == FIXED) | (gradec == FIXED_UNCHECKED), 1,
                        np.where(gradec == FLOAT, 2, np.where(gradec == SINGLE, 5, 0)))
     counts = {CHECK_NAMES[k]: int(np.sum(check == k)) for k in range(1, len(CHECK_NAMES))
               if np.any(check == k)}
