@@ -61,6 +61,7 @@ from groundstation.sim.stream import simulate
 from groundstation.solve import engine
 from groundstation.solve import interpolate as mi
 from groundstation.solve.engine import options as eo
+from groundstation.solve.integrity.grade import GRADE_NAMES
 from groundstation.solve.pipeline import read_flight
 from groundstation.solve.positions import Q_FIX, Trajectory, read_pos
 
@@ -346,7 +347,16 @@ def _judge(res: Any, ref_xyz: FloatArray, ref_fixed: npt.NDArray[np.bool_],
     fixed = mp.quality == Q_FIX
     beyond = np.any(np.abs(d) > 3 * mp.sd_enu_m, axis=1) & (err > 0.05)
     n = int(pos.sum())
+    from groundstation.solve.report import engine_info
+
+    integ = (engine_info(res.trajectory) or {}).get("integrity") or {}
+    fac = integ.get("float_sigma_factor") or {}
+    arcs = integ.get("arcs") or {}
     return {
+        "float_factor": [fac.get("horizontal"), fac.get("vertical"), fac.get("from")],
+        "phase_factor": arcs.get("phase_variance_factor"),
+        "grades": {g: int(np.sum(mp.grade[pos] == c)) for c, g in GRADE_NAMES.items()
+                   if np.any(mp.grade[pos] == c)},
         "marks": n,
         "fixed": int((fixed & pos).sum()),
         "fixed_share": round(float((fixed & pos).sum()) / max(n, 1), 4),
