@@ -235,3 +235,19 @@ def test_a_mark_between_fixed_epochs_is_float_when_its_own_sigma_is_not_centimet
         assert mp.grade[0] == gr.FLOAT
         assert gr.CHECK_NAMES[int(mp.check[0])] == "demoted:interpolation"
         assert mp.sd_enu_m[0, 0] > 0.2
+
+
+def test_two_floats_that_disagree_widen_the_sigma_by_their_difference() -> None:
+    n = 3
+    truth = np.tile(X0, (n, 1))
+    f = truth.copy()
+    b = truth.copy()
+    b[:, 2] += 0.5  # the two directions' floats 50 cm apart vertically, each claiming 2 cm
+    fwd, bwd = _cand(f, 0.02, 2), _cand(b, 0.02, 2)
+    merged = _cand((f + b) / 2, 0.014, 2)
+    g = gr.grade(np.zeros(n, bool), _cand(truth, 1.0, 0), fwd, bwd, merged)
+    rot = gr._enu_rot(truth)
+    sd = np.sqrt(np.einsum("eii->ei", np.einsum("ij,ejk,lk->eil", rot, g.cov, rot)))
+    assert np.all(g.grade == gr.FLOAT)
+    up = np.abs(rot @ np.array([0.0, 0.0, 0.5]))  # how much of the difference is "up"
+    assert np.all(sd[:, 2] >= 0.99 * up[2])

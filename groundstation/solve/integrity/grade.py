@@ -300,6 +300,16 @@ def grade(ours_fixed: BoolArray, ours: Candidate, forward: Candidate | None,
     left = (gradec == NONE) & (merged.q > 0) & np.all(np.isfinite(merged.x), axis=1)
     x[left] = merged.x[left]
     cov[left] = scaled(merged)[left]
+    # Where both directions are float, they are two estimates of the same position from
+    # disjoint data: their difference is a measure of the float's error at that very epoch,
+    # added to its variance on each local axis.
+    if forward is not None and backward is not None:
+        both_float = left & (forward.q == 2) & (backward.q == 2)
+        if both_float.any():
+            d = (forward.x[both_float] - backward.x[both_float]) @ rot.T
+            extra = np.zeros((d.shape[0], 3, 3))
+            extra[:, [0, 1, 2], [0, 1, 2]] = d * d
+            cov[both_float] += np.einsum("ji,ejk,kl->eil", rot, extra, rot)
     is_float = left & (merged.q <= 2)
     gradec[is_float] = FLOAT
     gradec[left & (merged.q > 2)] = SINGLE
