@@ -143,6 +143,9 @@ def make_trajectory(
 
 # -- RTKLIB .pos files --------------------------------------------------------------------------
 
+POS_LAYOUT_NOTE = "RTKLIB .pos (xyz, GPST, calendar)"
+"""The layout note of an engine's solution (our engines always write it so: options.py)."""
+
 _TIME_SYSTEMS = ("GPST", "UTC", "JST")
 _JST_OFFSET_NS = 9 * 3600 * gpstime.NS_PER_S
 
@@ -522,6 +525,14 @@ class RtklibSource:
             opts.engine, opts.flight, opts.base, opts.base_ecef_m, work,
             conf=opts.rtk_conf, overrides=opts.rtklib_overrides, progress=progress,
         )
+        ig = run.integrity
+        tail = (f"engine {run.engine}: {run.version}", f"solution {run.pos_path}",
+                f"engine options in {run.info_path}", *run.notes)
+        if ig is not None and ig.t_gps_ns.size:
+            return make_trajectory(
+                ig.t_gps_ns, ig.ecef_m, ig.quality, sd_enu_m=ig.sd_enu_m(), source=run.engine,
+                notes=(POS_LAYOUT_NOTE, *tail), grade=ig.grade, check=ig.check,
+            )
         try:
             traj = read_pos(run.pos_path)
         except EmptySolutionError as err:  # said in the user's terms, not the parser's
@@ -529,17 +540,9 @@ class RtklibSource:
                 f"the {run.engine} engine positioned no epoch of {opts.flight.name} against the "
                 f"base {opts.base.name} (its solution {run.pos_path.name} is empty): do rover "
                 "and base overlap in time, and is --base-xyz this base's position?") from err
-        notes = (*traj.notes, f"engine {run.engine}: {run.version}", f"solution {run.pos_path}",
-                 f"engine options in {run.info_path}", *run.notes)
-        ig = run.integrity
-        if ig is None or ig.t_gps_ns.size == 0:
-            return Trajectory(
-                traj.t_gps_ns, traj.ecef_m, traj.quality, traj.sd_enu_m, traj.ns, traj.ratio,
-                run.engine, False, notes,
-            )
-        return make_trajectory(
-            ig.t_gps_ns, ig.ecef_m, ig.quality, sd_enu_m=ig.sd_enu_m(), source=run.engine,
-            notes=notes, grade=ig.grade, check=ig.check,
+        return Trajectory(
+            traj.t_gps_ns, traj.ecef_m, traj.quality, traj.sd_enu_m, traj.ns, traj.ratio,
+            run.engine, False, (*traj.notes, *tail),
         )
 
 

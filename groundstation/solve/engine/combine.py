@@ -114,6 +114,7 @@ def parse_solutions(text: str) -> tuple[list[str], Solutions]:
     lines: list[str] = []
     t: list[float] = []
     vals: list[list[float]] = []
+    days: dict[str, dt.datetime] = {}
     for ln in text.splitlines():
         if ln.startswith("%") or not ln.strip():
             if not lines:
@@ -122,7 +123,9 @@ def parse_solutions(text: str) -> tuple[list[str], Solutions]:
         f = ln.split()
         if len(f) != 15 or "/" not in f[0]:
             raise ValueError(f"not an xyz solution line without velocity: {ln[:60]!r}")
-        day = dt.datetime.strptime(f[0], "%Y/%m/%d")
+        day = days.get(f[0])
+        if day is None:  # one parse per date, not per line (an hour at 5 Hz is 18 000)
+            day = days[f[0]] = dt.datetime.strptime(f[0], "%Y/%m/%d")
         hh, mm, ss = f[1].split(":")
         t.append((day - _EPOCH).total_seconds() + int(hh) * 3600 + int(mm) * 60 + float(ss))
         vals.append([float(x) for x in f[2:13]])

@@ -74,12 +74,11 @@ def resolve(tab: PhaseTable, x0: FloatArray) -> Resolution:
     x = np.array(x0, dtype=np.float64, copy=True)
     code_infl = 1.0
     nominal = float(np.median(np.diff(tab.t_ns))) / 1e9 if tab.n_epochs > 1 else 1.0
-    fl = normal.float_arcs(tab, normal.epoch_system(tab, x, code_infl))
+    # The positions to linearise at (the engine's solution) are metres at worst: the
+    # second-order error of that is below a micrometre, so they are not iterated here.
     for _ in range(MAX_SPLIT_ROUNDS):
         system = normal.epoch_system(tab, x, code_infl)
         fl = normal.float_arcs(tab, system)
-        sol = solve_epochs(tab, x, _float_lattice(fl), code_infl)
-        x = np.where(np.isfinite(sol.x), sol.x, x)
         code_infl = max(1.0, normal.code_correlation(tab, x, normal.clock_m(tab, x, fl.a)))
         found = steps.step_tests(tab, system, fl, nominal)
         if not found:
@@ -133,20 +132,3 @@ def arc_misfits(tab: PhaseTable, sol: EpochSolution) -> list[int]:
         t = np.abs(mean) / np.maximum(sd / np.sqrt(n), 1e-4)
     bad = (n >= MIN_ARC_EPOCHS) & (np.abs(mean) > ARC_MISFIT_CYC) & (t > ARC_MISFIT_T)
     return [int(a) for a in np.flatnonzero(bad)]
-
-
-def _float_lattice(fl: normal.FloatArcs) -> Lattice:
-    """The float constants as a lattice with nothing fixed (covariance relative to the best
-    determined arc, as :func:`resolve_lattice` gives it)."""
-    ok = np.flatnonzero(fl.informed)
-    na = fl.a.size
-    if ok.size == 0:
-        return Lattice(np.full(na, np.nan), np.zeros((na, na)), -1, 0, 0, "float", 0.0)
-    ref = int(ok[np.argmin(np.diag(fl.q)[ok])])
-    t = np.eye(na)
-    t[:, ref] -= 1.0
-    cov = t @ fl.q @ t.T
-    cov[ref, :] = cov[:, ref] = 0.0
-    cov[~fl.informed, :] = 0.0
-    cov[:, ~fl.informed] = 0.0
-    return Lattice(fl.a, cov, ref, 0, int(ok.size) - 1, "float", 0.0)

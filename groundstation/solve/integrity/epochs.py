@@ -67,7 +67,7 @@ class EpochSolution:
 
 def solve_epochs(
     tab: PhaseTable, x0: FloatArray, lat: Lattice, code_inflation: float = 1.0,
-    phase_factor: float = 1.0, iterations: int = 2,
+    phase_factor: float = 1.0, iterations: int = 1,
 ) -> EpochSolution:
     """Each epoch's position given the constants (see the module doc), iterated from ``x0``."""
     n_ep, n_sv = tab.sd_cyc.shape
