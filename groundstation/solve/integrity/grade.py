@@ -246,7 +246,10 @@ def grade(ours_fixed: BoolArray, ours: Candidate, forward: Candidate | None,
 
     # calibration of the float sigmas against the positions fixed so far (ours and the
     # engine's both-direction fixes that agree)
-    both = rest & ~contradicted & f_fix & b_fix & m_fix
+    # Our fix vetoes the engine's only where it can stand on its own: where the phase did not
+    # behave as modelled, our disagreeing fix is not evidence against the engine's.
+    veto = contradicted if ours_alone else np.zeros(n, dtype=bool)
+    both = rest & ~veto & f_fix & b_fix & m_fix
     if forward is not None and backward is not None:
         both &= _agree(forward.x, forward.cov, backward.x, backward.cov)
     anchor = np.where((ours_fixed | both)[:, None], np.where(ours_fixed[:, None], ours.x,
@@ -264,7 +267,7 @@ def grade(ours_fixed: BoolArray, ours: Candidate, forward: Candidate | None,
     gradec[both] = FIXED
     check[both] = C_BOTH
     # 3. one direction fixed, the other's float agrees
-    one = rest & ~contradicted & ~both & m_fix & (f_fix ^ b_fix)
+    one = rest & ~veto & ~both & m_fix & (f_fix ^ b_fix)
     if forward is not None and backward is not None:
         fixed_x = np.where(f_fix[:, None], forward.x, backward.x)
         fixed_c = np.where(f_fix[:, None, None], forward.cov, backward.cov)
@@ -291,7 +294,7 @@ def grade(ours_fixed: BoolArray, ours: Candidate, forward: Candidate | None,
     # an engine that combined its directions itself (rnx2rtkp): its fixes cannot be checked
     # against either direction; they are what it says, graded unchecked
     if forward is None or backward is None:
-        unchecked = (gradec == NONE) & m_fix & ~contradicted
+        unchecked = (gradec == NONE) & m_fix & ~veto
         x[unchecked] = merged.x[unchecked]
         cov[unchecked] = merged.cov[unchecked]
         gradec[unchecked] = FIXED_UNCHECKED
@@ -317,7 +320,7 @@ def grade(ours_fixed: BoolArray, ours: Candidate, forward: Candidate | None,
     check[left & m_fix & f_fix & b_fix] = C_DEM_DIRECTIONS
     check[left & dem_float] = C_DEM_FLOAT
     check[left & dem_one] = C_DEM_ONE
-    check[left & contradicted] = C_DEM_ARCS
+    check[left & veto] = C_DEM_ARCS
     quality = np.where((gradec == FIXED) | (gradec == FIXED_UNCHECKED), 1,
                        np.where(gradec == FLOAT, 2, np.where(gradec == SINGLE, 5, 0)))
     counts = {CHECK_NAMES[k]: int(np.sum(check == k)) for k in range(1, len(CHECK_NAMES))
