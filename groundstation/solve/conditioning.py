@@ -460,8 +460,11 @@ def _bridge(
         sr.repaired += 1
         rep.repairs.append((int(t_ns[p]), int(t_ns[e]), name, half, not flagged))
         return
-    if not flagged:
-        sr.hidden_found += int(abs(w) >= noise)
+    if not flagged and good and np.isfinite(w) and abs(w) >= noise:
+        # A jump measured (a good fit) where the receiver said nothing: hidden by a gap. A jump
+        # that could not be measured is no finding: the ambiguity starts again all the same,
+        # counted as not bridged only.
+        sr.hidden_found += 1
     sr.flagged += 1
     rep.flags.append((int(t_ns[e]), name))
     out_lli[e, j] |= LLI_SLIP

@@ -599,7 +599,8 @@ def _counts_table(inp: ReportInput) -> str:
         + (row("marks without photo (orphans)", "orphan_marks") if inp.photos_given
            else row("marks named mark_NNNN (no photos given)", "orphan_marks"))
         + "<tr><th>cycle slips "
-        + ("found (receiver flags + hidden in radio gaps)" if inp.slips_repaired is not None
+        + ("found (receiver flags + hidden where the phase was missing)"
+           if inp.slips_repaired is not None
            else "flagged (rover, first band)") + "</th>"
         f'<td data-count="slips_found">{_e(slips_found)}</td></tr>'
         + "<tr><th>" + ("phase jumps repaired (slips and resolved half cycles)"

@@ -82,7 +82,8 @@ def _conditioning(cond: Mapping[str, Any]) -> list[str]:
         return [f"carrier phase not checked before solving: {cond.get('note') or 'not applied'}"]
     t = {k: int(v) for k, v in dict(cond.get("totals") or {}).items()}
     line = (f"carrier phase checked before solving: {t.get('receiver_slips', 0)} cycle slips "
-            f"marked by the receiver, {t.get('hidden_found', 0)} more found in radio gaps; "
+            f"marked by the receiver, {t.get('hidden_found', 0)} more found where the phase was "
+            "missing (radio gaps, blank epochs); "
             f"{t.get('repaired', 0)} phase jumps repaired, {t.get('half_resolved', 0)} "
             f"half-cycle ambiguities resolved, {t.get('flagged', 0)} breaks not bridged (the "
             "engine restarts those satellites)")

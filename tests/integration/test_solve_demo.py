@@ -258,7 +258,8 @@ def test_the_printed_notes_are_plain_words_with_the_engines_figures(
     info = json.loads((solved["out"] / "rtklib" / "engine.json").read_text())
     t = info["conditioning"]["totals"]
     assert (f"carrier phase checked before solving: {t['receiver_slips']} cycle slips marked "
-            f"by the receiver, {t['hidden_found']} more found in radio gaps; {t['repaired']} "
+            f"by the receiver, {t['hidden_found']} more found where the phase was missing "
+            f"(radio gaps, blank epochs); {t['repaired']} "
             f"phase jumps repaired, {t['half_resolved']} half-cycle ambiguities resolved, "
             f"{t['flagged']} breaks not bridged") in printed
     m = info["dynamics"]["measured"]

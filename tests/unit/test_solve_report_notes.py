@@ -19,7 +19,8 @@ def test_other_engine_cases_in_plain_words() -> None:
     })
     assert lines == [
         ("carrier phase checked before solving: 3 cycle slips marked by the receiver, 2 more "
-        "found in radio gaps; 4 phase jumps repaired, 0 half-cycle ambiguities resolved, 1 "
+        "found where the phase was missing (radio gaps, blank epochs); 4 phase jumps repaired, "
+        "0 half-cycle ambiguities resolved, 1 "
         "breaks not bridged (the engine restarts those satellites), 5 gaps bridged on the "
         "Doppler alone"),
         "by satellite: G05 1 repaired, 2 found in gaps, 1 not bridged",
