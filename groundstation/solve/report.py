@@ -528,9 +528,9 @@ def _integrity(inp: ReportInput) -> str:
         return (head + meaning + '<p class="muted">The integrity stage did not run for this '
                 "solution (an imported .pos file, RINEX inputs or the receiver's own fix): "
                 "fixes are graded fixed-unchecked.</p>")
-    arcs = ig.get("arcs", {})
-    fac = ig.get("float_sigma_factor", {})
-    sm = ig.get("smoothing", {})
+    arcs = ig.get("arcs") or {}
+    fac = ig.get("float_sigma_factor") or {}
+    sm = arcs.get("smoothing") or {}
     steps = arcs.get("slips_found_as_steps", [])
     rows = [
         ("Epochs", _e(", ".join(f"{k} {v}" for k, v in ig.get("grades", {}).items()))),

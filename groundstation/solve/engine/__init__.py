@@ -20,9 +20,10 @@ from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, ClassVar, Protocol
+from typing import TYPE_CHECKING, Any, ClassVar, Protocol
 
 import numpy as np
+import numpy.typing as npt
 
 from groundstation import jsonio
 from groundstation.errors import ConfigError, GroundstationError
@@ -38,7 +39,7 @@ DEFAULT_ENGINE = "demo5"
 if TYPE_CHECKING:
     from groundstation.offline.rinex.convert import ObsHook as rinex_hook
     from groundstation.offline.rinex.observations import ObsSet
-    from groundstation.solve.integrity.assess import EngineSolution, IntegrityResult
+    from groundstation.solve.integrity.assess import Arcs, EngineSolution, IntegrityResult
 
 
 class ToolMissingError(GroundstationError):
@@ -206,13 +207,18 @@ ACCEL_KEYS = ("stats-prnaccelh", "stats-prnaccelv")
 
 def derive_dynamics(
     engine: Engine, job: EngineJob, user_keys: set[str], progress: Progress | None = None,
+    fixed: tuple[npt.NDArray[np.int64], npt.NDArray[np.float64], npt.NDArray[np.bool_]]
+    | None = None,
 ) -> tuple[dict[str, str], dict[str, object] | None, list[str]]:
     """The "dynamics" stage: the acceleration noise from how the rover moved.
 
     A forward-only pass of the same engine with the same options gives the rover's fixed
     positions; :func:`dynamics.observed_dynamics` measures the accelerations there and
     :func:`dynamics.process_noise` turns them into ``stats-prnaccelh`` / ``stats-prnaccelv``.
-    A value the user gave (``--rtk-conf`` or ``--rtk-opt``) always wins. Nothing is done for an
+    A value the user gave (``--rtk-conf`` or ``--rtk-opt``) always wins. Given ``fixed``
+    (times, positions and which are fixed, of the integrity stage's own whole-arc solution,
+    which runs before the engine), the dynamics are measured there and the forward pass is
+    not run, unless those fixes cover too little of the flight. Nothing is done for an
     engine whose defaults do not set these keys (b34), for a non-kinematic mode or with the
     dynamics model off (the keys are unused then), or when the user set both.
 
@@ -232,9 +238,14 @@ def derive_dynamics(
         used = {k: opts[k] for k in ACCEL_KEYS}
         return opts, {"measured": None, "used": used, "user": list(ACCEL_KEYS)}, [
             "acceleration noise: the user's values (not derived)"]
+    t0 = time.perf_counter()
+    if fixed is not None:
+        mine = dy.observed_dynamics(*fixed)
+        if mine is not None and mine.coverage >= dy.MIN_COVERAGE:
+            return _dynamics_options(engine, opts, user_keys, mine, None, time.perf_counter() - t0,
+                                     "our whole-arc solution's fixed epochs")
     if progress is not None:
         progress("dynamics (forward pass)", 0.0)
-    t0 = time.perf_counter()
     first = EngineJob(
         job.rover_obs, job.base_obs, job.nav, {**opts, "pos1-soltype": "forward"},
         job.work_dir / "dynamics", job.timeout_s,
@@ -256,6 +267,20 @@ def derive_dynamics(
         note = (f"acceleration noise: the default {opts[ACCEL_KEYS[0]]} / {opts[ACCEL_KEYS[1]]} "
                 f"m/s^2 ({why})")
         return opts, {"measured": None, "used": {k: opts[k] for k in ACCEL_KEYS}}, [note]
+    return _dynamics_options(engine, opts, user_keys, dyn,
+                             (int(np.sum(traj.quality == Q_FIX)), len(traj)), wall,
+                             "a forward pass's fixed epochs")
+
+
+def _dynamics_options(
+    engine: Engine, opts: dict[str, str], user_keys: set[str], dyn: Any,
+    pass_counts: tuple[int, int] | None, wall: float, where: str,
+) -> tuple[dict[str, str], dict[str, object], list[str]]:
+    """The options with the acceleration noise of the measured dynamics ``dyn``
+    (:class:`.dynamics.Dynamics`), what was done and a note."""
+    from groundstation.solve.engine import dynamics as dy
+
+    opts = dict(opts)
     constant = (float(engine.defaults[ACCEL_KEYS[0]]), float(engine.defaults[ACCEL_KEYS[1]]))
     derived = dict(zip(ACCEL_KEYS, (f"{q:g}" for q in dy.process_noise(dyn, constant)),
                        strict=True))
@@ -266,16 +291,17 @@ def derive_dynamics(
     kept = sorted(k for k in ACCEL_KEYS if k in user_keys)
     info: dict[str, object] = {
         "measured": dyn.as_dict(), "derived": derived, "used": used, "user": kept,
-        "formula": dy.FORMULA,
-        "pass_fixed": int(np.sum(traj.quality == Q_FIX)), "pass_epochs": len(traj),
-        "pass_wall_s": round(wall, 3),
+        "formula": dy.FORMULA, "measured_on": where,
     }
+    if pass_counts is not None:
+        info.update({"pass_fixed": pass_counts[0], "pass_epochs": pass_counts[1],
+                     "pass_wall_s": round(wall, 3)})
     note = (
         f"acceleration noise {used[ACCEL_KEYS[0]]} / {used[ACCEL_KEYS[1]]} m/s^2/sqrt(s) "
         f"(horizontal / vertical) from the rover's observed dynamics: "
         f"{dyn.accel_h_m_s2:.3f} / {dyn.accel_v_m_s2:.3f} m/s^2 sustained for "
         f"{dy.EXCEEDED_S:g} s (peaks {dyn.peak_h_m_s2:.2f} / {dyn.peak_v_m_s2:.2f}) over "
-        f"{dyn.seconds:.0f} s ({dyn.coverage:.0%}) of a forward pass's fixed epochs"
+        f"{dyn.seconds:.0f} s ({dyn.coverage:.0%}) of {where}"
         + (f", too little to go below the constant {constant[0]:g} / {constant[1]:g}"
            if dyn.coverage < dy.MIN_COVERAGE else "")
         + ("; the user's values kept for " + ", ".join(kept) if kept else "")
@@ -388,12 +414,18 @@ def run_engine(
     if not nav:
         raise EngineError("no navigation data (ephemerides) in the rover or base recording")
     job = EngineJob(rover_obs, base_obs, nav, opts, work_dir, timeout_s)
+    arcs: Arcs | None = None
+    arcs_note = ""
+    if integrity and base_ecef_m is not None:
+        arcs, arcs_note = _arcs(seen, base_ecef_m, progress)
     dyn_info: dict[str, object] | None = None
     if dynamics:
         user_keys = set(overrides or {})
         if conf is not None:
             user_keys |= set(eo.read_conf(conf, engine.option_table()))
-        opts, dyn_info, dyn_notes = derive_dynamics(engine, job, user_keys, progress)
+        opts, dyn_info, dyn_notes = derive_dynamics(
+            engine, job, user_keys, progress,
+            arcs.fixed_trajectory() if arcs is not None else None)
         notes.extend(dyn_notes)
         job = EngineJob(rover_obs, base_obs, nav, opts, work_dir, timeout_s)
     t0 = time.perf_counter()
@@ -406,7 +438,7 @@ def run_engine(
         progress(engine.name, 1.0)
     integ: IntegrityResult | None = None
     if integrity and base_ecef_m is not None:
-        integ, integ_note = _integrity(seen, base_ecef_m, run.pos_path, job.work_dir, progress)
+        integ, integ_note = _integrity(arcs, arcs_note, run.pos_path, job.work_dir)
         notes.append(integ_note)
     cond = cond_report.as_dict() if cond_report is not None else None
     if cond_report is not None:
@@ -463,35 +495,48 @@ def engine_solution(pos: Path) -> EngineSolution | None:
     return EngineSolution(t, sols.xyz, sols.q, sols.cov)
 
 
-def _integrity(
+def _arcs(
     seen: Mapping[str, tuple[ObsSet, Sequence[BroadcastEphemeris]]],
-    base_ecef_m: tuple[float, float, float], pos: Path, work_dir: Path,
-    progress: Progress | None,
-) -> tuple[IntegrityResult | None, str]:
-    """The integrity stage on the engine's solutions (:mod:`groundstation.solve.integrity`):
-    the graded trajectory, written to ``integrity.pos`` beside the engine's ``.pos``, and a
-    note saying what it did (or why it could not run)."""
-    from groundstation.solve.integrity.assess import assess
+    base_ecef_m: tuple[float, float, float], progress: Progress | None,
+) -> tuple[Arcs | None, str]:
+    """The integrity stage's whole-arc solution, from the observations alone (before the
+    engine); None and why when it cannot run (an input given as RINEX)."""
+    from groundstation.solve.integrity.assess import arcs_stage
+
+    if "rover" not in seen or "base" not in seen:
+        return None, ("the rover or base was given as RINEX (no raw observations to check "
+                      "with)")
+    if progress is not None:
+        progress("integrity: whole-arc solution", 0.0)
+    rover_obs, rover_ephs = seen["rover"]
+    base_obs, base_ephs = seen["base"]
+    have = set(rover_ephs)
+    ephs = list(rover_ephs) + [e for e in base_ephs if e not in have]
+    arcs = arcs_stage(rover_obs, base_obs, ephs, base_ecef_m)
+    if progress is not None:
+        progress("integrity: whole-arc solution", 1.0)
+    return arcs, "" if arcs is not None else "no rover epochs"
+
+
+def _integrity(arcs: Arcs | None, why_not: str, pos: Path, work_dir: Path,
+               ) -> tuple[IntegrityResult | None, str]:
+    """The graded trajectory (:mod:`groundstation.solve.integrity`) from our whole-arc
+    solution and the engine's solutions, written to ``integrity.pos`` beside the engine's
+    ``.pos``, and a note saying what it did (or why it could not run)."""
+    from groundstation.solve.integrity.assess import grade_stage
     from groundstation.solve.integrity.pos import write_pos
 
     merged = engine_solution(pos)
     if merged is not None and merged.t_gps_ns.size == 0:
         return None, "integrity stage: not run (the engine positioned no epoch)"
-    if "rover" not in seen or "base" not in seen or merged is None:
-        why = ("the rover or base was given as RINEX (no raw observations to check with)"
-               if merged is not None else "the engine's solution is not in RTKLIB's xyz layout")
+    if arcs is None or merged is None:
+        why = why_not if merged is not None else (
+            "the engine's solution is not in RTKLIB's xyz layout")
         return None, f"integrity stage: not run ({why}); fixes are graded fixed-unchecked"
-    if progress is not None:
-        progress("integrity", 0.0)
-    rover_obs, rover_ephs = seen["rover"]
-    base_obs, base_ephs = seen["base"]
-    ephs = list(rover_ephs) + [e for e in base_ephs if e not in set(rover_ephs)]
     fwd = engine_solution(work_dir / "forward" / "rover.pos")
     bwd = engine_solution(work_dir / "backward" / "rover.pos")
-    result = assess(rover_obs, base_obs, ephs, base_ecef_m, merged, fwd, bwd)
+    result = grade_stage(arcs, merged, fwd, bwd)
     write_pos(work_dir / "integrity.pos", result)
-    if progress is not None:
-        progress("integrity", 1.0)
     counts = result.summary["grades"]
     assert isinstance(counts, dict)
     grades = ", ".join(f"{k} {v}" for k, v in counts.items())

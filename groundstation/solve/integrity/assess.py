@@ -89,34 +89,52 @@ def _at(sol: EngineSolution | None, t_ns: IntArray) -> gr.Candidate | None:
     return gr.Candidate(x, cov, q)
 
 
-def assess(
+@dataclass(frozen=True, slots=True)
+class Arcs:
+    """Our whole-arc solution at the rover's epochs, before the engine runs.
+
+    Attributes:
+        t_ns: the rover's epoch times (receiver time).
+        x, cov: (n, 3) ECEF positions, (n, 3, 3) covariances (smoothed where fixed).
+        fixed: (n,) epochs our solution fixed with a centimetre sigma.
+        stands_alone: the phase behaved as modelled (:data:`grade.PHASE_MODEL_FACTOR`).
+        summary: JSON-ready figures of the solution.
+        wall_s: its time.
+    """
+
+    t_ns: IntArray
+    x: FloatArray
+    cov: FloatArray
+    fixed: npt.NDArray[np.bool_]
+    stands_alone: bool
+    summary: dict[str, object]
+    wall_s: float
+
+    def fixed_trajectory(self) -> tuple[IntArray, FloatArray, npt.NDArray[np.bool_]]:
+        """(times, positions, which are fixed): what the dynamics are measured on."""
+        return self.t_ns, self.x, self.fixed
+
+
+def arcs_stage(
     rover: ObsSet, base: ObsSet, ephemerides: Sequence[BroadcastEphemeris],
-    base_ecef_m: tuple[float, float, float], merged: EngineSolution,
-    forward: EngineSolution | None = None, backward: EngineSolution | None = None,
-) -> IntegrityResult:
-    """Run the stage (see the package doc and :mod:`.grade`)."""
+    base_ecef_m: tuple[float, float, float],
+) -> Arcs | None:
+    """Our whole-arc solution (:func:`groundstation.solve.integrity.resolve`, smoothed), from
+    the observations alone: linearised at the code's positions, so it can run before the
+    engine (and give the engine its motion model). None without rover epochs."""
     t0 = time.perf_counter()
-    t_ns = np.unique(rover.t_gps_ns)
+    base_x = np.asarray(base_ecef_m, dtype=np.float64)
+    tab = build_table(rover, base, ephemerides, base_ecef_m)
+    t_ns = tab.t_ns
     if t_ns.size == 0:
-        empty = np.zeros(0, dtype=np.int64)
-        return IntegrityResult(empty, np.zeros((0, 3)), np.zeros((0, 3, 3)), empty, empty,
-                               empty, {"epochs": 0, "grades": {}, "checks": {},
-                                       "note": "no rover observation epochs"})
-    m = _at(merged, t_ns)
-    assert m is not None
-    start = m.x.copy()
-    missing = ~np.all(np.isfinite(start), axis=1)
-    if missing.any():  # epochs the engine left out: linearised at the code's position
-        first = build_table(rover, base, ephemerides, base_ecef_m)
-        code = code_positions(first, np.asarray(base_ecef_m, dtype=np.float64))
-        start[missing] = code[missing]
-    start = np.where(np.isfinite(start), start, np.asarray(base_ecef_m, dtype=np.float64))
-    tab = build_table(rover, base, ephemerides, base_ecef_m, start)
+        return None
+    start = code_positions(tab, base_x)
+    start = np.where(np.isfinite(start), start, base_x)
     res = resolve(tab, start)
     sol = res.solution
     # our fixed epochs, smoothed over their runs in a local frame
     ok = np.all(np.isfinite(sol.x), axis=1)
-    origin = sol.x[ok][0] if ok.any() else np.asarray(base_ecef_m, dtype=np.float64)
+    origin = sol.x[ok][0] if ok.any() else base_x
     lat, lon, _ = ecef_to_llh(*(float(v) for v in origin))
     rot = np.asarray(enu_rotation(lat, lon))
     enu = (sol.x - origin) @ rot.T
@@ -132,9 +150,54 @@ def assess(
                          0.0, None))
     precise = np.all(sd <= gr.FIXED_MAX_SIGMA_M, axis=1)
     ours_fixed = sol.fixed & precise
-    g = gr.grade(ours_fixed, gr.Candidate(ours_x, ours_cov, np.where(ours_fixed, 1, 0)),
-                 _at(forward, t_ns), _at(backward, t_ns), m,
-                 ours_alone=res.phase_factor <= gr.PHASE_MODEL_FACTOR)
+    alone = bool(res.phase_factor <= gr.PHASE_MODEL_FACTOR)
+    lat_res = res.lattice
+    summary: dict[str, object] = {
+        "satellites": [f"G{s:02d}" for s in tab.svs],
+        "arcs": res.tab.n_arcs,
+        "lattice_cycles": res.tab.lattice_cyc,
+        "integer_combinations": lat_res.combinations,
+        "fixed_combinations": lat_res.fixed_combinations,
+        "stopped_by": lat_res.stopped_by,
+        "first_float_sigma_steps": round(lat_res.ratio_to_lattice, 3),
+        "slips_found_as_steps": [
+            {"satellite": f"G{sv:02d}", "t_gps_ns": t} for sv, t in res.steps],
+        "code_variance_factor": round(res.code_inflation, 2),
+        "phase_variance_factor": round(res.phase_factor, 2),
+        "stands_alone": alone,
+        "arcs_left_out_misfit": len(res.misfits),
+        "epochs_fixed": int(sol.fixed.sum()),
+        "epochs_fixed_precise": int(ours_fixed.sum()),
+        "smoothing": {
+            "jerk_density_h_m2_s5": sm.jerk_h, "jerk_density_v_m2_s5": sm.jerk_v,
+            "runs": sm.runs, "epochs_left_unsmoothed": sm.rejected,
+        },
+    }
+    return Arcs(t_ns, ours_x, ours_cov, ours_fixed, alone, summary,
+                round(time.perf_counter() - t0, 3))
+
+
+def grade_stage(
+    arcs: Arcs | None, merged: EngineSolution, forward: EngineSolution | None = None,
+    backward: EngineSolution | None = None,
+) -> IntegrityResult:
+    """The graded trajectory from our solution (None: the engine's runs alone) and the
+    engine's (see :mod:`.grade`), at the rover's epochs (or the engine's when ours is
+    None)."""
+    t0 = time.perf_counter()
+    t_ns = arcs.t_ns if arcs is not None else merged.t_gps_ns
+    n = t_ns.size
+    m = _at(merged, t_ns)
+    assert m is not None
+    if arcs is not None:
+        ours = gr.Candidate(arcs.x, arcs.cov, np.where(arcs.fixed, 1, 0))
+        ours_fixed, alone = arcs.fixed, arcs.stands_alone
+    else:
+        ours = gr.Candidate(np.full((n, 3), np.nan), np.full((n, 3, 3), np.nan),
+                            np.zeros(n, dtype=np.int64))
+        ours_fixed, alone = np.zeros(n, dtype=bool), False
+    g = gr.grade(ours_fixed, ours, _at(forward, t_ns), _at(backward, t_ns), m,
+                 ours_alone=alone)
     # the epochs' times: the engine's (receiver clock removed) where it has the epoch
     t_out = t_ns.copy()
     if merged.t_gps_ns.size:
@@ -144,37 +207,26 @@ def assess(
         near = np.abs(merged.t_gps_ns[j] - t_ns) <= MATCH_NS
         t_out[near] = merged.t_gps_ns[j[near]]
     keep = np.all(np.isfinite(g.x), axis=1)
-    lat_res = res.lattice
     summary: dict[str, object] = {
         "epochs": int(keep.sum()),
         "grades": {gr.GRADE_NAMES[k]: int(np.sum(g.grade[keep] == k)) for k in gr.GRADE_NAMES
                    if np.any(g.grade[keep] == k)},
         "checks": g.counts,
-        "arcs": {
-            "satellites": [f"G{s:02d}" for s in tab.svs],
-            "arcs": res.tab.n_arcs,
-            "lattice_cycles": res.tab.lattice_cyc,
-            "integer_combinations": lat_res.combinations,
-            "fixed_combinations": lat_res.fixed_combinations,
-            "stopped_by": lat_res.stopped_by,
-            "first_float_sigma_steps": round(lat_res.ratio_to_lattice, 3),
-            "slips_found_as_steps": [
-                {"satellite": f"G{sv:02d}", "t_gps_ns": t} for sv, t in res.steps],
-            "code_variance_factor": round(res.code_inflation, 2),
-            "phase_variance_factor": round(res.phase_factor, 2),
-            "stands_alone": bool(res.phase_factor <= gr.PHASE_MODEL_FACTOR),
-            "arcs_left_out_misfit": len(res.misfits),
-            "epochs_fixed": int(sol.fixed.sum()),
-            "epochs_fixed_precise": int(ours_fixed.sum()),
-        },
-        "smoothing": {
-            "jerk_density_h_m2_s5": sm.jerk_h, "jerk_density_v_m2_s5": sm.jerk_v,
-            "runs": sm.runs, "epochs_left_unsmoothed": sm.rejected,
-        },
+        "arcs": arcs.summary if arcs is not None else None,
         "float_sigma_factor": {"horizontal": round(g.float_factor[0], 3),
                                "vertical": round(g.float_factor[1], 3),
                                "from": g.factor_source},
-        "wall_s": round(time.perf_counter() - t0, 3),
+        "wall_s": round(time.perf_counter() - t0 + (arcs.wall_s if arcs else 0.0), 3),
     }
     return IntegrityResult(t_out[keep], g.x[keep], g.cov[keep], g.quality[keep],
                            g.grade[keep], g.check[keep], summary)
+
+
+def assess(
+    rover: ObsSet, base: ObsSet, ephemerides: Sequence[BroadcastEphemeris],
+    base_ecef_m: tuple[float, float, float], merged: EngineSolution,
+    forward: EngineSolution | None = None, backward: EngineSolution | None = None,
+) -> IntegrityResult:
+    """The whole stage in one call (:func:`arcs_stage`, then :func:`grade_stage`)."""
+    return grade_stage(arcs_stage(rover, base, ephemerides, base_ecef_m), merged, forward,
+                       backward)
