@@ -142,18 +142,29 @@ def _cand(x: np.ndarray, sd: float, q: int | np.ndarray) -> gr.Candidate:
 X0 = np.array([4146349.0, 612312.0, 4791750.0])
 
 
-def test_grades_our_fix_stands_and_an_engine_fix_that_contradicts_it_demotes_both() -> None:
+def test_grades_our_fix_stands_against_one_direction_but_not_against_a_checked_fix() -> None:
     n = 4
     truth = np.tile(X0, (n, 1))
     ours = _cand(truth.copy(), 0.005, 1)
     wrong = truth.copy()
-    wrong[2, 2] += 0.3  # the engine's fix 30 cm off at epoch 2
+    wrong[2, 2] += 0.3  # the engine 30 cm off at epoch 2
+    # forward alone fixes it there: a guess our whole-arc fix outweighs
     fwd = _cand(wrong, 0.005, 1)
     bwd = _cand(truth.copy(), 0.3, 2)
     g = gr.grade(np.ones(n, bool), ours, fwd, bwd, _cand(wrong, 0.005, 1))
+    assert g.grade.tolist() == [gr.FIXED] * 4
+    assert gr.CHECK_NAMES[int(g.check[2])] == "arcs"
+    assert gr.CHECK_NAMES[int(g.check[0])] == "arcs-and-engine"
+    assert g.counts["engine fixes of one direction rejected by arcs"] == 1
+    # both directions fixed it there and agree: two checked solutions disagree, neither holds
+    both = _cand(wrong, 0.005, 1)
+    g = gr.grade(np.ones(n, bool), ours, both, both, both)
     assert g.grade.tolist() == [gr.FIXED, gr.FIXED, gr.FLOAT, gr.FIXED]
     assert gr.CHECK_NAMES[int(g.check[2])] == "demoted:arcs-disagree"
-    assert gr.CHECK_NAMES[int(g.check[0])] == "arcs-and-engine"
+    rot = gr._enu_rot(truth)
+    sd = np.sqrt(np.diag(rot @ g.cov[2] @ rot.T))
+    off = np.abs(rot @ (g.x[2] - truth[2]))
+    assert np.all(off <= sd + 1e-9)  # the middle, with half the difference as sigma
 
 
 def test_grades_without_our_fix() -> None:

@@ -8,12 +8,14 @@ own data.
 The rule, per epoch:
 
 1. Our whole-arc solution fixed the epoch (integer combinations sure to 5 sigma, six satellites
-   on fixed constants, its residuals passing their chi-square test) and no fix of the engine
-   in either direction contradicts it: **fixed**, checked by ``arcs`` (``arcs-and-engine``
-   where an engine fix agrees; only those where the phase did not behave as modelled,
-   :data:`PHASE_MODEL_FACTOR`). Where the engine fixed
-   the epoch elsewhere (beyond the two covariances, chi-square 3 dof at 0.1 %), neither is
-   trusted: **demoted**, ``demoted:arcs-disagree``.
+   on fixed constants, its residuals passing their chi-square test) and the engine's checked
+   fix (both directions fixed and agreeing) does not contradict it: **fixed**, checked by
+   ``arcs`` (``arcs-and-engine`` where an engine fix agrees; only those where the phase did
+   not behave as modelled, :data:`PHASE_MODEL_FACTOR`). Where the engine's checked fix is
+   elsewhere (beyond the two covariances, chi-square 3 dof at 0.1 %), neither is trusted:
+   **demoted**, ``demoted:arcs-disagree``, at their middle with a sigma of half their
+   difference at least. An engine fix of one direction that disagrees with our standing fix
+   is rejected (counted in ``engine.json``).
 2. Otherwise the engine fixed it in both directions and the two agree (the full-covariance test
    of :mod:`groundstation.solve.engine.combine`): **fixed**, checked by ``both-directions``.
 3. Otherwise the engine fixed it in one direction only and the other direction's float
@@ -218,17 +220,24 @@ def grade(ours_fixed: BoolArray, ours: Candidate, forward: Candidate | None,
     x = np.full((n, 3), np.nan)
     cov = np.full((n, 3, 3), np.nan)
 
-    # 1. ours, unless a fix of the engine in either direction contradicts it: two integer
-    # solutions that disagree cannot both be right, and nothing says which is wrong
-    f_fix0 = (forward.q == 1) if forward is not None else np.zeros(n, dtype=bool)
-    b_fix0 = (backward.q == 1) if backward is not None else np.zeros(n, dtype=bool)
-    contradicted = np.zeros(n, dtype=bool)
-    for c, fx in ((forward, f_fix0), (backward, b_fix0), (merged, merged.q == 1)):
+    f_fix = (forward.q == 1) if forward is not None else np.zeros(n, dtype=bool)
+    b_fix = (backward.q == 1) if backward is not None else np.zeros(n, dtype=bool)
+    m_fix = merged.q == 1
+    # The engine's own checked fixes: both directions fixed, and agreeing.
+    engine_checked = m_fix & f_fix & b_fix
+    if forward is not None and backward is not None:
+        engine_checked &= _agree(forward.x, forward.cov, backward.x, backward.cov)
+    # 1. ours, unless the engine's checked fix contradicts it: two checked integer solutions
+    # that disagree cannot both be right, and nothing says which is wrong. A fix of one
+    # direction only is a guess the whole-arc solution has checked more than the engine has.
+    contradicted = ours_fixed & engine_checked & ~_agree(ours.x, ours.cov, merged.x, merged.cov)
+    rejected = np.zeros(n, dtype=bool)
+    for c, fx in ((forward, f_fix), (backward, b_fix)):
         if c is not None:
-            contradicted |= ours_fixed & fx & ~_agree(ours.x, ours.cov, c.x, c.cov)
+            rejected |= ours_fixed & fx & ~_agree(ours.x, ours.cov, c.x, c.cov)
     ours_ok = ours_fixed & ~contradicted
     corroborated = np.zeros(n, dtype=bool)
-    for c, fx in ((forward, f_fix0), (backward, b_fix0)):
+    for c, fx in ((forward, f_fix), (backward, b_fix)):
         if c is not None:
             corroborated |= ours_ok & fx & _agree(ours.x, ours.cov, c.x, c.cov)
     if not ours_alone:
@@ -238,17 +247,14 @@ def grade(ours_fixed: BoolArray, ours: Candidate, forward: Candidate | None,
     gradec[ours_ok] = FIXED
     check[ours_ok] = np.where(corroborated[ours_ok], C_ARCS_ENGINE, C_ARCS)
     rest = ~ours_ok
-    fwd_fix = forward is not None and True
-    f_fix = (forward.q == 1) if forward is not None else np.zeros(n, dtype=bool)
-    b_fix = (backward.q == 1) if backward is not None else np.zeros(n, dtype=bool)
-    m_fix = merged.q == 1
-    del fwd_fix
 
     # calibration of the float sigmas against the positions fixed so far (ours and the
     # engine's both-direction fixes that agree)
     # Our fix vetoes the engine's only where it can stand on its own: where the phase did not
     # behave as modelled, our disagreeing fix is not evidence against the engine's.
-    veto = contradicted if ours_alone else np.zeros(n, dtype=bool)
+    veto = (contradicted | (rejected & ~ours_ok)) if ours_alone else np.zeros(n, dtype=bool)
+    # where ours stands, an engine fix of one direction that disagrees is rejected
+    engine_rejected = ours_ok & rejected
     both = rest & ~veto & f_fix & b_fix & m_fix
     if forward is not None and backward is not None:
         both &= _agree(forward.x, forward.cov, backward.x, backward.cov)
@@ -303,6 +309,16 @@ def grade(ours_fixed: BoolArray, ours: Candidate, forward: Candidate | None,
     left = (gradec == NONE) & (merged.q > 0) & np.all(np.isfinite(merged.x), axis=1)
     x[left] = merged.x[left]
     cov[left] = scaled(merged)[left]
+    # Two fixes that disagree: the truth is near one of them, so the position is their middle
+    # and each local axis's sigma at least half their difference.
+    split = left & veto & np.all(np.isfinite(ours.x), axis=1)
+    if split.any():
+        d = (ours.x[split] - merged.x[split]) @ rot.T
+        x[split] = 0.5 * (ours.x[split] + merged.x[split])
+        half = np.zeros((d.shape[0], 3, 3))
+        half[:, [0, 1, 2], [0, 1, 2]] = (0.5 * d) ** 2
+        cov[split] = (0.25 * (ours.cov[split] + merged.cov[split])
+                      + np.einsum("ji,ejk,kl->eil", rot, half, rot))
     # Where both directions are float, they are two estimates of the same position from
     # disjoint data: their difference is a measure of the float's error at that very epoch,
     # added to its variance on each local axis.
@@ -325,4 +341,6 @@ def grade(ours_fixed: BoolArray, ours: Candidate, forward: Candidate | None,
                        np.where(gradec == FLOAT, 2, np.where(gradec == SINGLE, 5, 0)))
     counts = {CHECK_NAMES[k]: int(np.sum(check == k)) for k in range(1, len(CHECK_NAMES))
               if np.any(check == k)}
+    if engine_rejected.any():
+        counts["engine fixes of one direction rejected by arcs"] = int(engine_rejected.sum())
     return Graded(x, cov, quality.astype(np.int64), gradec, check, (fh, fv), source, counts)
