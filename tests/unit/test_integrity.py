@@ -203,6 +203,7 @@ def test_the_float_factor_makes_the_float_sigmas_cover_their_errors() -> None:
     assert fh > 5.0 and fv > 5.0
     few, used_few = gr.float_factor(truth[:10], [_cand(fl[:10], 0.05, 2)], np.eye(3))
     assert used_few == 10 and few == (gr.DEFAULT_FLOAT_FACTOR, gr.DEFAULT_FLOAT_FACTOR)
+    assert gr.DEFAULT_FLOAT_FACTOR >= 10.0
 
 
 def test_a_mark_takes_the_worse_grade_and_an_interpolation_sigma() -> None:
