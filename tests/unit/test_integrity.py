@@ -168,20 +168,24 @@ def test_grades_our_fix_stands_against_one_direction_but_not_against_a_checked_f
 
 
 def test_grades_without_our_fix() -> None:
-    n = 5
+    rng = np.random.default_rng(10)
+    n = 65  # epochs 5..64: our fixes, beside which the backward float is measured
     truth = np.tile(X0, (n, 1))
     f = truth.copy()
-    b = truth.copy()
+    b = truth + np.vstack([np.zeros((5, 3)), rng.normal(size=(60, 3)) * 0.01])
     b[1, 0] += 0.4  # both fixed, 40 cm apart
-    fq = np.array([1, 1, 1, 2, 2])
-    bq = np.array([1, 1, 2, 1, 2])
-    # the floats: backward's at epoch 2 sure to 1 cm, forward's at epoch 3 to 50 cm
-    fsd = np.array([0.005, 0.005, 0.005, 0.5, 0.5])
-    bsd = np.array([0.005, 0.005, 0.01, 0.005, 0.5])
+    fq = np.array([1, 1, 1, 2, 2] + [1] * 60)
+    bq = np.array([1, 1, 2, 1, 2] + [2] * 60)
+    # the floats: backward's at epoch 2 (and beside our fixes) sure to 1 cm, forward's at
+    # epoch 3 to 50 cm
+    fsd = np.array([0.005, 0.005, 0.005, 0.5, 0.5] + [0.005] * 60)
+    bsd = np.array([0.005, 0.005, 0.01, 0.005, 0.5] + [0.01] * 60)
     fwd = gr.Candidate(f, np.stack([np.eye(3) * s * s for s in fsd]), fq)
     bwd = gr.Candidate(b, np.stack([np.eye(3) * s * s for s in bsd]), bq)
-    merged = _cand(truth, 0.01, np.array([1, 2, 1, 1, 2]))
-    g = gr.grade(np.zeros(n, bool), _cand(truth, 1.0, 0), fwd, bwd, merged)
+    merged = _cand(truth, 0.01, np.array([1, 2, 1, 1, 2] + [1] * 60))
+    ours_fixed = np.array([False] * 5 + [True] * 60)
+    g = gr.grade(ours_fixed, _cand(truth, 0.005, 0), fwd, bwd, merged)
+    assert g.factor_source.startswith("flight") and g.float_factor[0] < 2.0
     names = [gr.CHECK_NAMES[int(c)] for c in g.check]
     assert names[0] == "both-directions" and g.grade[0] == gr.FIXED
     assert g.grade[1] == gr.FLOAT  # the engine's own merge made it float
@@ -190,6 +194,13 @@ def test_grades_without_our_fix() -> None:
     # one direction fixed, the other's float is 50 cm: it cannot tell, demoted
     assert names[3] == "demoted:one-direction" and g.grade[3] == gr.FLOAT
     assert g.grade[4] == gr.FLOAT
+    # with nothing to measure the factor on, the default makes every float a metre one
+    g5 = gr.grade(np.zeros(5, bool), _cand(truth[:5], 1.0, 0),
+                  gr.Candidate(f[:5], fwd.cov[:5], fq[:5]),
+                  gr.Candidate(b[:5], bwd.cov[:5], bq[:5]), _cand(truth[:5], 0.01,
+                                                                 np.array([1, 2, 1, 1, 2])))
+    assert g5.factor_source == "default"
+    assert gr.CHECK_NAMES[int(g5.check[2])] == "demoted:one-direction"
 
 
 def test_the_float_factor_makes_the_float_sigmas_cover_their_errors() -> None:
