@@ -30,10 +30,13 @@ def _flight(tmp: Path, seed: int, severity: float, duration_s: float) -> dict[st
     return sim.truth
 
 
-@pytest.fixture(scope="module")
-def solved(tmp_path_factory: pytest.TempPathFactory) -> tuple[SolveResult, dict[str, Any], Path]:
+@pytest.fixture(scope="module", params=[(11, 1.0), (3, 2.0)], ids=["severity1", "severity2"])
+def solved(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory,
+           ) -> tuple[SolveResult, dict[str, Any], Path]:
+    """A short seed-profile flight (a small form of ``bench_ppk.py --sweep``), solved."""
+    seed, severity = request.param
     tmp = tmp_path_factory.mktemp("integrity")
-    truth = _flight(tmp, 11, 1.0, 900.0)
+    truth = _flight(tmp, seed, severity, 900.0)
     base = tuple(float(v) for v in truth["base"]["ecef_m"])
     res = solve(SolveSettings(flight=tmp / "rover.ubx", out_dir=tmp / "out", base=tmp / "base.ubx",
                               base_ecef_m=base))  # type: ignore[arg-type]
@@ -102,7 +105,9 @@ def test_the_grades_reach_cameras_csv_the_report_and_engine_json(
     html = (out / "report.html").read_text()
     assert 'id="integrity"' in html and "fixed and checked" in html
     assert (out / "rtklib" / "integrity.pos").is_file()
-    assert res.summary()["marks_by_grade"]["fixed"] == sum(r["grade"] == "fixed" for r in rows)
+    by_grade = res.summary()["marks_by_grade"]
+    assert isinstance(by_grade, dict)
+    assert by_grade["fixed"] == sum(r["grade"] == "fixed" for r in rows)
 
 
 @pytest.mark.parametrize("seed", [107, 6262])
