@@ -18,7 +18,7 @@ from groundstation.solve.positions import Trajectory
 from groundstation.solve.report import engine_info
 
 ENGINE_NOTE_PREFIXES = ("phase conditioning", "acceleration noise", "combined: ",
-                        "integrity stage")
+                        "integrity stage: epochs")
 """How the engine's notes on its conditioning, dynamics and combination begin
 (``solve/engine/__init__.py``); the plain lines below stand for them on the terminal."""
 POS_FORMAT_PREFIX = "RTKLIB .pos ("

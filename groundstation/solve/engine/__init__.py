@@ -504,8 +504,7 @@ def _arcs(
     from groundstation.solve.integrity.assess import arcs_stage
 
     if "rover" not in seen or "base" not in seen:
-        return None, ("the rover or base was given as RINEX (no raw observations to check "
-                      "with)")
+        return None, "the rover or base was given as RINEX: no raw observations to check with"
     if progress is not None:
         progress("integrity: whole-arc solution", 0.0)
     rover_obs, rover_ephs = seen["rover"]
