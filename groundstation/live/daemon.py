@@ -22,6 +22,7 @@ from typing import Any
 from groundstation import events as kinds
 from groundstation.config import Settings
 from groundstation.errors import GroundstationError
+from groundstation.gpstime import format_gps
 from groundstation.live.data_time import UNTIMED, DataClock, Timed
 from groundstation.live.fanout import Fanout, InboxStats, Overflow, Publish, Sink, SinkSpec
 from groundstation.live.monitor import Monitor
@@ -37,6 +38,7 @@ from groundstation.records import (
     RawChunk,
     UndecodedFrame,
 )
+from groundstation.rules.plausible import Jump, span_text
 from groundstation.storage.mcapio import ExactFile
 from groundstation.storage.session import FileOpener, SessionRecorder
 from groundstation.ubx.decode import Decoder
@@ -69,6 +71,11 @@ class RunSummary:
     lost_held_bytes: int = 0
     lost_files: tuple[Path, ...] = ()
     """Files of the session deleted while it was recorded (not in ``files``/``sidecars``)."""
+    implausible_by_type: dict[str, int] = field(default_factory=dict)
+    """Frames whose time cannot belong to the session (rules/plausible), by message type:
+    recorded, not decoded."""
+    time_jumps: int = 0
+    """Jumps of the receiver's time that a second epoch confirmed (``decoder.time_jump``)."""
 
 
 def make_monitor(settings: Settings) -> Monitor:
@@ -207,15 +214,32 @@ class Pipeline:
         self._decode(frames)
 
     def _decode(self, frames: list[Frame]) -> None:
+        jumps = self.decoder.clock.jumps
         for frame in frames:
+            seen = len(jumps)
             record = self.decoder.decode(frame)
+            if len(jumps) != seen:  # before the epoch that confirmed it: the monitor restarts
+                self._time_jump(jumps[-1], frame.t_host_ns)
             if isinstance(record, (Frame, UndecodedFrame)):
                 continue  # its bytes are already in /ubx/raw
             self.records += 1
             self.fanout.publish(record)
 
+    def _time_jump(self, jump: Jump, t_host_ns: int) -> None:
+        before = ("the host's clock" if jump.from_t_gps_ns is None
+                  else f"{span_text(jump.to_t_gps_ns - jump.from_t_gps_ns)} from the session's "
+                  "clock")
+        self.publish(Event(
+            kinds.DECODER_TIME_JUMP, t_host_ns or self._clock(),
+            f"the receiver's time jumped ({before}) to {format_gps(jump.to_t_gps_ns)}, "
+            "confirmed by a second epoch: the session's clock follows it", "warning",
+            {"from_t_gps_ns": jump.from_t_gps_ns, "to_t_gps_ns": jump.to_t_gps_ns,
+             "skipped_t_gps_ns": jump.skipped_t_gps_ns},
+        ))
+
     def status(self) -> PipelineStatus:
         fs = self.framer.stats
+        ds = self.decoder.stats
         state = getattr(self.source, "state", None)
         connected = getattr(state, "connected", None)
         return PipelineStatus(
@@ -228,10 +252,11 @@ class Pipeline:
             garbage_bytes=fs.garbage_bytes,
             bad_checksum=fs.bad_checksum,
             records=self.records,
-            undecodable=self.decoder.stats.undecodable,
+            undecodable=ds.undecodable,
             queued={s.name: s.queued for s in self.fanout.stats},
             dropped={s.name: s.dropped for s in self.fanout.stats},
             nmea_sentences=fs.nmea_sentences,
+            implausible=ds.implausible,
         )
 
     # -- tasks ------------------------------------------------------------------------------
@@ -248,6 +273,11 @@ class Pipeline:
             async for chunk, t_host_ns in chunks:
                 if t_host_ns == UNTIMED and self._data_clock is None:  # a .ubx file, once
                     self._data_clock = getattr(self.source, "data_clock", None)
+                    if self._data_clock is not None:
+                        # its frames' times will be the data's own: the decoder judges them
+                        # as the data clock does (rules/plausible), not as reception times
+                        self.decoder.clock.host_times = False
+                        self.decoder.clock.now_ns = self._data_clock.session.now_ns
                 for data, frames, t in self._timed(chunk, t_host_ns):
                     if t_host_ns == UNTIMED and callable(pace):
                         delay = pace(t)
@@ -409,6 +439,8 @@ class Pipeline:
             dropped_records=rec.dropped_records if rec else 0,
             lost_held_bytes=rec.held_bytes if rec else 0,
             lost_files=rec.lost_files if rec else (),
+            implausible_by_type=self.decoder.stats.implausible_by_type,
+            time_jumps=self.decoder.stats.time_jumps,
         )
 
 

@@ -5,7 +5,11 @@ stream yields its chunks stamped :data:`UNTIMED`, and the pipeline times them he
 frames (one framing pass): a chunk takes the UTC of the latest measurement epoch (RXM-RAW /
 RXM-RAWX) framed so far, never going back. A receiver sends an epoch's messages right after its
 measurement time, so this is close to when the bytes arrived live; the monitor's windows run on
-it and ``--speed`` paces it (:class:`~groundstation.pacing.Pacer`).
+it and ``--speed`` paces it (:class:`~groundstation.pacing.Pacer`). Only epochs whose time can
+belong to the session count (:mod:`groundstation.rules.plausible`, with the same verdicts as the
+decoder's: :attr:`DataClock.session` judges the same epochs in the same order, without host
+times): a frame that passed its checksum by chance with a time a week ahead does not move the
+clock a week ahead.
 
 Chunks before the first epoch take that epoch's time (they are held, up to
 :data:`DATA_TIME_WAIT_BYTES`); a stream with no epoch by then is timed from there on as a
@@ -18,6 +22,7 @@ from __future__ import annotations
 from groundstation.gpstime import gps_to_unix_ns
 from groundstation.pacing import link_time_ns
 from groundstation.records import Frame
+from groundstation.rules.plausible import SessionClock
 from groundstation.ubx.decode import epoch_time_gps_ns
 
 UNTIMED = 0
@@ -42,6 +47,9 @@ class DataClock:
     def __init__(self, start_ns: int, link_bytes_per_s: float) -> None:
         self._start_ns = start_ns
         self._rate = link_bytes_per_s
+        self.session = SessionClock(start_ns, host_times=False)
+        """The plausibility rule's clock (the decoder of the same stream must have one alike:
+        ``host_times`` False and this ``now_ns``)."""
         self.last_ns: int | None = None
         """UTC (UNIX ns) of the latest epoch so far (``None`` before the first one)."""
         self._held: list[tuple[bytes, list[Frame]]] = []
@@ -56,7 +64,7 @@ class DataClock:
             last = self.last_ns
             for frame in frames:
                 t_gps = epoch_time_gps_ns(frame)
-                if t_gps is not None:
+                if t_gps is not None and self.session.epoch(t_gps, 0) is None:
                     t = gps_to_unix_ns(t_gps)
                     if last is None or t > last:
                         last = t

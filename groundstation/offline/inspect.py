@@ -80,6 +80,12 @@ class Summary:
     """Size on disk of the recording (all parts); ``bytes`` is the raw stream inside it."""
     unknown_slot_signals: int = 0
     """GLONASS measurements without a known slot (u-blox svId 255): not a satellite name."""
+    implausible: dict[str, int] = field(default_factory=dict)
+    """Frames with a valid checksum whose time cannot belong to the session, by message type
+    (:mod:`groundstation.rules.plausible`): kept in the recording, not counted as epochs or
+    marks (RINEX and the solver leave them out too)."""
+    time_jumps: int = 0
+    """Jumps of the receiver's time that a second epoch confirmed."""
 
     def as_json(self) -> dict[str, Any]:
         d = asdict(self)
@@ -137,7 +143,7 @@ class Inspector:
             self.sats |= ids
         elif isinstance(record, TimeMark):
             self.marks.append(record)
-        elif isinstance(record, UndecodedFrame):
+        elif isinstance(record, UndecodedFrame) and not record.implausible:
             self.undecodable += 1
 
     def _named_messages(self) -> Counter[str]:
@@ -178,6 +184,8 @@ class Inspector:
             satellites=tuple(sorted({sv_label(g, sv) for g, sv in self.sats})),
             max_sats_per_epoch=self.max_sats,
             unknown_slot_signals=self.unknown_slot,
+            implausible=dict(sorted(self.decoder.stats.implausible_by_type.items())),
+            time_jumps=self.decoder.stats.time_jumps,
         )
 
 
