@@ -277,12 +277,7 @@ class Decoder:
         try:
             record = handler(frame)
         except ImplausibleTime as err:
-            n = self._implausible[name] = self._implausible[name] + 1
-            if n <= IMPLAUSIBLE_LOGGED or n % 1000 == 0:
-                log.warning(
-                    "implausible %s at offset %d (%d bytes kept, not decoded; %d so far): %s",
-                    name, frame.offset, len(frame.raw), n, err,
-                )
+            self._count_implausible(name, frame, err)
             return UndecodedFrame(frame, f"implausible time: {err}", implausible=True)
         except (ValueError, struct.error, ArithmeticError) as err:  # PayloadError, or math
             self._undecodable[name] += 1
@@ -295,7 +290,40 @@ class Decoder:
 
                 raise DecodeError(f"{name} at offset {frame.offset}: {err}") from err
             return UndecodedFrame(frame, f"{type(err).__name__}: {err}")
-        if len(self.clock.jumps) != jumps:
+        self._log_jump(jumps)
+        self._decoded[name] += 1
+        return record
+
+    def judge_epoch(self, frame: Frame) -> bool:
+        """Take a measurement epoch (RXM-RAW / RXM-RAWX) into the session's clock without
+        decoding its measurements, for a reader that wants only marks and fixes (the solver):
+        the marks are then judged as :meth:`decode` judges them after the same frames. Returns
+        whether the epoch is plausible (an implausible one is counted and logged, a payload that
+        does not fit is not an epoch)."""
+        name = "RXM-RAW" if frame.key == RXM_RAW else "RXM-RAWX"
+        rows_of = _raw_epoch_rows if frame.key == RXM_RAW else _rawx_epoch_rows
+        jumps = len(self.clock.jumps)
+        try:
+            week, tow_ns, _ = rows_of(frame.payload)
+            self._epoch(week, tow_ns, frame)
+        except PayloadError:
+            return False
+        except ImplausibleTime as err:
+            self._count_implausible(name, frame, err)
+            return False
+        self._log_jump(jumps)
+        return True
+
+    def _count_implausible(self, name: str, frame: Frame, err: ImplausibleTime) -> None:
+        n = self._implausible[name] = self._implausible[name] + 1
+        if n <= IMPLAUSIBLE_LOGGED or n % 1000 == 0:
+            log.warning(
+                "implausible %s at offset %d (%d bytes kept, not decoded; %d so far): %s",
+                name, frame.offset, len(frame.raw), n, err,
+            )
+
+    def _log_jump(self, before: int) -> None:
+        if len(self.clock.jumps) != before:
             jump = self.clock.jumps[-1]
             log.warning(
                 "the receiver's time jumped %s (to %s), confirmed by a second epoch: the "
@@ -304,8 +332,6 @@ class Decoder:
                 P.span_text(jump.to_t_gps_ns - jump.from_t_gps_ns),
                 format_gps(jump.to_t_gps_ns), format_gps(jump.skipped_t_gps_ns),
             )
-        self._decoded[name] += 1
-        return record
 
     # -- observations -------------------------------------------------------------------------
 

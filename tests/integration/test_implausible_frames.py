@@ -292,3 +292,25 @@ def test_epochs_decoded_live_equal_the_recordings_epochs() -> None:
     got = [r for r in (dec.decode(f) for f in UbxFramer().feed(data, 0))
            if isinstance(r, RawEpoch)]
     assert len(got) == epochs and dec.stats.implausible_by_type == {"RXM-RAW": 1}
+
+
+def test_the_solver_reads_the_same_marks_as_rinex(tmp_path: Path) -> None:
+    """The solver's reading of the marks judges them by the session's clock too (it reads only
+    marks and fixes: the epochs still set the clock), so a mark an hour off is left out by both."""
+    from groundstation.offline.rinex.convert import observations_of, read_frames, time_marks_of
+    from groundstation.solve.pipeline import read_flight
+
+    week, itow = sim_week_tow()
+    flags = L.TIM_TM2_FLAGS.compose(mode=1, run=1, timeBase=1, time=1, newFallingEdge=1)
+    off = L.TIM_TM2.frame(ch=0, flags=flags, count=50, wnF=week, towMsF=itow + 3_600_000,
+                          accEst=20)
+    data, _, marks = with_frame(off)
+    path = tmp_path / "f.ubx"
+    path.write_bytes(data)
+    frames, index = read_frames(path)
+    block, _, _, times = observations_of(frames, index)
+    offline = time_marks_of(frames, index, block, times)
+    solver = read_flight(path).timemarks
+    assert [(m.count, m.falling_t_gps_ns) for m in solver] == [
+        (m.count, m.falling_t_gps_ns) for m in offline]
+    assert sum(m.new_falling for m in solver) == marks
