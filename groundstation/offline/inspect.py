@@ -153,7 +153,8 @@ class Inspector:
         return named
 
     def summary(self, stats: FramerStats, *, path: str = "", fmt: str = "") -> Summary:
-        times = sorted(self.epoch_times)
+        # epochs the plausibility rule found to be the odd one after they were decoded
+        times = sorted(self.epoch_times - set(self.decoder.clock.refuted))
         interval_ns = nominal_interval_ns(times)
         gaps = find_gaps(times, interval_ns)
         return Summary(

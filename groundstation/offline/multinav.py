@@ -105,7 +105,8 @@ def receiver_times(
         if key == (0x02, 0x15):
             tow_s = _fields(rows, 0, "<f8")
             week = _fields(rows, 8, "<u2").astype(np.int64)
-            finite = np.isfinite(tow_s)
+            with np.errstate(invalid="ignore"):
+                finite = (tow_s >= 0.0) & (tow_s < plausible.WEEK_S)  # and not NaN
             week[~finite] = 0
             tow_ns = np.rint(np.where(finite, tow_s, 0.0) * 1e9).astype(np.int64)
         elif key == (0x02, 0x10):
@@ -119,7 +120,7 @@ def receiver_times(
             valid_bit = 0x04 if key == (0x01, 0x06) else 0x02
             week[(rows[:, 11] & valid_bit) == 0] = 0
         # within the receiver's ranges (a week beyond them overflows the ns below)
-        keep = (week > 0) & (week <= plausible.MAX_WEEK) & (tow_ns >= 0) & (
+        keep = (week >= plausible.MIN_WEEK) & (week <= plausible.MAX_WEEK) & (tow_ns >= 0) & (
             tow_ns < gpstime.NS_PER_WEEK)
         if session is not None:
             keep &= _plausible(key, rows, sel, week, session)

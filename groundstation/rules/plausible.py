@@ -13,10 +13,14 @@ move the clock, the monitor, the recorder's publish times, RINEX or the solver.
 The rule, from the receiver and the session:
 
 1. **The receiver's ranges**, each message alone: a time of week in [0, 604 800 s), a
-   sub-millisecond part in [0, 1 ms), a GPS week of at least 1 (week 0 is a receiver without
-   time yet: such an epoch passes as a cold start but never sets the clock), finite measurements
-   (a receiver never sends NaN or infinity), and a time the records and the bus carry (before
-   2^62 ns, the year 2126: :data:`MAX_T_GPS_NS`).
+   sub-millisecond part in [0, 1 ms), a GPS week from 1024 (1999, :data:`MIN_WEEK`; week 0 is a
+   receiver without time yet: such an epoch passes as a cold start but never sets the clock),
+   measurements a
+   receiver makes (finite, a pseudorange within 1e9 m, a phase within 1e10 cycles, a Doppler
+   within 1 MHz: a receiver never sends NaN, infinity or 1e308), a stated GPS - UTC near the
+   leap-second table's,
+   and a time the records and the bus carry (before 2^62 ns, the year 2126:
+   :data:`MAX_T_GPS_NS`).
 2. **The host clock, where there is one**: the session's first time cannot lie after the host's
    clock (its reception time live, the computer's clock offline) by more than
    :data:`HOST_CLOCK_SLACK_NS` (more than any host clock is wrong by).
@@ -25,14 +29,20 @@ The rule, from the receiver and the session:
    elapsed since that epoch plus the link's latency (:data:`LINK_LATENCY_NS`: the receiver's
    time and the host's run at the same rate, whatever the host clock's offset); without them
    (a ``.ubx`` file), a minute or ten of the receiver's epoch intervals. It may precede it by
-   :data:`BACK_NS` (a repeat, a receiver clock reset). A mark's new edge and a fix with a week
+   :data:`BACK_NS` (a repeat, a receiver clock reset). An epoch that falls between the latest
+   and the one before it shows the latest, which put the clock ahead, to be the odd one: the
+   clock goes on from the one before it and readers that collect epochs leave the odd one out
+   (:attr:`SessionClock.refuted`). A mark's new edge and a fix with a week
    lie within the allowance either side of the clock; a mark's repeated edge (the receiver
-   repeats its last one) not after it; a fix with a time of week only, within the allowance
-   around the clock's time of week.
+   repeats its last one, which may be hours old) not after it and within 1024 weeks before it;
+   a fix with a time of week only, within the allowance around the clock's time of week. Before
+   the session's first epoch, a mark or a fix lies within 1024 weeks of the host's clock.
 4. **A jump is the receiver's new time only when an epoch confirms it**: two epochs in a row
-   that agree with each other and not with the clock (the receiver was off, the host clock was
-   wrong, the first epoch was the false one) move the clock to them; the first of the two is
-   counted as not used. A random frame is never confirmed by the next one.
+   that follow each other as the receiver's epochs do (one interval apart, as far apart in host
+   time) and not the clock (the receiver was off, the host clock was wrong, the first epoch was
+   the false one) move the clock to them; the first of the two is counted as not used. A frame
+   that passed its checksum by chance is not confirmed by the next epoch, nor by another chance
+   frame of the same burst.
 
 The session's first plausible epoch anchors the clock; the frames before it are judged by the
 ranges and the host clock alone.
@@ -41,13 +51,20 @@ ranges and the host clock alone.
 from __future__ import annotations
 
 import time
+from collections import deque
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
-from groundstation.gpstime import GPS_EPOCH_UNIX_S, NS_PER_S, NS_PER_WEEK, gps_to_unix_ns
+from groundstation.gpstime import (
+    GPS_EPOCH_UNIX_S,
+    NS_PER_S,
+    NS_PER_WEEK,
+    gps_to_unix_ns,
+    leap_seconds_at_gps,
+)
 
 WEEK_MS = 604_800_000
 """A time of week in ms is below this (u-blox ``iTOW``, ``towMs``)."""
@@ -59,6 +76,11 @@ FTOW_MAX_NS = 500_000
 MAX_T_GPS_NS = 1 << 62
 """No time at or after this (about the year 2126): the bus's limit (``messages.MAX_TIME_NS``),
 and a time a week number times ``NS_PER_WEEK`` computes without overflow in 64 bits."""
+MIN_WEEK = 1024
+"""No receiver that speaks UBX reports an earlier GPS week: the broadcast week number has 10
+bits, and every receiver built after its first rollover (1999-08-22, week 1024; the UBX protocol
+is younger) puts it in an era that starts there or later (a receiver with the rollover bug
+reports 1024 weeks too early, which is still after it)."""
 MAX_WEEK = MAX_T_GPS_NS // NS_PER_WEEK - 1
 """The largest GPS week whose every time of week lies before :data:`MAX_T_GPS_NS`."""
 HOST_CLOCK_SLACK_NS = 1024 * NS_PER_WEEK
@@ -81,6 +103,21 @@ LINK_LATENCY_NS = 5 * NS_PER_S
 the serial buffer and the reader for milliseconds to a second; the margin also covers a host
 clock slewed by NTP (at most 0.5 ms a second). A host clock stepped by more costs one epoch
 (rule 4)."""
+PR_MAX_M = 1e9
+"""No pseudorange is longer: the farthest GNSS satellites (geostationary) are 4.2e7 m away and a
+receiver steers its clock within a millisecond (3e5 m); 1e9 m is 3.3 light-seconds."""
+CP_MAX_CYC = 1e10
+"""No carrier phase is larger: it starts near the range in cycles (~2e8) and grows at the
+Doppler (< 10 kHz) while a satellite is tracked (a pass lasts hours: < 2e8 more); 1e10 is also
+the largest value RINEX's F14.3 holds."""
+DO_MAX_HZ = 1e6
+"""No Doppler is larger: a GNSS satellite's is within ±6 kHz, an aircraft adds < 1 kHz."""
+ODD_RUN_MAX = 8
+"""At most this many epochs in a row, taken within the allowance, are found to be odd ones when
+an epoch comes back behind them (a burst of chance frames each within a minute of the last)."""
+LEAP_SLACK_S = 5
+"""How far a receiver's GPS - UTC may differ from the leap-second table: leap seconds come at
+most one a year, and the table may be a few years out of date."""
 BACK_NS = NS_PER_S
 """How far an epoch may precede the clock: a repeat (RXM-RAW and RXM-RAWX both on) or a
 receiver clock reset (RXM-RAWX ``clkReset``, a millisecond); never more on an ordered link."""
@@ -111,8 +148,8 @@ def span_text(ns: int) -> str:
 
 def week_problem(week: int) -> str | None:
     """Why a GPS week (with a time) is out of range, or None."""
-    if week < 1:
-        return f"GPS week {week}"
+    if week < MIN_WEEK:
+        return f"GPS week {week} (before 1999)" if week > 0 else f"GPS week {week}"
     if week > MAX_WEEK:
         return f"GPS week {week} (after the year 2126)"
     return None
@@ -139,15 +176,23 @@ def sub_ms_problem(sub_ns: int) -> str | None:
     return f"sub-millisecond part {sub_ns} ns"
 
 
-def finite_sum(*values: float) -> bool:
-    """Whether measurements are finite numbers: their sum minus itself is 0 (NaN and infinity
-    give NaN; values so large that their sum overflows count as not finite too). The decoder
-    inlines it; :func:`finite_rows` is the bulk form (the same sum in the same order, IEEE 754:
-    the same bits)."""
-    s = 0.0
-    for v in values:
-        s = s + v
-    return s - s == 0.0
+def measurement_ok(pr_m: float, cp_cyc: float, do_hz: float) -> bool:
+    """Whether one satellite's pseudorange, carrier phase and Doppler are numbers a receiver
+    measures: finite and within :data:`PR_MAX_M`, :data:`CP_MAX_CYC`, :data:`DO_MAX_HZ` (a NaN
+    fails every comparison). The decoder inlines it; :func:`measurement_rows` is the bulk form
+    (the same comparisons)."""
+    return (-PR_MAX_M <= pr_m <= PR_MAX_M and -CP_MAX_CYC <= cp_cyc <= CP_MAX_CYC
+            and -DO_MAX_HZ <= do_hz <= DO_MAX_HZ)
+
+
+def leap_problem(leap_s: int, t_gps_ns: int) -> str | None:
+    """Why a receiver's stated GPS - UTC (RXM-RAWX ``leapS`` with its valid flag) cannot be
+    right at ``t_gps_ns``, or None: within :data:`LEAP_SLACK_S` of the leap-second table (a UTC
+    time mark would otherwise be put on GPS time by a random number of seconds)."""
+    known = leap_seconds_at_gps(t_gps_ns)
+    if abs(leap_s - known) <= LEAP_SLACK_S:
+        return None
+    return f"GPS - UTC {leap_s} s where it is {known} s"
 
 
 def host_bound_problem(t_gps_ns: int, host_ns: int) -> str | None:
@@ -201,20 +246,27 @@ def time_problem(
     """Why a mark's edge or a fix's time cannot belong to the session, or None.
 
     Args:
-        state: the clock (None before the first plausible epoch: the host clock alone).
+        state: the clock (None before the first plausible epoch: the host clock alone, within
+            :data:`HOST_CLOCK_SLACK_NS` either side; an epoch, which can be confirmed, only
+            not after it).
         t_gps_ns: the time.
         t_host_ns: when it was received (None: no host time).
         now_ns: the host's clock when there is no reception time (offline: now).
         new: a new edge or a fix (within the allowance either side), else a repeated edge (not
-            after the clock's allowance).
+            after the clock's allowance, nor more than :data:`HOST_CLOCK_SLACK_NS` before it:
+            the receiver repeats its last edge, which may be from before the session).
     """
     if not 0 <= t_gps_ns < MAX_T_GPS_NS:
         return f"time {t_gps_ns} ns"
-    if state is None:
-        return host_bound_problem(t_gps_ns, t_host_ns if t_host_ns is not None else now_ns)
+    if state is None:  # before the session's first epoch: within the host clock's slack
+        host = t_host_ns if t_host_ns is not None else now_ns
+        off = gps_to_unix_ns(t_gps_ns) - host
+        if host > HOST_TIME_MIN_NS and abs(off) > HOST_CLOCK_SLACK_NS:
+            return f"{span_text(off)} from the host's clock"
+        return None
     d = t_gps_ns - state.t_gps_ns
     allow = allowance_ns(state, t_host_ns)
-    if d > allow or (new and d < -allow):
+    if d > allow or d < (-allow if new else -HOST_CLOCK_SLACK_NS):
         return f"{span_text(d)} from the session's clock"
     return None
 
@@ -264,13 +316,16 @@ def mark_problem(
     t_host_ns: int | None,
     now_ns: int,
 ) -> str | None:
-    """Why a time mark's edges (GPS ns or None, each with its "new" flag) cannot belong to the
-    session, or None (rule 3: a new edge near the clock, a repeated one not after it)."""
-    for t, new in edges:
+    """Why a time mark's edges ((falling, new), (rising, new): GPS ns or None and the record's
+    "new" flag) cannot belong to the session, or None (rule 3: a new edge near the clock, a
+    repeated one not after it). A repeated edge may be old: a real receiver's record of a new
+    rising edge repeated a falling edge 2.2 minutes old (rover-20181004-1532)."""
+    (falling, new_falling), (rising, new_rising) = edges
+    for t, new, name in ((falling, new_falling, "falling"), (rising, new_rising, "rising")):
         if t is not None:
             why = time_problem(state, t, t_host_ns, now_ns, new=new)
             if why is not None:
-                return f"{'new' if new else 'repeated'} edge {why}"
+                return f"{name} edge {why}"
     return None
 
 
@@ -298,17 +353,21 @@ class SessionClock:
         self.now_ns = time.time_ns() if now_ns is None else now_ns
         self.host_times = host_times
         self.state: ClockState | None = None
+        self._taken: deque[ClockState] = deque(maxlen=ODD_RUN_MAX + 1)  # latest last
         self._min_spacing: int | None = None
         self._candidate: tuple[int, int | None] | None = None
         self.jumps: list[Jump] = []
+        self.refuted: list[int] = []
+        """Times of epochs taken within the allowance that the next epoch showed to be the odd
+        one (rule 3): a reader that collects the epochs leaves them out afterwards."""
 
     def host(self, t_host_ns: int) -> int | None:
         """A frame's reception time as the rule uses it (None: not a host time)."""
         return t_host_ns if self.host_times and t_host_ns > HOST_TIME_MIN_NS else None
 
     def epoch(self, t_gps_ns: int, t_host_ns: int) -> str | None:
-        """Judge a measurement epoch that passed the ranges (week >= 1); a plausible one moves
-        the clock. Returns why it is not plausible, or None. A confirmed jump appends to
+        """Judge a measurement epoch that passed the ranges (a week of its own); a plausible
+        one moves the clock. Returns why it is not plausible, or None. A confirmed jump appends to
         :attr:`jumps` (and returns None)."""
         h = self.host(t_host_ns)
         st = self.state
@@ -316,7 +375,20 @@ class SessionClock:
             why = host_bound_problem(t_gps_ns, h if h is not None else self.now_ns)
         else:
             d = t_gps_ns - st.t_gps_ns
-            if -BACK_NS <= d <= allowance_ns(st, h):
+            if 0 <= d <= allowance_ns(st, h):
+                self._accept(t_gps_ns, h, d)
+                return None
+            if d < 0:
+                back = self._follows_earlier(t_gps_ns, h)
+                if back is not None:
+                    # behind the latest epochs, after an earlier one: the latest, which put the
+                    # clock ahead, were the odd ones; the clock goes on from that earlier one
+                    for _ in range(back):
+                        self.refuted.append(self._taken.pop().t_gps_ns)
+                    self.state = self._taken[-1]
+                    self._accept(t_gps_ns, h, t_gps_ns - self.state.t_gps_ns)
+                    return None
+            if -BACK_NS <= d < 0:  # a little behind the clock: a repeat, a clock reset
                 self._accept(t_gps_ns, h, d)
                 return None
             why = f"{span_text(d)} from the session's clock"
@@ -325,25 +397,57 @@ class SessionClock:
             return None
         return self._confirm(t_gps_ns, h, why)
 
+    def _follows_earlier(self, t: int, h: int | None) -> int | None:
+        """How many of the latest epochs taken ``t`` shows to be odd ones: they began with a
+        leap ahead of an earlier epoch (more than two intervals), and ``t``, behind them, follows
+        that earlier one (within its allowance); None when there are none (an epoch behind a
+        run of ordinary ones is the odd one itself)."""
+        taken = self._taken
+        if self._min_spacing is None:
+            return None
+        leap = 2 * self._min_spacing
+        for back in range(1, len(taken)):
+            earlier, first = taken[-1 - back], taken[-back]
+            if (first.t_gps_ns - earlier.t_gps_ns > leap and earlier.t_gps_ns <= t
+                    and t - earlier.t_gps_ns <= allowance_ns(earlier, h)):
+                return back
+        return None
+
     def _accept(self, t: int, h: int | None, spacing: int | None) -> None:
         if (spacing is not None and spacing > 0
                 and (self._min_spacing is None or spacing < self._min_spacing)):
             self._min_spacing = spacing
         self.state = ClockState(t, h, jump_of(self._min_spacing))
+        self._taken.append(self.state)
         self._candidate = None
 
     def _confirm(self, t: int, h: int | None, why: str) -> str | None:
+        """Rule 4: ``t`` (refused) confirms the epoch refused just before it when it follows it
+        as the receiver's next epoch would: by at least half an interval, and by at most one
+        interval more than the host time between them, or (no host times) by at most two
+        intervals; with no interval known yet, by at most a second more than the host time, or
+        as long as the first lay after the clock (a slow receiver's next epoch comes as late as
+        the first did). Frames that passed their checksum by chance in one burst do not: they
+        arrive together, and their times (0 and 1 ms, a minute and 61 s) are not one interval
+        apart."""
         cand = self._candidate
         if cand is not None:
             ct, ch = cand
             d = t - ct
             st = self.state
-            allow = allowance_ns(ClockState(ct, ch, jump_of(self._min_spacing)), h)
-            if st is not None:  # a slow receiver's next epoch comes as late as the first did
-                allow = max(allow, ct - st.t_gps_ns)
-            if 0 < d <= allow:
+            interval = self._min_spacing
+            if h is not None and ch is not None:
+                allow = max(h - ch, 0) + (interval if interval is not None else NS_PER_S)
+            elif interval is not None:
+                allow = 2 * interval
+            else:
+                allow = max(ct - st.t_gps_ns if st is not None else 0, NS_PER_S)
+            least = interval // 2 if interval is not None else 1
+            if least <= d <= allow:
                 self.jumps.append(Jump(st.t_gps_ns if st is not None else None, t, ct))
                 self._min_spacing = None
+                self.state = None
+                self._taken.clear()
                 self._accept(t, h, d)
                 return None
         self._candidate = (t, h)
@@ -369,6 +473,10 @@ class SessionClock:
 
 
 # -- the bulk form -----------------------------------------------------------------------------
+
+
+ODD_EPOCH = "the odd one: the next epoch follows the epoch before it"
+"""Why an epoch taken within the allowance is refused afterwards (:attr:`SessionClock.refuted`)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -445,9 +553,9 @@ def epoch_verdicts(
         hh = host[idx]
         both = (hh[1:] >= 0) & (hh[:-1] >= 0)
         limit = np.where(both, np.maximum(hh[1:] - hh[:-1], 0) + LINK_LATENCY_NS, limit)
-    if first_ok and bool(np.all((diffs >= -BACK_NS) & (diffs <= limit))):
-        # Every timed epoch follows the one before within its least allowance: the streaming
-        # rule accepts each of them; the clock after an epoch is the latest timed epoch.
+    if first_ok and bool(np.all((diffs >= 0) & (diffs <= limit))):
+        # Every timed epoch follows the one before (or repeats it) within its least allowance:
+        # the streaming rule accepts each of them; the clock after an epoch is the latest.
         pos = np.where(diffs > 0, diffs, np.iinfo(np.int64).max)
         run_min = np.minimum.accumulate(pos) if pos.size else pos
         jumps_t = np.full(idx.size, JUMP_MIN_NS, dtype=np.int64)
@@ -469,15 +577,26 @@ def epoch_verdicts(
         return EpochVerdicts(ok, reasons, clock_t, clock_host, jump, ())
     clock = SessionClock(now_ns, host_times=host_times)
     cur = (-1, -1, JUMP_MIN_NS)
-    timed_list = timed.tolist()
     t_list = t.tolist()
+    timed_list = timed.tolist()
     host_list = host.tolist() if host is not None else None
+    taken: deque[int] = deque(maxlen=ODD_RUN_MAX + 1)  # the epochs taken, latest last
     for k in range(n):
         if timed_list[k]:
+            refuted = len(clock.refuted)
+            jumps = len(clock.jumps)
             why = clock.epoch(t_list[k], host_list[k] if host_list is not None else 0)
             if why is not None:
                 ok[k] = False
                 reasons[k] = why
+            else:
+                for _ in range(len(clock.refuted) - refuted):
+                    odd = taken.pop()
+                    ok[odd] = False
+                    reasons[odd] = ODD_EPOCH
+                if len(clock.jumps) != jumps:
+                    taken.clear()
+                taken.append(k)
             st = clock.state
             if st is not None:
                 cur = (st.t_gps_ns, st.t_host_ns if st.t_host_ns is not None else -1, st.jump_ns)
@@ -485,10 +604,12 @@ def epoch_verdicts(
     return EpochVerdicts(ok, reasons, clock_t, clock_host, jump, tuple(clock.jumps))
 
 
-def finite_rows(*columns: npt.NDArray[Any]) -> BoolArray:
-    """:func:`finite_sum` of each row of measurement columns (the same sum, left to right)."""
-    with np.errstate(invalid="ignore", over="ignore"):
-        s = columns[0].astype(np.float64)
-        for c in columns[1:]:
-            s = s + c.astype(np.float64)
-        return np.asarray((s - s) == 0.0)
+def measurement_rows(
+    pr_m: npt.NDArray[Any], cp_cyc: npt.NDArray[Any], do_hz: npt.NDArray[Any]
+) -> BoolArray:
+    """:func:`measurement_ok` of each row of measurement columns."""
+    with np.errstate(invalid="ignore"):
+        ok: BoolArray = ((np.abs(pr_m.astype(np.float64)) <= PR_MAX_M)
+                         & (np.abs(cp_cyc.astype(np.float64)) <= CP_MAX_CYC)
+                         & (np.abs(do_hz.astype(np.float64)) <= DO_MAX_HZ))
+    return ok

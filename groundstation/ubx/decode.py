@@ -20,7 +20,7 @@ from __future__ import annotations
 import logging
 import math
 import struct
-from collections import Counter
+from collections import Counter, deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -232,6 +232,7 @@ class Decoder:
         self._decoded: Counter[str] = Counter()
         self._undecodable: Counter[str] = Counter()
         self._implausible: Counter[str] = Counter()
+        self._taken: deque[tuple[str, int]] = deque(maxlen=P.ODD_RUN_MAX + 1)  # as the clock's
         self._passed = 0
         self._raw_phase = RawPhase()  # the phase rule's per-signal state (rules/phase.py)
         self._rawx_phase = RawxPhase()
@@ -336,11 +337,22 @@ class Decoder:
     # -- observations -------------------------------------------------------------------------
 
     def _epoch(self, week: int, tow_ns: int, frame: Frame) -> None:
-        """The session's clock takes an epoch within the ranges (week 0: no time yet)."""
+        """The session's clock takes an epoch within the ranges (week 0: no time yet). When it
+        shows the epoch taken before it to be the odd one, that one is counted implausible now
+        (it was passed on; a reader that collects epochs leaves out ``clock.refuted``)."""
         if week != 0:
+            refuted, jumps = len(self.clock.refuted), len(self.clock.jumps)
             why = self.clock.epoch(week * NS_PER_WEEK + tow_ns, frame.t_host_ns)
             if why is not None:
                 raise ImplausibleTime(why)
+            for _ in range(len(self.clock.refuted) - refuted):
+                name, offset = self._taken.pop()
+                self._implausible[name] += 1
+                log.warning("implausible %s at offset %d, found by the epochs after it: %s",
+                            name, offset, P.ODD_EPOCH)
+            if len(self.clock.jumps) != jumps:
+                self._taken.clear()
+            self._taken.append((_NAMES[frame.key], frame.offset))
 
     def _rxm_raw(self, frame: Frame) -> RawEpoch:
         p = frame.payload
@@ -568,6 +580,9 @@ class Decoder:
         return _sv_info("NAV-SAT", itow * 1_000_000, tuple(sats), frame.t_host_ns)
 
 
+_PR_MAX, _CP_MAX, _DO_MAX = P.PR_MAX_M, P.CP_MAX_CYC, P.DO_MAX_HZ
+
+
 def _raw_epoch_rows(p: bytes) -> tuple[int, int, list[tuple[Any, ...]]]:
     """An RXM-RAW payload's week, time of week (ns) and satellite rows, the receiver's ranges
     checked (:mod:`groundstation.rules.plausible`, rule 1).
@@ -584,27 +599,29 @@ def _raw_epoch_rows(p: bytes) -> tuple[int, int, list[tuple[Any, ...]]]:
     if why is not None:
         raise ImplausibleTime(why)
     rows = list(_RAW_SV.iter_unpack(p[8:end]))
-    for cp, pr, do, *_ in rows:
-        s = cp + pr + do  # rules.plausible.finite_sum, inlined (NaN, infinity: s - s is NaN)
-        if s - s != 0.0:
-            raise ImplausibleTime(f"a measurement that is not a finite number ({cp}, {pr}, {do})")
+    for cp, pr, do, *_ in rows:  # rules.plausible.measurement_ok, inlined (a NaN fails)
+        if not (-_PR_MAX <= pr <= _PR_MAX and -_CP_MAX <= cp <= _CP_MAX
+                and -_DO_MAX <= do <= _DO_MAX):
+            raise ImplausibleTime(f"a measurement no receiver makes (pr {pr}, cp {cp}, do {do})")
     return week, itow * 1_000_000, rows
 
 
 def _rawx_epoch_rows(p: bytes) -> tuple[int, int, list[tuple[Any, ...]]]:
     """:func:`_raw_epoch_rows` for RXM-RAWX (``rcvTow`` in s, rounded to the ns)."""
     _need("RXM-RAWX", p, 16)
-    rcv_tow, week, _, n, _, _ = _RAWX_HEAD.unpack_from(p)
+    rcv_tow, week, leap_s, n, rec_stat, _ = _RAWX_HEAD.unpack_from(p)
     end = 16 + 32 * n
     _need("RXM-RAWX", p, end, n, "measurements")
     why = P.tow_s_problem(rcv_tow) or (P.week_problem(week) if week != 0 else None)
+    if why is None and week != 0 and rec_stat & _LEAP_VALID:
+        why = P.leap_problem(leap_s, week * NS_PER_WEEK + round(rcv_tow * 1e9))
     if why is not None:
         raise ImplausibleTime(why)
     rows = list(_RAWX_MEAS.iter_unpack(p[16:end]))
-    for pr, cp, do, *_ in rows:
-        s = pr + cp + do  # rules.plausible.finite_sum, inlined
-        if s - s != 0.0:
-            raise ImplausibleTime(f"a measurement that is not a finite number ({pr}, {cp}, {do})")
+    for pr, cp, do, *_ in rows:  # rules.plausible.measurement_ok, inlined
+        if not (-_PR_MAX <= pr <= _PR_MAX and -_CP_MAX <= cp <= _CP_MAX
+                and -_DO_MAX <= do <= _DO_MAX):
+            raise ImplausibleTime(f"a measurement no receiver makes (pr {pr}, cp {cp}, do {do})")
     return week, round(rcv_tow * 1e9), rows
 
 

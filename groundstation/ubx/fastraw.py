@@ -20,6 +20,7 @@ import numpy as np
 import numpy.typing as npt
 from numpy.lib.stride_tricks import sliding_window_view
 
+from groundstation.gpstime import NS_PER_WEEK, leap_seconds_at_gps_array
 from groundstation.rules import plausible as P
 from groundstation.ubx import layouts as L
 from groundstation.ubx.framer import DEFAULT_MAX_PAYLOAD, OVERHEAD, scan_ubx_arrays
@@ -389,15 +390,24 @@ def _static_epochs(block: RawBlock) -> tuple[IntArray, IntArray, dict[int, str]]
             tow_ok = (tow_s >= 0.0) & (tow_s < P.WEEK_S)
         tow_ns = np.rint(np.where(tow_ok, tow_s, 0.0) * 1e9).astype(np.int64)
         m = block.meas
-        finite = P.finite_rows(m["prMes"], m["cpMes"], m["doMes"])
+        finite = P.measurement_rows(m["prMes"], m["cpMes"], m["doMes"])
     else:
         itow = h["iTOW"].astype(np.int64)
         tow_ok = (itow >= 0) & (itow < P.WEEK_MS)
         tow_ns = np.where(tow_ok, itow, 0) * 1_000_000
         m = block.meas
-        finite = P.finite_rows(m["cpMes"], m["prMes"], m["doMes"])
-    week_ok = (week == 0) | ((week >= 1) & (week <= P.MAX_WEEK))
+        finite = P.measurement_rows(m["prMes"], m["cpMes"], m["doMes"])
+    week_ok = (week == 0) | ((week >= P.MIN_WEEK) & (week <= P.MAX_WEEK))
     all_finite = np.bincount(block.epoch[~finite], minlength=n) == 0
+    leap_bad: dict[int, str] = {}
+    if block.source == "RXM-RAWX":  # a stated GPS - UTC near the table's
+        timed = tow_ok & week_ok & (week != 0)
+        t = np.where(timed, week, 0) * NS_PER_WEEK + tow_ns
+        known = leap_seconds_at_gps_array(t)
+        stated = h["leapS"].astype(np.int64)
+        valid = (h["recStat"] & L.RAWX_REC_STAT.mask("leapSec")) != 0
+        for r in np.flatnonzero(valid & timed & (np.abs(stated - known) > P.LEAP_SLACK_S)).tolist():
+            leap_bad[r] = P.leap_problem(int(stated[r]), int(t[r])) or "GPS - UTC"
     bad = np.flatnonzero(~(tow_ok & week_ok & all_finite))
     reasons: dict[int, str] = {}
     for r in bad.tolist():
@@ -407,7 +417,9 @@ def _static_epochs(block: RawBlock) -> tuple[IntArray, IntArray, dict[int, str]]
         elif not week_ok[r]:
             reasons[r] = P.week_problem(int(week[r])) or "GPS week"
         else:
-            reasons[r] = "a measurement that is not a finite number"
+            reasons[r] = "a measurement no receiver makes (not finite or out of range)"
+    for r, why in leap_bad.items():
+        reasons.setdefault(r, why)
     return week, tow_ns, reasons
 
 

@@ -7,14 +7,17 @@ from __future__ import annotations
 import random
 import struct
 from collections.abc import Iterator
+from pathlib import Path
 
 import numpy as np
 import pytest
+from real_files import REAL_UBX_FILES
 from streams import TOW0_MS, WEEK, flight_stream, rxm_raw, t_gps_ns, tim_tm2
 
 from groundstation import messages
 from groundstation.gpstime import NS_PER_S, NS_PER_WEEK, gps_to_unix_ns
-from groundstation.offline.rinex.convert import observations_of, time_marks_of
+from groundstation.offline.inspect import inspect_path
+from groundstation.offline.rinex.convert import observations_of, read_frames, time_marks_of
 from groundstation.records import RawEpoch, TimeMark, UndecodedFrame
 from groundstation.rules import plausible as P
 from groundstation.ubx import layouts as L
@@ -65,8 +68,46 @@ def test_a_jump_confirmed_by_the_next_epoch_moves_the_clock() -> None:
     assert clock.jumps == [P.Jump(epoch_t(4), epoch_t(6, WEEK + 1), epoch_t(5, WEEK + 1))]
 
 
+@pytest.mark.parametrize("timed", [False, True], ids=["ubx", "host_times"])
+def test_a_burst_of_chance_frames_that_agree_with_each_other_does_not_move_the_clock(
+    timed: bool,
+) -> None:
+    h0 = NOW - 3600 * S
+    times, host = [], []
+    for k in range(10):
+        times.append(epoch_t(k))
+        host.append(h0 + k * S // 5)
+        if k == 4:  # three frames of one burst: a minute ahead, 2 s apart
+            times += [epoch_t(k) + 59 * S, epoch_t(k) + 61 * S, epoch_t(k) + 63 * S]
+            host += [host[-1]] * 3
+    clock = P.SessionClock(NOW)
+    got = [clock.epoch(t, host[i] if timed else 0) for i, t in enumerate(times)]
+    refused = [k for k, v in enumerate(got) if v is not None]
+    assert clock.state is not None and clock.state.t_gps_ns == epoch_t(9)
+    assert not clock.jumps
+    if timed:  # the host clock says no time went by: all three refused
+        assert refused == [5, 6, 7]
+    else:  # a minute is allowed without host times: taken, then found odd by the next epoch
+        assert refused == [] and sorted(clock.refuted) == times[5:8]
+
+
+def test_an_odd_epoch_within_the_allowance_gives_way_to_the_next() -> None:
+    clock = P.SessionClock(NOW)
+    times = [epoch_t(0), epoch_t(1), epoch_t(2) + 50 * S, epoch_t(3), epoch_t(4)]
+    assert [clock.epoch(t, 0) for t in times] == [None] * 5  # 50 s ahead: within the minute
+    assert clock.state is not None and clock.state.t_gps_ns == epoch_t(4) and not clock.jumps
+    assert clock.refuted == [epoch_t(2) + 50 * S]  # readers that collect epochs drop it
+
+
+def test_an_epoch_a_little_behind_the_clock_refutes_nothing() -> None:
+    clock = P.SessionClock(NOW)
+    times = [epoch_t(0), epoch_t(1), epoch_t(2), epoch_t(2) - S // 2, epoch_t(3), epoch_t(3)]
+    assert [clock.epoch(t, 0) for t in times] == [None] * 6  # behind both: a repeat, kept
+    assert clock.refuted == []
+
+
 def test_a_false_first_epoch_is_replaced_by_the_next_two_that_agree() -> None:
-    times = [epoch_t(0, 1000)] + [epoch_t(k) for k in range(1, 8)]
+    times = [epoch_t(0, 1500)] + [epoch_t(k) for k in range(1, 8)]
     clock = P.SessionClock(NOW)
     got = [clock.epoch(t, 0) for t in times]
     assert got[0] is None and got[1] is not None and got[2:] == [None] * 6
@@ -126,19 +167,22 @@ def test_fixes_with_a_time_of_week_only_wrap_at_the_week() -> None:
 
 def test_ranges() -> None:
     assert P.week_problem(-1) and P.week_problem(0) and P.week_problem(P.MAX_WEEK + 1)
-    assert P.week_problem(1) is None and P.week_problem(P.MAX_WEEK) is None
+    assert P.week_problem(1) and P.week_problem(1023)
+    assert P.week_problem(1024) is None and P.week_problem(P.MAX_WEEK) is None
     assert (P.MAX_WEEK + 1) * NS_PER_WEEK <= P.MAX_T_GPS_NS == messages.MAX_TIME_NS
     assert P.tow_ms_problem(2**31 - 1) and P.tow_ms_problem(604_800_000) and P.tow_ms_problem(-1)
     assert P.tow_s_problem(float("nan")) and P.tow_s_problem(float("inf"))
     assert P.tow_s_problem(604_799.999) is None
     assert P.sub_ms_problem(1_000_000) and P.sub_ms_problem(999_999) is None
+    assert P.leap_problem(18, epoch_t(0)) is None and P.leap_problem(100, epoch_t(0))
+    assert P.leap_problem(15, t_gps_ns(1700, 0)) is None  # 2012: GPS - UTC was 15 s
     assert P.edge_range_problem(0, 0, 0) is None and P.edge_range_problem(65535, 1, 0)
-    for bad in ((float("nan"), 1.0, 2.0), (1.0, float("inf"), 2.0), (1e308, 1e308, 0.0)):
-        assert not P.finite_sum(*bad)
-        cols = [np.array([v]) for v in bad]
-        assert not P.finite_rows(*cols)[0]
-    assert P.finite_sum(2e7, 1e8, -1234.5) and P.finite_rows(*(np.array([v]) for v in (2e7,
-                                                                                         1e8, 0.5)))
+    for bad in ((float("nan"), 1.0, 2.0), (1.0, float("inf"), 2.0), (1e308, 1e308, 0.0),
+                (2e9, 1e8, 0.0), (2e7, 2e10, 0.0), (2e7, 1e8, -2e6)):
+        assert not P.measurement_ok(*bad)
+        assert not P.measurement_rows(*(np.array([v]) for v in bad))[0]
+    assert P.measurement_ok(4.2e7, 2.2e8, -5600.0)
+    assert P.measurement_rows(*(np.array([v]) for v in (4.2e7, 2.2e8, -5600.0)))[0]
 
 
 # -- streaming and bulk forms give the same verdicts --------------------------------------------
@@ -176,14 +220,23 @@ def random_sequence(rng: random.Random, n: int) -> tuple[list[int], list[int], l
 def streaming(weeks: list[int], tows: list[int], hosts: list[int]) -> tuple[
         list[bool], list[P.ClockState | None]]:
     clock = P.SessionClock(NOW)
-    ok, states = [], []
-    for w, tow, h in zip(weeks, tows, hosts, strict=True):
+    ok: list[bool] = []
+    states = []
+    taken: list[int] = []
+    for k, (w, tow, h) in enumerate(zip(weeks, tows, hosts, strict=True)):
         if P.week_problem(w) is not None and w != 0:
             ok.append(False)
         elif w == 0:
             ok.append(True)
         else:
+            refuted, jumps = len(clock.refuted), len(clock.jumps)
             ok.append(clock.epoch(w * NS_PER_WEEK + tow, h) is None)
+            if ok[-1]:
+                for _ in range(len(clock.refuted) - refuted):  # the epochs taken were odd
+                    ok[taken.pop()] = False
+                if len(clock.jumps) != jumps:
+                    taken.clear()
+                taken.append(k)
         states.append(clock.state)
     return ok, states
 
@@ -225,6 +278,8 @@ def fuzz_frames(rng: random.Random, k: int) -> Iterator[bytes]:
     yield tim_tm2(rng.randrange(65536), rng.choice((WEEK, 65535, 0)), tow + 10, 0,
                   rng.choice((None, tow + 20)))
     yield tim_tm2(7, WEEK, tow + 86_400_000, 0, None)
+    yield L.RXM_RAWX.frame([], rcvTow=tow / 1000 + 0.05, week=WEEK, leapS=rng.choice((18, 100, -5)),
+                           recStat=1, version=1)
     yield L.NAV_SOL.frame(iTOW=rng.choice((tow, 2**31, tow + 3_600_000)), fTOW=0,
                           week=rng.choice((WEEK, 32767)), flags=0x0D, gpsFix=3)
     yield L.NAV_PVT.frame(iTOW=rng.choice((tow, 604_800_001, tow - 7_200_000)))
@@ -249,21 +304,22 @@ def fuzzed_stream(seed: int) -> bytes:
 
 
 def decode_streaming(data: bytes, chunk: int, host0: int | None) -> tuple[
-        list[int], list[TimeMark], int]:
+        list[int], list[TimeMark], dict[str, int]]:
     framer, decoder = UbxFramer(), Decoder(now_ns=NOW)
-    epochs: list[int] = []
+    epochs: list[tuple[int, int]] = []
     marks: list[TimeMark] = []
     for i in range(0, len(data), chunk):
         t = host0 + i * 1000 if host0 is not None else 0
         for frame in framer.feed(data[i : i + chunk], t):
             rec = decoder.decode(frame)
             if isinstance(rec, RawEpoch):
-                epochs.append(frame.offset)
+                epochs.append((rec.t_gps_ns, frame.offset))
             elif isinstance(rec, TimeMark):
                 marks.append(rec)
             elif isinstance(rec, UndecodedFrame):
                 assert rec.implausible, rec.error
-    return epochs, marks, decoder.stats.implausible
+    odd = set(decoder.clock.refuted)  # found to be the odd ones after they were decoded
+    return [o for t, o in epochs if t not in odd], marks, decoder.stats.implausible_by_type
 
 
 @pytest.mark.parametrize("seed", range(6))
@@ -288,7 +344,9 @@ def test_decoder_and_bulk_decoder_keep_the_same_epochs_and_marks(seed: int, time
     assert sorted(offsets[np.concatenate((rawx.frame, raw.frame))].tolist()) == epochs
     assert [(m.count, m.falling_t_gps_ns, m.rising_t_gps_ns) for m in bulk_marks] == [
         (m.count, m.falling_t_gps_ns, m.rising_t_gps_ns) for m in marks]
-    assert implausible > 0 and times.implausible > 0
+    assert implausible.get("RXM-RAW", 0) == raw.implausible.size > 0
+    assert implausible.get("RXM-RAWX", 0) == rawx.implausible.size > 0
+    assert times.implausible == raw.implausible.size + rawx.implausible.size
     # every real epoch and mark of the flight is kept (the false ones never displace them)
     _, clean = flight_stream(120, drop_epochs={40, 41, 42, 90}, mark_every=4)
     real = set(clean)
@@ -296,3 +354,16 @@ def test_decoder_and_bulk_decoder_keep_the_same_epochs_and_marks(seed: int, time
     kept = [f.raw for f in UbxFramer().feed(data, 0)
             if not isinstance(dec.decode(f), UndecodedFrame)]
     assert real - set(kept) == set()
+
+
+@pytest.mark.shared_data
+@pytest.mark.parametrize("rel", REAL_UBX_FILES)
+def test_no_frame_of_a_real_recording_is_implausible(shared_data: Path, rel: str) -> None:
+    """Every real receiver's epochs, marks and fixes belong to their session: the rule refuses
+    none of them, streaming or in bulk (u-blox 4 to F9, 1 Hz to polled every 10 s, cold starts)."""
+    path = shared_data / "real" / rel
+    summary = inspect_path(path)
+    data, index = read_frames(path)
+    _, _, _, times = observations_of(data, index)
+    assert summary.implausible == {} and summary.time_jumps == 0
+    assert times.implausible == 0 and not times.verdicts.jumps
