@@ -44,6 +44,7 @@ already marks every slip; SBAS has no orbit in our navigation files).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 
@@ -439,7 +440,8 @@ def _bridge(
     half_cleared = bool(lli[p, j] & LLI_HALF_CYCLE) and not lli[e, j] & LLI_HALF_CYCLE
     if flagged:
         sr.receiver_slips += 1
-    half = round(2.0 * w) / 2.0
+    # an unmeasured jump (no reference for the satellite: w is infinite) is started again below
+    half = round(2.0 * w) / 2.0 if math.isfinite(w) else w
     noise = K_SIGMA * sig
     determined = (good and sig < MAX_JUMP_SIGMA_CYC
                   and abs(w - half) < min(noise, DETERMINE_CYC))

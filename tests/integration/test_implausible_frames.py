@@ -314,3 +314,36 @@ def test_the_solver_reads_the_same_marks_as_rinex(tmp_path: Path) -> None:
     assert [(m.count, m.falling_t_gps_ns) for m in solver] == [
         (m.count, m.falling_t_gps_ns) for m in offline]
     assert sum(m.new_falling for m in solver) == marks
+
+
+def test_phase_conditioning_survives_a_slip_on_a_satellite_without_an_ephemeris(
+    tmp_path: Path,
+) -> None:
+    """Found by benchmarks/fuzz_valid_frames.py: a slip on a satellite the conditioning has no
+    orbit for (a plausible chance frame's random satellite; a satellite risen before its
+    ephemeris came) is started again, not an internal error (round() of an infinite jump)."""
+    from dataclasses import replace
+    from typing import Any
+
+    import numpy as np
+
+    from groundstation.offline import rinex
+    from groundstation.offline.rinex.observations import ObsSet
+    from groundstation.solve import conditioning
+
+    (tmp_path / "f.ubx").write_bytes(b"".join(sim_frames()))
+    reports: list[conditioning.ConditioningReport] = []
+
+    def hook(obs: ObsSet, ephs: Any, approx: tuple[float, float, float]) -> ObsSet:
+        gps = np.flatnonzero(obs.sys == "G")
+        sv = int(obs.prn[gps[0]])
+        rows = gps[obs.prn[gps] == sv]
+        lli = obs.lli.copy()
+        lli[rows[len(rows) // 2]] |= 1  # a slip, mid-flight
+        orbits = [e for e in ephs if e.sv != sv]  # and no orbit for it
+        new, rep = conditioning.condition(replace(obs, lli=lli), orbits, approx)
+        reports.append(rep)
+        return new
+
+    rinex.convert(tmp_path / "f.ubx", tmp_path / "rnx", obs_hook=hook)
+    assert reports and reports[0].applied
