@@ -23,8 +23,10 @@ Checked, or the script exits 1 naming what failed:
   error and no traceback on stderr; its ``.ubx`` sidecar and the MCAP's ``/ubx/raw`` equal every
   byte sent; every time mark of the flight (the link's stream without the fuzz frames, decoded)
   was published on Zenoh (the subscriber's messages and the ``q/timemarks`` answer);
-- offline: every command exits 0 within ``--timeout-s``, without an internal error or a
-  traceback, on the MCAP and on the sidecar.
+- offline: the decoder (streaming, as the daemon and inspect) and the bulk decoder (as rinex and
+  the solver) keep and refuse the same epochs of the MCAP and of the sidecar
+  (``rules/plausible``: one rule); every command exits 0 within ``--timeout-s``, without an
+  internal error or a traceback, on the MCAP and on the sidecar.
 
 It prints the frames sent per type, how many of them the daemon refused as implausible
 (``rules/plausible``), the live and offline durations and the children's peak memory.
@@ -55,11 +57,14 @@ from fuzz_framer import DECODED_TYPES, Context, random_frame, stream_context
 from groundstation.bus import decode, key, open_bus
 from groundstation.config import ZenohSettings
 from groundstation.live.demo import DemoOptions, simulate_flight
-from groundstation.records import TimeMark
+from groundstation.offline.rinex.convert import read_frames
+from groundstation.records import RawEpoch, TimeMark
 from groundstation.sim.ptylink import PtyLink
 from groundstation.sim.stream import SimResult
 from groundstation.storage import iter_messages
+from groundstation.storage.reading import Recording
 from groundstation.ubx.decode import Decoder, message_name
+from groundstation.ubx.fastraw import decode_raw, decode_rawx, plausible_epochs
 from groundstation.ubx.framer import UbxFramer
 
 REPO = Path(__file__).resolve().parents[1]
@@ -237,8 +242,29 @@ def live(fz: Fuzzed, work: Path, speed: float | None, rep: Report) -> tuple[Path
     return mcap, sidecar, stdout
 
 
+def same_verdicts(path: Path) -> tuple[int, int, int]:
+    """The decoder's (streaming) and the bulk decoder's verdicts on every epoch of a recording:
+    (epochs, kept, epochs they disagree on)."""
+    frames, index = read_frames(path)
+    _, _, times = plausible_epochs(index, decode_rawx(frames, index), decode_raw(frames, index))
+    framer, dec = UbxFramer(), Decoder()
+    seq: list[tuple[int, bool]] = []
+    for chunk, t in Recording(path).chunks():
+        for f in framer.feed(chunk, t):
+            if f.key in ((0x02, 0x10), (0x02, 0x15)):
+                seq.append((f.offset, isinstance(dec.decode(f), RawEpoch)))
+    odd = set(dec.refuted_offsets)  # decoded, then found odd by the epochs after them
+    kept = [ok and off not in odd for off, ok in seq]
+    differ = sum(a != bool(b) for a, b in zip(kept, times.verdicts.ok.tolist(), strict=True))
+    return len(seq), sum(kept), differ + abs(len(seq) - int(times.verdicts.ok.size))
+
+
 def offline(mcap: Path, sidecar: Path, base: Path, base_xyz: str, work: Path, ppk: bool,
             timeout_s: float, rep: Report) -> None:
+    for path in (mcap, sidecar):
+        n, kept, differ = same_verdicts(path)
+        rep.check(differ == 0, f"decoder and bulk decoder agree on all {n} epoch frames of the "
+                               f"{path.suffix} ({kept} kept)")
     commands: list[tuple[str, list[str]]] = [
         ("inspect MCAP", ["inspect", str(mcap)]),
         ("inspect sidecar --json", ["inspect", "--json", str(sidecar)]),

@@ -111,7 +111,10 @@ class Inspector:
     decoder: Decoder = field(default_factory=Decoder)
     messages: Counter[tuple[int, int]] = field(default_factory=Counter)
     """Frames by (class, id); named once in :meth:`summary`."""
-    epoch_times: set[int] = field(default_factory=set)
+    epoch_times: Counter[int] = field(default_factory=Counter)
+    """Epochs by time (RXM-RAW and RXM-RAWX of one epoch count once)."""
+    epoch_offsets: dict[int, int] = field(default_factory=dict)
+    """Stream offset -> time of each epoch counted (to take out one found odd afterwards)."""
     empty_epochs: int = 0
     epoch_sources: Counter[str] = field(default_factory=Counter)
     sats: set[tuple[int, int]] = field(default_factory=set)
@@ -128,7 +131,8 @@ class Inspector:
             if record.gps_week == 0 or not record.sats:
                 self.empty_epochs += 1
                 return
-            self.epoch_times.add(record.t_gps_ns)
+            self.epoch_times[record.t_gps_ns] += 1
+            self.epoch_offsets[frame.offset] = record.t_gps_ns
             self.epoch_sources[record.source] += 1
             self.max_sats = max(self.max_sats, len(record.sats))
             # u-blox reports a GLONASS satellite whose slot it does not know yet as svId 255
@@ -153,8 +157,11 @@ class Inspector:
         return named
 
     def summary(self, stats: FramerStats, *, path: str = "", fmt: str = "") -> Summary:
-        # epochs the plausibility rule found to be the odd one after they were decoded
-        times = sorted(self.epoch_times - set(self.decoder.clock.refuted))
+        # epochs the plausibility rule found to be the odd ones after they were decoded (by
+        # their frames: a real epoch may have the same time as an odd one)
+        odd = Counter(self.epoch_offsets[o] for o in self.decoder.refuted_offsets
+                      if o in self.epoch_offsets)
+        times = sorted(self.epoch_times - odd)
         interval_ns = nominal_interval_ns(times)
         gaps = find_gaps(times, interval_ns)
         return Summary(

@@ -233,6 +233,9 @@ class Decoder:
         self._undecodable: Counter[str] = Counter()
         self._implausible: Counter[str] = Counter()
         self._taken: deque[tuple[str, int]] = deque(maxlen=P.ODD_RUN_MAX + 1)  # as the clock's
+        self.refuted_offsets: list[int] = []
+        """Stream offsets of epochs decoded, then found to be odd ones by the epochs after them
+        (``clock.refuted`` are their times): a reader that collects epochs leaves them out."""
         self._passed = 0
         self._raw_phase = RawPhase()  # the phase rule's per-signal state (rules/phase.py)
         self._rawx_phase = RawxPhase()
@@ -348,6 +351,7 @@ class Decoder:
             for _ in range(len(self.clock.refuted) - refuted):
                 name, offset = self._taken.pop()
                 self._implausible[name] += 1
+                self.refuted_offsets.append(offset)
                 log.warning("implausible %s at offset %d, found by the epochs after it: %s",
                             name, offset, P.ODD_EPOCH)
             if len(self.clock.jumps) != jumps:

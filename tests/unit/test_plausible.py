@@ -306,20 +306,20 @@ def fuzzed_stream(seed: int) -> bytes:
 def decode_streaming(data: bytes, chunk: int, host0: int | None) -> tuple[
         list[int], list[TimeMark], dict[str, int]]:
     framer, decoder = UbxFramer(), Decoder(now_ns=NOW)
-    epochs: list[tuple[int, int]] = []
+    epochs: list[int] = []
     marks: list[TimeMark] = []
     for i in range(0, len(data), chunk):
         t = host0 + i * 1000 if host0 is not None else 0
         for frame in framer.feed(data[i : i + chunk], t):
             rec = decoder.decode(frame)
             if isinstance(rec, RawEpoch):
-                epochs.append((rec.t_gps_ns, frame.offset))
+                epochs.append(frame.offset)
             elif isinstance(rec, TimeMark):
                 marks.append(rec)
             elif isinstance(rec, UndecodedFrame):
                 assert rec.implausible, rec.error
-    odd = set(decoder.clock.refuted)  # found to be the odd ones after they were decoded
-    return [o for t, o in epochs if t not in odd], marks, decoder.stats.implausible_by_type
+    odd = set(decoder.refuted_offsets)  # found to be the odd ones after they were decoded
+    return [o for o in epochs if o not in odd], marks, decoder.stats.implausible_by_type
 
 
 @pytest.mark.parametrize("seed", range(6))
@@ -367,3 +367,11 @@ def test_no_frame_of_a_real_recording_is_implausible(shared_data: Path, rel: str
     _, _, _, times = observations_of(data, index)
     assert summary.implausible == {} and summary.time_jumps == 0
     assert times.implausible == 0 and not times.verdicts.jumps
+
+
+def test_inspect_leaves_out_an_odd_epoch_not_the_real_one_at_its_time(tmp_path: Path) -> None:
+    frames = [rxm_raw(WEEK, TOW0_MS + 200 * k, SATS) for k in range(10)]
+    frames.insert(4, rxm_raw(WEEK, TOW0_MS + 200 * 6, SATS))  # epoch 6's time, after epoch 3
+    (tmp_path / "f.ubx").write_bytes(b"".join(frames))
+    summary = inspect_path(tmp_path / "f.ubx")
+    assert summary.epochs == 10 and summary.gaps == () and summary.implausible == {"RXM-RAW": 1}
