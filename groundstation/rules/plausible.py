@@ -65,6 +65,7 @@ from groundstation.gpstime import (
     gps_to_unix_ns,
     leap_seconds_at_gps,
 )
+from groundstation.records import positional_constructor
 
 WEEK_MS = 604_800_000
 """A time of week in ms is below this (u-blox ``iTOW``, ``towMs``)."""
@@ -329,6 +330,10 @@ def mark_problem(
     return None
 
 
+_clock_state = positional_constructor(ClockState)  # one per epoch: the fast form
+_HALF_WEEK = NS_PER_WEEK // 2
+
+
 @dataclass(frozen=True, slots=True)
 class Jump:
     """The clock moved to a confirmed new time (rule 4)."""
@@ -355,6 +360,7 @@ class SessionClock:
         self.state: ClockState | None = None
         self._taken: deque[ClockState] = deque(maxlen=ODD_RUN_MAX + 1)  # latest last
         self._min_spacing: int | None = None
+        self._jump_ns = JUMP_MIN_NS  # jump_of(self._min_spacing)
         self._candidate: tuple[int, int | None] | None = None
         self.jumps: list[Jump] = []
         self.refuted: list[int] = []
@@ -369,13 +375,17 @@ class SessionClock:
         """Judge a measurement epoch that passed the ranges (a week of its own); a plausible
         one moves the clock. Returns why it is not plausible, or None. A confirmed jump appends to
         :attr:`jumps` (and returns None)."""
-        h = self.host(t_host_ns)
+        h = t_host_ns if self.host_times and t_host_ns > HOST_TIME_MIN_NS else None  # host()
         st = self.state
         if st is None:
             why = host_bound_problem(t_gps_ns, h if h is not None else self.now_ns)
         else:
             d = t_gps_ns - st.t_gps_ns
-            if 0 <= d <= allowance_ns(st, h):
+            # the common case first, allowance_ns() inlined (an epoch per 0.2 s per receiver)
+            sh = st.t_host_ns
+            allow = (max(h - sh, 0) + LINK_LATENCY_NS if h is not None and sh is not None
+                     else st.jump_ns)
+            if 0 <= d <= allow:
                 self._accept(t_gps_ns, h, d)
                 return None
             if d < 0:
@@ -417,8 +427,11 @@ class SessionClock:
         if (spacing is not None and spacing > 0
                 and (self._min_spacing is None or spacing < self._min_spacing)):
             self._min_spacing = spacing
-        self.state = ClockState(t, h, jump_of(self._min_spacing))
-        self._taken.append(self.state)
+            self._jump_ns = jump_of(spacing)
+        elif self._min_spacing is None:
+            self._jump_ns = JUMP_MIN_NS
+        self.state = state = _clock_state(t, h, self._jump_ns)
+        self._taken.append(state)
         self._candidate = None
 
     def _confirm(self, t: int, h: int | None, why: str) -> str | None:
@@ -463,7 +476,23 @@ class SessionClock:
 
     def fix(self, itow_ms: int, ftow_ns: int, week: int | None, t_host_ns: int) -> str | None:
         """Judge a fix's time (:func:`fix_problem`); the clock stays."""
-        return fix_problem(self.state, itow_ms, ftow_ns, week, self.host(t_host_ns), self.now_ns)
+        h = t_host_ns if self.host_times and t_host_ns > HOST_TIME_MIN_NS else None
+        st = self.state
+        if st is not None and 0 <= itow_ms < WEEK_MS and -FTOW_MAX_NS <= ftow_ns <= FTOW_MAX_NS:
+            # the common case, inlined (a fix or two per epoch); anything else: the full rule
+            sh = st.t_host_ns
+            allow = (max(h - sh, 0) + LINK_LATENCY_NS if h is not None and sh is not None
+                     else st.jump_ns)
+            tow_ns = itow_ms * 1_000_000 + ftow_ns
+            if week is None:
+                d = (tow_ns - st.t_gps_ns % NS_PER_WEEK + _HALF_WEEK) % NS_PER_WEEK - _HALF_WEEK
+            elif MIN_WEEK <= week <= MAX_WEEK:
+                d = week * NS_PER_WEEK + tow_ns - st.t_gps_ns
+            else:
+                d = allow + 1
+            if -allow <= d <= allow:
+                return None
+        return fix_problem(st, itow_ms, ftow_ns, week, h, self.now_ns)
 
     def mark(
         self, edges: tuple[tuple[int | None, bool], tuple[int | None, bool]], t_host_ns: int

@@ -277,7 +277,6 @@ class Decoder:
             self._passed += 1
             return frame
         handler, name = entry
-        jumps = len(self.clock.jumps)
         try:
             record = handler(frame)
         except ImplausibleTime as err:
@@ -294,7 +293,6 @@ class Decoder:
 
                 raise DecodeError(f"{name} at offset {frame.offset}: {err}") from err
             return UndecodedFrame(frame, f"{type(err).__name__}: {err}")
-        self._log_jump(jumps)
         self._decoded[name] += 1
         return record
 
@@ -306,7 +304,6 @@ class Decoder:
         does not fit is not an epoch)."""
         name = "RXM-RAW" if frame.key == RXM_RAW else "RXM-RAWX"
         rows_of = _raw_epoch_rows if frame.key == RXM_RAW else _rawx_epoch_rows
-        jumps = len(self.clock.jumps)
         try:
             week, tow_ns, _ = rows_of(frame.payload)
             self._epoch(week, tow_ns, frame)
@@ -315,7 +312,6 @@ class Decoder:
         except ImplausibleTime as err:
             self._count_implausible(name, frame, err)
             return False
-        self._log_jump(jumps)
         return True
 
     def _count_implausible(self, name: str, frame: Frame, err: ImplausibleTime) -> None:
@@ -326,8 +322,8 @@ class Decoder:
                 name, frame.offset, len(frame.raw), n, err,
             )
 
-    def _log_jump(self, before: int) -> None:
-        if len(self.clock.jumps) != before:
+    def _log_jump(self) -> None:
+        if self.clock.jumps:
             jump = self.clock.jumps[-1]
             log.warning(
                 "the receiver's time jumped %s (to %s), confirmed by a second epoch: the "
@@ -356,6 +352,7 @@ class Decoder:
                             name, offset, P.ODD_EPOCH)
             if len(self.clock.jumps) != jumps:
                 self._taken.clear()
+                self._log_jump()
             self._taken.append((_NAMES[frame.key], frame.offset))
 
     def _rxm_raw(self, frame: Frame) -> RawEpoch:
@@ -603,10 +600,11 @@ def _raw_epoch_rows(p: bytes) -> tuple[int, int, list[tuple[Any, ...]]]:
     if why is not None:
         raise ImplausibleTime(why)
     rows = list(_RAW_SV.iter_unpack(p[8:end]))
-    for cp, pr, do, *_ in rows:  # rules.plausible.measurement_ok, inlined (a NaN fails)
-        if not (-_PR_MAX <= pr <= _PR_MAX and -_CP_MAX <= cp <= _CP_MAX
-                and -_DO_MAX <= do <= _DO_MAX):
-            raise ImplausibleTime(f"a measurement no receiver makes (pr {pr}, cp {cp}, do {do})")
+    for r in rows:  # rules.plausible.measurement_ok, inlined (a NaN fails)
+        if not (-_CP_MAX <= r[0] <= _CP_MAX and -_PR_MAX <= r[1] <= _PR_MAX
+                and -_DO_MAX <= r[2] <= _DO_MAX):
+            raise ImplausibleTime(
+                f"a measurement no receiver makes (pr {r[1]}, cp {r[0]}, do {r[2]})")
     return week, itow * 1_000_000, rows
 
 
@@ -622,10 +620,11 @@ def _rawx_epoch_rows(p: bytes) -> tuple[int, int, list[tuple[Any, ...]]]:
     if why is not None:
         raise ImplausibleTime(why)
     rows = list(_RAWX_MEAS.iter_unpack(p[16:end]))
-    for pr, cp, do, *_ in rows:  # rules.plausible.measurement_ok, inlined
-        if not (-_PR_MAX <= pr <= _PR_MAX and -_CP_MAX <= cp <= _CP_MAX
-                and -_DO_MAX <= do <= _DO_MAX):
-            raise ImplausibleTime(f"a measurement no receiver makes (pr {pr}, cp {cp}, do {do})")
+    for r in rows:  # rules.plausible.measurement_ok, inlined
+        if not (-_PR_MAX <= r[0] <= _PR_MAX and -_CP_MAX <= r[1] <= _CP_MAX
+                and -_DO_MAX <= r[2] <= _DO_MAX):
+            raise ImplausibleTime(
+                f"a measurement no receiver makes (pr {r[0]}, cp {r[1]}, do {r[2]})")
     return week, round(rcv_tow * 1e9), rows
 
 
