@@ -23,7 +23,7 @@ from groundstation import events as kinds
 from groundstation.config import Settings
 from groundstation.errors import GroundstationError
 from groundstation.gpstime import format_gps
-from groundstation.live.data_time import UNTIMED, DataClock, Timed
+from groundstation.live.data_time import UNTIMED, DataClock, Timed, restamped
 from groundstation.live.fanout import Fanout, InboxStats, Overflow, Publish, Sink, SinkSpec
 from groundstation.live.monitor import Monitor
 from groundstation.live.monitor_sink import MonitorSink
@@ -196,46 +196,54 @@ class Pipeline:
     def ingest(self, chunk: bytes, t_host_ns: int) -> None:
         """One chunk from the source: raw bytes first, then what they decode to (an
         :data:`~groundstation.live.data_time.UNTIMED` chunk once timed, without pacing)."""
-        for data, frames, t in self._timed(chunk, t_host_ns):
-            self._emit(data, frames, t)
+        for data, items, t in self._timed(chunk, t_host_ns):
+            self._emit(data, items, t)
 
     def _timed(self, chunk: bytes, t_host_ns: int) -> list[Timed]:
-        """The chunk framed and timed: a timed chunk as is; an untimed one by the source's
-        data clock from the frames it completed (possibly held, or several released)."""
+        """The chunk framed, decoded and timed: a timed chunk as is; an untimed one by the
+        source's data clock from the epochs its frames decoded to (possibly held, or several
+        released). The decoder judges every time (rules/plausible) before the data clock sees
+        it, so the clock follows only plausible epochs."""
         if t_host_ns != UNTIMED or self._data_clock is None:
-            return [(chunk, self.framer.feed(chunk, t_host_ns), t_host_ns)]
-        return self._data_clock.stamp(chunk, self.framer.feed(chunk, UNTIMED))
+            return [(chunk, self._decode(self.framer.feed(chunk, t_host_ns)), t_host_ns)]
+        return self._data_clock.stamp(chunk, self._decode(self.framer.feed(chunk, UNTIMED)))
 
-    def _emit(self, chunk: bytes, frames: list[Frame], t_host_ns: int) -> None:
+    def _emit(self, chunk: bytes, items: list[Item], t_host_ns: int) -> None:
         if self.chunks == 0 and self._on_first_chunk is not None:
             self._on_first_chunk(t_host_ns)
         self.chunks += 1
         self.fanout.publish(RawChunk(chunk, t_host_ns))
-        self._decode(frames)
+        for item in items:
+            self.publish(item)
 
-    def _decode(self, frames: list[Frame]) -> None:
+    def _decode(self, frames: list[Frame]) -> list[Item]:
+        """What the frames decode to, in order (frames left undecoded are in /ubx/raw): records,
+        and a ``decoder.time_jump`` event before the epoch that confirmed a jump (the monitor
+        starts again from it)."""
         jumps = self.decoder.clock.jumps
+        out: list[Item] = []
         for frame in frames:
             seen = len(jumps)
             record = self.decoder.decode(frame)
-            if len(jumps) != seen:  # before the epoch that confirmed it: the monitor restarts
-                self._time_jump(jumps[-1], frame.t_host_ns)
+            if len(jumps) != seen:
+                out.append(self._time_jump(jumps[-1], frame.t_host_ns))
             if isinstance(record, (Frame, UndecodedFrame)):
                 continue  # its bytes are already in /ubx/raw
             self.records += 1
-            self.fanout.publish(record)
+            out.append(record)
+        return out
 
-    def _time_jump(self, jump: Jump, t_host_ns: int) -> None:
+    def _time_jump(self, jump: Jump, t_host_ns: int) -> Event:
         before = ("the host's clock" if jump.from_t_gps_ns is None
                   else f"{span_text(jump.to_t_gps_ns - jump.from_t_gps_ns)} from the session's "
                   "clock")
-        self.publish(Event(
+        return Event(
             kinds.DECODER_TIME_JUMP, t_host_ns or self._clock(),
             f"the receiver's time jumped ({before}) to {format_gps(jump.to_t_gps_ns)}, "
             "confirmed by a second epoch: the session's clock follows it", "warning",
             {"from_t_gps_ns": jump.from_t_gps_ns, "to_t_gps_ns": jump.to_t_gps_ns,
              "skipped_t_gps_ns": jump.skipped_t_gps_ns},
-        ))
+        )
 
     def status(self) -> PipelineStatus:
         fs = self.framer.stats
@@ -273,17 +281,12 @@ class Pipeline:
             async for chunk, t_host_ns in chunks:
                 if t_host_ns == UNTIMED and self._data_clock is None:  # a .ubx file, once
                     self._data_clock = getattr(self.source, "data_clock", None)
-                    if self._data_clock is not None:
-                        # its frames' times will be the data's own: the decoder judges them
-                        # as the data clock does (rules/plausible), not as reception times
-                        self.decoder.clock.host_times = False
-                        self.decoder.clock.now_ns = self._data_clock.session.now_ns
-                for data, frames, t in self._timed(chunk, t_host_ns):
+                for data, items, t in self._timed(chunk, t_host_ns):
                     if t_host_ns == UNTIMED and callable(pace):
                         delay = pace(t)
                         if delay > 0:
                             await asyncio.sleep(delay)
-                    self._emit(data, frames, t)
+                    self._emit(data, items, t)
                 if self.source.can_wait:
                     await self._wait_for_sinks()
             self.stopped_by = self.stopped_by or "end of source"
@@ -302,10 +305,14 @@ class Pipeline:
             # Chunks held for their time and bytes still waiting in the framer: recover what
             # frames they hold.
             clock = self._data_clock
-            if clock is not None:
-                for data, frames, t in clock.flush():
-                    self._emit(data, frames, t)
-            self._decode(self.framer.flush(clock.now_ns() if clock is not None else self._clock()))
+            if clock is None:
+                last = self._decode(self.framer.flush(self._clock()))
+            else:
+                for data, items, t in clock.flush():
+                    self._emit(data, items, t)
+                last = restamped(self._decode(self.framer.flush(UNTIMED)), clock.now_ns())
+            for item in last:
+                self.publish(item)
             log.info("source %s stopped (%s)", self.source.name, self.stopped_by)
 
     async def _status_loop(self) -> None:

@@ -626,28 +626,3 @@ def _rawx_epoch_rows(p: bytes) -> tuple[int, int, list[tuple[Any, ...]]]:
             raise ImplausibleTime(
                 f"a measurement no receiver makes (pr {r[0]}, cp {r[1]}, do {r[2]})")
     return week, round(rcv_tow * 1e9), rows
-
-
-def epoch_time_gps_ns(frame: Frame) -> int | None:
-    """The GPS time of a measurement epoch (RXM-RAW / RXM-RAWX) with a week, read as the decoder
-    reads it (the :class:`RawEpoch` it makes of it has this ``t_gps_ns``); ``None`` for any other
-    frame, a week-0 epoch, one the decoder cannot decode or one out of the receiver's ranges
-    (whether its time fits the session is the caller's :class:`~groundstation.rules.plausible.
-    SessionClock`'s to say, as the decoder's is).
-
-    For timing a stream without reception times before its frames are decoded
-    (:class:`~groundstation.live.data_time.DataClock`).
-    """
-    key = (frame.cls, frame.id)
-    try:
-        if key == RXM_RAW:
-            week, tow_ns, _ = _raw_epoch_rows(frame.payload)
-        elif key == RXM_RAWX:
-            week, tow_ns, _ = _rawx_epoch_rows(frame.payload)
-        else:
-            return None
-    except (PayloadError, ImplausibleTime):
-        return None
-    if week == 0:
-        return None
-    return int(week) * NS_PER_WEEK + int(tow_ns)
