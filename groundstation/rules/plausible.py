@@ -350,13 +350,12 @@ class SessionClock:
 
     Args:
         now_ns: the host's clock for frames without a reception time (UNIX ns; default: now).
-        host_times: frames carry host reception times (a live source, an MCAP recording);
-            False for a stream timed from its own epochs (``.ubx`` through the daemon).
+            A frame's ``t_host_ns`` is its reception time when it is one (after
+            :data:`HOST_TIME_MIN_NS`); a ``.ubx`` file's frames have none (0).
     """
 
-    def __init__(self, now_ns: int | None = None, *, host_times: bool = True) -> None:
+    def __init__(self, now_ns: int | None = None) -> None:
         self.now_ns = time.time_ns() if now_ns is None else now_ns
-        self.host_times = host_times
         self.state: ClockState | None = None
         self._taken: deque[ClockState] = deque(maxlen=ODD_RUN_MAX + 1)  # latest last
         self._min_spacing: int | None = None
@@ -369,13 +368,13 @@ class SessionClock:
 
     def host(self, t_host_ns: int) -> int | None:
         """A frame's reception time as the rule uses it (None: not a host time)."""
-        return t_host_ns if self.host_times and t_host_ns > HOST_TIME_MIN_NS else None
+        return t_host_ns if t_host_ns > HOST_TIME_MIN_NS else None
 
     def epoch(self, t_gps_ns: int, t_host_ns: int) -> str | None:
         """Judge a measurement epoch that passed the ranges (a week of its own); a plausible
         one moves the clock. Returns why it is not plausible, or None. A confirmed jump appends to
         :attr:`jumps` (and returns None)."""
-        h = t_host_ns if self.host_times and t_host_ns > HOST_TIME_MIN_NS else None  # host()
+        h = t_host_ns if t_host_ns > HOST_TIME_MIN_NS else None  # host()
         st = self.state
         if st is None:
             why = host_bound_problem(t_gps_ns, h if h is not None else self.now_ns)
@@ -476,7 +475,7 @@ class SessionClock:
 
     def fix(self, itow_ms: int, ftow_ns: int, week: int | None, t_host_ns: int) -> str | None:
         """Judge a fix's time (:func:`fix_problem`); the clock stays."""
-        h = t_host_ns if self.host_times and t_host_ns > HOST_TIME_MIN_NS else None
+        h = t_host_ns if t_host_ns > HOST_TIME_MIN_NS else None
         st = self.state
         if st is not None and 0 <= itow_ms < WEEK_MS and -FTOW_MAX_NS <= ftow_ns <= FTOW_MAX_NS:
             # the common case, inlined (a fix or two per epoch); anything else: the full rule
@@ -542,8 +541,6 @@ def epoch_verdicts(
     static_reasons: dict[int, str],
     t_host_ns: IntArray | None,
     now_ns: int,
-    *,
-    host_times: bool = True,
 ) -> EpochVerdicts:
     """The rule over epochs in stream order; the same verdicts as :class:`SessionClock`.
 
@@ -554,7 +551,6 @@ def epoch_verdicts(
         t_host_ns: host reception time of each epoch (None, or values before
             :data:`HOST_TIME_MIN_NS`: none).
         now_ns: the host's clock for epochs without a reception time.
-        host_times: as :class:`SessionClock`.
     """
     n = int(week.size)
     ok = np.ones(n, dtype=bool)
@@ -565,7 +561,7 @@ def epoch_verdicts(
     safe_week = np.where(timed, week, 0).astype(np.int64)
     t = safe_week * NS_PER_WEEK + np.where(timed, tow_ns, 0).astype(np.int64)
     host = None
-    if host_times and t_host_ns is not None:
+    if t_host_ns is not None:
         host = np.where(t_host_ns > HOST_TIME_MIN_NS, t_host_ns, -1).astype(np.int64)
     clock_t = np.full(n, -1, dtype=np.int64)
     clock_host = np.full(n, -1, dtype=np.int64)
@@ -604,7 +600,7 @@ def epoch_verdicts(
             clock_host = np.where(have_clock, host[idx][src], -1)
         jump = np.where(have_clock, jumps_t[src], JUMP_MIN_NS)
         return EpochVerdicts(ok, reasons, clock_t, clock_host, jump, ())
-    clock = SessionClock(now_ns, host_times=host_times)
+    clock = SessionClock(now_ns)
     cur = (-1, -1, JUMP_MIN_NS)
     t_list = t.tolist()
     timed_list = timed.tolist()

@@ -220,15 +220,13 @@ class Decoder:
             :class:`UndecodedFrame` (for tests and strict offline tools); an implausible time is
             never raised, it is the rule.
         now_ns: the host's clock for frames without a reception time (default: now).
-        host_times: the frames' ``t_host_ns`` are reception times (False: a stream timed from
-            its own epochs).
     """
 
     def __init__(
-        self, *, raise_on_error: bool = False, now_ns: int | None = None, host_times: bool = True
+        self, *, raise_on_error: bool = False, now_ns: int | None = None
     ) -> None:
         self.raise_on_error = raise_on_error
-        self.clock = P.SessionClock(now_ns, host_times=host_times)
+        self.clock = P.SessionClock(now_ns)
         self._decoded: Counter[str] = Counter()
         self._undecodable: Counter[str] = Counter()
         self._implausible: Counter[str] = Counter()
