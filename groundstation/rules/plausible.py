@@ -435,13 +435,13 @@ class SessionClock:
 
     def _confirm(self, t: int, h: int | None, why: str) -> str | None:
         """Rule 4: ``t`` (refused) confirms the epoch refused just before it when it follows it
-        as the receiver's next epoch would: by at least half an interval, and by at most one
-        interval more than the host time between them, or (no host times) by at most two
-        intervals; with no interval known yet, by at most a second more than the host time, or
-        as long as the first lay after the clock (a slow receiver's next epoch comes as late as
-        the first did). Frames that passed their checksum by chance in one burst do not: they
-        arrive together, and their times (0 and 1 ms, a minute and 61 s) are not one interval
-        apart."""
+        as the receiver's next epoch would: by at least half an interval (in GPS time, and in
+        host time where there is one), and by at most one interval more than the host time
+        between them, or (no host times) by at most two intervals; with no interval known yet,
+        by at most a second more than the host time, or as long as the first lay after the
+        clock (a slow receiver's next epoch comes as late as the first did). Frames that passed
+        their checksum by chance in one burst do not: they arrive together, and their times
+        (0 and 1 ms, a minute and 61 s) are seldom one interval apart."""
         cand = self._candidate
         if cand is not None:
             ct, ch = cand
@@ -455,7 +455,10 @@ class SessionClock:
             else:
                 allow = max(ct - st.t_gps_ns if st is not None else 0, NS_PER_S)
             least = interval // 2 if interval is not None else 1
-            if least <= d <= allow:
+            # with host times, the second must also arrive that much later: two chance frames
+            # of one burst arrive together, whatever times they carry
+            later = h is None or ch is None or h - ch >= least
+            if least <= d <= allow and later:
                 self.jumps.append(Jump(st.t_gps_ns if st is not None else None, t, ct))
                 self._min_spacing = None
                 self.state = None

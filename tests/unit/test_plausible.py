@@ -91,6 +91,19 @@ def test_a_burst_of_chance_frames_that_agree_with_each_other_does_not_move_the_c
         assert refused == [] and sorted(clock.refuted) == times[5:8]
 
 
+def test_two_chance_frames_one_interval_apart_in_one_burst_confirm_nothing() -> None:
+    """Their GPS times follow as a receiver's would (found by the fuzz run: a field shifted
+    twice, by ten minutes and by 0.2 s), but they arrived together."""
+    h0 = NOW - 3600 * S
+    times = [epoch_t(k) for k in range(5)] + [epoch_t(4) + 600 * S, epoch_t(5) + 600 * S]
+    host = [h0 + k * S // 5 for k in range(5)] + [h0 + S, h0 + S]
+    times += [epoch_t(5), epoch_t(6)]
+    host += [h0 + S + S // 5, h0 + S + 2 * S // 5]
+    clock = P.SessionClock(NOW)
+    got = [clock.epoch(t, h) for t, h in zip(times, host, strict=True)]
+    assert [k for k, v in enumerate(got) if v is not None] == [5, 6] and not clock.jumps
+
+
 def test_an_odd_epoch_within_the_allowance_gives_way_to_the_next() -> None:
     clock = P.SessionClock(NOW)
     times = [epoch_t(0), epoch_t(1), epoch_t(2) + 50 * S, epoch_t(3), epoch_t(4)]
