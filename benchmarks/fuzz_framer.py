@@ -16,7 +16,9 @@ Each case is one of:
   spans: then every frame starting after that span must be; such coincidences are counted);
 - ``chunking``: an intact stream with damage fed in random chunkings, which must give exactly
   the frames of feeding it in one piece;
-- ``payload``: a decoded message type with a random payload of random length.
+- ``payload``: a decoded message type with a random payload of random length, or with the
+  right layout and random field values (:func:`random_frame`, also the frames
+  ``fuzz_valid_frames.py`` sends through the daemon and the offline tools).
 
 Checked on every case: nothing raises (the decoder returns a record or an ``UndecodedFrame``,
 never an exception, in its daemon mode), the framer accounts for every byte (frames + garbage +
@@ -29,30 +31,187 @@ from __future__ import annotations
 
 import argparse
 import logging
+import math
 import random
+import struct
 import sys
 import time
 import traceback
 from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
+from groundstation.gpstime import NS_PER_WEEK
 from groundstation.records import Frame, UndecodedFrame
 from groundstation.sim.stream import SimConfig, simulate
+from groundstation.ubx import layouts as L
 from groundstation.ubx.build import build_frame
 from groundstation.ubx.decode import Decoder
 from groundstation.ubx.framer import UbxFramer, ubx_checksum
 
-DECODED_TYPES = [
-    (0x02, 0x10), (0x02, 0x11), (0x02, 0x13), (0x02, 0x15), (0x0D, 0x03), (0x0B, 0x31),
-    (0x01, 0x02), (0x01, 0x06), (0x01, 0x07), (0x01, 0x30), (0x01, 0x35),
-]
+DECODED_TYPES = sorted(L.MESSAGES)
+"""Every message type the decoder maps to a record (the layouts' table)."""
 NMEA = b"$GPGGA,123519,4807.038,N,01131.000,E,1,08,0.9,545.4,M,46.9,M,,*47\r\n"
 RTCM3 = bytes.fromhex("d300133ed7d30202980edeef34b4bd62ac0941986f33360b98")
 
 
 class CaseFailed(Exception):
     """An invariant did not hold."""
+
+
+# -- frames with the right layout and random field values ---------------------------------------
+
+_MAX = {"U1": 0xFF, "X1": 0xFF, "U2": 0xFFFF, "X2": 0xFFFF, "U4": 0xFFFFFFFF, "X4": 0xFFFFFFFF}
+_MIN = {"I1": -(1 << 7), "I2": -(1 << 15), "I4": -(1 << 31)}
+TIME_FIELDS = frozenset({"iTOW", "towMsR", "towMsF", "rcvTow"})
+WEEK_FIELDS = frozenset({"week", "wnR", "wnF"})
+SHIFTS_S = (0.2, 1.0, 5.5, 59.0, 61.0, 600.0, 3600.0, 86_400.0, 604_800.0)
+"""Time shifts a mutated time field gets: within the session's allowance, at its edge, far."""
+
+
+@dataclass(frozen=True, slots=True)
+class Context:
+    """Where in the session a frame is made: the stream's current GPS week and time of week."""
+
+    week: int
+    itow_ms: int
+
+
+def _interesting(ftype: str, rng: random.Random) -> int | float:
+    """A value of a u-blox type that breaks decoders: extremes, NaN, infinities, random bits."""
+    if ftype in ("R4", "R8"):
+        big = 3.0e38 if ftype == "R4" else 1.0e308
+        choice = rng.choice(("nan", "inf", "-inf", "big", "-big", "zero", "bits"))
+        if choice == "bits":
+            size = 4 if ftype == "R4" else 8
+            raw = rng.randbytes(size)
+            return float(struct.unpack("<f" if size == 4 else "<d", raw)[0])
+        return {"nan": math.nan, "inf": math.inf, "-inf": -math.inf, "big": big, "-big": -big,
+                "zero": -0.0}[choice]
+    lo, hi = _MIN.get(ftype, 0), _MAX.get(ftype, (1 << (8 * int(ftype[1]) - 1)) - 1)
+    return rng.choice((lo, hi, 0, 1, hi // 2, hi - 1, rng.randint(lo, hi)))
+
+
+def _shifted(ftype: str, value: int | float, name: str, rng: random.Random) -> int | float:
+    """A time or week field moved by a plausible-looking amount (kept within its type)."""
+    sign = rng.choice((-1, 1))
+    if name in WEEK_FIELDS:
+        out: int | float = int(value) + sign * rng.choice((1, 2, 52, 1024))
+    elif name == "rcvTow":
+        out = float(value) + sign * rng.choice(SHIFTS_S)
+    else:
+        out = int(value) + sign * int(rng.choice(SHIFTS_S) * 1000)
+    if isinstance(out, int):
+        lo, hi = _MIN.get(ftype, 0), _MAX.get(ftype, (1 << (8 * int(ftype[1]) - 1)) - 1)
+        out = min(max(out, lo), hi)
+    return out
+
+
+def _plausible(msg: L.Message, rng: random.Random, ctx: Context) -> tuple[dict[str, Any],
+                                                                        list[dict[str, Any]]]:
+    """Fields a receiver at ``ctx`` could send for ``msg`` (the base that gets mutated)."""
+    tow, week = ctx.itow_ms, ctx.week
+    n = rng.randint(0, 12)
+    name = msg.name
+    if name == "RXM-RAW":
+        rows = [{"cpMes": rng.uniform(1e8, 1.3e8), "prMes": rng.uniform(2e7, 2.6e7),
+                 "doMes": rng.uniform(-4e3, 4e3), "sv": rng.randint(1, 32),
+                 "mesQI": rng.randint(4, 7), "cno": rng.randint(25, 50), "lli": rng.randint(0, 3)}
+                for _ in range(n)]
+        return {"iTOW": tow, "week": week}, rows
+    if name == "RXM-RAWX":
+        rows = [{"prMes": rng.uniform(2e7, 2.6e7), "cpMes": rng.uniform(1e8, 1.3e8),
+                 "doMes": rng.uniform(-4e3, 4e3), "svId": rng.randint(1, 32),
+                 "locktime": rng.randint(0, 64500), "cno": rng.randint(25, 50),
+                 "cpStdev": rng.randint(0, 15), "trkStat": rng.randint(0, 15)}
+                for _ in range(n)]
+        return {"rcvTow": tow / 1000, "week": week, "leapS": 18, "recStat": 1,
+                "version": 1}, rows
+    if name == "TIM-TM2":
+        flags = L.TIM_TM2_FLAGS.compose(mode=1, run=1, timeBase=1, time=1, utc=1,
+                                        newFallingEdge=rng.randint(0, 1),
+                                        newRisingEdge=rng.randint(0, 1))
+        fall = max(tow - rng.randint(0, 200), 0)
+        return {"ch": 0, "flags": flags, "count": rng.randint(0, 65535), "wnR": week,
+                "wnF": week, "towMsF": fall, "towSubMsF": rng.randint(0, 999_999),
+                "towMsR": fall + 14, "towSubMsR": rng.randint(0, 999_999), "accEst": 20}, []
+    if name == "NAV-SOL":
+        return {"iTOW": tow, "fTOW": rng.randint(-500_000, 500_000), "week": week, "gpsFix": 3,
+                "flags": 0x0D, "ecefX": 377469655, "ecefY": -59664791, "ecefZ": 508948565,
+                "pAcc": 250, "numSV": 8}, []
+    if name in ("NAV-PVT", "NAV-POSLLH"):
+        extra = {"fixType": 3, "flags": 1} if name == "NAV-PVT" else {}
+        return {"iTOW": tow, "lat": 533400000, "lon": -89900000, "height": 50_000,
+                "hAcc": 200, "vAcc": 300, **extra}, []
+    if name in ("NAV-SVINFO", "NAV-SAT"):
+        rows = [{f.name: rng.randint(0, 60) for f in msg.group if not f.is_padding}
+                for _ in range(n)]
+        return {"iTOW": tow}, rows
+    # RXM-SFRB, RXM-SFRBX, AID-EPH: navigation words, random (parity fails, or passes by chance)
+    head = {f.name: rng.randint(0, 32) for f in msg.fields if not f.is_padding}
+    if name == "RXM-SFRBX":
+        head.update(gnssId=0, sigId=0, numWords=10)
+    reps = 10 if name != "AID-EPH" else rng.randint(0, 1)
+    rows = [{f.name: rng.getrandbits(32) for f in msg.group if not f.is_padding}
+            for _ in range(reps)]
+    return head, rows
+
+
+def random_payload(msg: L.Message, rng: random.Random) -> bytes:
+    """A payload of ``msg``'s layout whose every field holds random bits (the count field
+    matches the repeats, so it passes the length checks and reaches the field checks)."""
+    head = bytearray(rng.randbytes(msg.head.size))
+    if msg.name == "NAV-PVT" and msg.min_length is not None and rng.random() < 0.2:
+        head = head[: msg.min_length]
+    reps = 0
+    if msg.group:
+        if isinstance(msg.count, str):
+            reps = rng.randint(0, 16)
+            at = msg.offsets[msg.count]
+            size = next(f.size for f in msg.fields if f.name == msg.count)
+            head[at : at + size] = reps.to_bytes(size, "little")
+        elif msg.count == L.BY_SIZE:
+            reps = rng.randint(0, 1)
+        else:
+            reps = int(msg.count or 0)
+    return bytes(head) + rng.randbytes(msg.block.size * reps)
+
+
+def random_frame(key: tuple[int, int], rng: random.Random, ctx: Context) -> bytes:
+    """A valid-checksum frame of a decoded type with random field values: every field random
+    (a third), or what a receiver at ``ctx`` would send with one to three fields replaced by an
+    extreme, NaN, infinite, random or shifted value (a time moved by 0.2 s .. a week)."""
+    msg = L.MESSAGES[key]
+    if rng.random() < 1 / 3:
+        return build_frame(msg.cls, msg.id, random_payload(msg, rng))
+    head, rows = _plausible(msg, rng, ctx)
+    types = {f.name: f.type for f in (*msg.fields, *msg.group) if not f.is_padding}
+    for _ in range(rng.randint(1, 3)):
+        in_rows = bool(rows) and rng.random() < 0.4
+        target = rng.choice(rows) if in_rows else head
+        names = [n for n in (msg.block_names if in_rows else msg.head_names) if n != msg.count]
+        if not names:
+            continue
+        name = rng.choice(names)
+        ftype = types[name]
+        if (name in TIME_FIELDS or name in WEEK_FIELDS) and rng.random() < 0.6:
+            target[name] = _shifted(ftype, target.get(name, 0), name, rng)
+        else:
+            target[name] = _interesting(ftype, rng)
+    return msg.frame(rows, **head)
+
+
+def stream_context(raw: bytes, ctx: Context) -> Context:
+    """The context after a real frame (an RXM-RAW's week and time of week)."""
+    if raw[2:4] == b"\x02\x10" and len(raw) >= 14:
+        itow, week = struct.unpack_from("<ih", raw, 6)
+        if week > 0 and 0 <= itow < 604_800_000:
+            return Context(week, itow)
+    return ctx
+
+
+assert NS_PER_WEEK == 604_800 * 10**9  # the context's units (ms of a week)
 
 
 @dataclass(frozen=True, slots=True)
@@ -129,6 +288,9 @@ class Fuzzer:
         self.rng = random.Random(seed)
         sim = simulate(SimConfig(duration_s=sim_s, seed=seed, with_base=False))
         self.seeds = [m.raw for m in sim.rover_messages]
+        self.context = Context(0, 0)
+        for raw in self.seeds:
+            self.context = stream_context(raw, self.context)
         self.seed_types = Counter((f[2], f[3]) for f in self.seeds)
         self.decoder = Decoder()
         self.counts: Counter[str] = Counter()
@@ -190,8 +352,12 @@ class Fuzzer:
 
     def case_payload(self) -> None:
         cls, mid = self.rng.choice(DECODED_TYPES)
-        n = self.rng.choice((0, 1, 7, 8, 16, 24, 28, 36, 40, 52, 92, self.rng.randint(0, 600)))
-        frame = build_frame(cls, mid, self.rng.randbytes(n))
+        if self.rng.random() < 0.5:  # the right layout, random fields (random_frame)
+            frame = random_frame((cls, mid), self.rng, self.context)
+        else:
+            n = self.rng.choice((0, 1, 7, 8, 16, 24, 28, 36, 40, 52, 92,
+                                 self.rng.randint(0, 600)))
+            frame = build_frame(cls, mid, self.rng.randbytes(n))
         self._tally(run_stream(chunked(frame, self.rng), self.decoder)[1])
 
     def _tally(self, out: Outcome) -> None:

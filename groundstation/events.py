@@ -58,6 +58,8 @@ STATION_CONFLICT: Final = "station.conflict"
 STATION_CONFLICT_ENDED: Final = "station.conflict_ended"
 # -- the pipeline's sinks -------------------------------------------------------------------
 FANOUT_DROPPED: Final = "fanout.dropped"
+# -- the decoder ----------------------------------------------------------------------------
+DECODER_TIME_JUMP: Final = "decoder.time_jump"
 BEHIND_SUFFIX: Final = ".behind"
 CAUGHT_UP_SUFFIX: Final = ".caught_up"
 
@@ -111,6 +113,9 @@ CATALOGUE: Final[dict[str, Kind]] = {
         Kind(STATION_CONFLICT, "error", "another daemon publishes as the same station"),
         Kind(STATION_CONFLICT_ENDED, "info", "no other daemon publishes as this station any more"),
         Kind(FANOUT_DROPPED, "warning", "a slow sink lost items"),
+        Kind(DECODER_TIME_JUMP, "warning",
+             "the receiver's time jumped and a second epoch confirmed it: the session's clock "
+             "follows (rules/plausible)"),
     )
 }
 """Every fixed kind; ``<sink>.behind`` and ``<sink>.caught_up`` are formed by :func:`behind`

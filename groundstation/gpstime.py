@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import bisect
 import datetime as dt
+from typing import Any
 
 NS_PER_S = 1_000_000_000
 NS_PER_WEEK = 604_800 * NS_PER_S
@@ -48,6 +49,15 @@ def leap_seconds_at_gps(t_gps_ns: int) -> int:
     """GPS - UTC in seconds at a GPS instant (0 before 1981-07-01)."""
     i = bisect.bisect_right(_LEAP_GPS_NS, t_gps_ns)
     return _LEAP_VALUES[i - 1] if i else 0
+
+
+def leap_seconds_at_gps_array(t_gps_ns: Any) -> Any:
+    """:func:`leap_seconds_at_gps` of every element of an int64 array."""
+    import numpy as np
+
+    i = np.searchsorted(np.asarray(_LEAP_GPS_NS, dtype=np.int64), t_gps_ns, side="right")
+    values = np.asarray([0, *_LEAP_VALUES], dtype=np.int64)
+    return values[i]
 
 
 def leap_seconds_at_utc(t_utc_since_gps_epoch_ns: int) -> int:

@@ -32,6 +32,7 @@ writes under the same names; anything else in the directory (a user's own files)
 from __future__ import annotations
 
 import contextlib
+import errno
 import logging
 import os
 import shutil
@@ -40,7 +41,7 @@ from pathlib import Path
 from typing import BinaryIO
 
 from groundstation import jsonio
-from groundstation.errors import ConfigError
+from groundstation.errors import ConfigError, InputError
 
 log = logging.getLogger("groundstation.outpaths")
 
@@ -71,8 +72,23 @@ def is_recording(path: Path) -> bool:
     return head.startswith(RECORDING_MAGICS)
 
 
+def _resolve(path: Path) -> Path:
+    """``path.resolve()``, a symbolic link loop refused in one line (Python 3.11 raises
+    RuntimeError for it, later versions OSError).
+
+    Raises:
+        InputError: the path cannot be resolved.
+    """
+    try:
+        return path.resolve()
+    except (RuntimeError, OSError) as err:
+        why = "a symbolic link loop" if isinstance(err, RuntimeError) or getattr(
+            err, "errno", None) == errno.ELOOP else (getattr(err, "strerror", None) or str(err))
+        raise InputError(f"{path}: cannot resolve the path: {why}") from err
+
+
 def _resolved(paths: Iterable[Path | None]) -> list[tuple[Path, Path]]:
-    return [(p, p.resolve()) for p in paths if p is not None]
+    return [(p, _resolve(p)) for p in paths if p is not None]
 
 
 def check_output_file(out: Path, inputs: Iterable[Path | None] = (), *, key: str,
@@ -83,7 +99,7 @@ def check_output_file(out: Path, inputs: Iterable[Path | None] = (), *, key: str
     Raises:
         ConfigError: naming ``key``.
     """
-    o = out.resolve()
+    o = _resolve(out)
     for given, r in _resolved(inputs):
         if o == r:
             raise ConfigError(key, f"{out} is the input {given}: refusing to replace it")
@@ -116,7 +132,7 @@ def check_output_dir(out_dir: Path, inputs: Iterable[Path | None] = (), *, key: 
     """
     if out_dir.exists() and not out_dir.is_dir():
         raise ConfigError(key, f"{out_dir} is not a directory")
-    o = out_dir.resolve()
+    o = _resolve(out_dir)
     for given, r in _resolved(inputs):
         if o == r or r in o.parents:
             raise ConfigError(key, f"{out_dir} is or is inside the input {given}")

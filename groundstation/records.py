@@ -273,10 +273,16 @@ class SvInfo:
 
 @dataclass(frozen=True, slots=True)
 class UndecodedFrame:
-    """A frame with a valid checksum that pyubx2 could not parse; its bytes are kept."""
+    """A frame with a valid checksum that was not decoded; its bytes are kept.
+
+    Either its payload does not fit its message's layout, or (``implausible``) its time cannot
+    belong to the session (:mod:`groundstation.rules.plausible`): a frame that passed its
+    checksum by chance.
+    """
 
     frame: Frame
     error: str
+    implausible: bool = False
 
 
 Record = RawEpoch | TimeMark | Subframe | Ephemeris | NavSolution | SvInfo | UndecodedFrame | Frame
@@ -337,6 +343,9 @@ class LinkStatus:
     recent_dropouts: tuple[Dropout, ...]
     source_connected: bool | None
     source_outages: int
+    implausible_frames: int = 0
+    """Frames with a valid checksum whose time cannot belong to the session (rules/plausible):
+    recorded, not decoded."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -422,6 +431,8 @@ class PipelineStatus:
     queued: dict[str, int]
     dropped: dict[str, int]
     nmea_sentences: int = 0
+    implausible: int = 0
+    """Frames whose time cannot belong to the session (in ``undecodable`` too)."""
 
 
 Item = (RawChunk | RawEpoch | TimeMark | Subframe | Ephemeris | NavSolution | SvInfo | Event

@@ -69,6 +69,13 @@ def format_summary(s: Summary) -> str:
         lines.append(f"foreign   {s.nmea_sentences} NMEA sentences, {s.rtcm3_frames} RTCM3 frames")
     if s.undecodable:
         lines.append(f"          {s.undecodable} frames pyubx2 could not parse (bytes kept)")
+    if s.implausible:
+        parts = ", ".join(f"{name} {n}" for name, n in s.implausible.items())
+        lines.append(f"          {sum(s.implausible.values())} frames with a time that cannot "
+                     f"belong to the session, not used (bytes kept): {parts}")
+    if s.time_jumps:
+        lines.append(f"          the receiver's time jumped {s.time_jumps} time(s), each "
+                     "confirmed by the next epoch (the epoch before it not used)")
     lines.append("messages")
     for name, n in s.messages.items():
         lines.append(f"  {name:<14} {n:>8}")

@@ -115,6 +115,9 @@ def run(args: argparse.Namespace) -> int:
         f"{res.dropped_epochs} epochs not written (empty or out of order); "
         f"{res.nav_parity_errors} subframes failed parity"
     )
+    if res.implausible:
+        print(f"implausible: {res.implausible} epochs and marks with a time that cannot "
+              "belong to the session, left out")
     if res.skipped_systems:
         print(f"not in RINEX 2.11, left out: {' '.join(res.skipped_systems)}")
     for note in res.notes:

@@ -78,6 +78,13 @@ def _print_summary(summary: RunSummary) -> None:
           f"{summary.records} records, {summary.events} events, {summary.outages} outage(s)")
     for name, n in summary.frames_by_type.items():
         print(f"    {name:<14} {n}")
+    if summary.implausible_by_type:
+        parts = ", ".join(f"{name} {n}" for name, n in sorted(summary.implausible_by_type.items()))
+        print(f"  {sum(summary.implausible_by_type.values())} frames with a time that cannot "
+              f"belong to the session (recorded, not decoded): {parts}")
+    if summary.time_jumps:
+        print(f"  the receiver's time jumped {summary.time_jumps} time(s), each confirmed by a "
+              "second epoch (decoder.time_jump)")
     if summary.write_failures:
         lost = (f"{summary.dropped_raw_bytes} raw bytes and {summary.dropped_records} records "
                 "dropped beyond the memory bound" if summary.dropped_raw_bytes

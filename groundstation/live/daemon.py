@@ -22,7 +22,8 @@ from typing import Any
 from groundstation import events as kinds
 from groundstation.config import Settings
 from groundstation.errors import GroundstationError
-from groundstation.live.data_time import UNTIMED, DataClock, Timed
+from groundstation.gpstime import format_gps
+from groundstation.live.data_time import UNTIMED, DataClock, Timed, restamped
 from groundstation.live.fanout import Fanout, InboxStats, Overflow, Publish, Sink, SinkSpec
 from groundstation.live.monitor import Monitor
 from groundstation.live.monitor_sink import MonitorSink
@@ -37,6 +38,7 @@ from groundstation.records import (
     RawChunk,
     UndecodedFrame,
 )
+from groundstation.rules.plausible import Jump, span_text
 from groundstation.storage.mcapio import ExactFile
 from groundstation.storage.session import FileOpener, SessionRecorder
 from groundstation.ubx.decode import Decoder
@@ -69,6 +71,11 @@ class RunSummary:
     lost_held_bytes: int = 0
     lost_files: tuple[Path, ...] = ()
     """Files of the session deleted while it was recorded (not in ``files``/``sidecars``)."""
+    implausible_by_type: dict[str, int] = field(default_factory=dict)
+    """Frames whose time cannot belong to the session (rules/plausible), by message type:
+    recorded, not decoded."""
+    time_jumps: int = 0
+    """Jumps of the receiver's time that a second epoch confirmed (``decoder.time_jump``)."""
 
 
 def make_monitor(settings: Settings) -> Monitor:
@@ -189,33 +196,58 @@ class Pipeline:
     def ingest(self, chunk: bytes, t_host_ns: int) -> None:
         """One chunk from the source: raw bytes first, then what they decode to (an
         :data:`~groundstation.live.data_time.UNTIMED` chunk once timed, without pacing)."""
-        for data, frames, t in self._timed(chunk, t_host_ns):
-            self._emit(data, frames, t)
+        for data, items, t in self._timed(chunk, t_host_ns):
+            self._emit(data, items, t)
 
     def _timed(self, chunk: bytes, t_host_ns: int) -> list[Timed]:
-        """The chunk framed and timed: a timed chunk as is; an untimed one by the source's
-        data clock from the frames it completed (possibly held, or several released)."""
+        """The chunk framed, decoded and timed: a timed chunk as is; an untimed one by the
+        source's data clock from the epochs its frames decoded to (possibly held, or several
+        released). The decoder judges every time (rules/plausible) before the data clock sees
+        it, so the clock follows only plausible epochs."""
         if t_host_ns != UNTIMED or self._data_clock is None:
-            return [(chunk, self.framer.feed(chunk, t_host_ns), t_host_ns)]
-        return self._data_clock.stamp(chunk, self.framer.feed(chunk, UNTIMED))
+            return [(chunk, self._decode(self.framer.feed(chunk, t_host_ns)), t_host_ns)]
+        return self._data_clock.stamp(chunk, self._decode(self.framer.feed(chunk, UNTIMED)))
 
-    def _emit(self, chunk: bytes, frames: list[Frame], t_host_ns: int) -> None:
+    def _emit(self, chunk: bytes, items: list[Item], t_host_ns: int) -> None:
         if self.chunks == 0 and self._on_first_chunk is not None:
             self._on_first_chunk(t_host_ns)
         self.chunks += 1
         self.fanout.publish(RawChunk(chunk, t_host_ns))
-        self._decode(frames)
+        for item in items:
+            self.publish(item)
 
-    def _decode(self, frames: list[Frame]) -> None:
+    def _decode(self, frames: list[Frame]) -> list[Item]:
+        """What the frames decode to, in order (frames left undecoded are in /ubx/raw): records,
+        and a ``decoder.time_jump`` event before the epoch that confirmed a jump (the monitor
+        starts again from it)."""
+        jumps = self.decoder.clock.jumps
+        out: list[Item] = []
         for frame in frames:
+            seen = len(jumps)
             record = self.decoder.decode(frame)
+            if len(jumps) != seen:
+                out.append(self._time_jump(jumps[-1], frame.t_host_ns))
             if isinstance(record, (Frame, UndecodedFrame)):
                 continue  # its bytes are already in /ubx/raw
             self.records += 1
-            self.fanout.publish(record)
+            out.append(record)
+        return out
+
+    def _time_jump(self, jump: Jump, t_host_ns: int) -> Event:
+        before = ("the host's clock" if jump.from_t_gps_ns is None
+                  else f"{span_text(jump.to_t_gps_ns - jump.from_t_gps_ns)} from the session's "
+                  "clock")
+        return Event(
+            kinds.DECODER_TIME_JUMP, t_host_ns or self._clock(),
+            f"the receiver's time jumped ({before}) to {format_gps(jump.to_t_gps_ns)}, "
+            "confirmed by a second epoch: the session's clock follows it", "warning",
+            {"from_t_gps_ns": jump.from_t_gps_ns, "to_t_gps_ns": jump.to_t_gps_ns,
+             "skipped_t_gps_ns": jump.skipped_t_gps_ns},
+        )
 
     def status(self) -> PipelineStatus:
         fs = self.framer.stats
+        ds = self.decoder.stats
         state = getattr(self.source, "state", None)
         connected = getattr(state, "connected", None)
         return PipelineStatus(
@@ -228,10 +260,11 @@ class Pipeline:
             garbage_bytes=fs.garbage_bytes,
             bad_checksum=fs.bad_checksum,
             records=self.records,
-            undecodable=self.decoder.stats.undecodable,
+            undecodable=ds.undecodable,
             queued={s.name: s.queued for s in self.fanout.stats},
             dropped={s.name: s.dropped for s in self.fanout.stats},
             nmea_sentences=fs.nmea_sentences,
+            implausible=ds.implausible,
         )
 
     # -- tasks ------------------------------------------------------------------------------
@@ -248,12 +281,12 @@ class Pipeline:
             async for chunk, t_host_ns in chunks:
                 if t_host_ns == UNTIMED and self._data_clock is None:  # a .ubx file, once
                     self._data_clock = getattr(self.source, "data_clock", None)
-                for data, frames, t in self._timed(chunk, t_host_ns):
+                for data, items, t in self._timed(chunk, t_host_ns):
                     if t_host_ns == UNTIMED and callable(pace):
                         delay = pace(t)
                         if delay > 0:
                             await asyncio.sleep(delay)
-                    self._emit(data, frames, t)
+                    self._emit(data, items, t)
                 if self.source.can_wait:
                     await self._wait_for_sinks()
             self.stopped_by = self.stopped_by or "end of source"
@@ -272,10 +305,14 @@ class Pipeline:
             # Chunks held for their time and bytes still waiting in the framer: recover what
             # frames they hold.
             clock = self._data_clock
-            if clock is not None:
-                for data, frames, t in clock.flush():
-                    self._emit(data, frames, t)
-            self._decode(self.framer.flush(clock.now_ns() if clock is not None else self._clock()))
+            if clock is None:
+                last = self._decode(self.framer.flush(self._clock()))
+            else:
+                for data, items, t in clock.flush():
+                    self._emit(data, items, t)
+                last = restamped(self._decode(self.framer.flush(UNTIMED)), clock.now_ns())
+            for item in last:
+                self.publish(item)
             log.info("source %s stopped (%s)", self.source.name, self.stopped_by)
 
     async def _status_loop(self) -> None:
@@ -409,6 +446,8 @@ class Pipeline:
             dropped_records=rec.dropped_records if rec else 0,
             lost_held_bytes=rec.held_bytes if rec else 0,
             lost_files=rec.lost_files if rec else (),
+            implausible_by_type=self.decoder.stats.implausible_by_type,
+            time_jumps=self.decoder.stats.time_jumps,
         )
 
 

@@ -147,6 +147,7 @@ class Monitor:
                 item.bad_checksum, item.garbage_bytes, item.frames, item.nmea_sentences,
                 item.source_connected, now_ns, events,
             )
+            self.link.implausible = item.implausible
         return events
 
     def on_bytes(self, n: int, t_host_ns: int) -> None:
@@ -164,6 +165,11 @@ class Monitor:
             self.session_id = str(ev.data.get("session_id") or self.session_id)
         elif ev.kind in (kinds.SOURCE_LOST, kinds.SOURCE_CONNECTED, kinds.SOURCE_OUTAGE):
             self.link.on_source_event(ev.kind, ev.message)
+        elif ev.kind == kinds.DECODER_TIME_JUMP:
+            # The receiver's time jumped (rules/plausible): the epoch sequence and the
+            # satellites' lock and clean-phase times start again from the new time.
+            self.link.restart_epochs()
+            self.sats = Satellites(self.th)
         elif ev.kind == kinds.OPERATOR_ACK:
             self.mark_watch.acknowledge(str(ev.data.get("alert", "")),
                                         str(ev.data.get("by", "")), now_ns, events)

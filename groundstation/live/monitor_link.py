@@ -45,6 +45,7 @@ class Link:
         self._epoch_times: deque[int] = deque()  # GPS ns, for completeness windows
         self._epoch_host: deque[int] = deque()  # host ns of the same epochs
         self.epochs = 0
+        self._epochs_before = 0  # epochs before the receiver's time last jumped
         self.first_epoch_ns: int | None = None
         self.last_epoch_ns: int | None = None
         self.last_epoch_host_ns: int | None = None
@@ -61,6 +62,7 @@ class Link:
         self.frames = 0
         self.damaged = 0
         self.garbage = 0
+        self.implausible = 0  # frames whose time cannot belong to the session (the decoder's)
         self.source_connected: bool | None = None
         self.source_problem = ""  # why the source is down (the source.lost message)
         self.watch_since_ns: int | None = None  # the first clock tick: silence counts from here
@@ -203,6 +205,20 @@ class Link:
             self.alerts.clear(kinds.ALERT_DROPOUT_LONG, now_ns, events)
         return True
 
+    def restart_epochs(self) -> None:
+        """The receiver's time jumped (a ``decoder.time_jump`` event): the epoch sequence, its
+        interval and the completeness windows start again with the next epoch. The counts of
+        epochs, dropouts and missing epochs go on."""
+        self.interval_ns = None
+        self._diffs.clear()
+        self._epoch_times.clear()
+        self._epoch_host.clear()
+        self._early.clear()
+        self._epochs_before = self.epochs
+        self.first_epoch_ns = None
+        self.last_epoch_ns = None
+        self.last_epoch_host_ns = None
+
     def _check_gap(self, prev: int, t: int, now_ns: int, events: list[Event]) -> None:
         assert self.interval_ns is not None
         d = t - prev
@@ -293,7 +309,7 @@ class Link:
         end = self.last_epoch_ns
         if window_s is None:
             span = end - self.first_epoch_ns
-            got = self.epochs
+            got = self.epochs - self._epochs_before
         else:
             span = min(int(window_s * NS_PER_S), end - self.first_epoch_ns)
             start = end - span
@@ -323,4 +339,5 @@ class Link:
             recent_dropouts=tuple(self.dropouts),
             source_connected=self.source_connected,
             source_outages=self.source_outages,
+            implausible_frames=self.implausible,
         )

@@ -16,7 +16,7 @@ from pathlib import Path
 
 from groundstation import events as kinds
 from groundstation.live.fanout import Inbox, InboxClosed, Publish
-from groundstation.live.monitor import Monitor
+from groundstation.live.monitor import ALERT_CLEAR_AFTER_S, ALERT_RAISE_AFTER_S, Monitor
 from groundstation.records import (
     Event,
     Item,
@@ -35,6 +35,13 @@ DISK_CHECK_S = 5.0
 LINGER_S = 0.1
 """Bursts of at least 100 ms (at most 200 ms, ``fanout.LINGER_LATE``), one tick: the monitor's
 rules work on 100 ms and longer, and marks reach Zenoh through the publisher, not through it."""
+
+SILENCE_TICKED_MIN_S = 60.0
+"""Replay: across a silence in the data's time the monitor is ticked every 100 ms for at least
+this long (longer when an alert threshold or hold is longer), then once at the end of the
+silence. Beyond every threshold the ticks would only repeat the same alerts and status; a week
+without data ticked in 100 ms steps held the daemon for minutes, took gigabytes and kept it deaf
+to SIGTERM (issue 27)."""
 
 MONITOR_INPUTS: frozenset[type] = frozenset(
     (RawChunk, RawEpoch, TimeMark, SvInfo, Event, PipelineStatus)
@@ -70,6 +77,12 @@ class MonitorSink:
         self.data_clock = data_clock
         self._next_tick_ns: int | None = None
         self._data_now: int | None = None
+        th = monitor.th
+        horizon_s = max(SILENCE_TICKED_MIN_S, th.dropout_alert_s, th.no_data_s, th.no_frames_s,
+                        th.marks_missed_hold_s, ALERT_RAISE_AFTER_S + ALERT_CLEAR_AFTER_S)
+        self._silence_ticked_ns = int((horizon_s + 2 * monitor.status_interval_s) * 1e9)
+        self.ticks_skipped = 0
+        """Replay ticks left out inside silences longer than the monitor's horizon."""
         self._next_disk_check = 0.0
         self.last_status: Status | None = None
 
@@ -101,8 +114,15 @@ class MonitorSink:
             self._next_tick_ns = t + step
         # The ticks the live daemon made while this stretch of data arrived: every TICK_S of
         # data time, also when the chunks come closer together than that (a 115 200-baud
-        # file is timed at ~90 ms a chunk; ticking only across gaps gave one status a burst).
+        # file is timed at ~90 ms a chunk; ticking only across gaps gave one status a burst),
+        # up to the monitor's horizon into a silence, then the last one before the data.
+        limit = (self._data_now if self._data_now is not None else t) + self._silence_ticked_ns
         while self._next_tick_ns < t:
+            if self._next_tick_ns > limit:
+                skip = (t - 1 - self._next_tick_ns) // step
+                self._next_tick_ns += skip * step
+                self.ticks_skipped += skip
+                limit = t
             self._emit(*self.monitor.tick(self._next_tick_ns), publish)
             self._next_tick_ns += step
         self._data_now = max(t, self._data_now or t)

@@ -85,6 +85,12 @@ class Summary:
     """Damaged stretches of the file read past: their bytes are not in ``bytes``."""
     orphan_messages: int = 0
     """Messages whose channel was defined only in a skipped stretch (not read)."""
+    implausible: dict[str, int] = field(default_factory=dict)
+    """Frames with a valid checksum whose time cannot belong to the session, by message type
+    (:mod:`groundstation.rules.plausible`): kept in the recording, not counted as epochs or
+    marks (RINEX and the solver leave them out too)."""
+    time_jumps: int = 0
+    """Jumps of the receiver's time that a second epoch confirmed."""
 
     def as_json(self) -> dict[str, Any]:
         d = asdict(self)
@@ -111,7 +117,10 @@ class Inspector:
     decoder: Decoder = field(default_factory=Decoder)
     messages: Counter[tuple[int, int]] = field(default_factory=Counter)
     """Frames by (class, id); named once in :meth:`summary`."""
-    epoch_times: set[int] = field(default_factory=set)
+    epoch_times: Counter[int] = field(default_factory=Counter)
+    """Epochs by time (RXM-RAW and RXM-RAWX of one epoch count once)."""
+    epoch_offsets: dict[int, int] = field(default_factory=dict)
+    """Stream offset -> time of each epoch counted (to take out one found odd afterwards)."""
     empty_epochs: int = 0
     epoch_sources: Counter[str] = field(default_factory=Counter)
     sats: set[tuple[int, int]] = field(default_factory=set)
@@ -128,7 +137,8 @@ class Inspector:
             if record.gps_week == 0 or not record.sats:
                 self.empty_epochs += 1
                 return
-            self.epoch_times.add(record.t_gps_ns)
+            self.epoch_times[record.t_gps_ns] += 1
+            self.epoch_offsets[frame.offset] = record.t_gps_ns
             self.epoch_sources[record.source] += 1
             self.max_sats = max(self.max_sats, len(record.sats))
             # u-blox reports a GLONASS satellite whose slot it does not know yet as svId 255
@@ -143,7 +153,7 @@ class Inspector:
             self.sats |= ids
         elif isinstance(record, TimeMark):
             self.marks.append(record)
-        elif isinstance(record, UndecodedFrame):
+        elif isinstance(record, UndecodedFrame) and not record.implausible:
             self.undecodable += 1
 
     def _named_messages(self) -> Counter[str]:
@@ -153,7 +163,11 @@ class Inspector:
         return named
 
     def summary(self, stats: FramerStats, *, path: str = "", fmt: str = "") -> Summary:
-        times = sorted(self.epoch_times)
+        # epochs the plausibility rule found to be the odd ones after they were decoded (by
+        # their frames: a real epoch may have the same time as an odd one)
+        odd = Counter(self.epoch_offsets[o] for o in self.decoder.refuted_offsets
+                      if o in self.epoch_offsets)
+        times = sorted(self.epoch_times - odd)
         interval_ns = nominal_interval_ns(times)
         gaps = find_gaps(times, interval_ns)
         return Summary(
@@ -184,6 +198,8 @@ class Inspector:
             satellites=tuple(sorted({sv_label(g, sv) for g, sv in self.sats})),
             max_sats_per_epoch=self.max_sats,
             unknown_slot_signals=self.unknown_slot,
+            implausible=dict(sorted(self.decoder.stats.implausible_by_type.items())),
+            time_jumps=self.decoder.stats.time_jumps,
         )
 
 

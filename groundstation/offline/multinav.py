@@ -22,7 +22,8 @@ from numpy.lib.stride_tricks import sliding_window_view
 
 from groundstation import gpstime
 from groundstation.gnss import glonass
-from groundstation.ubx.fastraw import FrameIndex
+from groundstation.rules import plausible
+from groundstation.ubx.fastraw import FrameIndex, SessionTimes
 
 if TYPE_CHECKING:
     from groundstation.gnss.kepler import KeplerEphemeris
@@ -65,9 +66,32 @@ def _fields(rows: npt.NDArray[np.uint8], at: int, dtype: str
     return np.ascontiguousarray(rows[:, at : at + size]).view(dtype).ravel()
 
 
-def receiver_times(data: bytes | memoryview, index: FrameIndex) -> list[tuple[int, int]]:
+def _plausible(
+    key: tuple[int, int], rows: npt.NDArray[np.uint8], sel: npt.NDArray[np.int64],
+    week: npt.NDArray[np.int64], session: SessionTimes,
+) -> npt.NDArray[np.bool_]:
+    """Which of these messages' times can belong to the session (the decoder's verdicts)."""
+    if key in ((0x02, 0x15), (0x02, 0x10)):  # epochs: the verdicts on them
+        k = np.searchsorted(session.frame, sel)
+        k = np.minimum(k, max(session.frame.size - 1, 0))
+        if session.frame.size == 0:
+            return np.zeros(sel.size, dtype=bool)
+        found: npt.NDArray[np.bool_] = (session.frame[k] == sel) & session.verdicts.ok[k]
+        return found
+    itow = _fields(rows, 0, "<u4").tolist()
+    ftow = _fields(rows, 4, "<i4").tolist()
+    return np.array([
+        session.fix_problem(i, t, f, w) is None
+        for i, t, f, w in zip(sel.tolist(), itow, ftow, week.tolist(), strict=True)
+    ], dtype=bool)
+
+
+def receiver_times(
+    data: bytes | memoryview, index: FrameIndex, session: SessionTimes | None = None
+) -> list[tuple[int, int]]:
     """(stream offset, GPS ns) of every message that states the receiver's GPS time with a
-    valid week: RXM-RAWX, RXM-RAW, NAV-SOL, NAV-TIMEGPS (week 0 or not valid: skipped)."""
+    valid week: RXM-RAWX, RXM-RAW, NAV-SOL, NAV-TIMEGPS (week 0 or not valid: skipped; with
+    ``session``, only the epochs and fixes whose times can belong to the session)."""
     arr = np.frombuffer(data, dtype=np.uint8)
     offsets: list[npt.NDArray[np.int64]] = []
     times: list[npt.NDArray[np.int64]] = []
@@ -81,7 +105,8 @@ def receiver_times(data: bytes | memoryview, index: FrameIndex) -> list[tuple[in
         if key == (0x02, 0x15):
             tow_s = _fields(rows, 0, "<f8")
             week = _fields(rows, 8, "<u2").astype(np.int64)
-            finite = np.isfinite(tow_s)
+            with np.errstate(invalid="ignore"):
+                finite = (tow_s >= 0.0) & (tow_s < plausible.WEEK_S)  # and not NaN
             week[~finite] = 0
             tow_ns = np.rint(np.where(finite, tow_s, 0.0) * 1e9).astype(np.int64)
         elif key == (0x02, 0x10):
@@ -94,7 +119,11 @@ def receiver_times(data: bytes | memoryview, index: FrameIndex) -> list[tuple[in
             # the week is valid only with NAV-SOL flags bit 2 (WKNSET), NAV-TIMEGPS valid bit 1
             valid_bit = 0x04 if key == (0x01, 0x06) else 0x02
             week[(rows[:, 11] & valid_bit) == 0] = 0
-        keep = week > 0
+        # within the receiver's ranges (a week beyond them overflows the ns below)
+        keep = (week >= plausible.MIN_WEEK) & (week <= plausible.MAX_WEEK) & (tow_ns >= 0) & (
+            tow_ns < gpstime.NS_PER_WEEK)
+        if session is not None:
+            keep &= _plausible(key, rows, sel, week, session)
         offsets.append(index.start[sel][keep])
         times.append(week[keep] * gpstime.NS_PER_WEEK + tow_ns[keep])
     if not offsets:

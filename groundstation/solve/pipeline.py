@@ -36,7 +36,15 @@ from groundstation.solve import leverarm, outputs, photos, positions, report
 from groundstation.solve.engine import DEFAULT_ENGINE, is_rinex_obs_name
 from groundstation.solve.integrity import grade as gr
 from groundstation.storage.reading import Recording, check_regular
-from groundstation.ubx.decode import NAV_POSLLH, NAV_PVT, NAV_SOL, TIM_TM2, Decoder
+from groundstation.ubx.decode import (
+    NAV_POSLLH,
+    NAV_PVT,
+    NAV_SOL,
+    RXM_RAW,
+    RXM_RAWX,
+    TIM_TM2,
+    Decoder,
+)
 from groundstation.ubx.framer import UbxFramer
 
 log = logging.getLogger("groundstation.solve")
@@ -45,6 +53,7 @@ Progress = Callable[[str, float], None]
 BaseCheck = tuple[str, bool]
 """How the base coordinates were checked: (text, doubtful) (:func:`report.check_base`)."""
 _WANTED = {TIM_TM2, NAV_SOL, NAV_PVT, NAV_POSLLH}
+_EPOCHS = {RXM_RAW, RXM_RAWX}
 
 
 class NothingPositionedError(GroundstationError):
@@ -146,6 +155,8 @@ def read_flight(path: Path, progress: Progress | None = None) -> FlightRecords:
     recording = Recording(path)
     for chunk, t_host in recording.chunks():
         for fr in framer.feed(chunk, t_host):
+            if fr.key in _EPOCHS:  # the session's clock the marks are judged by (issue 27)
+                decoder.judge_epoch(fr)
             if fr.key not in _WANTED:
                 continue
             rec = decoder.decode(fr)
@@ -156,6 +167,8 @@ def read_flight(path: Path, progress: Progress | None = None) -> FlightRecords:
         if progress is not None:
             progress("read flight", recording.progress)
     for fr in framer.flush():
+        if fr.key in _EPOCHS:
+            decoder.judge_epoch(fr)
         if fr.key in _WANTED:
             rec = decoder.decode(fr)
             if isinstance(rec, TimeMark):

@@ -5,7 +5,11 @@ records (layouts in :mod:`~groundstation.ubx.layouts`); any other message stays 
 :class:`Frame` (pyubx2 parses those where a tool needs them, and names them:
 :func:`message_name`). A frame that passed its checksum but whose payload does not fit its
 layout (shorter than its fixed part, or than its declared repeats need) becomes an
-:class:`UndecodedFrame`: it is counted, logged and its bytes are kept, never dropped.
+:class:`UndecodedFrame`: it is counted, logged and its bytes are kept, never dropped. So does a
+frame whose time cannot belong to the session (a GPS week or time of week out of range, a value
+that is not a finite number, a time far from the session's own clock: the one rule of
+:mod:`groundstation.rules.plausible`, which the bulk decoder applies too): ``implausible``, counted
+apart.
 
 The values are those pyubx2 gives for the same fields: ``tests/unit/test_decode.py`` checks it
 field for field on every real recording and on the simulator's output.
@@ -16,12 +20,13 @@ from __future__ import annotations
 import logging
 import math
 import struct
-from collections import Counter
+from collections import Counter, deque
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import Any
 
 from groundstation.geodesy import ecef_to_llh, llh_to_ecef
-from groundstation.gpstime import NS_PER_WEEK
+from groundstation.gpstime import NS_PER_WEEK, format_gps
 from groundstation.records import (
     Ephemeris,
     Frame,
@@ -36,6 +41,7 @@ from groundstation.records import (
     UndecodedFrame,
     positional_constructor,
 )
+from groundstation.rules import plausible as P
 from groundstation.rules.phase import RawPhase, RawxPhase
 from groundstation.ubx import layouts as L
 from groundstation.ubx.timemark import timemark_from_fields
@@ -116,6 +122,15 @@ class PayloadError(ValueError):
     """A payload that does not fit its message's layout."""
 
 
+class ImplausibleTime(Exception):
+    """A frame whose time cannot belong to the session (:mod:`groundstation.rules.plausible`)."""
+
+
+IMPLAUSIBLE_LOGGED = 20
+"""Implausible frames of one type logged one by one; after that one line per 1000 (a burst of
+noise must not flood the journal: the counts are in the status and the summaries)."""
+
+
 def message_name(cls: int, mid: int) -> str:
     """The message name as pyubx2 spells it, or ``UBX-CC-II`` for one pyubx2 does not know."""
     key = (cls, mid)
@@ -185,24 +200,40 @@ class DecoderStats:
     passed_through: int
     undecodable: int
     undecodable_by_type: dict[str, int]
+    implausible: int = 0
+    """Frames whose time cannot belong to the session (also in ``undecodable``)."""
+    implausible_by_type: dict[str, int] = field(default_factory=dict)
+    time_jumps: int = 0
+    """Confirmed jumps of the session's clock (the receiver's new time)."""
 
 
 class Decoder:
     """Maps frames to records.
 
     It keeps a little state: the phase rule's per-signal state (:mod:`groundstation.rules.phase`,
-    the same LLI as the RINEX files) and the latest leap-second count the receiver
+    the same LLI as the RINEX files), the session's clock (:mod:`groundstation.rules.plausible`,
+    which times can belong to the session) and the latest leap-second count the receiver
     reported (to put UTC-based time marks on GPS time).
 
     Args:
         raise_on_error: raise :class:`~groundstation.errors.DecodeError` instead of returning an
-            :class:`UndecodedFrame` (for tests and strict offline tools).
+            :class:`UndecodedFrame` (for tests and strict offline tools); an implausible time is
+            never raised, it is the rule.
+        now_ns: the host's clock for frames without a reception time (default: now).
     """
 
-    def __init__(self, *, raise_on_error: bool = False) -> None:
+    def __init__(
+        self, *, raise_on_error: bool = False, now_ns: int | None = None
+    ) -> None:
         self.raise_on_error = raise_on_error
+        self.clock = P.SessionClock(now_ns)
         self._decoded: Counter[str] = Counter()
         self._undecodable: Counter[str] = Counter()
+        self._implausible: Counter[str] = Counter()
+        self._taken: deque[tuple[str, int]] = deque(maxlen=P.ODD_RUN_MAX + 1)  # as the clock's
+        self.refuted_offsets: list[int] = []
+        """Stream offsets of epochs decoded, then found to be odd ones by the epochs after them
+        (``clock.refuted`` are their times): a reader that collects epochs leaves them out."""
         self._passed = 0
         self._raw_phase = RawPhase()  # the phase rule's per-signal state (rules/phase.py)
         self._rawx_phase = RawxPhase()
@@ -231,8 +262,11 @@ class Decoder:
         return DecoderStats(
             decoded=dict(self._decoded),
             passed_through=self._passed,
-            undecodable=sum(self._undecodable.values()),
-            undecodable_by_type=dict(self._undecodable),
+            undecodable=sum(self._undecodable.values()) + sum(self._implausible.values()),
+            undecodable_by_type=dict(self._undecodable + self._implausible),
+            implausible=sum(self._implausible.values()),
+            implausible_by_type=dict(self._implausible),
+            time_jumps=len(self.clock.jumps),
         )
 
     def decode(self, frame: Frame) -> Record:
@@ -243,6 +277,9 @@ class Decoder:
         handler, name = entry
         try:
             record = handler(frame)
+        except ImplausibleTime as err:
+            self._count_implausible(name, frame, err)
+            return UndecodedFrame(frame, f"implausible time: {err}", implausible=True)
         except (ValueError, struct.error, ArithmeticError) as err:  # PayloadError, or math
             self._undecodable[name] += 1
             log.warning(
@@ -257,14 +294,69 @@ class Decoder:
         self._decoded[name] += 1
         return record
 
+    def judge_epoch(self, frame: Frame) -> bool:
+        """Take a measurement epoch (RXM-RAW / RXM-RAWX) into the session's clock without
+        decoding its measurements, for a reader that wants only marks and fixes (the solver):
+        the marks are then judged as :meth:`decode` judges them after the same frames. Returns
+        whether the epoch is plausible (an implausible one is counted and logged, a payload that
+        does not fit is not an epoch)."""
+        name = "RXM-RAW" if frame.key == RXM_RAW else "RXM-RAWX"
+        rows_of = _raw_epoch_rows if frame.key == RXM_RAW else _rawx_epoch_rows
+        try:
+            week, tow_ns, _ = rows_of(frame.payload)
+            self._epoch(week, tow_ns, frame)
+        except PayloadError:
+            return False
+        except ImplausibleTime as err:
+            self._count_implausible(name, frame, err)
+            return False
+        return True
+
+    def _count_implausible(self, name: str, frame: Frame, err: ImplausibleTime) -> None:
+        n = self._implausible[name] = self._implausible[name] + 1
+        if n <= IMPLAUSIBLE_LOGGED or n % 1000 == 0:
+            log.warning(
+                "implausible %s at offset %d (%d bytes kept, not decoded; %d so far): %s",
+                name, frame.offset, len(frame.raw), n, err,
+            )
+
+    def _log_jump(self) -> None:
+        if self.clock.jumps:
+            jump = self.clock.jumps[-1]
+            log.warning(
+                "the receiver's time jumped %s (to %s), confirmed by a second epoch: the "
+                "session's clock follows it; the epoch at %s before it was not used",
+                "from the host's clock" if jump.from_t_gps_ns is None else
+                P.span_text(jump.to_t_gps_ns - jump.from_t_gps_ns),
+                format_gps(jump.to_t_gps_ns), format_gps(jump.skipped_t_gps_ns),
+            )
+
     # -- observations -------------------------------------------------------------------------
+
+    def _epoch(self, week: int, tow_ns: int, frame: Frame) -> None:
+        """The session's clock takes an epoch within the ranges (week 0: no time yet). When it
+        shows the epoch taken before it to be the odd one, that one is counted implausible now
+        (it was passed on; a reader that collects epochs leaves out ``clock.refuted``)."""
+        if week != 0:
+            refuted, jumps = len(self.clock.refuted), len(self.clock.jumps)
+            why = self.clock.epoch(week * NS_PER_WEEK + tow_ns, frame.t_host_ns)
+            if why is not None:
+                raise ImplausibleTime(why)
+            for _ in range(len(self.clock.refuted) - refuted):
+                name, offset = self._taken.pop()
+                self._implausible[name] += 1
+                self.refuted_offsets.append(offset)
+                log.warning("implausible %s at offset %d, found by the epochs after it: %s",
+                            name, offset, P.ODD_EPOCH)
+            if len(self.clock.jumps) != jumps:
+                self._taken.clear()
+                self._log_jump()
+            self._taken.append((_NAMES[frame.key], frame.offset))
 
     def _rxm_raw(self, frame: Frame) -> RawEpoch:
         p = frame.payload
-        _need("RXM-RAW", p, 8)
-        itow, week, n, _ = _RAW_HEAD.unpack_from(p)
-        end = 8 + 24 * n
-        _need("RXM-RAW", p, end, n, "satellites")
+        week, tow_ns, rows = _raw_epoch_rows(p)
+        self._epoch(week, tow_ns, frame)
         # the hot loop (one turn per satellite): everything it uses bound locally
         svid_map, half_of, slip_of, sat_obs = _SVID, _LLI_HALF_OF, _LLI_SLIP_OF, _sat_obs
         sats: list[SatObs] = []
@@ -272,18 +364,17 @@ class Decoder:
         # the phase rule (rules/phase.py): slips carried over blank phase; a week-0 message (cold
         # start) keeps the receiver's bits and does not advance the rule's state
         rule = self._raw_phase.lli if week != 0 else _receiver_lli
-        for cp, pr, do, svid, qi, cno, lli in _RAW_SV.iter_unpack(p[8:end]):
+        for cp, pr, do, svid, qi, cno, lli in rows:
             gnss, sv = svid_map[svid]
             lli = rule(svid, lli, cp)
             append(sat_obs(gnss, sv, cp, pr, do, cno, qi, lli, half_of[lli], slip_of[lli]))
-        return _raw_epoch(week, itow * 1_000_000, tuple(sats), "RXM-RAW", frame.t_host_ns)
+        return _raw_epoch(week, tow_ns, tuple(sats), "RXM-RAW", frame.t_host_ns)
 
     def _rxm_rawx(self, frame: Frame) -> RawEpoch:
         p = frame.payload
-        _need("RXM-RAWX", p, 16)
-        rcv_tow, week, leap_s, n, rec_stat, _ = _RAWX_HEAD.unpack_from(p)
-        end = 16 + 32 * n
-        _need("RXM-RAWX", p, end, n, "measurements")
+        week, tow_ns, rows = _rawx_epoch_rows(p)
+        self._epoch(week, tow_ns, frame)
+        _, _, leap_s, n, rec_stat, _ = _RAWX_HEAD.unpack_from(p)
         leap_valid = bool(rec_stat & _LEAP_VALID)
         if leap_valid:
             self.leap_s = leap_s
@@ -291,7 +382,7 @@ class Decoder:
         max_sig = -1
         sats = []
         for (pr, cp, do, gnss, sv, sig, freq, lock_ms, cno, pr_std, cp_std, do_std, trk,
-             _) in _RAWX_MEAS.iter_unpack(p[16:end]):
+             _) in rows:
             half_sub = bool(trk & _HALF_SUB)
             if week != 0:
                 # The phase rule (rules/phase.py): usable phase, slip and half cycle, as in RINEX.
@@ -310,7 +401,7 @@ class Decoder:
             rule.end_message(max_sig)
         return _raw_epoch(
             week,
-            round(rcv_tow * 1e9),
+            tow_ns,
             tuple(sats),
             "RXM-RAWX",
             frame.t_host_ns,
@@ -324,10 +415,20 @@ class Decoder:
         p = frame.payload
         _need("TIM-TM2", p, _TM2.size)
         ch, flags, count, wn_r, wn_f, ms_r, sub_r, ms_f, sub_f, acc = _TM2.unpack_from(p)
-        return timemark_from_fields(
+        why = P.edge_range_problem(wn_r, ms_r, sub_r) or P.edge_range_problem(wn_f, ms_f, sub_f)
+        if why is not None:
+            raise ImplausibleTime(why)
+        tm = timemark_from_fields(
             ch, flags, count, wn_r, ms_r, sub_r, wn_f, ms_f, sub_f, acc, leap_s=self.leap_s,
             t_host_ns=frame.t_host_ns,
         )
+        why = self.clock.mark(
+            ((tm.falling_t_gps_ns, tm.new_falling), (tm.rising_t_gps_ns, tm.new_rising)),
+            frame.t_host_ns,
+        )
+        if why is not None:
+            raise ImplausibleTime(why)
+        return tm
 
     # -- navigation data ----------------------------------------------------------------------
 
@@ -365,6 +466,10 @@ class Decoder:
         _need("NAV-SOL", p, _SOL.size)
         (itow, ftow, week, gps_fix, flags, x, y, z, p_acc, _, _, _, _, _, _, num_sv,
          _) = _SOL.unpack_from(p)  # fmt: skip
+        why = self.clock.fix(itow, ftow, week if flags & _SOL_WKN_SET else None,
+                             frame.t_host_ns)
+        if why is not None:
+            raise ImplausibleTime(why)
         ecef = (x / 100.0, y / 100.0, z / 100.0)
         has_pos = any(ecef)
         lat = lon = h = None
@@ -387,11 +492,17 @@ class Decoder:
             t_host_ns=frame.t_host_ns,
         )
 
-    @staticmethod
+    def _tow_ms(self, itow: int, frame: Frame) -> None:
+        """A fix or tracking message's time of week: in range, and near the session's clock."""
+        why = self.clock.fix(itow, 0, None, frame.t_host_ns)
+        if why is not None:
+            raise ImplausibleTime(why)
+
     def _llh_solution(
-        source: str, frame: Frame, itow: int, lat_raw: int, lon_raw: int, height_mm: int,
+        self, source: str, frame: Frame, itow: int, lat_raw: int, lon_raw: int, height_mm: int,
         h_acc: int, v_acc: int, fix_type: int, fix_ok: bool, num_sv: int | None,
     ) -> NavSolution:
+        self._tow_ms(itow, frame)
         lat = lat_raw / _LAT_DIVISOR
         lon = lon_raw / _LAT_DIVISOR
         h = height_mm / 1000.0
@@ -440,6 +551,7 @@ class Decoder:
         itow, n, _, _ = _SVINFO_HEAD.unpack_from(p)
         end = 8 + 12 * n
         _need("NAV-SVINFO", p, end, n, "channels")
+        self._tow_ms(itow, frame)
         svid_map = _SVID
         sats = []
         for _, svid, flags, quality, cno, elev, azim, _ in _SVINFO_SAT.iter_unpack(p[8:end]):
@@ -456,6 +568,7 @@ class Decoder:
         itow, _, n = _SAT_HEAD.unpack_from(p)
         end = 8 + 12 * n
         _need("NAV-SAT", p, end, n, "satellites")
+        self._tow_ms(itow, frame)
         sats = [
             _sv_info_sat(
                 gnss, sv, cno, elev, azim, bool(flags & _SAT_USED), flags & _SAT_QUALITY,
@@ -466,24 +579,48 @@ class Decoder:
         return _sv_info("NAV-SAT", itow * 1_000_000, tuple(sats), frame.t_host_ns)
 
 
-def epoch_time_gps_ns(frame: Frame) -> int | None:
-    """The GPS time of a measurement epoch (RXM-RAW / RXM-RAWX) with a week, read from its
-    header alone (the :class:`RawEpoch` the decoder makes of it has this ``t_gps_ns``);
-    ``None`` for any other frame, a week-0 epoch or a header too short to hold it.
+_PR_MAX, _CP_MAX, _DO_MAX = P.PR_MAX_M, P.CP_MAX_CYC, P.DO_MAX_HZ
 
-    For timing a stream without reception times before its frames are decoded
-    (:class:`~groundstation.live.data_time.DataClock`).
+
+def _raw_epoch_rows(p: bytes) -> tuple[int, int, list[tuple[Any, ...]]]:
+    """An RXM-RAW payload's week, time of week (ns) and satellite rows, the receiver's ranges
+    checked (:mod:`groundstation.rules.plausible`, rule 1).
+
+    Raises:
+        PayloadError: too short for its satellites.
+        ImplausibleTime: out of the ranges, or a value that is not a finite number.
     """
-    key = (frame.cls, frame.id)
-    p = frame.payload
-    if key == RXM_RAW and len(p) >= _RAW_HEAD.size:
-        itow, week, n, _ = _RAW_HEAD.unpack_from(p)
-        size, tow_ns = _RAW_HEAD.size + _RAW_SV.size * n, itow * 1_000_000
-    elif key == RXM_RAWX and len(p) >= _RAWX_HEAD.size:
-        rcv_tow, week, _, n, _, _ = _RAWX_HEAD.unpack_from(p)
-        size, tow_ns = _RAWX_HEAD.size + _RAWX_MEAS.size * n, round(rcv_tow * 1e9)
-    else:
-        return None
-    if week <= 0 or len(p) < size:  # a week-0 epoch, or one the decoder cannot decode
-        return None
-    return int(week) * NS_PER_WEEK + int(tow_ns)
+    _need("RXM-RAW", p, 8)
+    itow, week, n, _ = _RAW_HEAD.unpack_from(p)
+    end = 8 + 24 * n
+    _need("RXM-RAW", p, end, n, "satellites")
+    why = P.tow_ms_problem(itow) or (P.week_problem(week) if week != 0 else None)
+    if why is not None:
+        raise ImplausibleTime(why)
+    rows = list(_RAW_SV.iter_unpack(p[8:end]))
+    for r in rows:  # rules.plausible.measurement_ok, inlined (a NaN fails)
+        if not (-_CP_MAX <= r[0] <= _CP_MAX and -_PR_MAX <= r[1] <= _PR_MAX
+                and -_DO_MAX <= r[2] <= _DO_MAX):
+            raise ImplausibleTime(
+                f"a measurement no receiver makes (pr {r[1]}, cp {r[0]}, do {r[2]})")
+    return week, itow * 1_000_000, rows
+
+
+def _rawx_epoch_rows(p: bytes) -> tuple[int, int, list[tuple[Any, ...]]]:
+    """:func:`_raw_epoch_rows` for RXM-RAWX (``rcvTow`` in s, rounded to the ns)."""
+    _need("RXM-RAWX", p, 16)
+    rcv_tow, week, leap_s, n, rec_stat, _ = _RAWX_HEAD.unpack_from(p)
+    end = 16 + 32 * n
+    _need("RXM-RAWX", p, end, n, "measurements")
+    why = P.tow_s_problem(rcv_tow) or (P.week_problem(week) if week != 0 else None)
+    if why is None and week != 0 and rec_stat & _LEAP_VALID:
+        why = P.leap_problem(leap_s, week * NS_PER_WEEK + round(rcv_tow * 1e9))
+    if why is not None:
+        raise ImplausibleTime(why)
+    rows = list(_RAWX_MEAS.iter_unpack(p[16:end]))
+    for r in rows:  # rules.plausible.measurement_ok, inlined
+        if not (-_PR_MAX <= r[0] <= _PR_MAX and -_CP_MAX <= r[1] <= _CP_MAX
+                and -_DO_MAX <= r[2] <= _DO_MAX):
+            raise ImplausibleTime(
+                f"a measurement no receiver makes (pr {r[0]}, cp {r[1]}, do {r[2]})")
+    return week, round(rcv_tow * 1e9), rows

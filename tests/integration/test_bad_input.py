@@ -191,6 +191,15 @@ CASES: list[Case] = [
     c("solve-flight-dir", "solve adir --positions x.pos --out o", 2, "is a directory"),
     c("solve-flight-corrupt-gzip", "solve corrupt.ubx.gz --positions x.pos --out o", 2,
       "corrupt gzip"),
+    # a symbolic link loop (issue 27: an internal error, exit 1)
+    c("solve-flight-symlink-loop", "solve loop1 --positions x.pos --out o", 2,
+      "symbolic link loop"),
+    c("solve-flight-symlink-loop-receiver", "solve loop1 --source receiver --out o", 2,
+      "symbolic link loop"),
+    c("solve-out-symlink-loop", "solve good.ubx --positions x.pos --out loop1", 2,
+      "symbolic link loop"),
+    c("rinex-symlink-loop", "rinex loop1 -o out", 2, "symbolic links"),
+    c("inspect-symlink-loop", "inspect loop1", 2, "symbolic links"),
     c("solve-positions-fifo", "solve good.ubx --positions fifo --out o", 2, "not a regular"),
     c("solve-positions-corrupt-gzip", "solve good.ubx --positions corrupt.pos.gz --out o", 2,
       "damaged gzip"),
@@ -275,6 +284,8 @@ def _workspace(root: Path) -> None:
     (root / "corrupt.pos.gz").write_bytes(bad)
     os.mkfifo(root / "fifo")
     (root / "fifo-link.ubx").symlink_to(root / "fifo")
+    (root / "loop1").symlink_to(root / "loop2")
+    (root / "loop2").symlink_to(root / "loop1")
     (root / "adir").mkdir()
     (root / "X").mkdir()
     (root / "X" / "a.jpg").write_bytes(bytes.fromhex("ffd8ffd9"))  # --photos X has a JPEG

@@ -90,7 +90,7 @@ class Offline:
 def run_offline(data: bytes) -> Offline:
     """The RINEX conversion's path, and the operator's events read off its LLI."""
     index = index_frames(data)
-    block, obs, _ = observations_of(data, index)
+    block, obs, _, times = observations_of(data, index)
     v1 = block.source == "RXM-RAWX" and bool((block.header["version"] >= 1).any())
     keys = list(zip(obs.sys.tolist(), obs.prn.tolist(), obs.code.tolist(), strict=True))
     by_epoch: dict[int, list[int]] = {}
@@ -125,7 +125,7 @@ def run_offline(data: bytes) -> Offline:
                 absent[key] += 1
                 if absent[key] > SIGNAL_LOST_AFTER_EPOCHS:
                     del absent[key]
-    marks, tracker = track_marks(time_marks_of(data, index, block))
+    marks, tracker = track_marks(time_marks_of(data, index, block, times))
     return Offline(phase, set(keys), v1, len(marks), sum(m.lost_before for m in marks),
                    tracker.duplicates)
 

@@ -1,5 +1,6 @@
-"""The data's own clock (live/data_time.py): a `.ubx` stream timed from the pipeline's own frames,
-and the one framing pass of `run --file X.ubx` (the file source no longer frames it itself)."""
+"""The data's own clock (live/data_time.py): a `.ubx` stream timed from the epochs the pipeline
+decoded, and the one framing pass of `run --file X.ubx` (the file source no longer frames it
+itself); an epoch the decoder found implausible does not move it."""
 
 from __future__ import annotations
 
@@ -15,9 +16,9 @@ from groundstation.live.daemon import Pipeline
 from groundstation.live.data_time import DATA_TIME_WAIT_BYTES, UNTIMED, DataClock
 from groundstation.live.sources import FileSource
 from groundstation.pacing import link_time_ns
-from groundstation.records import RawChunk, RawEpoch
+from groundstation.records import Frame, Item, RawChunk, RawEpoch, UndecodedFrame
 from groundstation.ubx import framer as framer_module
-from groundstation.ubx.decode import Decoder, epoch_time_gps_ns
+from groundstation.ubx.decode import Decoder
 from groundstation.ubx.framer import UbxFramer
 
 SATS = [(3, 0), (7, 0)]
@@ -27,25 +28,45 @@ def utc(tow_ms: int) -> int:
     return gps_to_unix_ns(t_gps_ns(WEEK, tow_ms))
 
 
-def test_header_time_is_the_decoded_epochs_time() -> None:
-    frames = UbxFramer().feed(rxm_raw(WEEK, TOW0_MS + 200, SATS) + rxm_raw(0, 5, SATS), 0)
-    assert [epoch_time_gps_ns(f) for f in frames] == [t_gps_ns(WEEK, TOW0_MS + 200), None]
-    rec = Decoder().decode(frames[0])
-    assert isinstance(rec, RawEpoch) and rec.t_gps_ns == epoch_time_gps_ns(frames[0])
+class Decoded:
+    """The pipeline's first steps: frame and decode, records out (an undecoded frame left out)."""
+
+    def __init__(self) -> None:
+        self.framer, self.decoder = UbxFramer(), Decoder()
+
+    def __call__(self, data: bytes) -> list[Item]:
+        out: list[Item] = []
+        for f in self.framer.feed(data, UNTIMED):
+            rec = self.decoder.decode(f)
+            if not isinstance(rec, (Frame, UndecodedFrame)):
+                out.append(rec)
+        return out
 
 
 def test_chunks_before_the_first_epoch_take_its_time_and_time_never_goes_back() -> None:
-    framer, clock = UbxFramer(), DataClock(1_000, 11_520)
+    decoded, clock = Decoded(), DataClock(1_000, 11_520)
     head = b"\x00" * 100
-    assert clock.stamp(head, framer.feed(head, UNTIMED)) == []  # held
+    assert clock.stamp(head, decoded(head)) == []  # held
     e1 = rxm_raw(WEEK, TOW0_MS + 1000, SATS)
-    out = clock.stamp(e1, framer.feed(e1, UNTIMED))
+    out = clock.stamp(e1, decoded(e1))
     assert [(c, t) for c, _, t in out] == [(head, utc(TOW0_MS + 1000)), (e1, utc(TOW0_MS + 1000))]
-    assert [f.t_host_ns for f in out[1][1]] == [utc(TOW0_MS + 1000)]  # frames restamped
-    older = rxm_raw(WEEK, TOW0_MS, SATS)  # an epoch out of order does not move time back
-    ((_, frames, t),) = clock.stamp(older, framer.feed(older, UNTIMED))
-    assert t == utc(TOW0_MS + 1000) and frames[0].t_host_ns == t
+    (rec,) = out[1][1]
+    assert isinstance(rec, RawEpoch) and rec.t_host_ns == utc(TOW0_MS + 1000)  # restamped
+    older = rxm_raw(WEEK, TOW0_MS + 800, SATS)  # an epoch out of order does not move time back
+    ((_, items, t),) = clock.stamp(older, decoded(older))
+    assert t == utc(TOW0_MS + 1000) and isinstance(items[0], RawEpoch)
+    assert items[0].t_host_ns == t
     assert clock.now_ns() == utc(TOW0_MS + 1000)
+
+
+def test_an_epoch_the_decoder_refused_does_not_move_the_data_clock() -> None:
+    decoded, clock = Decoded(), DataClock(1_000, 11_520)
+    e1 = rxm_raw(WEEK, TOW0_MS, SATS)
+    assert [t for _, _, t in clock.stamp(e1, decoded(e1))] == [utc(TOW0_MS)]
+    ahead = rxm_raw(WEEK + 1, TOW0_MS + 200, SATS)  # a week ahead: implausible
+    assert [t for _, _, t in clock.stamp(ahead, decoded(ahead))] == [utc(TOW0_MS)]
+    e2 = rxm_raw(WEEK, TOW0_MS + 200, SATS)
+    assert [t for _, _, t in clock.stamp(e2, decoded(e2))] == [utc(TOW0_MS + 200)]
 
 
 def test_a_stream_without_epochs_is_timed_as_a_link_would_deliver_it() -> None:
@@ -59,7 +80,7 @@ def test_a_stream_without_epochs_is_timed_as_a_link_would_deliver_it() -> None:
         link_time_ns(5_000, 2 * len(block), 1_000.0)]
     # once timed by the link, a later epoch does not change the rule
     late = rxm_raw(WEEK, TOW0_MS, SATS)
-    ((_, _, t),) = clock.stamp(late, UbxFramer().feed(late, UNTIMED))
+    ((_, _, t),) = clock.stamp(late, Decoded()(late))
     assert t == link_time_ns(5_000, 2 * len(block) + 10, 1_000.0)
 
 

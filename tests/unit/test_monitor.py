@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import pytest
 
+from groundstation import events as kinds
 from groundstation.gpstime import NS_PER_S, NS_PER_WEEK
 from groundstation.live.monitor import Monitor, MonitorThresholds
 from groundstation.records import Event, RawEpoch, SatObs, Status, TimeMark
@@ -284,3 +285,23 @@ def test_missed_marks_alert_held_until_acknowledged() -> None:
     ev = run.m.observe(ack, run.host(t0 + 3601 * NS_PER_S))
     assert [e.message for e in ev] == ["OK: 1 missed time mark(s) acknowledged by dashboard"]
     assert not any("mark" in a for a in run.m.status(run.host(t0 + 3601 * NS_PER_S)).alerts)
+
+
+def test_replay_ticks_a_long_silence_only_for_the_monitors_horizon() -> None:
+    """Replay (data clock): an hour without data is ticked every 100 ms for the longest alert
+    threshold or hold, then once at its end; ticking all of it (a week: 6 million ticks) held the
+    daemon for minutes and took gigabytes (issue 27)."""
+    from groundstation.live.monitor_sink import SILENCE_TICKED_MIN_S, MonitorSink
+    from groundstation.records import Item, RawChunk
+
+    sink = MonitorSink(Monitor("m"), data_clock=True)
+    published: list[Item] = []
+    t0 = 1_700_000_000 * 10**9
+    sink.steps([RawChunk(b"x" * 64, t0)], published.append)
+    sink.steps([RawChunk(b"x" * 64, t0 + 3600 * 10**9)], published.append)
+    statuses = [s for s in published if isinstance(s, Status)]
+    alerts = [e for e in published if isinstance(e, Event) and e.kind == kinds.ALERT_RAISED]
+    assert SILENCE_TICKED_MIN_S <= len(statuses) <= 100
+    assert sink.ticks_skipped > 35_000
+    assert statuses[-1].t_host_ns >= t0 + 3599 * 10**9  # the last tick before the data
+    assert {e.data.get("alert") for e in alerts} >= {kinds.ALERT_NO_DATA}

@@ -1,7 +1,9 @@
 """UBX recording -> RINEX observation and navigation files and the time-mark table.
 
 Every falling edge (or the chosen edge) becomes an event epoch, frames after damage are
-recovered, and AID-EPH gives a navigation file.
+recovered, and AID-EPH gives a navigation file. Epochs, marks and fixes whose time cannot belong
+to the session (:mod:`groundstation.rules.plausible`: the decoder's verdicts, in bulk) are left
+out, counted (``RinexResult.implausible``) and logged.
 """
 
 from __future__ import annotations
@@ -32,19 +34,24 @@ from groundstation.offline.rinex.observations import (
 from groundstation.records import TimeMark
 from groundstation.rules import epochs as epochs_rule
 from groundstation.rules import marks as marks_mod
+from groundstation.rules import plausible
 from groundstation.storage.reading import Recording
 from groundstation.ubx import layouts as L
 from groundstation.ubx.fastraw import (
     FrameIndex,
     RawBlock,
+    SessionTimes,
     decode_raw,
     decode_rawx,
     decode_timtm2,
-    index_chunks,
+    index_timed_chunks,
+    plausible_epochs,
 )
 from groundstation.ubx.timemark import timemark_from_fields
 
 log = logging.getLogger("groundstation.rinex")
+IMPLAUSIBLE_LOGGED = 20
+"""Implausible messages of one type logged one by one; after that one line per 1000."""
 
 # -- the whole conversion ---------------------------------------------------------------------
 
@@ -77,6 +84,8 @@ class RinexResult:
     frames: int
     rejected_messages: int
     nav_parity_errors: int
+    implausible: int = 0
+    """Epochs and time marks left out: their time cannot belong to the session."""
     skipped_systems: tuple[str, ...] = ()
     notes: tuple[str, ...] = field(default_factory=tuple)
     other_ephemerides: tuple[tuple[str, int], ...] = ()
@@ -98,42 +107,63 @@ def read_recording(path: Path, progress: ProgressFn | None = None) -> bytes:
 
 
 def read_frames(path: Path, progress: ProgressFn | None = None) -> tuple[bytes, FrameIndex]:
-    """The valid UBX frames of a recording (a session's later parts too) and their index,
-    read streaming: memory holds one block of the input plus the frames, never the whole
-    input (a 2 GB log with nothing in it costs one block)."""
+    """The valid UBX frames of a recording (a session's later parts too) and their index (with
+    each frame's host time where the recording has them: MCAP), read streaming: memory holds
+    one block of the input plus the frames, never the whole input (a 2 GB log with nothing in
+    it costs one block)."""
     recording = Recording(path)
 
     def on_block() -> None:
         if progress is not None:
             progress("read", recording.progress)
 
-    data, index = index_chunks(
-        (chunk for chunk, _t in recording.chunks(chunk_bytes=1 << 20)), on_block=on_block
-    )
+    data, index = index_timed_chunks(recording.chunks(chunk_bytes=1 << 20), on_block=on_block)
     on_block()
     return data, index
 
 
 def _time_marks(
-    data: bytes, index: FrameIndex, leap_by_offset: list[tuple[int, int]]
-) -> list[TimeMark]:
+    data: bytes, index: FrameIndex, leap_by_offset: list[tuple[int, int]], times: SessionTimes
+) -> tuple[list[TimeMark], int]:
     """TIM-TM2 records, UTC-based edges put on GPS time with the leap seconds the receiver
-    declared last before each record (as :class:`~groundstation.ubx.decode.Decoder` does)."""
+    declared last before each record (as :class:`~groundstation.ubx.decode.Decoder` does), and
+    how many were left out because their times cannot belong to the session (as the decoder
+    leaves them out)."""
     sel, rows = decode_timtm2(data, index)
     offsets = [o for o, _ in leap_by_offset]
     out: list[TimeMark] = []
+    implausible = 0
     for i, r in zip(sel.tolist(), rows.tolist(), strict=True):
         ch, flags, count, wn_r, wn_f, ms_r, sub_r, ms_f, sub_f, acc = r
-        j = bisect.bisect_right(offsets, int(index.start[i])) - 1
-        leap = leap_by_offset[j][1] if j >= 0 else None
-        out.append(timemark_from_fields(
-            ch, flags, count, wn_r, ms_r, sub_r, wn_f, ms_f, sub_f, acc, leap_s=leap, t_host_ns=0
-        ))
-    return out
+        why = (plausible.edge_range_problem(wn_r, ms_r, sub_r)
+               or plausible.edge_range_problem(wn_f, ms_f, sub_f))
+        if why is None:
+            j = bisect.bisect_right(offsets, int(index.start[i])) - 1
+            leap = leap_by_offset[j][1] if j >= 0 else None
+            tm = timemark_from_fields(
+                ch, flags, count, wn_r, ms_r, sub_r, wn_f, ms_f, sub_f, acc, leap_s=leap,
+                t_host_ns=0,
+            )
+            why = times.mark_problem(
+                i, ((tm.falling_t_gps_ns, tm.new_falling), (tm.rising_t_gps_ns, tm.new_rising)))
+        if why is not None:
+            implausible += 1
+            _log_implausible("TIM-TM2", implausible, why)
+            continue
+        out.append(tm)
+    return out, implausible
 
 
-def _approx_position(data: bytes, index: FrameIndex) -> tuple[float, float, float] | None:
-    """The receiver's first good 3D fix (NAV-SOL or NAV-PVT), ECEF metres."""
+def _log_implausible(name: str, n: int, why: str) -> None:
+    if n <= IMPLAUSIBLE_LOGGED or n % 1000 == 0:
+        log.warning("implausible %s left out (%d so far): %s", name, n, why)
+
+
+def _approx_position(
+    data: bytes, index: FrameIndex, times: SessionTimes
+) -> tuple[float, float, float] | None:
+    """The receiver's first good 3D fix (NAV-SOL or NAV-PVT) whose time can belong to the
+    session, ECEF metres."""
     import struct
 
     from groundstation.geodesy import llh_to_ecef
@@ -144,14 +174,17 @@ def _approx_position(data: bytes, index: FrameIndex) -> tuple[float, float, floa
             s = int(index.start[i]) + 6
             p = bytes(mv[s : s + int(index.length[i])])
             if key == (0x01, 0x06) and len(p) >= 52:
-                fix, flags = p[10], p[11]
+                itow, ftow, week, fix, flags = struct.unpack_from("<IihBB", p, 0)
                 x, y, z = struct.unpack_from("<iii", p, 12)
-                if fix >= 3 and flags & 1 and (x or y or z):
+                if (fix >= 3 and flags & 1 and (x or y or z) and times.fix_problem(
+                        i, itow, ftow, week if flags & 0x04 else None) is None):
                     return x / 100.0, y / 100.0, z / 100.0
             elif key == (0x01, 0x07) and len(p) >= 92:
+                (itow,) = struct.unpack_from("<I", p, 0)
                 fix, flags = p[20], p[21]
                 lon, lat, h_mm = struct.unpack_from("<iii", p, 24)
-                if fix >= 3 and flags & 1:
+                if (fix >= 3 and flags & 1 and abs(lat) <= 900_000_000
+                        and times.fix_problem(i, itow, 0, None) is None):
                     return llh_to_ecef(lat * 1e-7, lon * 1e-7, h_mm / 1000.0)
     return None
 
@@ -174,15 +207,24 @@ def _receiver(data: bytes, index: FrameIndex, source: str) -> tuple[str, str]:
     return family.get(source, "u-blox"), ""
 
 
-def observations_of(data: bytes, index: FrameIndex) -> tuple[RawBlock, ObsSet, int]:
+def observations_of(
+    data: bytes, index: FrameIndex, now_ns: int | None = None
+) -> tuple[RawBlock, ObsSet, int, SessionTimes]:
     """The raw-measurement messages a recording is converted from (RXM-RAWX when it has at
-    least as many as RXM-RAW), their observations, and how many messages were rejected."""
-    rawx = decode_rawx(data, index)
-    raw = decode_raw(data, index)
+    least as many as RXM-RAW), their observations, how many messages were rejected (too short
+    for their layout), and the session's times (which epochs, marks and fixes can belong to
+    the session: :func:`~groundstation.ubx.fastraw.plausible_epochs`; the implausible epochs
+    are not in the block)."""
+    rawx, raw, times = plausible_epochs(
+        index, decode_rawx(data, index), decode_raw(data, index), now_ns)
     rejected = int(rawx.rejected.size + raw.rejected.size)
+    for block in (rawx, raw):
+        for n, k in enumerate(block.implausible.tolist(), 1):
+            _log_implausible(block.source, n, times.verdicts.reasons.get(
+                int(np.searchsorted(times.frame, k)), "?"))
     if rawx.frame.size >= raw.frame.size:
-        return rawx, obs_from_rawx(rawx), rejected
-    return raw, obs_from_raw(raw), rejected
+        return rawx, obs_from_rawx(rawx), rejected, times
+    return raw, obs_from_raw(raw), rejected, times
 
 
 def _leap_by_offset(index: FrameIndex, block: RawBlock) -> list[tuple[int, int]]:
@@ -199,9 +241,12 @@ def _leap_by_offset(index: FrameIndex, block: RawBlock) -> list[tuple[int, int]]
     )
 
 
-def time_marks_of(data: bytes, index: FrameIndex, block: RawBlock) -> list[TimeMark]:
-    """The TIM-TM2 records of a recording, on GPS time, as the conversion reads them."""
-    return _time_marks(data, index, _leap_by_offset(index, block))
+def time_marks_of(
+    data: bytes, index: FrameIndex, block: RawBlock, times: SessionTimes
+) -> list[TimeMark]:
+    """The TIM-TM2 records of a recording, on GPS time, as the conversion reads them (those
+    whose times can belong to the session)."""
+    return _time_marks(data, index, _leap_by_offset(index, block), times)[0]
 
 
 ObsHook = Callable[[ObsSet, Sequence[BroadcastEphemeris], tuple[float, float, float]], ObsSet]
@@ -242,20 +287,21 @@ def convert(
     data, index = read_frames(src, progress)
     if progress is not None:
         progress("index", 1.0)
-    block, obs, rejected = observations_of(data, index)
+    block, obs, rejected, times = observations_of(data, index)
     if obs.t_gps_ns.size == 0:
-        return _convert_nav_only(src, data, index, out, stem, opt)
+        return _convert_nav_only(src, data, index, out, stem, opt, times)
     leap_by_offset = _leap_by_offset(index, block)
     leap = leap_by_offset[-1][1] if leap_by_offset else gpstime.leap_seconds_at_gps(
         int(obs.t_gps_ns[0]))
-    tms = _time_marks(data, index, leap_by_offset)
+    tms, marks_implausible = _time_marks(data, index, leap_by_offset, times)
     mark_list = marks_mod.build_marks(tms)
     events = marks_mod.event_times_ns(mark_list, opt.marks, opt.shutter_delay_ns)
     rec_type, rec_vers = _receiver(data, index, obs.source)
-    approx = _approx_position(data, index) or (0.0, 0.0, 0.0)
+    approx = _approx_position(data, index, times) or (0.0, 0.0, 0.0)
     week_hint = int(obs.t_gps_ns[0] // gpstime.NS_PER_WEEK)
     nav = collect_ephemerides(data, index, week_hint)
-    multi = collect_multi(data, index, receiver_times(data, index), int(obs.t_gps_ns[0]))
+    multi = collect_multi(data, index, receiver_times(data, index, times), int(obs.t_gps_ns[0]))
+    implausible = times.implausible + marks_implausible
     if obs_hook is not None:
         obs = obs_hook(obs, nav.ephemerides, approx)
     epochs_sorted = np.sort(obs.t_gps_ns).tolist()
@@ -305,6 +351,10 @@ def convert(
         notes.append("no GPS orbit data (broadcast ephemerides) in the recording: empty nav file")
     if opt.version != "3.04" and _other_counts(multi):
         notes.append("RINEX 2.11 navigation file holds GPS only: GLONASS/Galileo left out")
+    if times.verdicts.jumps:
+        notes.append(f"the receiver's time jumped {len(times.verdicts.jumps)} time(s) and the "
+                     "next epoch confirmed it: the epoch where each jump was first seen is "
+                     "left out")
     return RinexResult(
         obs_path=obs_path,
         nav_path=nav_path,
@@ -320,6 +370,7 @@ def convert(
         frames=len(index),
         rejected_messages=rejected,
         nav_parity_errors=nav.parity_errors,
+        implausible=implausible,
         skipped_systems=wr.skipped_systems,
         notes=tuple(notes),
         other_ephemerides=_other_counts(multi),
@@ -334,14 +385,15 @@ def _other_counts(multi: MultiNav) -> tuple[tuple[str, int], ...]:
 
 
 def _convert_nav_only(
-    src: Path, data: bytes, index: FrameIndex, out: Path, stem: str, opt: RinexOptions
+    src: Path, data: bytes, index: FrameIndex, out: Path, stem: str, opt: RinexOptions,
+    session: SessionTimes,
 ) -> RinexResult:
     """A recording without raw measurements: the navigation file alone (no obs, no marks).
 
     Raises:
         InputError: no navigation data either.
     """
-    times = receiver_times(data, index)
+    times = receiver_times(data, index, session)
     week_hint = (times[0][1] // gpstime.NS_PER_WEEK) if times else today_gps_week()
     nav = collect_ephemerides(data, index, week_hint)
     # GLONASS needs the day: a receiver time if any, else the first GPS ephemeris's.
@@ -374,6 +426,7 @@ def _convert_nav_only(
         frames=len(index),
         rejected_messages=0,
         nav_parity_errors=nav.parity_errors,
+        implausible=session.implausible,
         notes=("no raw measurements in the recording: navigation file only",),
         other_ephemerides=others,
         obs_written=False,
