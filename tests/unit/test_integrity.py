@@ -274,3 +274,37 @@ def test_two_floats_that_disagree_widen_the_sigma_by_their_difference() -> None:
     assert np.all(g.grade == gr.FLOAT)
     up = np.abs(rot @ np.array([0.0, 0.0, 0.5]))  # how much of the difference is "up"
     assert np.all(sd[:, 2] >= 0.99 * up[2])
+
+
+def test_an_arc_the_engine_contradicts_takes_away_the_standing_of_every_epoch_on_it() -> None:
+    n = 10
+    truth = np.tile(X0, (n, 1))
+    ours_x = truth.copy()
+    ours_x[:, 0] += 0.08  # our solution rests on one wrong arc for the whole stretch
+    ours = _cand(ours_x, 0.005, 1)
+    checked = truth.copy()
+    fq = np.array([1] * 5 + [2] * 5)  # the engine fixed (both ways) only the first half
+    eng = gr.Candidate(checked, np.stack([np.eye(3) * (0.005 if q == 1 else 0.5) ** 2
+                                          for q in fq]), fq)
+    arcs = np.full((n, 8), -1)
+    arcs[:, :6] = [3, 4, 5, 6, 7, 9]
+    plain = gr.grade(np.ones(n, bool), ours, eng, eng, eng)
+    assert np.all(plain.grade[5:] == gr.FIXED)  # without the arcs, the rest would stand
+    g = gr.grade(np.ones(n, bool), ours, eng, eng, eng, ours_arcs=arcs)
+    assert np.all(g.grade[:5] == gr.FLOAT)
+    assert not np.any(g.grade[5:] == gr.FIXED)
+
+
+def test_a_demoted_fix_keeps_no_fix_sigma() -> None:
+    n = 3
+    truth = np.tile(X0, (n, 1))
+    wrong = truth.copy()
+    wrong[:, 0] += 0.2  # forward fixed 20 cm off
+    fwd = _cand(wrong, 0.005, 1)
+    bwd = _cand(truth + 0.02, 0.5, 2)  # backward float, too loose to confirm anything
+    merged = _cand(wrong, 0.005, 1)
+    g = gr.grade(np.zeros(n, bool), _cand(truth, 1.0, 0), fwd, bwd, merged)
+    assert np.all(g.grade == gr.FLOAT)
+    err = np.linalg.norm(g.x - truth, axis=1)
+    sd = np.sqrt(np.trace(g.cov, axis1=1, axis2=2) / 3.0)
+    assert np.all(err <= 3 * sd)

@@ -14,7 +14,7 @@ The package turns a rover's conditioned observations and its base's into positio
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import numpy.typing as npt
@@ -66,6 +66,11 @@ class Resolution:
     code_inflation: float
     misfits: tuple[int, ...] = ()
     phase_factor: float = 1.0
+    x0: FloatArray | None = None
+    """The positions the solution is linearised at."""
+    left_out: tuple[int, ...] = ()
+    """Arcs left out of the fixing because a checked fix of the engine contradicted the
+    solution they gave (:func:`without`)."""
 
 
 def resolve(tab: PhaseTable, x0: FloatArray) -> Resolution:
@@ -97,7 +102,16 @@ def resolve(tab: PhaseTable, x0: FloatArray) -> Resolution:
     if phase_fac > 1.0:
         system = normal.epoch_system(tab, x, code_infl, np.sqrt(phase_fac))
         fl = normal.float_arcs(tab, system)
-    usable = fl.informed.copy()
+    lat, sol, suspects = _fix(tab, x, fl, fl.informed.copy(), code_infl, phase_fac)
+    return Resolution(tab, fl, lat, sol, tuple(found_all), code_infl, tuple(suspects),
+                      phase_fac, x)
+
+
+def _fix(tab: PhaseTable, x: FloatArray, fl: normal.FloatArcs, usable: npt.NDArray[np.bool_],
+         code_infl: float, phase_fac: float) -> tuple[Lattice, EpochSolution, list[int]]:
+    """Fix the usable arcs, solve the epochs, leave out the fixed arcs that do not fit and
+    fix again (:data:`MAX_ARC_CHECK_ROUNDS`); (lattice, solution, arcs left out)."""
+    usable = usable.copy()
     suspects: list[int] = []
     for _ in range(MAX_ARC_CHECK_ROUNDS):
         lat = resolve_lattice(fl.a, fl.q, usable, tab.lattice_cyc)
@@ -107,8 +121,19 @@ def resolve(tab: PhaseTable, x0: FloatArray) -> Resolution:
             break
         suspects += bad
         usable[bad] = False
-    return Resolution(tab, fl, lat, sol, tuple(found_all), code_infl, tuple(suspects),
-                      phase_fac)
+    return lat, sol, suspects
+
+
+def without(res: Resolution, arcs: list[int]) -> Resolution:
+    """The solution again with ``arcs`` left out of the fixing (they stay float)."""
+    assert res.x0 is not None
+    usable = res.float_arcs.informed.copy()
+    usable[list(res.misfits)] = False
+    usable[list(res.left_out) + arcs] = False
+    lat, sol, more = _fix(res.tab, res.x0, res.float_arcs, usable, res.code_inflation,
+                          res.phase_factor)
+    return replace(res, lattice=lat, solution=sol, misfits=(*res.misfits, *more),
+                   left_out=(*res.left_out, *arcs))
 
 
 def arc_misfits(tab: PhaseTable, sol: EpochSolution) -> list[int]:

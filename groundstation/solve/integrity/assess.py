@@ -18,8 +18,8 @@ import numpy.typing as npt
 from groundstation.geodesy import ecef_to_llh, enu_rotation
 from groundstation.gnss.ephemeris import BroadcastEphemeris
 from groundstation.offline.rinex.observations import ObsSet
+from groundstation.solve.integrity import Resolution, resolve, without
 from groundstation.solve.integrity import grade as gr
-from groundstation.solve.integrity import resolve
 from groundstation.solve.integrity.normal import code_positions
 from groundstation.solve.integrity.smooth import smooth
 from groundstation.solve.integrity.table import build_table
@@ -100,6 +100,7 @@ class Arcs:
         stands_alone: the phase behaved as modelled (:data:`grade.PHASE_MODEL_FACTOR`).
         summary: JSON-ready figures of the solution.
         wall_s: its time.
+        resolution: the solution itself (to fix again without an arc).
     """
 
     t_ns: IntArray
@@ -109,6 +110,7 @@ class Arcs:
     stands_alone: bool
     summary: dict[str, object]
     wall_s: float
+    resolution: Resolution
 
     def fixed_trajectory(self) -> tuple[IntArray, FloatArray, npt.NDArray[np.bool_]]:
         """(times, positions, which are fixed): what the dynamics are measured on."""
@@ -125,14 +127,18 @@ def arcs_stage(
     t0 = time.perf_counter()
     base_x = np.asarray(base_ecef_m, dtype=np.float64)
     tab = build_table(rover, base, ephemerides, base_ecef_m)
-    t_ns = tab.t_ns
-    if t_ns.size == 0:
+    if tab.t_ns.size == 0:
         return None
     start = code_positions(tab, base_x)
     start = np.where(np.isfinite(start), start, base_x)
-    res = resolve(tab, start)
+    return _arcs_of(resolve(tab, start), base_x, t0)
+
+
+def _arcs_of(res: Resolution, base_x: FloatArray, t0: float) -> Arcs:
+    """:class:`Arcs` of a solution: its fixed epochs smoothed over their runs in a local
+    frame, and kept as fixed only where their sigma is a centimetre one."""
     sol = res.solution
-    # our fixed epochs, smoothed over their runs in a local frame
+    t_ns = res.tab.t_ns
     ok = np.all(np.isfinite(sol.x), axis=1)
     origin = sol.x[ok][0] if ok.any() else base_x
     lat, lon, _ = ecef_to_llh(*(float(v) for v in origin))
@@ -153,7 +159,7 @@ def arcs_stage(
     alone = bool(res.phase_factor <= gr.PHASE_MODEL_FACTOR)
     lat_res = res.lattice
     summary: dict[str, object] = {
-        "satellites": [f"G{s:02d}" for s in tab.svs],
+        "satellites": [f"G{s:02d}" for s in res.tab.svs],
         "arcs": res.tab.n_arcs,
         "lattice_cycles": res.tab.lattice_cyc,
         "integer_combinations": lat_res.combinations,
@@ -166,6 +172,8 @@ def arcs_stage(
         "phase_variance_factor": round(res.phase_factor, 2),
         "stands_alone": alone,
         "arcs_left_out_misfit": len(res.misfits),
+        "arcs_left_out_engine": [f"G{res.tab.svs[int(res.tab.arc_sv[a])]:02d}"
+                                 for a in res.left_out],
         "epochs_fixed": int(sol.fixed.sum()),
         "epochs_fixed_precise": int(ours_fixed.sum()),
         "smoothing": {
@@ -174,7 +182,48 @@ def arcs_stage(
         },
     }
     return Arcs(t_ns, ours_x, ours_cov, ours_fixed, alone, summary,
-                round(time.perf_counter() - t0, 3))
+                round(time.perf_counter() - t0, 3), res)
+
+
+MIN_CONFLICT_EPOCHS = 5
+"""Epochs where the engine's checked fix contradicts ours before an arc is looked for."""
+MAX_RECONCILE = 3
+"""Arcs left out at most when reconciling with the engine's checked fixes."""
+
+
+def reconcile(arcs: Arcs, checked: npt.NDArray[np.bool_], engine: gr.Candidate) -> Arcs:
+    """Our solution where the engine's checked fixes (both directions agreeing) contradict
+    it: one of our fixed arcs is then the likeliest culprit (a slip nobody flagged, a float
+    that rounded wrongly). Each arc fixed at those epochs is left out in turn; the one whose
+    absence removes the most contradictions, and at least half of them, without new ones
+    elsewhere, is left out for good; up to :data:`MAX_RECONCILE` arcs. The engine's fix is
+    thus the check of ours as ours is of it ("a rerun without the satellites" of the
+    issue), and the contradictions left demote both (:func:`grade.grade`)."""
+    base_x = arcs.x[np.all(np.isfinite(arcs.x), axis=1)][0] if np.isfinite(arcs.x).any() else (
+        np.zeros(3))
+    current = arcs
+    for _ in range(MAX_RECONCILE):
+        conflict = current.fixed & checked & ~gr.agree(current.x, current.cov, engine.x,
+                                                       engine.cov)
+        n_conf = int(conflict.sum())
+        if n_conf < MIN_CONFLICT_EPOCHS:
+            break
+        res = current.resolution
+        slots = res.solution.slot_fixed & conflict[:, None] & (res.tab.arc >= 0)
+        cands, counts = np.unique(res.tab.arc[slots], return_counts=True)
+        best: Arcs | None = None
+        best_left = n_conf
+        for a in cands[np.argsort(-counts)][:12].tolist():
+            trial = _arcs_of(without(res, [int(a)]), base_x, time.perf_counter())
+            disagree = trial.fixed & checked & ~gr.agree(trial.x, trial.cov, engine.x,
+                                                         engine.cov)
+            left = int(disagree.sum())
+            if left < best_left:
+                best, best_left = trial, left
+        if best is None or best_left > n_conf // 2:
+            break
+        current = best
+    return current
 
 
 def grade_stage(
@@ -189,15 +238,22 @@ def grade_stage(
     n = t_ns.size
     m = _at(merged, t_ns)
     assert m is not None
+    fwd, bwd = _at(forward, t_ns), _at(backward, t_ns)
+    if arcs is not None and fwd is not None and bwd is not None:
+        checked = ((m.q == 1) & (fwd.q == 1) & (bwd.q == 1)
+                   & gr.agree(fwd.x, fwd.cov, bwd.x, bwd.cov))
+        arcs = reconcile(arcs, checked, m)
+    ours_arcs = None
     if arcs is not None:
         ours = gr.Candidate(arcs.x, arcs.cov, np.where(arcs.fixed, 1, 0))
         ours_fixed, alone = arcs.fixed, arcs.stands_alone
+        rs = arcs.resolution
+        ours_arcs = np.where(rs.solution.slot_fixed, rs.tab.arc, -1)
     else:
         ours = gr.Candidate(np.full((n, 3), np.nan), np.full((n, 3, 3), np.nan),
                             np.zeros(n, dtype=np.int64))
         ours_fixed, alone = np.zeros(n, dtype=bool), False
-    g = gr.grade(ours_fixed, ours, _at(forward, t_ns), _at(backward, t_ns), m,
-                 ours_alone=alone)
+    g = gr.grade(ours_fixed, ours, fwd, bwd, m, ours_alone=alone, ours_arcs=ours_arcs)
     # the epochs' times: the engine's (receiver clock removed) where it has the epoch
     t_out = t_ns.copy()
     if merged.t_gps_ns.size:

@@ -12,10 +12,12 @@ The rule, per epoch:
    fix (both directions fixed and agreeing) does not contradict it: **fixed**, checked by
    ``arcs`` (``arcs-and-engine`` where an engine fix agrees; only those where the phase did
    not behave as modelled, :data:`PHASE_MODEL_FACTOR`). Where the engine's checked fix is
-   elsewhere (beyond the two covariances, chi-square 3 dof at 0.1 %), neither is trusted:
-   **demoted**, ``demoted:arcs-disagree``, at their middle with a sigma of half their
-   difference at least. An engine fix of one direction that disagrees with our standing fix
-   is rejected (counted in ``engine.json``).
+   elsewhere (beyond the two covariances, chi-square 3 dof at 0.1 %), our solution is fixed
+   again without each of its arcs at those epochs in turn, and the arc whose absence ends
+   most of the contradictions is left out (``assess.reconcile``); what still disagrees
+   demotes both: **demoted**, ``demoted:arcs-disagree``, at their middle with a sigma on
+   every axis of half their distance. An engine fix of one direction that disagrees with
+   our standing fix is rejected (counted in ``engine.json``).
 2. Otherwise the engine fixed it in both directions and the two agree (the full-covariance test
    of :mod:`groundstation.solve.engine.combine`): **fixed**, checked by ``both-directions``.
 3. Otherwise the engine fixed it in one direction only and the other direction's float
@@ -84,6 +86,8 @@ C_ARCS, C_BOTH, C_OTHER_FLOAT = 1, 2, 3
 C_DEM_DIRECTIONS, C_DEM_FLOAT, C_DEM_ARCS, C_DEM_ONE, C_FLOAT, C_UNCHECKED = 4, 5, 6, 7, 8, 9
 C_DEM_INTERP = 10
 C_ARCS_ENGINE = 11
+TAINT_EPOCHS = 5
+"""Contradicted epochs that take away an arc's standing (one is an accident of the engine)."""
 PHASE_MODEL_FACTOR = 2.0
 """Our whole-arc fix stands on its own only where the phase behaved as its noise model says
 (its variance factor, scatter times correlation in time, at most this): a real antenna whose
@@ -148,7 +152,7 @@ class Graded:
     counts: dict[str, int] = field(default_factory=dict)
 
 
-def _agree(xa: FloatArray, ca: FloatArray, xb: FloatArray, cb: FloatArray) -> BoolArray:
+def agree(xa: FloatArray, ca: FloatArray, xb: FloatArray, cb: FloatArray) -> BoolArray:
     """Per epoch: the two positions agree within their summed covariance (chi-square 3 dof)."""
     d = xa - xb
     s = ca + cb
@@ -206,7 +210,8 @@ def _scale_cov(cov: FloatArray, rot: FloatArray, fh: float, fv: float) -> FloatA
 
 
 def grade(ours_fixed: BoolArray, ours: Candidate, forward: Candidate | None,
-          backward: Candidate | None, merged: Candidate, ours_alone: bool = True) -> Graded:
+          backward: Candidate | None, merged: Candidate, ours_alone: bool = True,
+          ours_arcs: IntArray | None = None) -> Graded:
     """The rule of the module doc.
 
     Args:
@@ -216,6 +221,9 @@ def grade(ours_fixed: BoolArray, ours: Candidate, forward: Candidate | None,
         merged: the engine's combined solution.
         ours_alone: our fix may stand without an engine fix beside it (the phase behaved as
             modelled: :data:`PHASE_MODEL_FACTOR`).
+        ours_arcs: (n, n_sv) the arcs each of our fixed epochs rests on (-1: none): an arc
+            the engine's checked fixes contradicted at :data:`TAINT_EPOCHS` epochs or more
+            takes away the standing of every epoch that rests on it.
     """
     n = merged.q.size
     rot = _enu_rot(np.where(np.isfinite(ours.x), ours.x, merged.x))
@@ -230,22 +238,31 @@ def grade(ours_fixed: BoolArray, ours: Candidate, forward: Candidate | None,
     # The engine's own checked fixes: both directions fixed, and agreeing.
     engine_checked = m_fix & f_fix & b_fix
     if forward is not None and backward is not None:
-        engine_checked &= _agree(forward.x, forward.cov, backward.x, backward.cov)
+        engine_checked &= agree(forward.x, forward.cov, backward.x, backward.cov)
     # 1. ours, unless the engine's checked fix contradicts it: two checked integer solutions
     # that disagree cannot both be right, and nothing says which is wrong. A fix of one
     # direction only is a guess the whole-arc solution has checked more than the engine has.
-    contradicted = ours_fixed & engine_checked & ~_agree(ours.x, ours.cov, merged.x, merged.cov)
+    contradicted = ours_fixed & engine_checked & ~agree(ours.x, ours.cov, merged.x, merged.cov)
     rejected = np.zeros(n, dtype=bool)
     for c, fx in ((forward, f_fix), (backward, b_fix)):
         if c is not None:
-            rejected |= ours_fixed & fx & ~_agree(ours.x, ours.cov, c.x, c.cov)
+            rejected |= ours_fixed & fx & ~agree(ours.x, ours.cov, c.x, c.cov)
     ours_ok = ours_fixed & ~contradicted
     corroborated = np.zeros(n, dtype=bool)
     for c, fx in ((forward, f_fix), (backward, b_fix)):
         if c is not None:
-            corroborated |= ours_ok & fx & _agree(ours.x, ours.cov, c.x, c.cov)
-    if not ours_alone:
-        ours_ok = corroborated
+            corroborated |= ours_ok & fx & agree(ours.x, ours.cov, c.x, c.cov)
+    alone = np.full(n, ours_alone, dtype=bool)
+    if ours_arcs is not None and contradicted.any():
+        # A wrong integer set fits its own arcs' phase: where the engine's checked fix
+        # contradicts ours, every epoch resting on the same arcs is in doubt, not only those
+        # the engine happened to fix in both directions.
+        ids, hits = np.unique(ours_arcs[contradicted][ours_arcs[contradicted] >= 0],
+                              return_counts=True)
+        taint = ids[hits >= TAINT_EPOCHS]
+        if taint.size:
+            alone &= ~np.any(np.isin(ours_arcs, taint), axis=1)
+    ours_ok = np.where(alone, ours_ok, corroborated)
     x[ours_ok] = ours.x[ours_ok]
     cov[ours_ok] = ours.cov[ours_ok]
     gradec[ours_ok] = FIXED
@@ -256,12 +273,12 @@ def grade(ours_fixed: BoolArray, ours: Candidate, forward: Candidate | None,
     # engine's both-direction fixes that agree)
     # Our fix vetoes the engine's only where it can stand on its own: where the phase did not
     # behave as modelled, our disagreeing fix is not evidence against the engine's.
-    veto = (contradicted | (rejected & ~ours_ok)) if ours_alone else np.zeros(n, dtype=bool)
+    veto = (contradicted & ours_alone) | np.where(alone, rejected & ~ours_ok, False)
     # where ours stands, an engine fix of one direction that disagrees is rejected
     engine_rejected = ours_ok & rejected
     both = rest & ~veto & f_fix & b_fix & m_fix
     if forward is not None and backward is not None:
-        both &= _agree(forward.x, forward.cov, backward.x, backward.cov)
+        both &= agree(forward.x, forward.cov, backward.x, backward.cov)
     anchor = np.where((ours_fixed | both)[:, None], np.where(ours_fixed[:, None], ours.x,
                                                              merged.x), np.nan)
     floats = [c for c in (forward, backward) if c is not None]
@@ -290,14 +307,14 @@ def grade(ours_fixed: BoolArray, ours: Candidate, forward: Candidate | None,
         other_sd = np.sqrt(np.clip(np.einsum("eii->ei", np.einsum(
             "ij,ejk,lk->eil", rot, np.nan_to_num(other_c), rot)), 0.0, None))
         precise = np.all(other_sd <= FIXED_MAX_SIGMA_M, axis=1)
-        agree = _agree(fixed_x, fixed_c, other, other_c) & (other_q == 2) & precise
-        ok1 = one & agree
+        agrees = agree(fixed_x, fixed_c, other, other_c) & (other_q == 2) & precise
+        ok1 = one & agrees
         x[ok1] = fixed_x[ok1]
         cov[ok1] = fixed_c[ok1]
         gradec[ok1] = FIXED
         check[ok1] = C_OTHER_FLOAT
-        dem_float = one & ~agree & (other_q == 2) & precise
-        dem_one = one & ~agree & ~((other_q == 2) & precise)
+        dem_float = one & ~agrees & (other_q == 2) & precise
+        dem_one = one & ~agrees & ~((other_q == 2) & precise)
     else:
         dem_float = np.zeros(n, dtype=bool)
         dem_one = one
@@ -313,16 +330,39 @@ def grade(ours_fixed: BoolArray, ours: Candidate, forward: Candidate | None,
     left = (gradec == NONE) & (merged.q > 0) & np.all(np.isfinite(merged.x), axis=1)
     x[left] = merged.x[left]
     cov[left] = scaled(merged)[left]
+    # A demoted fix keeps no fix's sigma. One direction's fix that failed its check: the
+    # other direction's float is the position, its calibrated sigma widened by the distance
+    # to the fix (the truth is near one of them). Two directions' fixes that disagree: their
+    # middle, half their distance on every axis.
+    if forward is not None and backward is not None:
+        demoted_one = left & m_fix & (f_fix ^ b_fix) & ~veto
+        if demoted_one.any():
+            fl_x = np.where(f_fix[:, None], backward.x, forward.x)[demoted_one]
+            fl_c = np.where(f_fix[:, None, None], scaled(backward), scaled(forward))[demoted_one]
+            fx_x = np.where(f_fix[:, None], forward.x, backward.x)[demoted_one]
+            ok_fl = np.all(np.isfinite(fl_x), axis=1)
+            dist2 = np.sum((fx_x - fl_x) ** 2, axis=1)
+            xd = np.where(ok_fl[:, None], fl_x, x[demoted_one])
+            cd = np.where(ok_fl[:, None, None], fl_c + dist2[:, None, None] * np.eye(3)[None],
+                          cov[demoted_one])
+            x[demoted_one] = xd
+            cov[demoted_one] = cd
+        disagree = left & m_fix & f_fix & b_fix & ~veto
+        if disagree.any():
+            dist = np.linalg.norm(forward.x[disagree] - backward.x[disagree], axis=1)
+            x[disagree] = 0.5 * (forward.x[disagree] + backward.x[disagree])
+            own = np.maximum(np.trace(forward.cov[disagree], axis1=1, axis2=2),
+                             np.trace(backward.cov[disagree], axis1=1, axis2=2)) / 3.0
+            cov[disagree] = (0.25 * dist * dist + own)[:, None, None] * np.eye(3)[None]
     # Two fixes that disagree: the truth is near one of them, so the position is their middle
-    # and each local axis's sigma at least half their difference.
+    # and its sigma on every local axis half their distance, plus the larger of their own.
     split = left & veto & np.all(np.isfinite(ours.x), axis=1)
     if split.any():
-        d = (ours.x[split] - merged.x[split]) @ rot.T
+        dist = np.linalg.norm(ours.x[split] - merged.x[split], axis=1)
         x[split] = 0.5 * (ours.x[split] + merged.x[split])
-        half = np.zeros((d.shape[0], 3, 3))
-        half[:, [0, 1, 2], [0, 1, 2]] = (0.5 * d) ** 2
-        cov[split] = (0.25 * (ours.cov[split] + merged.cov[split])
-                      + np.einsum("ji,ejk,kl->eil", rot, half, rot))
+        own = np.maximum(np.trace(ours.cov[split], axis1=1, axis2=2),
+                         np.trace(merged.cov[split], axis1=1, axis2=2)) / 3.0
+        cov[split] = ((0.25 * dist * dist + own)[:, None, None] * np.eye(3)[None])
     # Where both directions are float, they are two estimates of the same position from
     # disjoint data: their difference is a measure of the float's error at that very epoch,
     # added to its variance on each local axis.
