@@ -291,7 +291,11 @@ def test_an_arc_the_engine_contradicts_takes_away_the_standing_of_every_epoch_on
     plain = gr.grade(np.ones(n, bool), ours, eng, eng, eng)
     assert np.all(plain.grade[5:] == gr.FIXED)  # without the arcs, the rest would stand
     g = gr.grade(np.ones(n, bool), ours, eng, eng, eng, ours_arcs=arcs)
-    assert np.all(g.grade[:5] == gr.FLOAT)
+    # ours in doubt on its arcs: the engine's checked fix stands where it has one ...
+    assert np.all(g.grade[:5] == gr.FIXED)
+    assert {gr.CHECK_NAMES[int(c)] for c in g.check[:5]} == {"both-directions"}
+    assert np.allclose(g.x[:5], truth[:5])
+    # ... and where it has none, ours does not stand alone
     assert not np.any(g.grade[5:] == gr.FIXED)
 
 

@@ -108,12 +108,13 @@ def resolve(tab: PhaseTable, x0: FloatArray) -> Resolution:
 
 
 def _fix(tab: PhaseTable, x: FloatArray, fl: normal.FloatArcs, usable: npt.NDArray[np.bool_],
-         code_infl: float, phase_fac: float) -> tuple[Lattice, EpochSolution, list[int]]:
+         code_infl: float, phase_fac: float, rounds: int = MAX_ARC_CHECK_ROUNDS,
+         ) -> tuple[Lattice, EpochSolution, list[int]]:
     """Fix the usable arcs, solve the epochs, leave out the fixed arcs that do not fit and
-    fix again (:data:`MAX_ARC_CHECK_ROUNDS`); (lattice, solution, arcs left out)."""
+    fix again (at most ``rounds`` times); (lattice, solution, arcs left out)."""
     usable = usable.copy()
     suspects: list[int] = []
-    for _ in range(MAX_ARC_CHECK_ROUNDS):
+    for _ in range(rounds):
         lat = resolve_lattice(fl.a, fl.q, usable, tab.lattice_cyc)
         sol = solve_epochs(tab, x, lat, code_infl, phase_fac)
         bad = arc_misfits(tab, sol)
@@ -124,14 +125,16 @@ def _fix(tab: PhaseTable, x: FloatArray, fl: normal.FloatArcs, usable: npt.NDArr
     return lat, sol, suspects
 
 
-def without(res: Resolution, arcs: list[int]) -> Resolution:
-    """The solution again with ``arcs`` left out of the fixing (they stay float)."""
+def without(res: Resolution, arcs: list[int], rounds: int = MAX_ARC_CHECK_ROUNDS,
+            ) -> Resolution:
+    """The solution again with ``arcs`` left out of the fixing (they stay float); ``rounds``
+    of the misfit check (one for a trial)."""
     assert res.x0 is not None
     usable = res.float_arcs.informed.copy()
     usable[list(res.misfits)] = False
     usable[list(res.left_out) + arcs] = False
     lat, sol, more = _fix(res.tab, res.x0, res.float_arcs, usable, res.code_inflation,
-                          res.phase_factor)
+                          res.phase_factor, rounds)
     return replace(res, lattice=lat, solution=sol, misfits=(*res.misfits, *more),
                    left_out=(*res.left_out, *arcs))
 

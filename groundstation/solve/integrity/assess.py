@@ -189,6 +189,8 @@ MIN_CONFLICT_EPOCHS = 5
 """Epochs where the engine's checked fix contradicts ours before an arc is looked for."""
 MAX_RECONCILE = 3
 """Arcs left out at most when reconciling with the engine's checked fixes."""
+MAX_CANDIDATES = 8
+"""Arcs tried at each step of the reconciliation (those fixed at most contradicted epochs)."""
 
 
 def reconcile(arcs: Arcs, checked: npt.NDArray[np.bool_], engine: gr.Candidate) -> Arcs:
@@ -198,7 +200,10 @@ def reconcile(arcs: Arcs, checked: npt.NDArray[np.bool_], engine: gr.Candidate) 
     absence removes the most contradictions, and at least half of them, without new ones
     elsewhere, is left out for good; up to :data:`MAX_RECONCILE` arcs. The engine's fix is
     thus the check of ours as ours is of it ("a rerun without the satellites" of the
-    issue), and the contradictions left demote both (:func:`grade.grade`)."""
+    issue), and the contradictions left demote both (:func:`grade.grade`). An arc counts as
+    the culprit only where, without it, our solution agrees with the engine at more than half
+    of those epochs (minus the new contradictions it makes): leaving out arcs until nothing is
+    fixed would end the contradictions too."""
     base_x = arcs.x[np.all(np.isfinite(arcs.x), axis=1)][0] if np.isfinite(arcs.x).any() else (
         np.zeros(3))
     current = arcs
@@ -211,18 +216,19 @@ def reconcile(arcs: Arcs, checked: npt.NDArray[np.bool_], engine: gr.Candidate) 
         res = current.resolution
         slots = res.solution.slot_fixed & conflict[:, None] & (res.tab.arc >= 0)
         cands, counts = np.unique(res.tab.arc[slots], return_counts=True)
-        best: Arcs | None = None
-        best_left = n_conf
-        for a in cands[np.argsort(-counts)][:12].tolist():
-            trial = _arcs_of(without(res, [int(a)]), base_x, time.perf_counter())
-            disagree = trial.fixed & checked & ~gr.agree(trial.x, trial.cov, engine.x,
-                                                         engine.cov)
-            left = int(disagree.sum())
-            if left < best_left:
-                best, best_left = trial, left
-        if best is None or best_left > n_conf // 2:
+        best: int | None = None
+        best_gain = n_conf // 2  # at least half of the contradictions must turn to agreement
+        for a in cands[np.argsort(-counts)][:MAX_CANDIDATES].tolist():
+            # a trial judged on its epochs' own positions (smoothing only for the one kept)
+            sol = without(res, [int(a)], rounds=1).solution
+            agrees = sol.fixed & checked & gr.agree(sol.x, sol.cov, engine.x, engine.cov)
+            disagree = sol.fixed & checked & ~gr.agree(sol.x, sol.cov, engine.x, engine.cov)
+            gain = int((agrees & conflict).sum()) - int((disagree & ~conflict).sum())
+            if gain > best_gain:
+                best, best_gain = int(a), gain
+        if best is None:
             break
-        current = best
+        current = _arcs_of(without(res, [best]), base_x, time.perf_counter())
     return current
 
 

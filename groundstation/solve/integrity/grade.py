@@ -223,7 +223,7 @@ def grade(ours_fixed: BoolArray, ours: Candidate, forward: Candidate | None,
             modelled: :data:`PHASE_MODEL_FACTOR`).
         ours_arcs: (n, n_sv) the arcs each of our fixed epochs rests on (-1: none): an arc
             the engine's checked fixes contradicted at :data:`TAINT_EPOCHS` epochs or more
-            takes away the standing of every epoch that rests on it.
+            takes away our standing at every epoch that rests on it.
     """
     n = merged.q.size
     rot = _enu_rot(np.where(np.isfinite(ours.x), ours.x, merged.x))
@@ -254,9 +254,11 @@ def grade(ours_fixed: BoolArray, ours: Candidate, forward: Candidate | None,
             corroborated |= ours_ok & fx & agree(ours.x, ours.cov, c.x, c.cov)
     alone = np.full(n, ours_alone, dtype=bool)
     if ours_arcs is not None and contradicted.any():
-        # A wrong integer set fits its own arcs' phase: where the engine's checked fix
-        # contradicts ours, every epoch resting on the same arcs is in doubt, not only those
-        # the engine happened to fix in both directions.
+        # A wrong integer set fits its own arcs' phase: where the engine's checked fix (its
+        # two directions, independent runs, agreeing) contradicts ours at several epochs,
+        # every epoch resting on one of the arcs there is in doubt, not only those the engine
+        # happened to fix in both directions; there ours stands only where an engine fix
+        # agrees with it, and does not veto the engine's.
         ids, hits = np.unique(ours_arcs[contradicted][ours_arcs[contradicted] >= 0],
                               return_counts=True)
         taint = ids[hits >= TAINT_EPOCHS]
@@ -273,7 +275,7 @@ def grade(ours_fixed: BoolArray, ours: Candidate, forward: Candidate | None,
     # engine's both-direction fixes that agree)
     # Our fix vetoes the engine's only where it can stand on its own: where the phase did not
     # behave as modelled, our disagreeing fix is not evidence against the engine's.
-    veto = (contradicted & ours_alone) | np.where(alone, rejected & ~ours_ok, False)
+    veto = np.where(alone, contradicted | (rejected & ~ours_ok), False)
     # where ours stands, an engine fix of one direction that disagrees is rejected
     engine_rejected = ours_ok & rejected
     both = rest & ~veto & f_fix & b_fix & m_fix
