@@ -53,14 +53,13 @@ import numpy.typing as npt
 
 from groundstation.gnss.ephemeris import BroadcastEphemeris
 from groundstation.gnss.geometry import SatGeometry
+from groundstation.gnss.noise import PHASE_SIGMA_45_CYC, cno_scale
 from groundstation.gnss.orbit import L1_WAVELENGTH_M
 from groundstation.offline.rinex.observations import ObsSet
 from groundstation.rules.phase import LLI_HALF_CYCLE, LLI_SLIP
 
 FloatArray = npt.NDArray[np.float64]
 
-PHASE_SIGMA_45_CYC = 0.0105
-"""Carrier-phase noise at 45 dBHz (2 mm; it grows as 10^((45 - C/N0) / 20))."""
 K_SIGMA = 4.0
 """A residual within this many of its standard deviations is noise."""
 MAX_JUMP_SIGMA_CYC = 0.06
@@ -316,8 +315,7 @@ def condition(
     row_of = np.full((n_ep, n_sv), -1, dtype=np.int64)
     cp[ep, sj] = obs.cp_cyc[rows]
     do[ep, sj] = obs.do_hz[rows]
-    cno = np.where(obs.cno_dbhz[rows] > 0, obs.cno_dbhz[rows], 30.0)
-    scale[ep, sj] = 10.0 ** ((45.0 - np.minimum(cno, 45.0)) / 20.0)
+    scale[ep, sj] = cno_scale(obs.cno_dbhz[rows])
     lli[ep, sj] = obs.lli[rows]
     row_of[ep, sj] = rows
     pr = np.zeros((n_ep, n_sv))

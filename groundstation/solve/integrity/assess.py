@@ -18,6 +18,7 @@ import numpy.typing as npt
 from groundstation.geodesy import ecef_to_llh, enu_rotation
 from groundstation.gnss.ephemeris import BroadcastEphemeris
 from groundstation.offline.rinex.observations import ObsSet
+from groundstation.solve.engine.combine import DTTOL_S
 from groundstation.solve.integrity import Resolution, resolve, without
 from groundstation.solve.integrity import grade as gr
 from groundstation.solve.integrity.normal import code_positions
@@ -27,8 +28,9 @@ from groundstation.solve.integrity.table import build_table
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
 
-MATCH_NS = 25_000_000
-"""An engine solution within this of an observation epoch is that epoch's (RTKLIB's DTTOL)."""
+MATCH_NS = round(DTTOL_S * 1e9)
+"""An engine solution within this of an observation epoch is that epoch's (the tolerance
+the engine's solutions are combined with)."""
 
 
 @dataclass(frozen=True, slots=True)

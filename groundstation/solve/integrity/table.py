@@ -23,6 +23,7 @@ import numpy.typing as npt
 from groundstation.gnss.atmosphere import saastamoinen_delay_m
 from groundstation.gnss.ephemeris import BroadcastEphemeris
 from groundstation.gnss.geometry import SatGeometry, elevation_deg
+from groundstation.gnss.noise import CODE_SIGMA_45_M, PHASE_SIGMA_45_CYC, cno_scale
 from groundstation.gnss.orbit import L1_WAVELENGTH_M
 from groundstation.offline.rinex.observations import ObsSet
 from groundstation.rules.phase import LLI_HALF_CYCLE, LLI_SLIP
@@ -31,11 +32,6 @@ FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
 BoolArray = npt.NDArray[np.bool_]
 
-PHASE_SIGMA_45_CYC = 0.0105
-"""Carrier-phase noise of one receiver at 45 dBHz (2 mm); it grows as 10^((45 - C/N0) / 20),
-the thermal noise of a phase-locked loop."""
-CODE_SIGMA_45_M = 0.3
-"""Pseudorange noise of one receiver at 45 dBHz (a u-blox L1 code loop), same growth."""
 MAX_BASE_AGE_S = 30.0
 """A rover epoch is differenced with a base epoch at most this far in time (RTKLIB's maxage)."""
 ARC_GAP_S = 30.0
@@ -43,12 +39,6 @@ ARC_GAP_S = 30.0
 without a loss-of-lock flag (no receiver reports carrier lock it has not been reporting)."""
 ELEVATION_MASK_DEG = 15.0
 """Measurements below this elevation are not used (the engine's own mask)."""
-
-
-def cno_scale(cno_dbhz: FloatArray) -> FloatArray:
-    """Noise growth factor of a measurement at ``cno_dbhz`` relative to 45 dBHz (at least 1)."""
-    cno = np.where(np.nan_to_num(cno_dbhz) > 0, cno_dbhz, 30.0)
-    return np.asarray(10.0 ** ((45.0 - np.minimum(cno, 45.0)) / 20.0), dtype=np.float64)
 
 
 @dataclass(frozen=True, slots=True)
