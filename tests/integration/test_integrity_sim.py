@@ -102,6 +102,9 @@ def test_the_grades_reach_cameras_csv_the_report_and_engine_json(
     ig = info["integrity"]
     assert ig["grades"]["fixed"] > 0 and ig["arcs"]["epochs_fixed_precise"] > 0
     assert ig["float_sigma_factor"]["horizontal"] >= 1.0
+    # slips found as steps name the satellite, not its column in the table
+    assert all(s["satellite"] in ig["arcs"]["satellites"]
+               for s in ig["arcs"]["slips_found_as_steps"])
     html = (out / "report.html").read_text()
     assert 'id="integrity"' in html and "fixed and checked" in html
     assert (out / "rtklib" / "integrity.pos").is_file()

@@ -49,7 +49,7 @@ class Resolution:
         float_arcs: the arcs' float constants.
         lattice: the constants with the sure integer combinations held.
         solution: positions per epoch with them.
-        steps: (satellite, GPS ns of the first epoch after it) of each split.
+        steps: (GPS satellite number, GPS ns of the first epoch after it) of each split.
         code_inflation: the code's variance factor for its correlation in time.
         misfits: arcs left out of the fixing because their phase did not fit the fixed
             solution.
@@ -89,7 +89,7 @@ def resolve(tab: PhaseTable, x0: FloatArray) -> Resolution:
         if not found:
             break
         cut = [(a, r) for a, r, _, _ in found]
-        found_all += [(int(tab.arc_sv[a]), int(tab.t_ns[r])) for a, r in cut]
+        found_all += [(tab.svs[int(tab.arc_sv[a])], int(tab.t_ns[r])) for a, r in cut]
         tab = steps.split_arcs(tab, cut)
     system = normal.epoch_system(tab, x, code_infl)
     fl = normal.float_arcs(tab, system)
