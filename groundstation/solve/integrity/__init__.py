@@ -22,12 +22,14 @@ import numpy.typing as npt
 from groundstation.solve.integrity import normal, steps
 from groundstation.solve.integrity.epochs import EpochSolution, solve_epochs
 from groundstation.solve.integrity.lattice import Lattice, resolve_lattice
+from groundstation.solve.integrity.steps import GapDoubt
 from groundstation.solve.integrity.table import PhaseTable
 
 FloatArray = npt.NDArray[np.float64]
 
-MAX_SPLIT_ROUNDS = 6
-"""Rounds of step tests (each splits at most one step per arc)."""
+MAX_SPLIT_ROUNDS = 8
+"""Rounds of step tests (each splits at most one step per arc, or, once no arc steps alone,
+every arc at the gaps whose continuity is in doubt)."""
 MAX_ARC_CHECK_ROUNDS = 4
 """Rounds of fixing, checking every fixed arc against the fixed solution, leaving out the
 arcs that do not fit."""
@@ -71,11 +73,15 @@ class Resolution:
     left_out: tuple[int, ...] = ()
     """Arcs left out of the fixing because a checked fix of the engine contradicted the
     solution they gave (:func:`without`)."""
+    gap_doubts: tuple[GapDoubt, ...] = ()
+    """Gaps across which every arc was split: a joint step there was found, or could have
+    hidden (:func:`steps.gap_doubts`)."""
 
 
 def resolve(tab: PhaseTable, x0: FloatArray) -> Resolution:
     """The whole solution from a table and positions to linearise at (metre level will do)."""
     found_all: list[tuple[int, int]] = []
+    gap_doubts: list[GapDoubt] = []
     x = np.array(x0, dtype=np.float64, copy=True)
     code_infl = 1.0
     nominal = float(np.median(np.diff(tab.t_ns))) / 1e9 if tab.n_epochs > 1 else 1.0
@@ -86,11 +92,17 @@ def resolve(tab: PhaseTable, x0: FloatArray) -> Resolution:
         fl = normal.float_arcs(tab, system)
         code_infl = max(1.0, normal.code_correlation(tab, x, normal.clock_m(tab, x, fl.a)))
         found = steps.step_tests(tab, system, fl, nominal)
-        if not found:
+        if found:
+            cut = [(a, r) for a, r, _, _ in found]
+            found_all += [(tab.svs[int(tab.arc_sv[a])], int(tab.t_ns[r])) for a, r in cut]
+            tab = steps.split_arcs(tab, cut)
+            continue
+        # no single arc stepped: are the arcs' continuities across the gaps to be relied on?
+        doubts = steps.gap_doubts(tab, system, fl, nominal)
+        if not doubts:
             break
-        cut = [(a, r) for a, r, _, _ in found]
-        found_all += [(tab.svs[int(tab.arc_sv[a])], int(tab.t_ns[r])) for a, r in cut]
-        tab = steps.split_arcs(tab, cut)
+        gap_doubts += doubts
+        tab = steps.split_arcs(tab, [(a, d.row) for d in doubts for a in d.arcs])
     system = normal.epoch_system(tab, x, code_infl)
     fl = normal.float_arcs(tab, system)
     # The phase's own residuals say how noisy it is and how many independent looks at the
@@ -104,7 +116,7 @@ def resolve(tab: PhaseTable, x0: FloatArray) -> Resolution:
         fl = normal.float_arcs(tab, system)
     lat, sol, suspects = _fix(tab, x, fl, fl.informed.copy(), code_infl, phase_fac)
     return Resolution(tab, fl, lat, sol, tuple(found_all), code_infl, tuple(suspects),
-                      phase_fac, x)
+                      phase_fac, x, gap_doubts=tuple(gap_doubts))
 
 
 def _fix(tab: PhaseTable, x: FloatArray, fl: normal.FloatArcs, usable: npt.NDArray[np.bool_],

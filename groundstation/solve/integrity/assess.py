@@ -170,6 +170,10 @@ def _arcs_of(res: Resolution, base_x: FloatArray, t0: float) -> Arcs:
         "first_float_sigma_steps": round(lat_res.ratio_to_lattice, 3),
         "slips_found_as_steps": [
             {"satellite": f"G{sv:02d}", "t_gps_ns": t} for sv, t in res.steps],
+        "gaps_with_every_arc_split": {
+            "steps_found": sum(d.contradicted for d in res.gap_doubts),
+            "steps_could_hide": sum(not d.contradicted for d in res.gap_doubts),
+        },
         "code_variance_factor": round(res.code_inflation, 2),
         "phase_variance_factor": round(res.phase_factor, 2),
         "stands_alone": alone,

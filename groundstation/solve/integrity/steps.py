@@ -12,7 +12,7 @@ on, cumulated from the end, so each candidate costs one product with the covaria
 
 from __future__ import annotations
 
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 import numpy.typing as npt
@@ -101,3 +101,145 @@ def split_arcs(tab: PhaseTable, steps: list[tuple[int, int]]) -> PhaseTable:
     return replace(tab, arc=arc, n_arcs=n, arc_sv=np.asarray(sv, dtype=np.int64))
 
 
+
+
+POWER = 0.8
+"""Probability with which a step must be detected for an arc's continuity across a gap to be
+relied on (Baarda's reliability; the usual 80 %)."""
+
+
+def _patterns(n: int) -> FloatArray:
+    """The smallest steps an arc set can take at one gap, in lattice units: one or two arcs by
+    one unit with any signs, and up to half the arcs by one unit with one sign (a repair of
+    every satellite across a radio gap rests on one estimate of the receiver clock, whose
+    error moves every satellite near its rounding boundary the same way). More than half
+    stepping one way is the rest stepping the other way, which the epochs' clocks absorb."""
+    from itertools import combinations
+
+    rows: list[FloatArray] = []
+    for i in range(n):
+        v = np.zeros(n)
+        v[i] = 1.0
+        rows.append(v)
+    for i, j in combinations(range(n), 2):
+        for s in (1.0, -1.0):
+            v = np.zeros(n)
+            v[i], v[j] = 1.0, s
+            rows.append(v)
+    for k in range(3, n // 2 + 1):
+        for idx in combinations(range(n), k):
+            v = np.zeros(n)
+            v[list(idx)] = 1.0
+            rows.append(v)
+    return np.asarray(rows, dtype=np.float64).reshape(-1, n)
+
+
+@dataclass(frozen=True, slots=True)
+class GapDoubt:
+    """A gap across which the arcs' continuity is not to be relied on.
+
+    Attributes:
+        row: the first epoch after the gap.
+        arcs: the arcs that continue across it.
+        chi2, threshold: the joint test of a step in every one of them.
+        weakest: the smallest non-centrality a one-lattice-unit step pattern would give the
+            test (:func:`_patterns`); below ``needed`` it could pass unseen.
+    """
+
+    row: int
+    arcs: tuple[int, ...]
+    chi2: float
+    threshold: float
+    weakest: float
+    needed: float
+
+    @property
+    def contradicted(self) -> bool:
+        return self.chi2 > self.threshold
+
+
+def gap_doubts(tab: PhaseTable, sys: EpochSystem, fl: FloatArcs,
+               nominal_s: float) -> list[GapDoubt]:
+    """Gaps of the whole table (no phase at all for more than 1.5 nominal intervals: a radio
+    gap, a base outage) whose continuing arcs may have stepped without the data showing it.
+
+    Across such a gap every satellite's phase was carried by the conditioning's repair, and
+    the single-arc tests of :func:`step_tests` assume one arc stepped: several arcs stepping
+    at once (one clock error behind every repair) can hide from each of them. Here the steps
+    of all arcs continuing across the gap are tested jointly (chi-square with their number
+    minus one degrees of freedom, the common step being the epochs' clocks, at the tail
+    probability of :data:`STEP_W`), and their reliability is checked: the smallest step
+    patterns of one lattice unit (:func:`_patterns`) must give the test the non-centrality
+    that detects them with probability :data:`POWER`. A gap that fails either is a gap where
+    the whole-arc solution cannot rely on the arcs being continuous."""
+    from scipy import optimize, stats
+
+    red, rhs = reduced(sys)
+    arc = np.where(sys.phase_used, tab.arc, -1)
+    t_s = (tab.t_ns - tab.t_ns[0]) / 1e9
+    have = np.flatnonzero(np.any(arc >= 0, axis=1))
+    if have.size < 2:
+        return []
+    starts = have[1:][np.diff(t_s[have]) > 1.5 * nominal_s]
+    if starts.size == 0:
+        return []
+    na = tab.n_arcs
+    a_hat = np.nan_to_num(fl.a)
+    p_tail = 2.0 * float(stats.norm.sf(STEP_W))
+    lam_cache: dict[int, tuple[float, float]] = {}
+
+    def needed(dof: int) -> tuple[float, float]:
+        if dof not in lam_cache:
+            th = float(stats.chi2.isf(p_tail, dof))
+            lam = float(optimize.brentq(
+                lambda lam_: float(stats.ncx2.sf(th, dof, lam_)) - POWER, 1e-6, 1e6))
+            lam_cache[dof] = (th, lam)
+        return lam_cache[dof]
+
+    # per arc crossing a gap: its normal columns (and right-hand side) summed from each gap on
+    cols: dict[int, dict[int, tuple[FloatArray, float]]] = {}
+    n_ep, n_sv = arc.shape
+    for j in range(n_sv):
+        col = arc[:, j]
+        for a in np.unique(col[col >= 0]).tolist():
+            rows = np.flatnonzero(col == a)
+            at = np.searchsorted(rows, starts)
+            inside = (at > 0) & (at < rows.size)
+            if not inside.any():
+                continue
+            dense = np.zeros((rows.size, na))
+            arcs_r = arc[rows]
+            ok = arcs_r >= 0
+            rr = np.broadcast_to(np.arange(rows.size)[:, None], ok.shape)[ok]
+            np.add.at(dense, (rr, arcs_r[ok]), red[rows, j, :][ok])
+            cum = np.cumsum(dense[::-1], axis=0)[::-1]
+            bcum = np.cumsum(rhs[rows, j][::-1])[::-1]
+            for g, i in zip(starts[inside].tolist(), at[inside].tolist(), strict=True):
+                cols.setdefault(g, {})[int(a)] = (cum[i], float(bcum[i]))
+    out: list[GapDoubt] = []
+    for g in starts.tolist():
+        per = cols.get(g, {})
+        n = len(per)
+        if n < 2:
+            continue
+        s_arcs = sorted(per)
+        c = np.stack([per[a][0] for a in s_arcs])
+        b = np.array([per[a][1] for a in s_arcs])
+        v = c[:, s_arcs] - c @ fl.q @ c.T
+        v = 0.5 * (v + v.T)
+        w = b - c @ a_hat
+        # the common step is the epochs' clocks: test in the n-1 differences
+        basis = np.linalg.qr(np.eye(n) - 1.0 / n)[0][:, : n - 1]
+        vd = basis.T @ v @ basis
+        wd = basis.T @ w
+        try:
+            chi2 = float(wd @ np.linalg.solve(vd, wd))
+        except np.linalg.LinAlgError:
+            chi2 = float("inf")
+        th, lam = needed(n - 1)
+        pat = _patterns(n) * tab.lattice_cyc
+        weakest = float(np.min(np.einsum("pi,ij,pj->p", pat, v, pat)))
+        if chi2 > th or weakest < lam:
+            out.append(GapDoubt(int(g), tuple(int(a) for a in s_arcs), round(chi2, 1),
+                                round(th, 1), round(weakest, 1), round(lam, 1)))
+    return out

@@ -1,0 +1,125 @@
+"""Arcs across a radio gap: steps of several arcs at once are found, or the continuity given up.
+
+A synthetic sky (satellites turning slowly 20 000 km away) and a rover circling; everything
+downstream of the table is the real whole-arc solution."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+import pytest
+
+from groundstation.solve import integrity
+from groundstation.solve.integrity import steps
+from groundstation.solve.integrity.table import L1_WAVELENGTH_M, PhaseTable
+
+FloatArray = npt.NDArray[np.float64]
+BASE = np.array([4146349.2471, 612312.5498, 4791750.8505])
+GAP_AT_S, GAP_S = 300.0, 2.4
+
+
+class _Sky:
+    """Satellites 20 000 km from the site along directions that turn slowly, as GPS does."""
+
+    def __init__(self, t_s: FloatArray, n_sv: int, rng: np.random.Generator) -> None:
+        up = BASE / np.linalg.norm(BASE)
+        east = np.cross([0.0, 0.0, 1.0], up)
+        east /= np.linalg.norm(east)
+        north = np.cross(up, east)
+        az = rng.uniform(0, 2 * np.pi, n_sv)[None] + rng.uniform(-1, 1, n_sv)[None] * 1e-4 * (
+            t_s[:, None])
+        el = rng.uniform(np.radians(25), np.radians(80), n_sv)[None] + 0.3e-4 * t_s[:, None]
+        d = (np.cos(el)[..., None] * (np.sin(az)[..., None] * east
+                                      + np.cos(az)[..., None] * north)
+             + np.sin(el)[..., None] * up)
+        self.pos = BASE + 2.0e7 * d
+        self.clk_m = np.zeros(self.pos.shape[:2])
+
+    def ranges_all(self, x: FloatArray) -> tuple[FloatArray, FloatArray]:
+        xx = np.broadcast_to(np.asarray(x, dtype=np.float64), (self.pos.shape[0], 3))
+        d = self.pos - xx[:, None, :]
+        rho = np.linalg.norm(d, axis=2)
+        return rho - self.clk_m, d / rho[..., None]
+
+
+def _flight(seed: int, stepped: tuple[int, ...], post_s: float | None = None
+            ) -> tuple[PhaseTable, FloatArray]:
+    """Seven satellites at 5 Hz for 10 min (or until ``post_s`` after the gap), a radio gap of
+    2.4 s at 300 s after which satellites 5-7 start new arcs and the arcs of ``stepped`` (of
+    satellites 1-4, which continue) are half a cycle off (RXM-RAW: a half-cycle lattice)."""
+    rng = np.random.default_rng(seed)
+    t_s = np.arange(0.0, 600.0, 0.2)
+    t_s = t_s[(t_s < GAP_AT_S) | (t_s >= GAP_AT_S + GAP_S)]
+    if post_s is not None:
+        t_s = t_s[t_s < GAP_AT_S + GAP_S + post_s]
+    n, n_sv, new = t_s.size, 7, (4, 5, 6)
+    ang = 0.1 * t_s
+    x = BASE + 100.0 + np.stack([50 * np.cos(ang), 50 * np.sin(ang), 5 * np.sin(0.05 * t_s)], 1)
+    after = t_s >= GAP_AT_S
+    arc = np.tile(np.arange(n_sv), (n, 1))
+    for k, j in enumerate(new):
+        arc[after, j] = n_sv + k
+    na = n_sv + len(new)
+    tab = PhaseTable(
+        t_ns=np.round(t_s * 1e9).astype(np.int64), svs=tuple(range(1, n_sv + 1)),
+        sd_cyc=np.zeros((n, n_sv)), sd_code_m=np.zeros((n, n_sv)),
+        sigma_cyc=np.full((n, n_sv), 0.01), sigma_code_m=np.full((n, n_sv), 0.5), arc=arc,
+        n_arcs=na, arc_sv=np.array([*range(n_sv), *new]), base_age_s=np.zeros(n),
+        geo=_Sky(t_s, n_sv, rng),  # type: ignore[arg-type]
+        lattice_cyc=0.5)
+    rng_m, _ = tab.geometry(x)
+    clock_cyc = rng.normal(0.0, 30.0, n)
+    sd = (rng_m / L1_WAVELENGTH_M + rng.integers(-50, 50, na).astype(float)[arc]
+          + clock_cyc[:, None] + rng.normal(0.0, 0.005, (n, n_sv)))
+    for j in stepped:
+        sd[after, j] += 0.5
+    code = rng_m + clock_cyc[:, None] * L1_WAVELENGTH_M + rng.normal(0.0, 0.3, (n, n_sv))
+    return replace(tab, sd_cyc=sd, sd_code_m=code), x
+
+
+def _solve(tab: PhaseTable, x: FloatArray) -> tuple[Any, int, int]:
+    """(resolution, epochs fixed, epochs fixed more than 5 cm from the truth)."""
+    res = integrity.resolve(tab, x + 0.5)
+    err = np.linalg.norm(res.solution.x - x, axis=1)
+    fixed = res.solution.fixed
+    return res, int(fixed.sum()), int(np.sum(fixed & (err > 0.05)))
+
+
+def _without_gap_tests(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(steps, "gap_doubts", lambda *a, **k: [])
+
+
+def test_steps_of_several_arcs_at_a_gap_split_every_arc_there(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    tab, x = _flight(2, stepped=(2, 3))
+    res, fixed, wrong = _solve(tab, x)
+    assert [d.row for d in res.gap_doubts] == [int(np.searchsorted(tab.t_ns, 302.4e9))]
+    assert res.gap_doubts[0].contradicted and res.gap_doubts[0].arcs == (0, 1, 2, 3)
+    assert wrong == 0 and fixed == tab.n_epochs
+    # what the single-arc tests alone made of it: half the flight fixed a metre off
+    _without_gap_tests(monkeypatch)
+    _, _, wrong_before = _solve(tab, x)
+    assert wrong_before > 1000
+
+
+def test_a_step_that_could_pass_unseen_splits_the_arcs_too(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    tab, x = _flight(0, stepped=(2, 3), post_s=20.0)
+    res, fixed, wrong = _solve(tab, x)
+    assert len(res.gap_doubts) == 1
+    d = res.gap_doubts[0]
+    assert not d.contradicted and d.weakest < d.needed
+    assert wrong == 0 and fixed == tab.n_epochs
+    _without_gap_tests(monkeypatch)
+    _, _, wrong_before = _solve(tab, x)
+    assert wrong_before > 0
+
+
+def test_arcs_that_did_not_step_keep_their_continuity() -> None:
+    tab, x = _flight(2, stepped=())
+    res, fixed, wrong = _solve(tab, x)
+    assert res.gap_doubts == () and res.steps == ()
+    assert wrong == 0 and fixed == tab.n_epochs
