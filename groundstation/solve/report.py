@@ -532,6 +532,7 @@ def _integrity(inp: ReportInput) -> str:
     fac = ig.get("float_sigma_factor") or {}
     sm = arcs.get("smoothing") or {}
     steps = arcs.get("slips_found_as_steps", [])
+    gaps = arcs.get("gaps_with_every_arc_split") or {}
     rows = [
         ("Epochs", _e(", ".join(f"{k} {v}" for k, v in ig.get("grades", {}).items()))),
         ("Decided by", _e(", ".join(f"{k} {v}" for k, v in ig.get("checks", {}).items()))),
@@ -540,7 +541,10 @@ def _integrity(inp: ReportInput) -> str:
             f"{arcs.get('integer_combinations')} integer combinations fixed (lattice "
             f"{arcs.get('lattice_cycles')} cycle; stopped: {arcs.get('stopped_by')}); "
             f"{arcs.get('epochs_fixed_precise')} epochs fixed by it; {len(steps)} slip(s) "
-            "nobody flagged found and split off")),
+            "nobody flagged found and split off; "
+            f"{gaps.get('steps_found', 0) + gaps.get('steps_could_hide', 0)} radio gap(s) "
+            f"across which every arc was split ({gaps.get('steps_found', 0)} with a step of "
+            "several satellites, the others where one could have passed unseen)")),
         ("Smoothing", _e(
             f"jerk density {sm.get('jerk_density_h_m2_s5')} / {sm.get('jerk_density_v_m2_s5')} "
             f"m^2/s^5 horizontal / vertical (the most likely for the flight's quickest "
