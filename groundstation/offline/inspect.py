@@ -13,7 +13,15 @@ from typing import Any
 
 from groundstation import gpstime
 from groundstation.errors import InputError
-from groundstation.records import Frame, RawEpoch, TimeMark, UndecodedFrame, sv_label
+from groundstation.records import (
+    GNSS_GLONASS,
+    UNKNOWN_GLONASS_SV,
+    Frame,
+    RawEpoch,
+    TimeMark,
+    UndecodedFrame,
+    sv_label,
+)
 from groundstation.rules.epochs import Gap, find_gaps, nominal_interval_ns
 from groundstation.rules.marks import track_marks
 from groundstation.storage.reading import Recording
@@ -21,8 +29,7 @@ from groundstation.storage.skipped import Skipped
 from groundstation.ubx.decode import Decoder, message_name
 from groundstation.ubx.framer import DEFAULT_MAX_PAYLOAD, FramerStats, UbxFramer
 
-GNSS_GLONASS = 6
-UNKNOWN_SV = 255
+UNKNOWN_SV = UNKNOWN_GLONASS_SV
 """u-blox svId of a GLONASS satellite whose slot number is not known yet."""
 
 

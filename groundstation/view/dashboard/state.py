@@ -18,7 +18,13 @@ from urllib.parse import quote
 from groundstation import events as kinds
 from groundstation import gpstime, messages
 from groundstation.storage.naming import session_start_ns
-from groundstation.view.summary import ppk_label, ppk_thresholds, session_finished
+from groundstation.view.summary import (
+    ppk_label,
+    ppk_thresholds,
+    session_finished,
+    tracked_text,
+    unidentified_text,
+)
 
 STALE_AFTER_S = 3.0
 """No status for longer than this and the station is shown as stale."""
@@ -366,6 +372,8 @@ class StationView:
             "sats": st.get("sats") or [],
             "ppk": {
                 "ready": st.get("ppk_ready"), "tracked": st.get("tracked"),
+                "tracked_text": tracked_text(st),
+                "unidentified_text": unidentified_text(st.get("unidentified")),
                 "min": need if ppk_ready_min is None else ppk_ready_min,
                 "clean_phase_s": clean_s, "label": ppk_label(clean_s),
                 "half_cycle_fraction": st.get("half_cycle_fraction"),
