@@ -382,10 +382,21 @@ class StationView:
             "events": list(self.events)[-15:][::-1],
             "timeline": self.timeline(gps_now),
             "marks": self._marks_panel(st, gps_now),
+            "data_clock": self.data_clock(gps_now),
             "session": self._session_panel(st, file_info),
             "report": self._report_panel(),
         }
         return out
+
+    def data_clock(self, gps_now: int | None) -> dict[str, Any] | None:
+        """The data's own time now (the receiver's, on the daemon's data clock): ``utc`` as
+        the header shows it and ``unix_ms``, which the page compares with the computer's
+        clock (a replay or a simulated flight runs hours or years apart from it). None before
+        the first epoch."""
+        if gps_now is None:
+            return None
+        return {"utc": gpstime.gps_to_datetime(gps_now).strftime("%H:%M:%S"),
+                "unix_ms": gpstime.gps_to_unix_ns(gps_now) // 1_000_000}
 
     def _alerts(self, st: dict[str, Any]) -> list[str]:
         alerts = [str(a) for a in st.get("alerts") or []]
