@@ -10,7 +10,6 @@ from pathlib import Path
 
 from groundstation.errors import ConfigError
 from groundstation.offline import rinex
-from groundstation.offline.inspect import require_ubx_frames
 from groundstation.outpaths import check_output_dir, existing_outputs, make_output_dir
 from groundstation.rules.marks import MARK_EDGES
 from groundstation.storage.reading import Recording
@@ -79,8 +78,6 @@ def run(args: argparse.Namespace) -> int:
         marker=args.marker,
     )
     recording = Recording(args.input)  # a missing, non-regular or unreadable input: one line
-    # a photo or a RINEX file is said as inspect says it, not asked about the receiver's output
-    require_ubx_frames(args.input)
     stem = Path(args.input).name
     for suffix in (".gz", ".ubx", ".mcap", ".log"):  # rinex.convert's names
         stem = stem.removesuffix(suffix)

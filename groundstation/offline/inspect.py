@@ -288,10 +288,14 @@ def require_ubx_frames(path: str | Path, max_payload: int = DEFAULT_MAX_PAYLOAD)
             return
     if any(True for _ in framer.flush(last_t)):
         return
-    size = recording.size_bytes
+    detail = content_detail(recording.size_bytes, head)
+    raise InputError(f"{p}: no UBX frames in this file ({detail})")
+
+
+def content_detail(size: int, head: bytes) -> str:
+    """A file without UBX frames in a few words: "513 bytes, a JPEG image", "empty file"."""
     what = what_file(head)
-    detail = "empty file" if size == 0 else (
+    return "empty file" if size == 0 else (
         f"{size:,} bytes, {what}, not a receiver recording" if what and "RINEX" in what
         else f"{size:,} bytes, {what}" if what else f"{size:,} bytes"
     )
-    raise InputError(f"{p}: no UBX frames in this file ({detail})")

@@ -87,8 +87,8 @@ CASES: list[Case] = [
     c("rinex-no-out", "rinex good.ubx", 2, "required"),
     # a photo or a RINEX file is named as inspect names it (it asked about the receiver's raw
     # output), before the output directory is made
-    c("rinex-jpeg", "rinex X/a.jpg -o out", 2, "X/a.jpg: no UBX frames in this file "
-      "(4 bytes, a JPEG image)"),
+    c("rinex-jpeg", "rinex X/a.jpg -o out", 2, "X/a.jpg: no raw measurements and no "
+      "navigation data: no UBX frames in this file (4 bytes, a JPEG image)"),
     c("rinex-rinex-obs", "rinex rover.obs -o out", 2, "a RINEX 3.04 observation file"),
     # -- replay -------------------------------------------------------------------------------
     c("replay-fifo", "replay fifo --no-zenoh", 2, "is a FIFO"),
