@@ -7,6 +7,7 @@ the default Zenoh endpoint, daemons killed before their pty is closed. Ports com
 from __future__ import annotations
 
 import os
+import re
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -20,6 +21,39 @@ from groundstation.config import DEFAULT_ENDPOINT, ZenohSettings
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED_DATA = REPO.parent / "shared" / "data"
+
+
+ONE_WORKER = re.compile(r"\bpytest\.mark\.xdist_group\(")
+"""How a test module asks for its tests to run on one worker, in its ``pytestmark`` (its module
+fixture is expensive: made once, not once per worker)."""
+
+
+def one_worker_modules(root: Path) -> frozenset[str]:
+    """The test modules (paths from ``root``, as in node ids) that declare :data:`ONE_WORKER`."""
+    return frozenset(p.relative_to(root).as_posix() for p in (root / "tests").rglob("test_*.py")
+                     if ONE_WORKER.search(p.read_text(encoding="utf-8")))
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_xdist_make_scheduler(config: pytest.Config, log: Any) -> Any:
+    """``--dist loadgroup``, done here: xdist 3.8 groups by renaming each item's node id,
+    which pytest 9.2 ignores (``nodeid`` is derived from ``_id``), so its groups were split
+    across workers and their module fixtures made again on each. Here a module with
+    ``pytest.mark.xdist_group(...)`` in its ``pytestmark`` is one unit of work (one worker,
+    its module fixtures made once); every other test is a unit of its own. Units with the most
+    tests are handed out first."""
+    if config.getvalue("dist") != "loadgroup":
+        return None
+    from xdist.scheduler import LoadScopeScheduling
+
+    grouped = one_worker_modules(config.rootpath)
+
+    class ModuleGroups(LoadScopeScheduling):  # type: ignore[misc]
+        def _split_scope(self, nodeid: str) -> str:
+            module = nodeid.split("::", 1)[0]
+            return module if module in grouped else nodeid
+
+    return ModuleGroups(config, log)
 
 
 @pytest.fixture(scope="session")
