@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import os
 import re
+import signal
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -65,6 +66,15 @@ def shared_data() -> Path:
             "(a fresh clone has no ../shared)"
         )
     return SHARED_DATA
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    """Ctrl-C as a user sends it: a suite started where SIGINT is ignored (a background job of
+    a script, nohup) passed that on to every command a test starts, and the tests that stop a
+    demo, a solve or watch with SIGINT saw it ignored. A caught signal is reset by exec."""
+    del config
+    if signal.getsignal(signal.SIGINT) == signal.SIG_IGN:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 @pytest.fixture(scope="session", autouse=True)
