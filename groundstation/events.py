@@ -134,6 +134,7 @@ ALERT_DISK_FULL: Final = "disk_full"
 ALERT_RECORDING_FAILED: Final = "recording_failed"
 ALERT_RECORDER_BEHIND: Final = "recorder_behind"
 ALERT_ZENOH_DISCONNECTED: Final = "zenoh_disconnected"
+ALERT_STATION_CONFLICT: Final = "station_conflict"
 
 ALERTS: Final[dict[str, str]] = {
     ALERT_NO_FRAMES: "bytes arrive but no valid frame (baud rate, noise, NMEA only)",
@@ -148,5 +149,6 @@ ALERTS: Final[dict[str, str]] = {
     ALERT_RECORDING_FAILED: "writing the recording fails",
     ALERT_RECORDER_BEHIND: "the recorder falls behind the stream",
     ALERT_ZENOH_DISCONNECTED: "status and events reach nobody",
+    ALERT_STATION_CONFLICT: "another daemon publishes as the same station",
 }
 """Alert names and what each means."""

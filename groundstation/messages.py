@@ -44,6 +44,7 @@ MAX_COUNT = 1 << 53
 COUNTERS = frozenset({
     "index", "count", "epochs", "dropouts", "missing_epochs", "bytes", "bytes_in", "frames",
     "tracked", "ppk_ready", "received", "last_count", "part", "marks", "schema",
+    "below_mask", "unidentified",
 })
 TABLES = {"link", "recording", "data", "current_dropout"}
 LISTS = {"sats", "alerts", "files", "recent_dropouts", "notes", "recordings"}

@@ -216,17 +216,16 @@ def staged_output(out: Path, key: str = "--out-dir") -> Iterator[Path]:
         ConfigError: naming ``key``: ``out`` cannot be created.
     """
     created = make_output_dir(out, key)
-    _remove_stale_stages(out)
     stage = out / f"{STAGING_PREFIX}{os.getpid()}"
+    # One try from the folder's creation on: a Ctrl-C right after it is made (before a try
+    # that began later) left it behind.
     try:
+        _remove_stale_stages(out)
         shutil.rmtree(stage, ignore_errors=True)  # a killed run of a recycled pid
-        stage.mkdir()
-    except OSError as err:
-        if created:
-            with contextlib.suppress(OSError):
-                out.rmdir()
-        raise ConfigError(key, f"cannot write into {out}: {err.strerror or err}") from err
-    try:
+        try:
+            stage.mkdir()
+        except OSError as err:
+            raise ConfigError(key, f"cannot write into {out}: {err.strerror or err}") from err
         yield stage
         _commit(stage, out)
     except BaseException:

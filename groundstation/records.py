@@ -16,6 +16,24 @@ from groundstation.gpstime import NS_PER_WEEK
 
 GNSS_LETTERS = {0: "G", 1: "S", 2: "E", 3: "C", 4: "I", 5: "J", 6: "R", 7: "I"}
 """RINEX system letter for each u-blox ``gnssId`` (4 is IMES, shown as I like NavIC)."""
+GNSS_GLONASS = 6
+UNKNOWN_GLONASS_SV = 255
+"""u-blox svId of a GLONASS satellite whose slot number the receiver does not know yet: a
+measurement without a satellite name ("R255"), not usable until the receiver identifies it."""
+ELEVATION_RANGE_DEG = (-90, 90)
+"""Elevations a receiver can report; u-blox sends -91 for a satellite whose elevation it does
+not know (no orbit yet, or no slot number)."""
+
+
+def identified(gnss: int, sv: int) -> bool:
+    """Whether a measurement names its satellite (not a GLONASS slot still unknown)."""
+    return not (gnss == GNSS_GLONASS and sv == UNKNOWN_GLONASS_SV)
+
+
+def known_elevation(elev_deg: int) -> int | None:
+    """A reported elevation, or None where the receiver said it does not know (-91)."""
+    lo, hi = ELEVATION_RANGE_DEG
+    return elev_deg if lo <= elev_deg <= hi else None
 
 
 def sv_label(gnss: int, sv: int) -> str:
@@ -403,6 +421,14 @@ class Status:
     ppk_clean_phase_s: float | None = None
     """The monitor's ``clean_phase_s``: clean continuous phase a satellite needs to count as
     PPK-ready, so a view can say what its number means (None: not recorded)."""
+    below_mask: int = 0
+    """Tracked satellites below the monitor's ``elevation_mask_deg``: never PPK-ready, so a view
+    can say why ``ppk_ready`` is lower than ``tracked`` with every row clean."""
+    elevation_mask_deg: float | None = None
+    """The monitor's ``elevation_mask_deg`` (None: not recorded)."""
+    unidentified: int = 0
+    """Measurements of the latest epoch without a satellite number (GLONASS slots the
+    receiver has not identified yet): not in ``sats``, not tracked, not usable."""
 
 
 @dataclass(frozen=True, slots=True)

@@ -46,6 +46,24 @@ def lock_holder(path: str) -> int | None:
     return None
 
 
+def is_terminal(path: str) -> bool:
+    """Whether the character device ``path`` has a terminal interface (a serial port, a pty):
+    ``/dev/null`` or ``/dev/zero`` do not, and a serial reader on them would retry for ever.
+
+    Opened without becoming the controlling terminal and without waiting for a carrier, and
+    closed at once (no lock taken). A device that cannot be opened at all counts as a
+    terminal here: the caller's own open says why.
+    """
+    try:
+        fd = os.open(path, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
+    except OSError:
+        return True
+    try:
+        return os.isatty(fd)
+    finally:
+        os.close(fd)
+
+
 def open_port(path: str, baud: int, *, timeout_s: float | None,
               write_timeout_s: float | None = None) -> Port:
     """Open ``path`` at ``baud``, 8N1, no flow control, exclusively.

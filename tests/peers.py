@@ -6,6 +6,7 @@ timeout, never a fixed sleep)."""
 
 from __future__ import annotations
 
+import itertools
 import os
 import select
 import signal
@@ -21,6 +22,7 @@ from typing import Any, TypeVar
 from groundstation.bus import Bus, decode
 from groundstation.live.fanout import Inbox, InboxClosed
 from groundstation.records import Event, Status
+from groundstation.serialport import lock_holder
 from groundstation.sim.ptylink import PtyLink
 
 REPO = Path(__file__).resolve().parents[1]
@@ -46,12 +48,48 @@ def wait_until(
     return got
 
 
+PORTS_PER_WORKER = 400
+"""Ports each test worker (pytest-xdist ``gwN``) takes its ports from, in turn."""
+_port_turn = itertools.count()
+
+
+def _port_range() -> tuple[int, int] | None:
+    """This worker's ports, ``[first, end)``: below the kernel's ephemeral range, where no
+    outgoing connection (a Zenoh client, an HTTP request) is given one by chance between the
+    test choosing it and a peer listening on it, and apart from every other worker's. None
+    when the ephemeral range leaves no room below it."""
+    try:
+        with open("/proc/sys/net/ipv4/ip_local_port_range", encoding="ascii") as f:
+            ephemeral_low = int(f.read().split()[0])
+    except (OSError, ValueError, IndexError):
+        return None
+    worker = os.environ.get("PYTEST_XDIST_WORKER", "gw0")
+    index = int(worker[2:]) if worker[2:].isdigit() else 0
+    first = 20_000 + index * PORTS_PER_WORKER
+    end = first + PORTS_PER_WORKER
+    return (first, end) if end <= ephemeral_low else None
+
+
 def free_port() -> int:
-    """A TCP port nobody listens on right now (for a Zenoh endpoint)."""
+    """A TCP port nobody listens on right now (for a Zenoh endpoint, a web server), this test
+    worker's own: taken in turn from its range (:func:`_port_range`), skipping any port in use
+    (by another program on the machine too), so a port comes back to a worker only after all
+    its others; the kernel's choice where no range fits."""
+    span = _port_range()
+    if span is not None:
+        first, end = span
+        for _ in range(end - first):
+            port = first + next(_port_turn) % (end - first)
+            with socket.socket() as s:
+                try:
+                    s.bind(("127.0.0.1", port))
+                except OSError:
+                    continue
+            return port
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
-        port: int = s.getsockname()[1]
-        return port
+        chosen: int = s.getsockname()[1]
+        return chosen
 
 
 def cli_env(**settings: str) -> dict[str, str]:
@@ -134,13 +172,49 @@ class CliProc:
                 self.proc.wait(timeout=10)
 
 
+def named_elsewhere(device: str) -> bool:
+    """Whether another process holds ``device`` (a pty slave) locked or names it on its
+    command line: a daemon of someone else's started on ``/dev/pts/N`` whose pty has closed
+    reopens the number when the kernel hands it to the next pty (this test's)."""
+    if lock_holder(device) not in (None, os.getpid()):
+        return True
+    needle = device.encode()
+    for pid in os.listdir("/proc"):
+        if not pid.isdigit() or int(pid) == os.getpid():
+            continue
+        try:
+            with open(f"/proc/{pid}/cmdline", "rb") as f:
+                if needle in f.read().split(b"\0"):
+                    return True
+        except OSError:
+            continue
+    return False
+
+
 class Pty(PtyLink):
-    """A pty pair reachable through a symlink that can be pulled and plugged back."""
+    """A pty pair reachable through a symlink that can be pulled and plugged back.
+
+    A pty whose device another process names or holds (:func:`named_elsewhere`) is passed
+    over for the next one: the test's daemon must be the only reader of its pty.
+    """
 
     link: Path
 
     def __init__(self, link: Path) -> None:
         super().__init__(link)
+
+    def plug(self) -> None:
+        passed: list[tuple[int, int]] = []
+        try:
+            for _ in range(20):
+                super().plug()
+                if not named_elsewhere(os.ttyname(self.slave)):
+                    return
+                passed.append((self.master, self.slave))  # held: the next pty is another
+        finally:
+            for fd in (fd for pair in passed if pair != (self.master, self.slave)
+                       for fd in pair):
+                os.close(fd)
 
 
 class Daemon:
@@ -149,7 +223,7 @@ class Daemon:
     def __init__(self, *args: str, command: str = "run") -> None:
         self.proc = subprocess.Popen(
             [sys.executable, "-m", "groundstation.cli", command, *args],
-            cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+            cwd=REPO, env=cli_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
         )
         self.lines: list[tuple[float, str]] = []
         self._thread = threading.Thread(target=self._pump, daemon=True)
@@ -160,8 +234,10 @@ class Daemon:
         for line in self.proc.stderr:
             self.lines.append((time.monotonic(), line))
 
-    def wait_for(self, text: str, timeout_s: float = 10.0, after: float = 0.0) -> float:
-        """Monotonic time at which a stderr line containing ``text`` appeared."""
+    def wait_for(self, text: str, timeout_s: float = 60.0, after: float = 0.0) -> float:
+        """Monotonic time at which a stderr line containing ``text`` appeared (at most
+        ``timeout_s``: generous, for a process starting on a busy machine; the time a
+        behaviour must take is checked by the tests, not by this wait)."""
         deadline = time.monotonic() + timeout_s
         while time.monotonic() < deadline:
             for t, line in list(self.lines):

@@ -238,7 +238,8 @@ def _print_summary(result: Any, photos: Path | None = None) -> None:
     if st is not None:
         at = "at the end of the flight" if sent.whole_flight else "when it stopped"
         for line in status_lines(st, injected_lost_epochs=sent.lost_epochs,
-                                 exposures=len(sent.exposures), at=at):
+                                 exposures=len(sent.exposures), at=at,
+                                 cleared=result.alerts_cleared):
             print(line)
     for path in s.files:
         print(f"  MCAP:        {path}")

@@ -131,22 +131,32 @@ def run(args: argparse.Namespace) -> int:
                     ("--base-out", args.base_out), ("--truth", args.truth)], args.force)
     faults = FaultConfig.load(args.faults or DEFAULT_FAULTS[args.profile])
     speed = parse_speed(args.speed, live)
-    started = time.monotonic()
-    result = simulate(sim_config(args.profile, duration_s=args.duration, seed=args.seed,
-                                 severity=args.severity, faults=faults,
-                                 with_base=bool(args.base_out) or not live))
-    gen_s = time.monotonic() - started
-    if args.truth:
-        result.write_truth(args.truth)
-    if args.base_out:
-        Path(args.base_out).write_bytes(result.base_bytes)
-    log = result.fault_log
-    summary = (
-        f"simulated {args.duration:.0f} s in {gen_s:.1f} s: "
-        f"{result.truth['receivers']['rover']['epochs']} epochs, "
-        f"{len(result.truth['exposures'])} exposures, {log.frames_sent} frames, "
-        f"{log.frames_sent - log.frames_intact} damaged by faults"
-    )
+    # Every output opened (hidden, staged) before the work: one that cannot be written
+    # (/proc, no permission) is a line naming its option, and the outputs appear only complete.
+    outs = [(opt, Path(path)) for opt, path in (
+        ("--out", None if live else args.out or "sim_rover.ubx"), ("--base-out", args.base_out),
+        ("--truth", args.truth)) if path]
+    with staged_files(outs) as handles:
+        files = {opt: fh for (opt, _), fh in zip(outs, handles, strict=True)}
+        started = time.monotonic()
+        result = simulate(sim_config(args.profile, duration_s=args.duration, seed=args.seed,
+                                     severity=args.severity, faults=faults,
+                                     with_base=bool(args.base_out) or not live))
+        gen_s = time.monotonic() - started
+        if args.truth:
+            files["--truth"].write(jsonio.dumps(result.truth))
+        if args.base_out:
+            files["--base-out"].write(result.base_bytes)
+        log = result.fault_log
+        summary = (
+            f"simulated {args.duration:.0f} s in {gen_s:.1f} s: "
+            f"{result.truth['receivers']['rover']['epochs']} epochs, "
+            f"{len(result.truth['exposures'])} exposures, {log.frames_sent} frames, "
+            f"{log.frames_sent - log.frames_intact} damaged by faults"
+        )
+        if not live:
+            for _, chunk in paced(result.rover_chunks, speed):
+                files["--out"].write(chunk)
     if args.pty:
         print(summary, file=sys.stderr)
         _serve_pty(result.rover_chunks, speed)
@@ -155,12 +165,8 @@ def run(args: argparse.Namespace) -> int:
         print(summary, file=sys.stderr)
         _serve_tcp(args.tcp, paced(result.rover_chunks, speed))
         return 0
-    out = args.out or "sim_rover.ubx"
-    with open(out, "wb") as fh:
-        for _, chunk in paced(result.rover_chunks, speed):
-            fh.write(chunk)
     print(summary)
-    print(f"rover stream: {out}")
+    print(f"rover stream: {args.out or 'sim_rover.ubx'}")
     if args.base_out:
         print(f"base stream: {args.base_out}")
     if args.truth:

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from groundstation import events as kinds
 from groundstation.bus import encode
 from groundstation.config import (
     DEFAULT_ENDPOINT,
@@ -116,6 +117,8 @@ class DemoResult:
     bytes_written: int
     sent_until_gps_ns: int | None = None
     """GPS time of the last chunk written when the run stopped before the flight's end."""
+    alerts_cleared: tuple[str, ...] = ()
+    """The alerts raised during the run and cleared before its end (their messages)."""
 
     def sent(self) -> SentFigures:
         """The simulator's figures up to the stop (the whole flight's when it ran to its end),
@@ -177,6 +180,39 @@ class ViewSink:
                 self._marks += 1
 
 
+class AlertLog:
+    """The alerts raised during the run, by name, and whether each was cleared since: the
+    summary names those cleared before the end beside the ones standing."""
+
+    name = "alert-log"
+    accepts = frozenset((Event,))
+
+    def __init__(self) -> None:
+        self.raised: dict[str, str] = {}
+        """Alert name -> its message when it was (last) raised."""
+        self.standing: set[str] = set()
+
+    async def consume(self, inbox: Inbox, publish: Callable[[Item], None]) -> None:
+        while True:
+            try:
+                items = await inbox.get_all()
+            except InboxClosed:
+                return
+            for item in items:
+                if not isinstance(item, Event):
+                    continue
+                name = str(item.data.get("alert", ""))
+                if item.kind == kinds.ALERT_RAISED:
+                    self.raised[name] = item.message
+                    self.standing.add(name)
+                elif item.kind == kinds.ALERT_CLEARED:
+                    self.standing.discard(name)
+
+    def cleared(self) -> tuple[str, ...]:
+        """Messages of the alerts raised and cleared again before the end, in raising order."""
+        return tuple(m for n, m in self.raised.items() if n not in self.standing)
+
+
 def simulate_flight(opts: DemoOptions) -> SimResult:
     """The simulated flight (rover, base, truth) of ``opts``: computed before the daemon starts,
     so that the command can check what it will write (the photos' names) first.
@@ -236,6 +272,8 @@ async def run_demo(
     pipeline = Pipeline(settings, on_file=first_file)
     if view is not None:
         pipeline.add_sink(view, 1000, Overflow.DROP_OLDEST)
+    alert_log = AlertLog()
+    pipeline.add_sink(alert_log, 1000, Overflow.NEVER_DROP)
     stop = asyncio.Event()
 
     async def drained() -> None:
@@ -294,6 +332,7 @@ async def run_demo(
         endpoint=zenoh.listen[0] if zenoh.enabled and zenoh.listen else None,
         station=station,
         bytes_written=feeder.bytes_written,
+        alerts_cleared=alert_log.cleared(),
         sent_until_gps_ns=(None if feeder.chunks_written == len(sim.rover_chunks)
                            else feeder.last_t_ns if feeder.last_t_ns is not None
                            else int(sim.truth["start_gps_ns"])),

@@ -173,6 +173,13 @@ class Monitor:
         elif ev.kind == kinds.OPERATOR_ACK:
             self.mark_watch.acknowledge(str(ev.data.get("alert", "")),
                                         str(ev.data.get("by", "")), now_ns, events)
+        elif ev.kind == kinds.STATION_CONFLICT:
+            # named in its message, as the views name their own finding of it (the dashboard
+            # shows one or the other)
+            alerts.raise_(kinds.ALERT_STATION_CONFLICT,
+                          f"{kinds.ALERT_STATION_CONFLICT}: {ev.message}", now_ns, events)
+        elif ev.kind == kinds.STATION_CONFLICT_ENDED:
+            alerts.clear(kinds.ALERT_STATION_CONFLICT, now_ns, events, ok=ev.message)
         elif ev.kind == kinds.ZENOH_DISCONNECTED:
             alerts.raise_(kinds.ALERT_ZENOH_DISCONNECTED, ev.message, now_ns, events)
         elif ev.kind == kinds.ZENOH_CONNECTED:
@@ -211,7 +218,7 @@ class Monitor:
         if link.epochs and link.first_epoch_ns is not None and link.last_epoch_ns is not None:
             # Session time in GPS time (data time): right for live and replay alike.
             age_s = (link.last_epoch_ns - link.first_epoch_ns) / NS_PER_S
-            ready, tracked, half = self.sats.counts(link.last_epoch_ns)
+            ready, tracked, half, _ = self.sats.counts(link.last_epoch_ns)
             alerts.hold(
                 kinds.ALERT_PPK_READY_LOW,
                 age_s >= PPK_WARMUP_CLEAN_PHASES * th.clean_phase_s and ready < th.ppk_ready_min,
@@ -261,7 +268,7 @@ class Monitor:
         return self.status(now_ns), events
 
     def status(self, now_ns: int) -> Status:
-        ready, tracked, half = self.sats.counts(self.link.last_epoch_ns)
+        ready, tracked, half, below = self.sats.counts(self.link.last_epoch_ns)
         t_last = self.link.last_epoch_ns or 0
         return Status(
             schema=STATUS_SCHEMA_VERSION,
@@ -278,4 +285,7 @@ class Monitor:
             recording=dict(self.recording),
             ppk_ready_min=self.th.ppk_ready_min,
             ppk_clean_phase_s=self.th.clean_phase_s,
+            below_mask=below,
+            elevation_mask_deg=self.th.elevation_mask_deg,
+            unidentified=self.sats.unidentified,
         )

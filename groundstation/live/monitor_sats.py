@@ -1,5 +1,9 @@
 """The monitor's satellites: C/N0, elevation, lock time, slips, half cycles, clean phase, PPK-ready.
 
+A measurement without a satellite number (a GLONASS satellite whose slot the receiver does not
+know yet, u-blox svId 255) is counted apart (:attr:`Satellites.unidentified`), never listed or
+counted as a tracked satellite; an elevation the receiver does not know (-91) is ``None``.
+
 Slips and half cycles are the phase rule's (:mod:`groundstation.rules.phase`): the decoder gives
 each measurement the same LLI the RINEX file gets, and
 :func:`~groundstation.rules.phase.phase_events` turns a signal's LLI sequence into events.
@@ -8,11 +12,19 @@ each measurement the same LLI the RINEX file gets, and
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 from groundstation import events as kinds
 from groundstation.config import MonitorSettings
 from groundstation.gpstime import NS_PER_S
-from groundstation.records import Event, RawEpoch, SatStatus, SvInfo
+from groundstation.records import (
+    Event,
+    RawEpoch,
+    SatStatus,
+    SvInfo,
+    identified,
+    known_elevation,
+)
 from groundstation.rules.phase import SIGNAL_LOST_AFTER_EPOCHS, phase_events
 
 SLIPPED_FOR_S = 30.0
@@ -35,17 +47,36 @@ class _Sat:
     absent: int = 0  # consecutive received epochs without this satellite
 
 
+class Counts(NamedTuple):
+    """The satellites' figures a status carries."""
+
+    ready: int
+    """PPK-ready: clean phase long enough, at or above the elevation mask."""
+    tracked: int
+    """Satellites tracked with one signal each (no SBAS, no unidentified measurement)."""
+    half: int
+    """Tracked satellites with an unresolved half cycle."""
+    below_mask: int
+    """Tracked satellites whose known elevation is below the mask (never PPK-ready)."""
+
+
 class Satellites:
     """Per-signal tracking state, fed with the epochs the link accepted."""
 
     def __init__(self, th: MonitorSettings) -> None:
         self.th = th
         self.sats: dict[str, _Sat] = {}
-        self._svinfo: dict[str, tuple[int, int, bool]] = {}
+        self._svinfo: dict[str, tuple[int | None, int | None, bool]] = {}
+        self.unidentified = 0
+        """Measurements in the latest epoch without a satellite number (GLONASS slot unknown)."""
 
     def on_svinfo(self, item: SvInfo) -> None:
         for s in item.sats:
-            self._svinfo[s.label] = (s.elev_deg, s.azim_deg, s.used)
+            if not identified(s.gnss, s.sv):
+                continue
+            el = known_elevation(s.elev_deg)
+            # an unknown elevation comes with azimuth 0: no direction either
+            self._svinfo[s.label] = (el, s.azim_deg if el is not None else None, s.used)
 
     def on_epoch(self, ep: RawEpoch, now_ns: int, events: list[Event]) -> None:
         # A satellite counts as lost only when it is missing from epochs that did arrive: a link
@@ -53,7 +84,11 @@ class Satellites:
         # an outage of up to 5 epochs, and the receiver flags a slip when lock really broke).
         t = ep.t_gps_ns
         seen = set()
+        self.unidentified = 0
         for s in ep.sats:
+            if not identified(s.gnss, s.sv):
+                self.unidentified += 1
+                continue
             label = s.label if s.sig_id == 0 else f"{s.label}/{s.sig_id}"
             seen.add(label)
             sat = self.sats.get(label)
@@ -96,11 +131,12 @@ class Satellites:
                 if sat.absent > SIGNAL_LOST_AFTER_EPOCHS:
                     del self.sats[label]
 
-    def counts(self, t_last_ns: int | None) -> tuple[int, int, int]:
-        """(PPK-ready, tracked with phase, half-cycle unresolved) over the current satellites."""
+    def counts(self, t_last_ns: int | None) -> Counts:
+        """PPK-ready, tracked, half-cycle unresolved and below the mask, over the current
+        satellites."""
         if t_last_ns is None:
-            return 0, 0, 0
-        ready = tracked = half = 0
+            return Counts(0, 0, 0, 0)
+        ready = tracked = half = below = 0
         need = int(self.th.clean_phase_s * NS_PER_S)
         for label, sat in self.sats.items():
             if "/" in label or label[0] == "S":
@@ -109,9 +145,10 @@ class Satellites:
             half += sat.half
             el = self._svinfo.get(label, (None, None, None))[0]
             above = el is None or el >= self.th.elevation_mask_deg
+            below += not above
             if above and sat.clean_since_ns is not None and t_last_ns - sat.clean_since_ns >= need:
                 ready += 1
-        return ready, tracked, half
+        return Counts(ready, tracked, half, below)
 
     def statuses(self, t_last_ns: int) -> tuple[SatStatus, ...]:
         out = []

@@ -42,7 +42,7 @@ from groundstation.live.data_time import UNTIMED, DataClock
 from groundstation.live.port_reader import DeviceVanished, PortReader
 from groundstation.pacing import LINK_BYTES_PER_S, Pacer, link_time_ns
 from groundstation.records import Event
-from groundstation.serialport import Port, PortInUse, open_port
+from groundstation.serialport import Port, PortInUse, is_terminal, open_port
 from groundstation.storage.reading import Recording
 
 EventSink = Callable[[Event], None]
@@ -181,8 +181,9 @@ class SerialSource:
 
         Raises:
             SourceError: another process holds the port.
-            ConfigError: the path exists but is not a character device (a file, a FIFO or a
-                directory named by mistake; exit status 2).
+            ConfigError: the path exists but is not a serial device: a file, a FIFO or a
+                directory named by mistake, or a character device without a terminal interface
+                such as ``/dev/null`` (exit status 2).
         """
         if self._claimed is not None or not os.path.exists(self.settings.port):
             return
@@ -193,6 +194,9 @@ class SerialSource:
                     else "not a device")
             raise ConfigError("source.port", f"{self.settings.port} is {what}, not a serial "
                                              "device")
+        if not is_terminal(self.settings.port):  # /dev/null: pyserial's open would fail
+            raise ConfigError("source.port", f"{self.settings.port} is a character device "
+                              "without a terminal interface, not a serial port")
         try:
             self._claimed = self._open()
         except PortInUse as err:

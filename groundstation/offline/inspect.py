@@ -13,7 +13,15 @@ from typing import Any
 
 from groundstation import gpstime
 from groundstation.errors import InputError
-from groundstation.records import Frame, RawEpoch, TimeMark, UndecodedFrame, sv_label
+from groundstation.records import (
+    GNSS_GLONASS,
+    UNKNOWN_GLONASS_SV,
+    Frame,
+    RawEpoch,
+    TimeMark,
+    UndecodedFrame,
+    sv_label,
+)
 from groundstation.rules.epochs import Gap, find_gaps, nominal_interval_ns
 from groundstation.rules.marks import track_marks
 from groundstation.storage.reading import Recording
@@ -21,8 +29,7 @@ from groundstation.storage.skipped import Skipped
 from groundstation.ubx.decode import Decoder, message_name
 from groundstation.ubx.framer import DEFAULT_MAX_PAYLOAD, FramerStats, UbxFramer
 
-GNSS_GLONASS = 6
-UNKNOWN_SV = 255
+UNKNOWN_SV = UNKNOWN_GLONASS_SV
 """u-blox svId of a GLONASS satellite whose slot number is not known yet."""
 
 
@@ -248,6 +255,31 @@ FILE_SIGNATURES: tuple[tuple[bytes, str], ...] = (
 )
 """Leading bytes of files users hand over by mistake (a photo instead of the flight)."""
 
+RINEX_TYPES = {"O": "observation", "N": "navigation", "G": "navigation", "H": "navigation",
+               "L": "navigation", "C": "navigation", "M": "meteorological"}
+"""A RINEX header's file type letter (column 21 of its first line), in words."""
+
+
+def what_file(head: bytes) -> str | None:
+    """What a file that is not a recording looks like from its first bytes ("a JPEG image",
+    "a RINEX 3.04 observation file"), or None.
+
+    RINEX is recognised by its first header line's label (columns 61-80 ``RINEX VERSION /
+    TYPE``, or Hatanaka's ``CRINEX VERS   / TYPE``): the files ``rinex`` writes and RTKLIB
+    reads, handed to a command that reads receiver recordings.
+    """
+    named = next((name for magic, name in FILE_SIGNATURES if head.startswith(magic)), None)
+    if named is not None:
+        return named
+    first = head.split(b"\n", 1)[0].decode("ascii", "replace")
+    if first[60:80] == "CRINEX VERS   / TYPE":
+        return "a Hatanaka-compressed RINEX file"
+    if first[60:80] != "RINEX VERSION / TYPE":
+        return None
+    version = first[:9].strip()
+    kind = RINEX_TYPES.get(first[20:21], "")
+    return f"a RINEX {version} {kind} file".replace("  ", " ")
+
 
 def require_ubx_frames(path: str | Path, max_payload: int = DEFAULT_MAX_PAYLOAD) -> None:
     """Raise unless the recording holds at least one valid UBX frame.
@@ -266,15 +298,20 @@ def require_ubx_frames(path: str | Path, max_payload: int = DEFAULT_MAX_PAYLOAD)
     head = b""
     for chunk, t_host_ns in recording.chunks():
         if not head:
-            head = chunk[:8]
+            head = chunk[:256]
         last_t = t_host_ns
         if any(True for _ in framer.feed(chunk, t_host_ns)):
             return
     if any(True for _ in framer.flush(last_t)):
         return
-    size = recording.size_bytes
-    what = next((name for magic, name in FILE_SIGNATURES if head.startswith(magic)), None)
-    detail = "empty file" if size == 0 else (
-        f"{size:,} bytes, {what}" if what else f"{size:,} bytes"
-    )
+    detail = content_detail(recording.size_bytes, head)
     raise InputError(f"{p}: no UBX frames in this file ({detail})")
+
+
+def content_detail(size: int, head: bytes) -> str:
+    """A file without UBX frames in a few words: "513 bytes, a JPEG image", "empty file"."""
+    what = what_file(head)
+    return "empty file" if size == 0 else (
+        f"{size:,} bytes, {what}, not a receiver recording" if what and "RINEX" in what
+        else f"{size:,} bytes, {what}" if what else f"{size:,} bytes"
+    )

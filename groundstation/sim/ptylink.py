@@ -117,7 +117,11 @@ class PtyLink:
         self.master = self.slave = -1
 
     def close(self) -> None:
-        """Stop any feed and close the pair (a symlink, if any, is left to the caller's
-        directory)."""
+        """Stop any feed, remove the link, if any, and close the pair.
+
+        The link goes first: the kernel gives a closed pty's number to the next pty opened,
+        and a reader still reopening the link (a daemon stopped after its pty) would take
+        another program's pty.
+        """
         self._stop.set()
-        self._close_fds()
+        self.unplug()

@@ -3,7 +3,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 from groundstation.config import MonitorSettings
@@ -36,19 +36,61 @@ def ppk_label(clean_phase_s: float) -> str:
     return f"PPK-ready (clean phase >= {clean_phase_s:g} s)"
 
 
+def _count(value: object) -> int:
+    return value if isinstance(value, int) and not isinstance(value, bool) and value > 0 else 0
+
+
+def below_mask_text(below_mask: object, elevation_mask_deg: object) -> str:
+    """Why PPK-ready is short of the tracked count with every satellite clean, in the same
+    words in every view: "2 below the 15° elevation mask" ("" when none is)."""
+    n = _count(below_mask)
+    if not n:
+        return ""
+    mask = (f"{float(elevation_mask_deg):g}°" if isinstance(elevation_mask_deg, (int, float))
+            and not isinstance(elevation_mask_deg, bool) else "")
+    return f"{n} below the {mask} elevation mask".replace("the  ", "the ")
+
+
+def unidentified_text(unidentified: object) -> str:
+    """GLONASS measurements the receiver has not given a satellite number yet (u-blox svId
+    255): said apart, never a satellite ("" when there are none)."""
+    n = _count(unidentified)
+    if not n:
+        return ""
+    return (f"{n} GLONASS measurement{'s' if n > 1 else ''} without a satellite number "
+            "(not counted)")
+
+
+def tracked_text(status: Mapping[str, Any]) -> str:
+    """"10 tracked (2 below the 15° elevation mask)": the tracked count with what keeps some
+    of them from counting as PPK-ready, from a status as JSON."""
+    below = below_mask_text(status.get("below_mask"), status.get("elevation_mask_deg"))
+    n = status.get("tracked")
+    return f"{n if isinstance(n, int) else 0} tracked" + (f" ({below})" if below else "")
+
+
 def status_lines(st: Status, *, injected_lost_epochs: int | None = None,
-                 exposures: int | None = None, at: str = "at the end") -> list[str]:
+                 exposures: int | None = None, at: str = "at the end",
+                 cleared: Sequence[str] = ()) -> list[str]:
     """Link, marks and satellites in three lines; the simulator's figures when given.
 
     The link and marks lines count the whole run; the satellites and alerts are the state
     ``at`` its last data (``"at the end of the recording"``): a recording whose receiver was
     carried indoors at the end ends with few satellites even when its flight was clean.
+    ``cleared``: the alerts raised during the run and cleared before its end (as they were
+    raised), named after those standing, so that "alerts: none" never hides a problem the run
+    had (a station clash that ended when the other daemon stopped).
     """
     link, marks = st.link, st.marks
     sim_link = (f"; simulator injected {injected_lost_epochs}"
                 if injected_lost_epochs is not None else "")
     sim_marks = f" (simulator: {exposures} exposures)" if exposures is not None else ""
     need, clean_s = ppk_thresholds(st.ppk_ready_min, st.ppk_clean_phase_s)
+    notes = "; ".join(t for t in (below_mask_text(st.below_mask, st.elevation_mask_deg),
+                                  unidentified_text(st.unidentified)) if t)
+    notes = f" ({notes})" if notes else ""
+    earlier = (f" (raised during the run, cleared since: {'; '.join(cleared)})"
+               if cleared else "")
     return [
         (f"  link: {link.epochs} epochs at {link.epoch_interval_s or 0:g} s, {link.dropouts} "
         f"dropouts ({link.missing_epochs} epochs missing{sim_link}), {link.damaged_frames} "
@@ -56,7 +98,7 @@ def status_lines(st: Status, *, injected_lost_epochs: int | None = None,
         (f"  marks: {marks.marks} received, {marks.missed} missed, {marks.duplicates} "
          f"duplicates, "
         f"{marks.in_dropout} inside dropouts{sim_marks}"),
-        (f"  {at}: {st.tracked} satellites tracked, {st.ppk_ready} {ppk_label(clean_s)}, "
-         f"{need} needed; alerts: "
-         f"{'; '.join(st.alerts) or 'none'}"),
+        (f"  {at}: {st.tracked} satellites tracked{notes}, {st.ppk_ready} "
+         f"{ppk_label(clean_s)}, {need} needed; alerts: "
+         f"{'; '.join(st.alerts) or 'none'}{earlier}"),
     ]

@@ -24,7 +24,13 @@ from rich.text import Text
 from groundstation import gpstime, messages
 from groundstation.bus import Bus, key
 from groundstation.config import Settings, ZenohSettings
-from groundstation.view.summary import ppk_label, ppk_thresholds, session_finished
+from groundstation.view.summary import (
+    ppk_label,
+    ppk_thresholds,
+    session_finished,
+    tracked_text,
+    unidentified_text,
+)
 
 DEFAULT_STATION = str(next(f.default for f in fields(Settings) if f.name == "station"))
 """The station name when none is configured (the daemon's, so watch finds it)."""
@@ -219,7 +225,9 @@ def render(state: WatchState, now_s: float | None = None) -> RenderableType:
         body: RenderableType = Text(msg, style="yellow")
     else:
         body = _status_body(st, marks, events, session, alive, stale=stale)
-    if daemons > 1:
+    standing = (st or {}).get("alerts") or []
+    if daemons > 1 and not any(str(a).startswith("station_conflict") for a in standing):
+        # (the daemons' own station_conflict alert, when it is in ALERTS, says it already)
         body = Group(Text(f" station_conflict: {daemons} daemons publish as station "
                           f"{state.station!r} ", style="bold white on red"), body)
     if rejected:
@@ -278,21 +286,25 @@ def _status_body(st: dict[str, Any], marks: list[dict[str, Any]],
     sats = Table(expand=False, box=None, padding=(0, 1))
     for col in ("SV", "el", "az", "C/N0", "", "lock s", "clean s", "slips", "½", "state"):
         sats.add_column(col, justify="right" if col not in ("SV", "", "state") else "left")
+    mask = st.get("elevation_mask_deg")
     for s in st.get("sats", []):
         style = STATE_STYLE.get(s["state"], "")
+        el = s.get("elev_deg")
+        below = isinstance(mask, (int, float)) and isinstance(el, (int, float)) and el < mask
         sats.add_row(
-            s["sv"], _fmt(s.get("elev_deg")), _fmt(s.get("azim_deg")), str(s["cno_dbhz"]),
+            s["sv"], Text(_fmt(el), style="dim" if below else ""), _fmt(s.get("azim_deg")),
+            str(s["cno_dbhz"]),
             Text(_bar(s["cno_dbhz"], 20, 50), style="cyan"), f"{s['lock_s']:.0f}",
             f"{s['clean_phase_s']:.0f}", str(s["slips"]),
             Text("½", style="bold yellow") if s["half_cycle_unresolved"] else "",
-            Text(s["state"], style=style),
+            Text(s["state"] + (", below mask" if below else ""), style=style),
         )
     ppk = Text()
     need, clean_s = ppk_thresholds(st.get("ppk_ready_min"), st.get("ppk_clean_phase_s"))
     ppk.append(f"{ppk_label(clean_s)} ", style="bold")
     ready = st.get("ppk_ready", 0)
     ppk.append(f" {ready} ", style="bold black on green" if ready >= need else "bold white on red")
-    ppk.append(f" of {st.get('tracked', 0)} tracked, {need} needed, half-cycle "
+    ppk.append(f" of {tracked_text(st)}, {need} needed, half-cycle "
                f"{st.get('half_cycle_fraction', 0) * 100:.0f}%")
 
     ms = st["marks"]
@@ -328,6 +340,8 @@ def _status_body(st: dict[str, Any], marks: list[dict[str, Any]],
         head, Text("ALERTS at the end of the session" if finished else "ALERTS", style="bold"),
         alert_text, link_line,
         Text("last 5 min ") + timeline(link), ppk, mark_line, sats,
+        *([Text(unknown, style="dim")] if (unknown := unidentified_text(
+            st.get("unidentified"))) else []),
         Text("EVENTS", style="bold"), ev_text,
     )
 

@@ -10,6 +10,7 @@ unchanged).
 
 from __future__ import annotations
 
+import gzip
 import hashlib
 import os
 import stat
@@ -64,6 +65,10 @@ CASES: list[Case] = [
     c("inspect-corrupt-gzip-named-mcap", "inspect corrupt.mcap", 2, "corrupt gzip"),
     c("inspect-link-to-fifo", "inspect fifo-link.ubx", 2, "is a FIFO"),
     c("inspect-json-fifo", "inspect --json fifo", 2, "is a FIFO"),
+    c("inspect-rinex-obs", "inspect rover.obs", 2,
+      "no UBX frames in this file (1,008 bytes, a RINEX 3.04 observation file, not a receiver "
+      "recording)"),
+    c("inspect-rinex-nav-gz", "inspect base.nav.gz", 2, "a RINEX 2.11 navigation file"),
     # -- rinex --------------------------------------------------------------------------------
     c("rinex-fifo", "rinex fifo -o out", 2, "is a FIFO"),
     c("rinex-dev-zero", "rinex /dev/zero -o out", 2, "is a device"),
@@ -80,6 +85,11 @@ CASES: list[Case] = [
       "shutter-delay-ms"),
     c("rinex-bad-marks", "rinex good.ubx -o out --marks sideways", 2, "invalid choice"),
     c("rinex-no-out", "rinex good.ubx", 2, "required"),
+    # a photo or a RINEX file is named as inspect names it (it asked about the receiver's raw
+    # output), before the output directory is made
+    c("rinex-jpeg", "rinex X/a.jpg -o out", 2, "X/a.jpg: no raw measurements and no "
+      "navigation data: no UBX frames in this file (4 bytes, a JPEG image)"),
+    c("rinex-rinex-obs", "rinex rover.obs -o out", 2, "a RINEX 3.04 observation file"),
     # -- replay -------------------------------------------------------------------------------
     c("replay-fifo", "replay fifo --no-zenoh", 2, "is a FIFO"),
     c("replay-dev-zero", "replay /dev/zero --no-zenoh", 2, "is a device"),
@@ -120,6 +130,10 @@ CASES: list[Case] = [
     c("run-port-fifo", "run --port fifo --no-zenoh --out-dir rec", 2, "is a FIFO"),
     c("run-port-dir", "run --port adir --no-zenoh --out-dir rec", 2, "is a directory"),
     c("run-port-file", "run --port good.ubx --no-zenoh --out-dir rec", 2, "use --file"),
+    # a character device that is no serial port: refused before any file, not retried for ever
+    # with an empty recording left behind
+    c("run-port-dev-null", "run --port /dev/null --no-zenoh --out-dir rec", 2,
+      "source.port: /dev/null is a character device without a terminal interface"),
     c("run-no-source", "run --no-zenoh --out-dir rec", 2, "no source configured"),
     # -- simulate -----------------------------------------------------------------------------
     c("simulate-out-exists", "simulate --out notes.txt --duration 5", 2, "without --force"),
@@ -134,6 +148,14 @@ CASES: list[Case] = [
     c("simulate-truth-is-out", "simulate --out new.ubx --truth new.ubx --duration 5", 2,
       "is also the --out file"),
     c("simulate-out-no-dir", "simulate --out nodir/x.ubx --duration 5", 2, "does not exist"),
+    # an output that cannot be created names its option, exit 2, as the others do (it was a
+    # bare errno, exit 1, after the simulation)
+    c("simulate-out-in-proc", "simulate --out /proc/x.ubx --duration 5", 2,
+      "--out: cannot write /proc/x.ubx"),
+    c("simulate-base-out-in-proc", "simulate --out new.ubx --base-out /proc/b.ubx --duration 5",
+      2, "--base-out: cannot write /proc/b.ubx"),
+    c("simulate-truth-in-proc", "simulate --out new.ubx --truth /proc/t.json --duration 5", 2,
+      "--truth: cannot write /proc/t.json"),
     c("simulate-duration-zero", "simulate --out new.ubx --duration 0", 2, "duration"),
     c("simulate-faults-fifo", "simulate --out new.ubx --duration 5 --faults fifo", 2,
       "not a regular file"),
@@ -267,6 +289,30 @@ CASES: list[Case] = [
 ]
 
 
+def _rinex_line(text: str, label: str) -> str:
+    return f"{text:<60}{label:<20}\n"
+
+
+RINEX_OBS = "".join((
+    _rinex_line("     3.04           OBSERVATION DATA    G (GPS)", "RINEX VERSION / TYPE"),
+    _rinex_line(f"{'groundstation 0.1.0':<40}20261127 120000 UTC", "PGM / RUN BY / DATE"),
+    _rinex_line("rover", "MARKER NAME"),
+    _rinex_line("", "OBSERVER / AGENCY"),
+    _rinex_line("", "REC # / TYPE / VERS"),
+    _rinex_line("", "ANT # / TYPE"),
+    _rinex_line("  4146349.2471   612312.5498  4791750.8505", "APPROX POSITION XYZ"),
+    _rinex_line("        0.0000        0.0000        0.0000", "ANTENNA: DELTA H/E/N"),
+    _rinex_line("G    4 C1C L1C D1C S1C", "SYS / # / OBS TYPES"),
+    _rinex_line("  2026    11    27    12     0    0.0000000     GPS", "TIME OF FIRST OBS"),
+    _rinex_line("", "END OF HEADER"),
+    "> 2026 11 27 12 00  0.0000000  0  1\n",
+    "G05  21000000.000 1      110000000.000 1          -100.000 1            45.000 1\n",
+))
+"""A RINEX 3.04 observation file of one epoch (1 008 bytes)."""
+RINEX_NAV = _rinex_line("     2.11           N: GPS NAV DATA", "RINEX VERSION / TYPE") + \
+    _rinex_line("", "END OF HEADER")
+
+
 def _workspace(root: Path) -> None:
     """The inputs every case may name."""
     data, _ = flight_stream(10)
@@ -276,6 +322,9 @@ def _workspace(root: Path) -> None:
     (root / "rec.mcap").write_bytes(MCAP_MAGIC + b"\x00" * 32)
     (root / "notes.txt").write_text("mine\n")
     (root / "bad.obs").write_text("not RINEX\n")
+    (root / "rover.obs").write_text(RINEX_OBS)  # what `rinex` writes, handed back to it
+    with gzip.open(root / "base.nav.gz", "wt") as f:
+        f.write(RINEX_NAV)
     (root / "x.pos").write_text("% not used: the command stops before reading it\n")
     # gzip header, then a deflate block of an invalid type: zlib.error when read
     bad = b"\x1f\x8b\x08\x00\x00\x00\x00\x00\x00\x03" + b"\xff" * 64

@@ -11,7 +11,7 @@ import sys
 from pathlib import Path
 
 import pytest
-from peers import cli_env, read_terminal
+from peers import cli_env, free_port, read_terminal
 from streams import flight_stream
 
 ROVER = "real/jdesbonnet__GNSS_RTK_data/20181009/rover-20181009-1221.ubx.gz"
@@ -60,21 +60,28 @@ def test_simulate_two_outputs_named_alike_are_not_called_the_input(tmp_path: Pat
     assert list(tmp_path.iterdir()) == []
 
 
+def _nobody() -> str:
+    """A Zenoh endpoint of this test's own where no daemon listens (the default one may have
+    a daemon of someone else's on this machine)."""
+    return f"tcp/127.0.0.1:{free_port()}"
+
+
 def test_watch_names_the_default_station_once(tmp_path: Path) -> None:
-    proc = _cli(tmp_path, "watch", "--duration", "1")
+    proc = _cli(tmp_path, "watch", "--duration", "1", "--connect", _nobody())
     assert proc.returncode == 0, proc.stderr
     assert "default station 'station'" in proc.stdout
     assert "station station" not in proc.stdout
-    named = _cli(tmp_path, "watch", "--duration", "1", "--station", "bg")
+    named = _cli(tmp_path, "watch", "--duration", "1", "--station", "bg", "--connect", _nobody())
     assert "groundstation watch · station bg" in named.stdout
 
 
 def test_dashboard_warns_once_when_open_to_the_network(tmp_path: Path) -> None:
-    proc = _cli(tmp_path, "dashboard", "--bind", "0.0.0.0", "--port", "0", "--duration", "1")
+    proc = _cli(tmp_path, "dashboard", "--bind", "0.0.0.0", "--port", "0", "--duration", "1",
+                "--connect", _nobody())
     assert proc.returncode == 0, proc.stderr
     warnings = [ln for ln in proc.stderr.splitlines() if "WARNING" in ln]
     assert len(warnings) == 1 and "no authentication" in warnings[0], proc.stderr
-    local = _cli(tmp_path, "dashboard", "--port", "0", "--duration", "1")
+    local = _cli(tmp_path, "dashboard", "--port", "0", "--duration", "1", "--connect", _nobody())
     assert local.returncode == 0, local.stderr
     assert "WARNING" not in local.stderr
 

@@ -24,6 +24,10 @@ from groundstation.sim.stream import SimResult, simulate
 from groundstation.solve import conditioning, engine
 from groundstation.solve.positions import Q_FIX, read_pos
 
+# One worker runs this module's tests (pytest-xdist):
+# its module fixture simulates the seed flight (~6 s), made once.
+pytestmark = pytest.mark.xdist_group("test_conditioning")
+
 FLIGHT_S = 1200.0  # 6 min static, 8 min flight, 6 min static: short seed flights vary a lot
 SEED = 1
 

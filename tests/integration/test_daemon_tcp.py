@@ -6,7 +6,7 @@ import asyncio
 import json
 from pathlib import Path
 
-from groundstation.config import RecorderSettings, Settings, TcpSourceSettings
+from groundstation.config import RecorderSettings, Settings, TcpSourceSettings, ZenohSettings
 from groundstation.live.daemon import run_daemon
 from groundstation.storage import iter_messages, iter_raw_chunks, read_summary
 from groundstation.ubx.build import build_frame
@@ -30,6 +30,7 @@ def test_tcp_source_reconnects_and_records_the_outage(tmp_path: Path) -> None:
         settings = Settings(
             source=TcpSourceSettings(host="127.0.0.1", port=port, reconnect_max_s=0.2),
             station="tcp", recorder=RecorderSettings(out_dir=tmp_path),
+            zenoh=ZenohSettings(enabled=False),  # (the default endpoint is not this test's)
         )
         stop = asyncio.Event()
         files: list[Path] = []

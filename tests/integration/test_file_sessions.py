@@ -29,6 +29,10 @@ from groundstation.sim.stream import SimConfig, simulate
 from groundstation.solve.pipeline import SolveSettings, read_flight, solve
 from groundstation.storage import iter_messages, iter_raw_chunks
 
+# One worker runs this module's tests (pytest-xdist):
+# its module fixture simulates and records sessions, made once.
+pytestmark = pytest.mark.xdist_group("test_file_sessions")
+
 RECORD_TOPICS = ("/gnss/epoch", "/gnss/timemark", "/gnss/ephemeris", "/gnss/nav",
                  "/gnss/svinfo", "/groundstation/location")
 

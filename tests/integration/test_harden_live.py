@@ -121,6 +121,7 @@ def test_repointed_device_path_is_reopened_and_recorded_within_3_s(
         rc, _ = d.stop()
         assert rc == 0, d.stderr
     finally:
+        d.kill()  # (gone already unless the test failed) before its ptys close
         old.close()
         new.close()
 
@@ -142,7 +143,7 @@ def test_out_dir_deleted_mid_session_alerts_and_loses_nothing_after(
     d = Daemon("--port", str(pty.link), "--station", "vd", "--out-dir", str(out),
                "--config", str(conf), *zenoh)
     daemons.append(d)
-    d.wait_for("publishing on Zenoh" if not rotate else "connected", timeout_s=20)
+    d.wait_for("publishing on Zenoh" if not rotate else "connected")
     seen: list[dict[str, Any]] = []
     bus = None if rotate else open_bus(ZenohSettings(listen=(), connect=(endpoint,)))
     if bus is not None:
@@ -217,11 +218,11 @@ def test_two_daemons_with_one_station_name_both_alert(
         d1 = Daemon("--port", str(pty.link), "--station", "dup", "--out-dir",
                     str(tmp_path / "o1"), "--zenoh-listen", e1)
         daemons.append(d1)
-        d1.wait_for("publishing on Zenoh", timeout_s=20)
+        d1.wait_for("publishing on Zenoh")
         d2 = Daemon("--port", str(second.link), "--station", "dup", "--out-dir",
                     str(tmp_path / "o2"), "--zenoh-listen", e2, "--zenoh-connect", e1)
         daemons.append(d2)
-        d2.wait_for("publishing on Zenoh", timeout_s=20)
+        d2.wait_for("publishing on Zenoh")
         feeders = [Feeder(pty), Feeder(second)]
         bus = open_bus(ZenohSettings(listen=(), connect=(e1, e2)))
         got = Received(bus, key("dup", "**"))

@@ -34,6 +34,10 @@ from groundstation.storage.mcapio import McapFileWriter, ReadReport, iter_messag
 from groundstation.storage.reading import Recording, iter_chunks
 from groundstation.storage.session import SessionRecorder
 
+# One worker runs this module's tests (pytest-xdist):
+# its module fixture records a flight, made once.
+pytestmark = pytest.mark.xdist_group("test_harden_recordings")
+
 T0_NS = 1_700_000_000_000_000_000
 FRAME_NS = 10_000_000  # each frame its own log time, so a lost chunk's frames are known
 RXM_RAW = b"\xb5\x62\x02\x10"

@@ -15,6 +15,10 @@ from groundstation.sim.stream import SimConfig, SimResult, simulate
 from groundstation.ubx.decode import Decoder
 from groundstation.ubx.framer import UbxFramer, iter_frames
 
+# One worker runs this module's tests (pytest-xdist):
+# its module fixture simulates a 600 s flight, made once.
+pytestmark = pytest.mark.xdist_group("test_monitor_sim")
+
 LATENCY_NS = 60_000_000  # host receives a chunk 60 ms after its GPS time
 TICK_NS = 100_000_000
 

@@ -13,7 +13,7 @@ from mcap.reader import make_reader
 from streams import rxm_raw
 
 from groundstation import gpstime
-from groundstation.config import FileSourceSettings, RecorderSettings, Settings
+from groundstation.config import FileSourceSettings, RecorderSettings, Settings, ZenohSettings
 from groundstation.live.daemon import run_daemon
 from groundstation.records import Event, TimeMark
 from groundstation.storage import iter_messages, iter_raw_chunks, read_metadata, read_summary
@@ -186,6 +186,7 @@ def test_pipeline_from_gz_file_in_process(tmp_path: Path) -> None:
     settings = Settings(
         source=FileSourceSettings(path=src, read_size_bytes=333), station="gz",
         recorder=RecorderSettings(out_dir=tmp_path / "out"),
+        zenoh=ZenohSettings(enabled=False),  # (the default endpoint is not this test's)
     )
     files: list[Path] = []
     summary = asyncio.run(run_daemon(settings, on_file=files.append))
@@ -204,7 +205,8 @@ def test_missing_file_source_is_an_error(tmp_path: Path) -> None:
     from groundstation.errors import InputError
 
     settings = Settings(source=FileSourceSettings(path=tmp_path / "nope.ubx"),
-                        recorder=RecorderSettings(out_dir=tmp_path / "out"))
+                        recorder=RecorderSettings(out_dir=tmp_path / "out"),
+                        zenoh=ZenohSettings(enabled=False))
     with pytest.raises(InputError):
         asyncio.run(run_daemon(settings))
     # refused before any file is created (FileSource.claim)

@@ -25,6 +25,10 @@ from groundstation.solve.fetch import Fetcher, Remote, remote_for
 from groundstation.storage import transfer
 from groundstation.storage.session import SessionRecorder
 
+# One worker runs this module's tests (pytest-xdist):
+# its module fixture records a flight, made once.
+pytestmark = pytest.mark.xdist_group("test_recording_fetch")
+
 CHUNK = 64 * 1024
 
 

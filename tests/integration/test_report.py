@@ -24,6 +24,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from once import DemoFlight
 from test_dashboard_chromium import CHROMIUM, Chromium
 from test_solve_demo import _cli
 from test_solve_jd import JD, REF, _photos_for_marks
@@ -32,6 +33,10 @@ from groundstation.rules.marks import build_marks
 from groundstation.solve import pipeline
 from groundstation.solve.photosim import photos_at_times, write_photo_set
 from groundstation.solve.report import MARK_COLUMNS
+
+# One worker runs this module's tests (pytest-xdist):
+# its module fixtures solve the demo and the real flight (~8 s each), made once.
+pytestmark = pytest.mark.xdist_group("test_report")
 
 needs_chromium = pytest.mark.skipif(
     not CHROMIUM.exists(),
@@ -42,14 +47,10 @@ needs_poppler = pytest.mark.skipif(shutil.which("pdfinfo") is None,
 
 
 @pytest.fixture(scope="module")
-def demo(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
+def demo(tmp_path_factory: pytest.TempPathFactory, demo_flight: DemoFlight) -> dict[str, Any]:
     """The demo flight with a photo per exposure, solved with the default engine (demo5)."""
     d = tmp_path_factory.mktemp("report_demo")
-    proc = _cli("demo", "--flight", "300", "--speed", "max", "--out-dir", str(d / "flights"),
-                "--no-zenoh", "--seed", "4", cwd=d)
-    assert proc.returncode == 0, proc.stderr
-    files = {k: Path(v) for k, v in
-             re.findall(r"^\s+(MCAP|base UBX|truth):\s+(\S+)$", proc.stdout, re.M)}
+    files = demo_flight.files  # (the demo made once for the run: conftest.py)
     truth = json.loads(files["truth"].read_text())
     photos = d / "photos"
     write_photo_set(photos_at_times([e["falling_t_gps_ns"] for e in truth["exposures"]],

@@ -20,7 +20,9 @@ from groundstation.offline.rinex import format as rinex_format
 from groundstation.storage.reading import iter_chunks
 from groundstation.ubx.fastraw import decode_raw, decode_rawx, index_frames
 
-pytestmark = pytest.mark.shared_data
+# One worker runs this module's tests (pytest-xdist): its module fixture converts the real
+# recordings, made once.
+pytestmark = [pytest.mark.shared_data, pytest.mark.xdist_group("test_rinex_convbin")]
 
 FILES = {
     "ubx_20080526": "real/tomojitakasu__RTKLIB/test/data/rcvraw/ubx_20080526.ubx",

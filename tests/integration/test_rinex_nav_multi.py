@@ -17,7 +17,9 @@ from groundstation.solve import engine
 from groundstation.solve.positions import Trajectory, read_pos
 from groundstation.ubx.fastraw import index_frames
 
-pytestmark = pytest.mark.shared_data
+# One worker runs this module's tests (pytest-xdist): its module fixture converts the real
+# recordings, made once.
+pytestmark = [pytest.mark.shared_data, pytest.mark.xdist_group("test_rinex_nav_multi")]
 
 JD = "real/jdesbonnet__GNSS_RTK_data"
 FILES = {

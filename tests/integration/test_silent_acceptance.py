@@ -18,6 +18,10 @@ import pytest
 
 from groundstation.ubx.framer import UbxFramer
 
+# One worker runs this module's tests (pytest-xdist):
+# its module fixture simulates a flight, made once.
+pytestmark = pytest.mark.xdist_group("test_silent_acceptance")
+
 # A JPEG as a camera writes it: SOI, APP1 (Exif) with NUL bytes in it.
 JPEG = (b"\xff\xd8\xff\xe1\x00\x16Exif\x00\x00II*\x00\x08\x00\x00\x00\x00\x00"
         + bytes(64) + b"\xff\xd9")

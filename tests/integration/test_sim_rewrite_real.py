@@ -30,7 +30,9 @@ from groundstation.ubx.decode import Decoder, message_name
 from groundstation.ubx.fastraw import index_frames
 from groundstation.ubx.framer import iter_frames
 
-pytestmark = pytest.mark.shared_data
+# One worker runs this module's tests (pytest-xdist): its module fixtures rewrite a real
+# recording, made once.
+pytestmark = [pytest.mark.shared_data, pytest.mark.xdist_group("test_sim_rewrite_real")]
 
 JD = "real/jdesbonnet__GNSS_RTK_data"
 ROVER = f"{JD}/20181009/rover-20181009-1221.ubx.gz"

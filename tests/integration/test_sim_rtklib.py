@@ -16,10 +16,12 @@ from groundstation.sim.stream import SimConfig, SimResult, simulate
 from groundstation.ubx.decode import Decoder
 from groundstation.ubx.framer import iter_frames
 
-pytestmark = pytest.mark.skipif(
+# One worker runs this module's tests (pytest-xdist): its module fixture simulates a flight,
+# made once.
+pytestmark = [pytest.mark.skipif(
     shutil.which("convbin") is None or shutil.which("rnx2rtkp") is None,
     reason="RTKLIB (convbin, rnx2rtkp) not installed: apt-get install rtklib",
-)
+), pytest.mark.xdist_group("test_sim_rtklib")]
 
 
 @pytest.fixture(scope="module")

@@ -13,11 +13,6 @@ import csv
 import html.parser
 import json
 import math
-import os
-import re
-import shutil
-import subprocess
-import sys
 import time
 from pathlib import Path
 from typing import Any
@@ -25,46 +20,25 @@ from typing import Any
 import numpy as np
 import pytest
 from exif import Image
+from once import DemoFlight, cli_without_rtklib
 from pyproj import CRS, Transformer
 
 from groundstation.solve.outputs import CAMERAS_COLUMNS, PIX4D_COLUMNS, REFERENCE_COLUMNS
 from groundstation.solve.photosim import photos_at_times, write_photo_set
 
-RTKLIB_PROGRAMS = {"rnx2rtkp", "convbin", "rtkrcv", "str2str", "pos2kml", "rtkpost"}
+# One worker runs this module's tests (pytest-xdist):
+# its module fixture solves the demo flight (~10 s), made once.
+pytestmark = pytest.mark.xdist_group("test_solve_demo")
+
 OUTPUTS = ("cameras.csv", "geo.txt", "reference.csv", "pix4d.csv", "cameras.geojson",
            "report.html")
-
-
-def _path_without_rtklib(shadow: Path) -> str:
-    """A PATH with every program of today's PATH except RTKLIB's (symlinks in ``shadow``)."""
-    shadow.mkdir(parents=True, exist_ok=True)
-    for d in os.environ.get("PATH", "").split(os.pathsep):
-        if not d or not Path(d).is_dir():
-            continue
-        for exe in Path(d).iterdir():
-            link = shadow / exe.name
-            if exe.name not in RTKLIB_PROGRAMS and not link.exists() and not link.is_symlink():
-                link.symlink_to(exe)
-    return str(shadow)
-
-
-def _cli(*args: str, cwd: Path, timeout_s: float = 180.0) -> subprocess.CompletedProcess[str]:
-    env = {**os.environ, "PATH": _path_without_rtklib(cwd / "bin-without-rtklib")}
-    assert shutil.which("rnx2rtkp", path=env["PATH"]) is None
-    return subprocess.run([sys.executable, "-m", "groundstation.cli", *args], cwd=cwd, env=env,
-                          capture_output=True, text=True, timeout=timeout_s, check=False)
+_cli = cli_without_rtklib
 
 
 @pytest.fixture(scope="module")
-def solved(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
+def solved(tmp_path_factory: pytest.TempPathFactory, demo_flight: DemoFlight) -> dict[str, Any]:
     d = tmp_path_factory.mktemp("demo_solve")
-    t0 = time.monotonic()
-    demo = _cli("demo", "--flight", "300", "--speed", "max", "--out-dir", str(d / "flights"),
-                "--no-zenoh", "--seed", "4", cwd=d)
-    assert demo.returncode == 0, demo.stderr
-    t_demo = time.monotonic() - t0
-    paths = re.findall(r"^\s+(MCAP|base UBX|truth):\s+(\S+)$", demo.stdout, re.M)
-    files = {k: Path(v) for k, v in paths}
+    files = demo_flight.files  # (the demo made once for the run: conftest.py)
     truth = json.loads(files["truth"].read_text())
     # Photos for the exposures whose marks reached the recording: the demo's link faults may
     # lose a TIM-TM2 or the camera a pulse, which leaves that photo unpaired (test_solve_sim
@@ -84,7 +58,7 @@ def solved(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
                 "--interp", "smoother", "--exif", "--out", str(out), cwd=d)
     t_solve = time.monotonic() - t1
     assert proc.returncode == 0, proc.stderr
-    print(f"\ndemo {t_demo:.1f} s, solve {t_solve:.1f} s")
+    print(f"\nsolve {t_solve:.1f} s")
     return {"out": out, "stdout": proc.stdout, "truth": truth, "photos": photo_dir,
             "before": before, "files": files}
 

@@ -22,6 +22,10 @@ from peers import cli_env
 
 from groundstation.outpaths import MANIFEST_NAME, STAGING_PREFIX
 
+# One worker runs this module's tests (pytest-xdist):
+# its module fixture simulates two flights, made once.
+pytestmark = pytest.mark.xdist_group("test_solve_output_dir")
+
 
 def _cli(cwd: Path, *args: str) -> subprocess.Popen[str]:
     return subprocess.Popen([sys.executable, "-m", "groundstation.cli", *args], cwd=cwd,

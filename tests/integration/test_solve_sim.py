@@ -27,6 +27,10 @@ from groundstation.solve.photosim import photos_at_times, write_photo_set
 from groundstation.solve.pipeline import SolveResult, SolveSettings, solve
 from groundstation.solve.positions import Q_FIX
 
+# One worker runs this module's tests (pytest-xdist):
+# its module fixture simulates and solves two flights (~6 s each), made once.
+pytestmark = pytest.mark.xdist_group("test_solve_sim")
+
 FloatArray = npt.NDArray[np.float64]
 
 FLIGHT_S = 400.0

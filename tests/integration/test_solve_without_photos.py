@@ -18,6 +18,10 @@ from typing import Any
 import pytest
 from peers import cli_env
 
+# One worker runs this module's tests (pytest-xdist):
+# its module fixture simulates and solves a flight (~8 s), made once.
+pytestmark = pytest.mark.xdist_group("test_solve_without_photos")
+
 
 def _cli(cwd: Path, *argv: str) -> subprocess.CompletedProcess[str]:
     return subprocess.run([sys.executable, "-m", "groundstation.cli", *argv], cwd=cwd,

@@ -22,6 +22,10 @@ from peers import REPO, Daemon, Received, free_port, wait_until
 from groundstation.bus import Bus, encode, key, open_bus
 from groundstation.config import ZenohSettings
 
+# One worker runs this module's tests (pytest-xdist): its module fixture records a demo flight,
+# made once.
+pytestmark = pytest.mark.xdist_group("test_solver_service")
+
 
 @pytest.fixture(scope="module")
 def flight(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
@@ -86,7 +90,7 @@ def solver(tmp_path: Path, flight: dict[str, Any],
     )
     d = Daemon("--config", str(conf), command="solver")
     daemons.append(d)
-    d.wait_for("listening on groundstation/*/session", timeout_s=20)
+    d.wait_for("listening on groundstation/*/session")
     sols = Solutions(bus)
     # The subscription travels to this peer asynchronously: knock until the solver answers.
     deadline = time.monotonic() + 15

@@ -27,6 +27,10 @@ from groundstation.config import ZenohSettings
 from groundstation.sim.ptylink import PtyLink
 from groundstation.storage import reading
 
+# One worker runs this module's tests (pytest-xdist): its module fixture simulates flights (~7 s),
+# made once.
+pytestmark = pytest.mark.xdist_group("test_solver_workers")
+
 WAIT_S = 60.0  # generous: the shared 2-core machine
 
 
@@ -266,9 +270,9 @@ def test_rover_and_base_daemons_are_paired_by_the_solver(tmp_path: Path) -> None
         assert ok["quality"]["fixed_fraction"] > 0.9
         assert ok["flight"].startswith(str(tmp_path / "rover" / "flights"))
     finally:
-        radio.close()
         for p in reversed(procs):
             p.stop()
+        radio.close()  # after the base daemon: a closed pty's number goes to the next pty
         if watcher is not None:
             watcher.close()
 

@@ -30,6 +30,10 @@ from groundstation.sim.stream import SimResult, simulate
 from groundstation.ubx.decode import Decoder
 from groundstation.ubx.framer import iter_frames
 
+# One worker runs this module's tests (pytest-xdist):
+# its module fixtures simulate the seed flights (~3 s each), made once.
+pytestmark = pytest.mark.xdist_group("test_sim_seed")
+
 DT_NS = 200_000_000
 DT_S = 0.2
 

@@ -21,6 +21,7 @@ from groundstation import gpstime
 from groundstation.errors import InputError
 from groundstation.gnss.ephemeris import BroadcastEphemeris
 from groundstation.offline.ephemeris import collect_ephemerides
+from groundstation.offline.inspect import content_detail
 from groundstation.offline.multinav import MultiNav, collect_multi, receiver_times, today_gps_week
 from groundstation.offline.rinex.marks_table import marks_csv
 from groundstation.offline.rinex.nav_writer import write_nav
@@ -403,6 +404,12 @@ def _convert_nav_only(
     multi = collect_multi(data, index, times, approx)
     others = _other_counts(multi)
     if not nav.ephemerides and not others:
+        if len(index) == 0:  # not a receiver's output at all: say what it is, as inspect does
+            recording = Recording(src)
+            head = next((c[:256] for c, _ in recording.chunks(chunk_bytes=4096)), b"")
+            raise InputError(
+                f"{src}: no raw measurements and no navigation data: no UBX frames in this file "
+                f"({content_detail(recording.size_bytes, head)})")
         raise InputError(
             f"{src}: no raw measurements and no navigation data (is the receiver's raw output "
             "on? groundstation configure)"

@@ -18,7 +18,13 @@ from urllib.parse import quote
 from groundstation import events as kinds
 from groundstation import gpstime, messages
 from groundstation.storage.naming import session_start_ns
-from groundstation.view.summary import ppk_label, ppk_thresholds, session_finished
+from groundstation.view.summary import (
+    ppk_label,
+    ppk_thresholds,
+    session_finished,
+    tracked_text,
+    unidentified_text,
+)
 
 STALE_AFTER_S = 3.0
 """No status for longer than this and the station is shown as stale."""
@@ -366,6 +372,8 @@ class StationView:
             "sats": st.get("sats") or [],
             "ppk": {
                 "ready": st.get("ppk_ready"), "tracked": st.get("tracked"),
+                "tracked_text": tracked_text(st),
+                "unidentified_text": unidentified_text(st.get("unidentified")),
                 "min": need if ppk_ready_min is None else ppk_ready_min,
                 "clean_phase_s": clean_s, "label": ppk_label(clean_s),
                 "half_cycle_fraction": st.get("half_cycle_fraction"),
@@ -374,10 +382,21 @@ class StationView:
             "events": list(self.events)[-15:][::-1],
             "timeline": self.timeline(gps_now),
             "marks": self._marks_panel(st, gps_now),
+            "data_clock": self.data_clock(gps_now),
             "session": self._session_panel(st, file_info),
             "report": self._report_panel(),
         }
         return out
+
+    def data_clock(self, gps_now: int | None) -> dict[str, Any] | None:
+        """The data's own time now (the receiver's, on the daemon's data clock): ``utc`` as
+        the header shows it and ``unix_ms``, which the page compares with the computer's
+        clock (a replay or a simulated flight runs hours or years apart from it). None before
+        the first epoch."""
+        if gps_now is None:
+            return None
+        return {"utc": gpstime.gps_to_datetime(gps_now).strftime("%H:%M:%S"),
+                "unix_ms": gpstime.gps_to_unix_ns(gps_now) // 1_000_000}
 
     def _alerts(self, st: dict[str, Any]) -> list[str]:
         alerts = [str(a) for a in st.get("alerts") or []]

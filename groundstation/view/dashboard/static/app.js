@@ -156,6 +156,10 @@ function renderStations(doc) {
 function refreshBadge() {
   const badge = $("badge"), detail = $("badge-detail");
   const doc = gs.doc;
+  // the clocks first: the detail takes the room they leave
+  $("clock-time").textContent = new Date().toISOString().substring(11, 19) + " UTC";
+  renderDataClock(doc && doc.view ? doc.view.data_clock : null,
+    doc ? doc.server_time_s : null);
   const sinceRx = (performance.now() - gs.rxAt) / 1000;
   let state, text, info;
   if (!doc || sinceRx > STALE_AFTER_S) {
@@ -201,10 +205,38 @@ function refreshBadge() {
     detail.textContent = info;
     detail.title = info;
   }
+  // live, the rate stays whole: the session id (also in the session panel) goes when the
+  // header has no room for it
+  detail.classList.remove("no-sid");
+  if (detail.scrollWidth > detail.clientWidth + 1) detail.classList.add("no-sid");
   document.body.dataset.state = state;
   if (doc) renderStations(doc);
-  const now = new Date();
-  $("clock").textContent = now.toISOString().substring(11, 19) + " UTC";
+}
+
+// The data's time beside the computer's clock when the two are far apart (a replay, a
+// simulated flight): the marks, the events and the timeline run on the data's time.
+const DATA_CLOCK_APART_S = 60;
+
+function apartText(s) {
+  s = Math.round(Math.abs(s));
+  const d = Math.floor(s / 86400), h = Math.floor((s % 86400) / 3600), m = Math.floor((s % 3600) / 60);
+  return d >= 2 ? d + " days" : d ? d * 24 + h + " h" : h ? h + " h " + String(m).padStart(2, "0") +
+    " min" : m ? m + " min" : s + " s";
+}
+
+function renderDataClock(dc, serverS) {
+  const node = $("data-clock");
+  const behind = dc && typeof dc.unix_ms === "number" && typeof serverS === "number"
+    ? serverS - dc.unix_ms / 1000 : null;
+  const apart = behind !== null && Math.abs(behind) >= DATA_CLOCK_APART_S;
+  node.hidden = !apart;
+  $("clock").classList.toggle("two", apart);
+  if (!apart) return;
+  const text = dc.utc + " UTC";
+  if ($("data-time").textContent !== text) $("data-time").textContent = text;
+  node.title = "the receiver's time in the data (a replay or a simulated flight), " +
+    apartText(behind) + (behind > 0 ? " behind" : " ahead of") + " this computer's clock: " +
+    "the marks, the events and the timeline run on it";
 }
 
 // -- sky plot ----------------------------------------------------------------------------
@@ -240,36 +272,86 @@ function renderSky(sats) {
       s.sv.replace(/^G/, "").replace(/\/.*/, "")));
     svg.appendChild(g);
   }
-  $("sky-note").textContent = unplaced.length ? "no position yet: " + unplaced.join(" ") : "";
+  const notes = [];
+  if (unplaced.length) notes.push("no position yet: " + unplaced.join(" "));
+  const ppk = gs.doc && gs.doc.view ? gs.doc.view.ppk : null;
+  if (ppk && ppk.unidentified_text) notes.push(ppk.unidentified_text);
+  $("sky-note").textContent = notes.join(" · ");
 }
 
 // -- C/N0 bars ---------------------------------------------------------------------------
 
+// Drawn in the element's own pixels (no stretched text) with every label measured: a row of
+// labels wider than a bar's slot (22 satellites on a 1024 px screen) turns upright, so no two
+// labels overlap however many satellites there are.
 function renderCno(sats) {
   const svg = $("cno");
   clear(svg);
-  const W = 520, H = 300, top = 22, bottom = 250, lo = 20, hi = 55;
+  const box = svg.getBoundingClientRect();
+  const W = Math.round(box.width) || 520, H = Math.round(box.height) || 300;
+  svg.setAttribute("viewBox", "0 0 " + W + " " + H);
+  const list = sats.slice().sort((a, b) => a.sv.localeCompare(b.sv));
+  const lo = 20, hi = 55, left = 30;
+  const slot = (W - left) / Math.max(list.length, 8), w = slot * 0.76;
+  const rows = list.map((s) => ({
+    s: s,
+    value: el("text", { class: "bar-value" }, num(s.cno_dbhz)),
+    sv: el("text", { class: "bar-sv" }, s.sv),
+    clean: el("text", { class: "bar-clean" }, s.state === "code_only" ? "—" :
+      s.half_cycle_unresolved ? "½" : num(s.clean_phase_s) + "s"),
+  }));
+  for (const r of rows) svg.append(r.value, r.sv, r.clean);
+  // a row's widest label and its font, measured; upright when it does not fit its slot, then
+  // in a font whose line is no thicker than the slot
+  const size = (kind) => {
+    let wide = 0, thick = 0, font = 12;
+    for (const r of rows) {
+      const b = r[kind].getBBox();
+      wide = Math.max(wide, b.width);
+      thick = Math.max(thick, b.height);
+      font = parseFloat(getComputedStyle(r[kind]).fontSize) || font;
+    }
+    if (wide + 3 <= slot) return { upright: false, font: font, extent: font };
+    const scale = Math.min(1, (slot - 2) / Math.max(1, thick));
+    if (scale < 1) for (const r of rows) r[kind].style.fontSize = (font * scale).toFixed(2) + "px";
+    return { upright: true, font: font * scale, extent: wide * scale };
+  };
+  const value = size("value"), sv = size("sv"), clean = size("clean");
+  const top = value.extent + 6, gap = 4;
+  const bottom = Math.max(top + 20, H - sv.extent - clean.extent - 3 * gap);
   const y = (v) => bottom - (Math.max(lo, Math.min(hi, v)) - lo) / (hi - lo) * (bottom - top);
   for (const ref of [30, 40, 50]) {
-    svg.appendChild(el("line", { class: "ref", x1: 26, x2: W, y1: y(ref), y2: y(ref) }));
-    svg.appendChild(el("text", { class: "ref-label", x: 0, y: y(ref) + 4 }, String(ref)));
+    svg.insertBefore(el("line", { class: "ref", x1: left - 4, x2: W, y1: y(ref), y2: y(ref) }),
+      svg.firstChild);
+    svg.insertBefore(el("text", { class: "ref-label", x: 0, y: y(ref) + 4 }, String(ref)),
+      svg.firstChild);
   }
-  const list = sats.slice().sort((a, b) => a.sv.localeCompare(b.sv));
   if (!list.length) {
     svg.appendChild(el("text", { class: "bar-value", x: W / 2, y: H / 2 }, "no satellites"));
     return;
   }
-  const slot = (W - 30) / Math.max(list.length, 8);
-  list.forEach((s, i) => {
-    const x = 30 + i * slot + slot * 0.12, w = slot * 0.76;
+  // a label at (cx, yy): level and centred, or upright reading upwards, hanging from yy down
+  // (below the bars) or standing on it (above a bar)
+  const place = (node, how, cx, yy, hang) => {
+    if (!how.upright) {
+      node.setAttribute("x", cx.toFixed(1));
+      node.setAttribute("y", (hang ? yy + how.font * 0.8 : yy).toFixed(1));
+      return;
+    }
+    node.setAttribute("x", cx.toFixed(1));
+    node.setAttribute("y", yy.toFixed(1));
+    node.style.textAnchor = hang ? "end" : "start";
+    node.style.dominantBaseline = "central";
+    node.setAttribute("transform", "rotate(-90 " + cx.toFixed(1) + " " + yy.toFixed(1) + ")");
+  };
+  rows.forEach((r, i) => {
+    const s = r.s, x = left + i * slot + slot * 0.12, cx = x + w / 2;
     const v = s.cno_dbhz === null ? lo : s.cno_dbhz;
-    svg.appendChild(el("rect", { class: "bar " + s.state, x: x, y: y(v), width: w,
-      height: Math.max(1, bottom - y(v)), "data-sv": s.sv }));
-    svg.appendChild(el("text", { class: "bar-value", x: x + w / 2, y: y(v) - 4 }, num(s.cno_dbhz)));
-    svg.appendChild(el("text", { class: "bar-sv", x: x + w / 2, y: bottom + 17 }, s.sv));
-    const clean = s.state === "code_only" ? "—" : s.half_cycle_unresolved ? "½" :
-      num(s.clean_phase_s) + "s";
-    svg.appendChild(el("text", { class: "bar-clean", x: x + w / 2, y: bottom + 35 }, clean));
+    svg.insertBefore(el("rect", { class: "bar " + s.state, x: x, y: y(v), width: w,
+      height: Math.max(1, bottom - y(v)), "data-sv": s.sv }), r.value);
+    place(r.value, value, cx, y(v) - gap, false);
+    place(r.sv, sv, cx, bottom + gap, true);
+    place(r.clean, clean, cx, bottom + sv.extent + 2 * gap, true);
   });
 }
 
@@ -309,7 +391,9 @@ function renderPpk(ppk) {
     title.replaceChildren(document.createTextNode(cut < 0 ? ppk.label : ppk.label.slice(0, cut)),
       sub);
   }
-  $("ppk-detail").textContent = "of " + num(ppk.tracked) + " tracked · half-cycle " +
+  // "of 10 tracked (2 below the 15° elevation mask)": why the number is lower, in watch's words
+  $("ppk-detail").textContent = "of " + (ppk.tracked_text || num(ppk.tracked) + " tracked") +
+    " · half-cycle " +
     (ppk.half_cycle_fraction === null || ppk.half_cycle_fraction === undefined ? "-" :
       (ppk.half_cycle_fraction * 100).toFixed(0) + "%");
 }

@@ -1,0 +1,47 @@
+"""Statuses as the daemon's monitor makes them, from epochs and NAV-SVINFO the tests choose
+(the views' tests draw what a real monitor says, not a hand-written status)."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+from groundstation.config import MonitorSettings
+from groundstation.gpstime import NS_PER_S, NS_PER_WEEK
+from groundstation.live.monitor import Monitor
+from groundstation.records import Event, RawEpoch, SatObs, Status, SvInfo, SvInfoSat
+
+GPS, GLONASS = 0, 6
+HOST0 = 1_700_000_000 * NS_PER_S
+T0 = 2300 * NS_PER_WEEK + 100 * NS_PER_S
+
+
+def obs(gnss: int, sv: int, cno: int = 45) -> SatObs:
+    """A measurement with clean, valid phase."""
+    return SatObs(gnss, sv, 1e8 + sv, 2e7, 100.0, cno, 7, 0, False, False)
+
+
+def svinfo(t_host_ns: int, elevations: Sequence[tuple[int, int, int]]) -> SvInfo:
+    """NAV-SVINFO for ``(gnss, sv, elevation)``; u-blox says -91 for an unknown elevation."""
+    return SvInfo("NAV-SVINFO", 0, tuple(
+        SvInfoSat(g, s, 45, el, 0 if el == -91 else (37 * s) % 360, True, 7, True)
+        for g, s, el in elevations), t_host_ns)
+
+
+def monitor_status(sats: Sequence[SatObs], elevations: Sequence[tuple[int, int, int]], *,
+                   seconds: int = 40, t0_gps_ns: int = T0, host0_ns: int = HOST0,
+                   events: Sequence[Event] = (), station: str = "st") -> Status:
+    """A monitor fed 1 Hz epochs of ``sats`` (each 80 ms after its GPS time on the host clock
+    from ``host0_ns``) with NAV-SVINFO ``elevations`` for ``seconds`` (longer than
+    clean_phase_s), then ``events``; its status one second after."""
+    m = Monitor(station, MonitorSettings(elevation_mask_deg=15.0, clean_phase_s=30.0))
+    for k in range(seconds):
+        host = host0_ns + k * NS_PER_S + 80_000_000
+        m.on_bytes(600, host)
+        m.observe(svinfo(host, elevations), host)
+        week, tow = divmod(t0_gps_ns + k * NS_PER_S, NS_PER_WEEK)
+        m.observe(RawEpoch(week, tow, tuple(sats), "RXM-RAWX"), host)
+        m.tick(host + 10_000_000)
+    host = host0_ns + seconds * NS_PER_S
+    for ev in events:
+        m.observe(ev, host)
+    return m.status(host + NS_PER_S)
