@@ -45,3 +45,28 @@ def monitor_status(sats: Sequence[SatObs], elevations: Sequence[tuple[int, int, 
     for ev in events:
         m.observe(ev, host)
     return m.status(host + NS_PER_S)
+
+
+def drawn_status(t_host_ns: int, marks: tuple[int, int] = (0, 0),
+                 alerts: Sequence[str] = ()) -> bytes:
+    """A status message as the daemon publishes it, with everything ``watch`` and the dashboard
+    draw (``marks``: received, missed), for tests that put it on the bus between poison."""
+    from groundstation.bus import encode
+
+    sats = [{"sv": "G05", "cno_dbhz": 44, "elev_deg": 40, "azim_deg": 120, "state": "clean",
+             "lock_s": 10.0, "clean_phase_s": 9.0, "slips": 0,
+             "half_cycle_unresolved": False}]
+    return encode("status", {
+        "station": "p", "t_host_ns": t_host_ns, "session_id": "p_20250602T080000Z",
+        "link": {"epoch_interval_s": 0.2, "epochs": 10, "first_epoch_t_gps_ns": 10**18,
+                 "last_epoch_t_gps_ns": 10**18 + 2 * 10**9, "recent_dropouts": [],
+                 "current_dropout": None, "source_connected": True, "bytes_in": 1000,
+                 "completeness_60s": 1.0, "completeness_session": 1.0, "bytes_per_s": 100.0,
+                 "dropouts": 0, "missing_epochs": 0, "damaged_frames": 0,
+                 "last_byte_age_s": 0.1},
+        "sats": sats, "ppk_ready": 6, "tracked": 8, "half_cycle_fraction": 0.1,
+        "marks": {"marks": marks[0], "missed": marks[1], "in_dropout": 0,
+                  "last_falling_t_gps_ns": None, "last_count": None, "rate_per_min": 0.0,
+                  "last_pulse_width_ms": None},
+        "alerts": list(alerts), "recording": {"file": None},
+    })

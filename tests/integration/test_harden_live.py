@@ -25,10 +25,11 @@ from typing import Any
 import pytest
 from peers import REPO, Daemon, Pty, Received, free_port, wait_until
 from poison import POISON
+from statuses import drawn_status
 from streams import epoch_with_mark
 
 from groundstation import jsonio
-from groundstation.bus import Bus, decode, encode, key, open_bus
+from groundstation.bus import Bus, decode, key, open_bus
 from groundstation.config import ZenohSettings
 from groundstation.sim.ptylink import PtyLink
 from groundstation.storage.reading import Recording, part_info
@@ -265,26 +266,6 @@ def test_two_daemons_with_one_station_name_both_alert(
         second.close()
 
 
-def _full_status(t_host_ns: int) -> bytes:
-    """A status as the daemon sends it, with everything ``watch`` draws."""
-    sats = [{"sv": "G05", "cno_dbhz": 44, "elev_deg": 40, "azim_deg": 120, "state": "clean",
-             "lock_s": 10.0, "clean_phase_s": 9.0, "slips": 0,
-             "half_cycle_unresolved": False}]
-    return encode("status", {
-        "station": "p", "t_host_ns": t_host_ns, "session_id": "p_20250602T080000Z",
-        "link": {"epoch_interval_s": 0.2, "epochs": 10, "first_epoch_t_gps_ns": 10**18,
-                 "last_epoch_t_gps_ns": 10**18 + 2 * 10**9, "recent_dropouts": [],
-                 "current_dropout": None, "source_connected": True, "bytes_in": 1000,
-                 "completeness_60s": 1.0, "completeness_session": 1.0, "bytes_per_s": 100.0,
-                 "dropouts": 0, "missing_epochs": 0, "damaged_frames": 0,
-                 "last_byte_age_s": 0.1},
-        "sats": sats, "ppk_ready": 6, "tracked": 8, "half_cycle_fraction": 0.1,
-        "marks": {"marks": 0, "missed": 0, "in_dropout": 0, "last_falling_t_gps_ns": None,
-                  "last_count": None, "rate_per_min": 0.0, "last_pulse_width_ms": None},
-        "alerts": [], "recording": {"file": None},
-    })
-
-
 def _snapshot(dash: Dashboard) -> dict[str, Any]:
     host, port = dash.http.server_address[:2]
     conn = http.client.HTTPConnection(str(host), int(port), timeout=5)
@@ -306,7 +287,7 @@ def test_poison_on_the_bus_is_counted_by_the_dashboard_and_watch(tmp_path: Path)
 
     def talk() -> None:  # a good status every 0.3 s, the poison after each
         while not stop.is_set():
-            pub.put(key("p", "status"), _full_status(time.time_ns()))
+            pub.put(key("p", "status"), drawn_status(time.time_ns()))
             for k, payload in POISON:
                 pub.put(k.replace("/st/", "/p/"), payload)
             time.sleep(0.3)
@@ -353,7 +334,7 @@ def test_poison_does_not_break_the_page_in_chromium(tmp_path: Path) -> None:
 
     def talk() -> None:
         while not stop.is_set():
-            pub.put(key("p", "status"), _full_status(time.time_ns()))
+            pub.put(key("p", "status"), drawn_status(time.time_ns()))
             for k, payload in POISON:
                 pub.put(k.replace("/st/", "/p/"), payload)
             time.sleep(0.3)

@@ -25,9 +25,10 @@ from typing import Any
 
 import pytest
 from peers import REPO, Received, free_port, wait_until
+from statuses import drawn_status
 
 from groundstation import jsonio
-from groundstation.bus import Bus, encode, key, open_bus
+from groundstation.bus import Bus, key, open_bus
 from groundstation.config import ZenohSettings
 from groundstation.view.dashboard.server import MAX_CONNECTIONS, Dashboard, DashboardSettings
 from groundstation.view.watch import WatchState, render
@@ -36,29 +37,13 @@ NULL_EVENT = (b'{"schema":1,"type":"event","station":"p","kind":"link.dropout",'
               b'"t_host_ns":null,"message":null,"severity":null,"data":null}')
 
 
-def _status(t_host_ns: int) -> bytes:
-    """A status as the daemon sends it, with everything ``watch`` draws."""
-    sats = [{"sv": "G05", "cno_dbhz": 44, "elev_deg": 40, "azim_deg": 120, "state": "clean",
-             "lock_s": 10.0, "clean_phase_s": 9.0, "slips": 0,
-             "half_cycle_unresolved": False}]
-    return encode("status", {
-        "station": "p", "t_host_ns": t_host_ns, "session_id": "p_20250602T080000Z",
-        "link": {"epoch_interval_s": 0.2, "epochs": 10, "first_epoch_t_gps_ns": 10**18,
-                 "last_epoch_t_gps_ns": 10**18 + 2 * 10**9, "recent_dropouts": [],
-                 "current_dropout": None, "source_connected": True, "bytes_in": 1000,
-                 "completeness_60s": 1.0, "completeness_session": 1.0, "bytes_per_s": 100.0,
-                 "dropouts": 0, "missing_epochs": 0, "damaged_frames": 0,
-                 "last_byte_age_s": 0.1},
-        "sats": sats, "ppk_ready": 6, "tracked": 8, "half_cycle_fraction": 0.1,
-        "marks": {"marks": 3, "missed": 1, "in_dropout": 0, "last_falling_t_gps_ns": None,
-                  "last_count": None, "rate_per_min": 0.0, "last_pulse_width_ms": None},
-        "alerts": ["marks_missed"], "recording": {"file": None},
-    })
+def _status() -> bytes:
+    return drawn_status(time.time_ns(), marks=(3, 1), alerts=("marks_missed",))
 
 
 def test_watch_draws_an_event_of_nulls() -> None:
     state = WatchState("p")
-    state.on_payload("groundstation/p/status", _status(time.time_ns()))
+    state.on_payload("groundstation/p/status", _status())
     state.on_payload("groundstation/p/event", NULL_EVENT)
     assert state.rejected == 0 and len(state.events) == 1  # a valid message: shown
     text = _text(render(state))
@@ -83,7 +68,7 @@ def test_watch_process_keeps_going_after_an_event_of_nulls(tmp_path: Path) -> No
 
     def talk() -> None:
         while not stop.is_set():
-            pub.put(key("p", "status"), _status(time.time_ns()))
+            pub.put(key("p", "status"), _status())
             pub.put(key("p", "event"), NULL_EVENT)
             stop.wait(0.3)
 
