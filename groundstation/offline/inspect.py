@@ -7,6 +7,7 @@ Sans-I/O: :class:`Inspector` takes frames (from any source) and returns a :class
 from __future__ import annotations
 
 from collections import Counter
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -304,14 +305,16 @@ def require_ubx_frames(path: str | Path, max_payload: int = DEFAULT_MAX_PAYLOAD)
             return
     if any(True for _ in framer.flush(last_t)):
         return
-    detail = content_detail(recording.size_bytes, head)
+    detail = content_detail(recording.size_bytes, head, recording.skipped)
     raise InputError(f"{p}: no UBX frames in this file ({detail})")
 
 
-def content_detail(size: int, head: bytes) -> str:
-    """A file without UBX frames in a few words: "513 bytes, a JPEG image", "empty file"."""
+def content_detail(size: int, head: bytes, skipped: Sequence[Skipped] = ()) -> str:
+    """A file without UBX frames in a few words: "513 bytes, a JPEG image", "empty file",
+    "142 bytes; bytes 29 .. the end of the file unreadable: chunk header damaged (...)"."""
     what = what_file(head)
-    return "empty file" if size == 0 else (
+    out = "empty file" if size == 0 else (
         f"{size:,} bytes, {what}, not a receiver recording" if what and "RINEX" in what
         else f"{size:,} bytes, {what}" if what else f"{size:,} bytes"
     )
+    return "; ".join([out, *(k.brief() for k in skipped)])

@@ -1094,7 +1094,8 @@ class _Reader:
         p = replace(p, read_after_ns=read_after_ns)
         self.rep.skipped.append(p)
         said = (p.file, p.start_byte, p.end_byte)
-        if said in _SAID:  # a tool reading the file again (solve: marks, then RINEX)
+        if said in _SAID or p.nothing_read:  # a tool reading the file again (solve: marks,
+            # then RINEX), or nothing of the file readable: the tool's error says it
             log.debug("%s", p.describe())
             return
         if len(_SAID) >= 1000:

@@ -63,6 +63,17 @@ class Skipped:
             return f"messages logged before {after} lost"
         return "no message could be read around it"
 
+    @property
+    def nothing_read(self) -> bool:
+        """No message could be read before the damage nor after it: the file is unreadable as
+        a recording, which the tool's error says (:meth:`brief`), not a warning of its own."""
+        return self.to_end and self.read_before_ns is None and self.lost_first_ns is None
+
+    def brief(self) -> str:
+        """Where and why, in a few words, for a tool's error line."""
+        end = "the end of the file" if self.to_end else f"{self.end_byte:,}"
+        return f"bytes {self.start_byte:,} .. {end} unreadable: {self.reason}"
+
     def describe(self) -> str:
         """One line: where, why, what was lost and where reading went on."""
         end = "the end of the file" if self.to_end else f"{self.end_byte:,}"

@@ -409,7 +409,7 @@ def _convert_nav_only(
             head = next((c[:256] for c, _ in recording.chunks(chunk_bytes=4096)), b"")
             raise InputError(
                 f"{src}: no raw measurements and no navigation data: no UBX frames in this file "
-                f"({content_detail(recording.size_bytes, head)})")
+                f"({content_detail(recording.size_bytes, head, recording.skipped)})")
         raise InputError(
             f"{src}: no raw measurements and no navigation data (is the receiver's raw output "
             "on? groundstation configure)"

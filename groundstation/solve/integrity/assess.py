@@ -125,11 +125,12 @@ def arcs_stage(
 ) -> Arcs | None:
     """Our whole-arc solution (:func:`groundstation.solve.integrity.resolve`, smoothed), from
     the observations alone: linearised at the code's positions, so it can run before the
-    engine (and give the engine its motion model). None without rover epochs."""
+    engine (and give the engine its motion model). None without rover epochs or without a
+    phase shared with the base (another day's base)."""
     t0 = time.perf_counter()
     base_x = np.asarray(base_ecef_m, dtype=np.float64)
     tab = build_table(rover, base, ephemerides, base_ecef_m)
-    if tab.t_ns.size == 0:
+    if tab.t_ns.size == 0 or tab.n_arcs == 0:  # no epoch, or no phase shared with the base
         return None
     start = code_positions(tab, base_x)
     start = np.where(np.isfinite(start), start, base_x)
