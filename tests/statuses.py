@@ -3,7 +3,10 @@
 
 from __future__ import annotations
 
+import subprocess
+import sys
 from collections.abc import Sequence
+from pathlib import Path
 
 from groundstation.config import MonitorSettings
 from groundstation.gpstime import NS_PER_S, NS_PER_WEEK
@@ -70,3 +73,18 @@ def drawn_status(t_host_ns: int, marks: tuple[int, int] = (0, 0),
                   "last_pulse_width_ms": None},
         "alerts": list(alerts), "recording": {"file": None},
     })
+
+
+def run_watch(endpoint: str, seconds: int, out: Path) -> subprocess.CompletedProcess[str]:
+    """``groundstation watch`` of station ``p`` over ``endpoint`` for ``seconds``, 160 columns
+    wide, what it printed also kept in ``out`` (the test's record of the screen)."""
+    from peers import REPO
+
+    watch = subprocess.run(
+        [sys.executable, "-m", "groundstation.cli", "watch", "--station", "p", "--connect",
+         endpoint, "--duration", str(seconds)],
+        cwd=REPO, capture_output=True, text=True, timeout=60,
+        env={"COLUMNS": "160", "PATH": "/usr/bin:/bin", "PYTHONPATH": str(REPO)},
+    )
+    out.write_text(watch.stdout + watch.stderr)
+    return watch

@@ -15,17 +15,15 @@ import http.client
 import json
 import os
 import shutil
-import subprocess
-import sys
 import threading
 import time
 from pathlib import Path
 from typing import Any
 
 import pytest
-from peers import REPO, Daemon, Pty, Received, free_port, wait_until
+from peers import Daemon, Pty, Received, free_port, wait_until
 from poison import POISON
-from statuses import drawn_status
+from statuses import drawn_status, run_watch
 from streams import epoch_with_mark
 
 from groundstation import jsonio
@@ -295,13 +293,7 @@ def test_poison_on_the_bus_is_counted_by_the_dashboard_and_watch(tmp_path: Path)
     talker = threading.Thread(target=talk, daemon=True)
     talker.start()
     try:
-        watch = subprocess.run(
-            [sys.executable, "-m", "groundstation.cli", "watch", "--station", "p", "--connect",
-             endpoint, "--duration", "4"],
-            cwd=REPO, capture_output=True, text=True, timeout=60,
-            env={"COLUMNS": "160", "PATH": "/usr/bin:/bin", "PYTHONPATH": str(REPO)},
-        )
-        (tmp_path / "watch.txt").write_text(watch.stdout + watch.stderr)
+        watch = run_watch(endpoint, 4, tmp_path / "watch.txt")
         assert watch.returncode == 0, watch.stderr
         assert "Traceback" not in watch.stderr
         assert "LIVE" in watch.stdout and "G05" in watch.stdout

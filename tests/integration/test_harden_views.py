@@ -15,8 +15,6 @@ import http.client
 import logging
 import socket
 import struct
-import subprocess
-import sys
 import threading
 import time
 from collections.abc import Iterator
@@ -24,8 +22,8 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from peers import REPO, Received, free_port, wait_until
-from statuses import drawn_status
+from peers import Received, free_port, wait_until
+from statuses import drawn_status, run_watch
 
 from groundstation import jsonio
 from groundstation.bus import Bus, key, open_bus
@@ -75,13 +73,7 @@ def test_watch_process_keeps_going_after_an_event_of_nulls(tmp_path: Path) -> No
     talker = threading.Thread(target=talk, daemon=True)
     talker.start()
     try:
-        watch = subprocess.run(
-            [sys.executable, "-m", "groundstation.cli", "watch", "--station", "p", "--connect",
-             endpoint, "--duration", "3"],
-            cwd=REPO, capture_output=True, text=True, timeout=60,
-            env={"COLUMNS": "160", "PATH": "/usr/bin:/bin", "PYTHONPATH": str(REPO)},
-        )
-        (tmp_path / "watch.txt").write_text(watch.stdout + watch.stderr)
+        watch = run_watch(endpoint, 3, tmp_path / "watch.txt")
         assert watch.returncode == 0, watch.stderr
         assert "Traceback" not in watch.stderr and "TypeError" not in watch.stderr
         assert "--:--:-- link.dropout" in watch.stdout
