@@ -519,6 +519,18 @@ INTEGRITY_TEXT = (
 """The rule, as the report states it (docs/integrity.md has the details)."""
 
 
+def _gap_splits(gaps: dict[str, Any]) -> str:
+    """The radio gaps across which every arc was split, in words."""
+    found = int(gaps.get("steps_found", 0))
+    hidden = int(gaps.get("steps_could_hide", 0))
+    if found + hidden == 0:
+        return "every arc's continuity across the radio gaps checked"
+    parts = [f"{n} {what}" for n, what in (
+        (found, "with a step of several satellites at once"),
+        (hidden, "where such a step could have passed unseen")) if n]
+    return (f"every arc split at {found + hidden} radio gap(s) ({', '.join(parts)}): "
+            "their phase is not carried across")
+
 def _integrity(inp: ReportInput) -> str:
     """The integrity section: the rule, and what it found on this flight."""
     ig = inp.integrity
@@ -541,10 +553,7 @@ def _integrity(inp: ReportInput) -> str:
             f"{arcs.get('integer_combinations')} integer combinations fixed (lattice "
             f"{arcs.get('lattice_cycles')} cycle; stopped: {arcs.get('stopped_by')}); "
             f"{arcs.get('epochs_fixed_precise')} epochs fixed by it; {len(steps)} slip(s) "
-            "nobody flagged found and split off; "
-            f"{gaps.get('steps_found', 0) + gaps.get('steps_could_hide', 0)} radio gap(s) "
-            f"across which every arc was split ({gaps.get('steps_found', 0)} with a step of "
-            "several satellites, the others where one could have passed unseen)")),
+            f"nobody flagged found and split off; {_gap_splits(gaps)}")),
         ("Smoothing", _e(
             f"jerk density {sm.get('jerk_density_h_m2_s5')} / {sm.get('jerk_density_v_m2_s5')} "
             f"m^2/s^5 horizontal / vertical (the most likely for the flight's quickest "

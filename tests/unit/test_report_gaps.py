@@ -1,0 +1,19 @@
+"""The report's words for the radio gaps across which the whole-arc solution split every arc."""
+
+from __future__ import annotations
+
+from groundstation.solve.report import _gap_splits
+
+
+def test_no_split_says_the_continuity_was_checked() -> None:
+    assert _gap_splits({}) == "every arc's continuity across the radio gaps checked"
+    assert _gap_splits({"steps_found": 0, "steps_could_hide": 0}) == _gap_splits({})
+
+
+def test_splits_are_counted_by_why() -> None:
+    words = _gap_splits({"steps_found": 1, "steps_could_hide": 3})
+    assert words.startswith("every arc split at 4 radio gap(s)")
+    assert "1 with a step of several satellites at once" in words
+    assert "3 where such a step could have passed unseen" in words
+    only = _gap_splits({"steps_found": 0, "steps_could_hide": 2})
+    assert "with a step" not in only and "2 where such a step" in only
