@@ -116,6 +116,6 @@ def test_a_flood_of_acknowledgements_is_rate_limited(
     (mcap,) = tmp_path.glob("*.mcap")
     recorded = [json.loads(m.data) for m in iter_messages(mcap, ["/groundstation/event"])]
     acks = [e for e in recorded if e["kind"] == kinds.OPERATOR_ACK]
-    assert 1 <= len(acks) <= ACK_BURST + ACK_PER_S * elapsed_s + 1, (len(acks), elapsed_s)
+    assert ACK_BURST + ACK_PER_S * elapsed_s + 1 >= len(acks) >= 1, (len(acks), elapsed_s)
     assert len(acks) < flood // 10
     assert "dropped so far" in daemon.stderr
