@@ -13,6 +13,7 @@ on, cumulated from the end, so each candidate costs one product with the covaria
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from functools import lru_cache
 
 import numpy as np
 import numpy.typing as npt
@@ -108,6 +109,7 @@ POWER = 0.8
 relied on (Baarda's reliability; the usual 80 %)."""
 
 
+@lru_cache(maxsize=32)
 def _patterns(n: int) -> FloatArray:
     """The smallest steps an arc set can take at one gap, in lattice units: one or two arcs by
     one unit with any signs, and up to half the arcs by one unit with one sign (a repair of
@@ -131,7 +133,9 @@ def _patterns(n: int) -> FloatArray:
             v = np.zeros(n)
             v[list(idx)] = 1.0
             rows.append(v)
-    return np.asarray(rows, dtype=np.float64).reshape(-1, n)
+    out = np.asarray(rows, dtype=np.float64).reshape(-1, n)
+    out.flags.writeable = False  # shared by every gap with n arcs
+    return out
 
 
 @dataclass(frozen=True, slots=True)
