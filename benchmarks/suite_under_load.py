@@ -5,7 +5,8 @@ Usage: ``.venv/bin/python benchmarks/suite_under_load.py [--runs 5] [--no-hog] [
 The hog is ``stress-ng --cpu N`` (Debian's ``stress-ng``) for the N cores, or a busy loop per
 core when it is not installed. Each run prints its wall time, the suite's CPU time (user + sys
 of pytest and everything it started), the load average before and after, and pytest's last
-line; the script exits 1 if any run failed. It stops the hog it started, whatever happens.
+line, and the tests that failed (``--keep DIR``: a failed run's whole output); the script exits
+1 if any run failed. It stops the hog it started, whatever happens.
 """
 
 from __future__ import annotations
@@ -53,6 +54,8 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--runs", type=int, default=5)
     parser.add_argument("--no-hog", action="store_true", help="measure without the hog")
+    parser.add_argument("--keep", default="", metavar="DIR",
+                        help="write a failed run's whole pytest output into DIR")
     parser.add_argument("pytest_args", nargs="*", help="after --: more pytest arguments")
     args = parser.parse_args()
     cores = os.cpu_count() or 1
@@ -74,10 +77,18 @@ def main() -> int:
         finally:
             stop_hog(hog)
         cpu = (cpu1.ru_utime - cpu0.ru_utime) + (cpu1.ru_stime - cpu0.ru_stime)
-        last = (proc.stdout.strip().splitlines() or ["(no output)"])[-1]
+        lines = proc.stdout.strip().splitlines() or ["(no output)"]
         failed += proc.returncode != 0
         print(f"run {run}: {wall / 60:.1f} min ({wall:.0f} s), suite CPU {cpu:.0f} s, load "
-              f"{before} -> {load()}, exit {proc.returncode}: {last}", flush=True)
+              f"{before} -> {load()}, exit {proc.returncode}: {lines[-1]}", flush=True)
+        # which tests failed, and pytest's whole output for a failed run (what the flake was)
+        for ln in lines:
+            if ln.startswith(("FAILED ", "ERROR ")):
+                print(f"  {ln}", flush=True)
+        if proc.returncode != 0 and args.keep:
+            path = Path(args.keep) / f"run{run}.txt"
+            path.write_text(proc.stdout + proc.stderr)
+            print(f"  pytest's output: {path}", flush=True)
     return 1 if failed else 0
 
 
