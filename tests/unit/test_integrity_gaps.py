@@ -12,9 +12,10 @@ import numpy as np
 import numpy.typing as npt
 import pytest
 
+from groundstation.gnss.orbit import L1_WAVELENGTH_M
 from groundstation.solve import integrity
 from groundstation.solve.integrity import steps
-from groundstation.solve.integrity.table import L1_WAVELENGTH_M, PhaseTable
+from groundstation.solve.integrity.table import PhaseTable
 
 FloatArray = npt.NDArray[np.float64]
 BASE = np.array([4146349.2471, 612312.5498, 4791750.8505])
