@@ -22,6 +22,7 @@ from groundstation.solve.integrity.normal import EpochSystem, FloatArcs, reduced
 from groundstation.solve.integrity.table import PhaseTable
 
 FloatArray = npt.NDArray[np.float64]
+IntArray = npt.NDArray[np.int64]
 
 SPLIT_MIN_CYC = 0.2
 """A step must be at least this large (a slip is a whole or half cycle; less is a trend)."""
@@ -30,6 +31,21 @@ SPLIT_MIN_EPOCHS = 5
 STEP_W = 5.0
 """Baarda's w of a step parameter beyond which the step is taken as real (normal
 distribution: 6e-7 two-sided; candidates are few hundred per flight)."""
+
+
+def _from_on(red: FloatArray, rhs: FloatArray, arc: IntArray, rows: IntArray, j: int, na: int
+             ) -> tuple[FloatArray, FloatArray]:
+    """A step of slot ``j``'s arc (at ``rows``) from each of its rows on: its normal column in
+    the arcs' constants ((n_rows, na): the epochs' reduced equations of the slot, mapped to
+    arcs and summed from that row to the arc's end) and its right-hand side ((n_rows,))."""
+    dense = np.zeros((rows.size, na))
+    arcs_r = arc[rows]
+    ok = arcs_r >= 0
+    rr = np.broadcast_to(np.arange(rows.size)[:, None], ok.shape)[ok]
+    np.add.at(dense, (rr, arcs_r[ok]), red[rows, j, :][ok])
+    cum = np.cumsum(dense[::-1], axis=0)[::-1]
+    bcum = np.cumsum(rhs[rows, j][::-1])[::-1]
+    return cum, bcum
 
 
 def step_tests(tab: PhaseTable, sys: EpochSystem, fl: FloatArcs,
@@ -66,15 +82,7 @@ def step_tests(tab: PhaseTable, sys: EpochSystem, fl: FloatArcs,
             gaps = gaps[(gaps >= SPLIT_MIN_EPOCHS) & (gaps <= rows.size - SPLIT_MIN_EPOCHS)]
             if gaps.size == 0:
                 continue
-            # rows of the reduced matrices for this slot, mapped to arcs
-            m = red[rows, j, :]  # (n_rows, n_sv)
-            dense = np.zeros((rows.size, na))
-            arcs_r = arc[rows]
-            ok = arcs_r >= 0
-            rr = np.broadcast_to(np.arange(rows.size)[:, None], ok.shape)[ok]
-            np.add.at(dense, (rr, arcs_r[ok]), m[ok])
-            cum = np.cumsum(dense[::-1], axis=0)[::-1]
-            bcum = np.cumsum(rhs[rows, j][::-1])[::-1]
+            cum, bcum = _from_on(red, rhs, arc, rows, j, na)
             c = cum[gaps]  # (n_gaps, na)
             g = bcum[gaps] - c @ a_hat
             nss = c[:, a]
@@ -202,7 +210,7 @@ def gap_doubts(tab: PhaseTable, sys: EpochSystem, fl: FloatArcs,
 
     # per arc crossing a gap: its normal columns (and right-hand side) summed from each gap on
     cols: dict[int, dict[int, tuple[FloatArray, float]]] = {}
-    n_ep, n_sv = arc.shape
+    n_sv = arc.shape[1]
     for j in range(n_sv):
         col = arc[:, j]
         for a in np.unique(col[col >= 0]).tolist():
@@ -211,13 +219,7 @@ def gap_doubts(tab: PhaseTable, sys: EpochSystem, fl: FloatArcs,
             inside = (at > 0) & (at < rows.size)
             if not inside.any():
                 continue
-            dense = np.zeros((rows.size, na))
-            arcs_r = arc[rows]
-            ok = arcs_r >= 0
-            rr = np.broadcast_to(np.arange(rows.size)[:, None], ok.shape)[ok]
-            np.add.at(dense, (rr, arcs_r[ok]), red[rows, j, :][ok])
-            cum = np.cumsum(dense[::-1], axis=0)[::-1]
-            bcum = np.cumsum(rhs[rows, j][::-1])[::-1]
+            cum, bcum = _from_on(red, rhs, arc, rows, j, na)
             for g, i in zip(starts[inside].tolist(), at[inside].tolist(), strict=True):
                 cols.setdefault(g, {})[int(a)] = (cum[i], float(bcum[i]))
     out: list[GapDoubt] = []
