@@ -363,6 +363,8 @@ DAEMON_SCHEMA: Schema = {
 SOLVER_STATION_KEYS: dict[str, Key] = {
     "base": STR,
     "base_xyz": ECEF,
+    "base_llh": TRIPLE,
+    "base_antenna_height_m": _num("float", 0.0, 100.0),
     "photos": STR,
     "out_root": PATH,
     "lever_arm": TRIPLE,

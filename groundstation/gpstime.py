@@ -90,6 +90,21 @@ def gps_as_datetime(t_gps_ns: int) -> dt.datetime:
     return GPS_EPOCH + dt.timedelta(microseconds=t_gps_ns // 1000)
 
 
+def gps_calendar_ns(when: dt.datetime) -> int:
+    """GPS ns for the GPS time scale written as a calendar date (as RINEX does; the inverse of
+    :func:`gps_as_datetime`, whole microseconds)."""
+    delta = when - GPS_EPOCH
+    return ((delta.days * 86_400 + delta.seconds) * NS_PER_S + delta.microseconds * 1000)
+
+
+def utc_span(span: tuple[int, int]) -> str:
+    """``2018-10-09 12:21:05 - 12:58:40 UTC`` for a GPS-ns span (the date again when it
+    changes)."""
+    a, b = gps_to_datetime(span[0]), gps_to_datetime(span[1])
+    end = b.strftime("%H:%M:%S") if a.date() == b.date() else b.strftime("%Y-%m-%d %H:%M:%S")
+    return f"{a:%Y-%m-%d %H:%M:%S} - {end} UTC"
+
+
 def datetime_to_gps_ns(when: dt.datetime) -> int:
     """GPS ns for an aware UTC datetime."""
     if when.tzinfo is None:

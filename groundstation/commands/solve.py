@@ -11,6 +11,7 @@ from groundstation.config import SOLVER_STATION_KEYS, convert
 from groundstation.errors import ConfigError
 from groundstation.solve import engine as ppk
 from groundstation.solve import interpolate as interp
+from groundstation.solve.base import base_position
 from groundstation.solve.photos import JPEG_SUFFIXES
 from groundstation.solve.pipeline import SolveResult, SolveSettings, solve
 from groundstation.solve.report import grades_text
@@ -31,6 +32,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="base observations (.obs RINEX or .ubx recording)")
     parser.add_argument("--base-xyz", metavar="X,Y,Z",
                         help="known base position, ECEF metres (not lat,lon,h)")
+    parser.add_argument("--base-llh", metavar="LAT,LON,H",
+                        help="known base position instead: WGS84 latitude, longitude (degrees) "
+                        "and ellipsoidal height (m)")
+    parser.add_argument("--base-antenna-height", metavar="M",
+                        help="the base position given is the ground mark; the antenna reference "
+                        "point is M metres vertically above it")
     parser.add_argument(
         "--source", metavar="{pos,rtklib,receiver}",
         help="position source (default: pos with --positions, rtklib with --base)",
@@ -84,8 +91,9 @@ def settings_from_args(args: argparse.Namespace) -> SolveSettings:
         )
     if args.positions is not None and args.base is not None:
         raise ConfigError("--base", "use either --positions or --base, not both")
-    if args.base is not None and args.base_xyz is None:
-        raise ConfigError("--base-xyz", "required with --base (the base's known ECEF position)")
+    if args.base is not None and args.base_xyz is None and args.base_llh is None:
+        raise ConfigError("--base-xyz", "required with --base (the base's known ECEF position, "
+                          "or --base-llh LAT,LON,H)")
     interp_name = _option("--interp", "interp", args.interp)
     edge = _option("--edge", "edge", args.edge)
     epsg = _option("--epsg", "epsg", args.epsg)
@@ -104,7 +112,10 @@ def settings_from_args(args: argparse.Namespace) -> SolveSettings:
     if args.rtk_conf is not None and not Path(args.rtk_conf).is_file():
         raise ConfigError("--rtk-conf", f"{args.rtk_conf}: no such file")
     rtk_opts = ppk.options.parse_assignments(args.rtk_opt)
-    base_xyz = _option("--base-xyz", "base_xyz", args.base_xyz)
+    base_xyz, base_given = base_position(
+        _option("--base-xyz", "base_xyz", args.base_xyz),
+        _option("--base-llh", "base_llh", args.base_llh),
+        _option("--base-antenna-height", "base_antenna_height_m", args.base_antenna_height))
     if args.base is not None:  # the engine runs: check its options now, before any work
         ppk.resolve_options(
             ppk.get_engine(args.engine), base_xyz,
@@ -116,6 +127,7 @@ def settings_from_args(args: argparse.Namespace) -> SolveSettings:
         positions=Path(args.positions) if args.positions else None,
         base=Path(args.base) if args.base else None,
         base_ecef_m=base_xyz,
+        base_given=base_given,
         source=args.source,
         photos=Path(args.photos) if args.photos else None,
         lever_arm_m=_option("--lever-arm", "lever_arm", args.lever_arm),

@@ -27,12 +27,13 @@ import numpy.typing as npt
 from groundstation import outpaths
 from groundstation.errors import ConfigError, GroundstationError, InputError
 from groundstation.geodesy import ecef_to_llh, enu_rotation
-from groundstation.gpstime import gps_to_datetime
+from groundstation.gpstime import utc_span
 from groundstation.offline.inspect import require_ubx_frames
 from groundstation.records import NavSolution, TimeMark
 from groundstation.rules.marks import Mark, build_marks
 from groundstation.solve import interpolate as mi
 from groundstation.solve import leverarm, outputs, photos, positions, report
+from groundstation.solve.base import check_distance, check_pairing
 from groundstation.solve.engine import DEFAULT_ENGINE, is_rinex_obs_name
 from groundstation.solve.integrity import grade as gr
 from groundstation.storage.reading import Recording, check_regular
@@ -69,6 +70,7 @@ class SolveSettings:
     positions: Path | None = None
     base: Path | None = None
     base_ecef_m: tuple[float, float, float] | None = None
+    base_given: str = "given with --base-xyz"
     source: str | None = None
     photos: Path | None = None
     lever_arm_m: tuple[float, float, float] | None = None
@@ -207,11 +209,19 @@ def _validate(s: SolveSettings) -> BaseCheck | None:
             _require_rinex_obs(s.base)
         else:
             require_ubx_frames(s.base)
-    if s.base is not None and s.base_ecef_m is not None:
-        # Before the engine: coordinates kilometres off give no solution at all, and a half
-        # hour of engine work before saying so (report.BASE_REFUSED_M).
-        return report.check_base(s.base, s.base_ecef_m, None, s.positions)
-    return None
+    if s.base is None or s.base_ecef_m is None:
+        return None
+    # Before the engine: coordinates kilometres off give no solution at all, and a half hour
+    # of engine work before saying so (report.BASE_REFUSED_M).
+    text, doubtful = report.check_base(s.base, s.base_ecef_m, None, s.positions, s.base_given)
+    if s.positions is None:
+        # The same for a base of another day, the flight's own recording, or a base hundreds
+        # of kilometres away.
+        covered = check_pairing(s.flight, s.base)
+        check_distance(s.base_ecef_m, [
+            n.ecef_m for n in read_flight(s.flight).nav if n.fix_ok and n.ecef_m])
+        text = f"{text}; {covered}" if covered else text
+    return text, doubtful
 
 
 def _require_rinex_obs(path: Path) -> None:
@@ -310,20 +320,13 @@ def _why_nothing(s: SolveSettings, traj: positions.Trajectory, marks: tuple[Mark
         return f"{head}: no mark has a time" if marks else f"{head}: the flight has no marks"
     p0, p1 = int(traj.t_gps_ns[0]), int(traj.t_gps_ns[-1])
     m0, m1 = min(known), max(known)
-    spans = (f"the positions ({traj.source}) span {_utc_span(p0, p1)}, the marks "
-             f"{_utc_span(m0, m1)}")
+    spans = (f"the positions ({traj.source}) span {utc_span((p0, p1))}, the marks "
+             f"{utc_span((m0, m1))}")
     if m1 < p0 or m0 > p1:
         what = "another day's or flight's solution?" if s.positions else "wrong recordings?"
         return f"{head}: {spans}: no overlap ({what})"
     return (f"{head}: {spans}: every mark falls in a gap of the positions longer than "
             f"--max-gap {s.max_gap_s:g} s")
-
-
-def _utc_span(t0_gps_ns: int, t1_gps_ns: int) -> str:
-    """``2018-10-09 12:21:05 - 12:58:40 UTC`` (the date again when it changes)."""
-    a, b = gps_to_datetime(t0_gps_ns), gps_to_datetime(t1_gps_ns)
-    end = b.strftime("%H:%M:%S") if a.date() == b.date() else b.strftime("%Y-%m-%d %H:%M:%S")
-    return f"{a:%Y-%m-%d %H:%M:%S} - {end} UTC"
 
 
 def _marks(s: SolveSettings, progress: Progress | None) -> tuple[FlightRecords, tuple[Mark, ...]]:
@@ -580,7 +583,7 @@ def _report(
     te, tn = proj.forward(traj_llh[:, 0], traj_llh[:, 1])
     engine, version, engine_opts = report.engine_of(traj, dict(s.rtk_options), s.positions)
     base_check, base_doubtful = base_check_made or report.check_base(
-        s.base, s.base_ecef_m, traj, s.positions)
+        s.base, s.base_ecef_m, traj, s.positions, s.base_given)
     if base_doubtful:
         notes.append(f"WARNING base coordinates: {base_check}")
         log.warning("base coordinates doubtful: %s", base_check)

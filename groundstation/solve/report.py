@@ -997,8 +997,10 @@ def check_base(
     base_ecef_m: tuple[float, float, float] | None,
     traj: Trajectory | None,
     positions_file: Path | None,
+    how: str = "given with --base-xyz",
 ) -> tuple[str, bool]:
-    """How the base coordinates were checked: (text, doubtful).
+    """How the base coordinates were checked: (text, doubtful); ``how`` says how they were
+    given.
 
     Given coordinates are compared with the mean of the base receiver's own fixes in a u-blox
     base recording (before the engine runs: ``traj`` is not needed then); an imported
@@ -1016,7 +1018,6 @@ def check_base(
             return ("reference position from the header of the imported solution; not checked "
                     "against a base recording"), False
         return "unknown (the imported solution does not state its base)", True
-    how = "given with --base-xyz"
     if base is None or detect_recording(base) is None:
         return f"{how}; not checked (no u-blox base recording)", False
     from groundstation.solve.pipeline import read_flight

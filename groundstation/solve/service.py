@@ -57,6 +57,7 @@ from groundstation.config import (
 )
 from groundstation.errors import ConfigError, GroundstationError
 from groundstation.solve import interpolate as mi
+from groundstation.solve.base import BASE_KEYS, base_position
 from groundstation.solve.fetch import Remote, remote_for
 from groundstation.solve.pairing import BASE_WAIT_S, Pairing, base_station, span_of
 from groundstation.solve.pipeline import SolveResult, SolveSettings, solve
@@ -92,6 +93,9 @@ class StationSolve:
 
     base: str | None = None
     base_ecef_m: tuple[float, float, float] | None = None
+    base_llh: tuple[float, float, float] | None = None
+    base_antenna_height_m: float | None = None
+    base_given: str = "given with base_xyz"
     photos: str | None = None
     out_root: Path = Path("solutions")
     lever_arm_m: tuple[float, float, float] | None = None
@@ -155,10 +159,14 @@ def _station_solve(base: StationSolve, values: Mapping[str, Any], prefix: str,
     if out.base is not None and not out.base:
         raise ConfigError(f"{prefix}base", "expected a non-empty path")
     base_station(out.base, f"{prefix}base", station)
-    if (out.base is None) != (out.base_ecef_m is None):
-        missing = "base_xyz" if out.base_ecef_m is None else "base"
-        raise ConfigError(f"{prefix}{missing}", "base and base_xyz go together")
-    return out
+    xyz, how = base_position(out.base_ecef_m, out.base_llh, out.base_antenna_height_m,
+                             {k: f"{prefix}{v}" for k, v in BASE_KEYS.items()})
+    if (out.base is None) != (xyz is None):
+        missing = "base_xyz" if xyz is None else "base"
+        raise ConfigError(f"{prefix}{missing}", "base and base_xyz (or base_llh) go together")
+    # the antenna reference point from now on
+    return replace(out, base_ecef_m=xyz, base_llh=None, base_antenna_height_m=None,
+                   base_given=how)
 
 
 def _service_settings(resolved: Resolved) -> ServiceSettings:
@@ -349,6 +357,7 @@ def plan(station: str, session: Mapping[str, Any], conf: StationSolve,
             out_dir=out_dir,
             base=None if paired else _expand(conf.base, flight, station),
             base_ecef_m=conf.base_ecef_m,
+            base_given=conf.base_given,
             photos=photos,
             lever_arm_m=conf.lever_arm_m,
             epsg=conf.epsg,

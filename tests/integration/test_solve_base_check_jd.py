@@ -2,20 +2,24 @@
 
 The surveyor's mistakes: ``--base-xyz`` of the 2018-10-04 base (5 km away) with the 2018-10-09
 base recording is refused before the engine runs, with one line naming ``--base-xyz``, the
-distance and where the base receiver's own fixes put the base (exit 2, nothing written). The
-right coordinates of the 2018-10-04 base with that day's base recording pass the check, but the
-engine positions nothing (the recordings do not overlap in time): one line saying so in the
-user's terms, exit 1, nothing written.
+distance and where the base receiver's own fixes put the base (exit 2, nothing written). A
+base of another day (right coordinates of the 2018-10-04 base with that day's recording), and
+the rover's own recording as its base, are refused before the engine too (exit 2, one line
+giving both spans or the equal pseudoranges, nothing written). The base given as ECEF, as
+latitude/longitude/height and as the ground mark plus an antenna height gives the same cameras.
 """
 
 from __future__ import annotations
 
+import csv
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
 from peers import cli_env
+
+from groundstation.geodesy import ecef_to_llh
 
 pytestmark = pytest.mark.shared_data
 
@@ -24,6 +28,7 @@ ROVER_1009 = "20181009/rover-20181009-1221.ubx.gz"
 BASE_1009 = "20181009/base-20181009-1220.ubx.gz"
 BASE_1004 = "20181004/base-20181004-1236.ubx.gz"
 XYZ_1004 = "3774090.1383,-601663.0449,5089319.1992"  # the 2018-10-04 base, 5 km from 10-09's
+XYZ_1009 = "3774696.5547,-596647.9083,5089485.6511"
 
 
 def _solve(cwd: Path, data: Path, base: str, xyz: str) -> subprocess.CompletedProcess[str]:
@@ -46,14 +51,59 @@ def test_another_days_base_coordinates_are_refused_before_the_engine(
     assert not (tmp_path / "out").exists()
 
 
-def test_an_engine_that_positions_nothing_says_so_and_exits_1(
+def test_a_base_of_another_day_is_refused_before_the_engine(
         shared_data: Path, tmp_path: Path) -> None:
     proc = _solve(tmp_path, shared_data, BASE_1004, XYZ_1004)
-    assert proc.returncode == 1, proc.stderr
-    last = proc.stderr.strip().splitlines()[-1]
-    said = ("engine positioned no epoch of rover-20181009-1221.ubx.gz against the base "
-            "base-20181004-1236.ubx.gz")
-    assert said in last, proc.stderr
-    assert "overlap in time" in last and "--base-xyz" in last
-    assert not last.endswith("no solution rows")  # not the .pos parser's words
+    assert proc.returncode == 2, proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1, proc.stderr
+    said = ("--base: base-20181004-1236.ubx.gz does not overlap the flight in time: flight "
+            "2018-10-09 12:21:52 - 12:56:23 UTC, base 2018-10-04 12:36:58 - 12:58:22 UTC "
+            "(5.0 days apart)")
+    assert said in lines[0], lines[0]
+    assert "dynamics" not in proc.stderr and not (tmp_path / "out").exists()
+
+
+def test_the_rover_as_its_own_base_is_refused_before_the_engine(
+        shared_data: Path, tmp_path: Path) -> None:
+    proc = _solve(tmp_path, shared_data, ROVER_1009, XYZ_1009)
+    assert proc.returncode == 2, proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1, proc.stderr
+    assert "--base: rover-20181009-1221.ubx.gz is the flight's own recording" in lines[0]
     assert not (tmp_path / "out").exists()
+
+
+def _cameras(out: Path) -> list[dict[str, str]]:
+    lines = [ln for ln in (out / "cameras.csv").read_text().splitlines()
+             if not ln.startswith("#")]
+    return list(csv.DictReader(lines))
+
+
+def test_the_base_as_ecef_as_latitude_longitude_and_as_a_mark_give_the_same_cameras(
+        shared_data: Path, tmp_path: Path) -> None:
+    lat, lon, h = ecef_to_llh(*(float(v) for v in XYZ_1009.split(",")))
+    forms = {"xyz": ["--base-xyz", XYZ_1009],
+             "llh": ["--base-llh", f"{lat:.10f},{lon:.10f},{h:.4f}"],
+             "mark": ["--base-llh", f"{lat:.10f},{lon:.10f},{h - 1.5:.4f}",
+                      "--base-antenna-height", "1.5"]}
+    cams = {}
+    for name, args in forms.items():
+        out = tmp_path / name
+        proc = subprocess.run(
+            [sys.executable, "-m", "groundstation.cli", "solve", str(shared_data / JD / ROVER_1009),
+             "--base", str(shared_data / JD / BASE_1009), *args, "--out-dir", str(out),
+             "--no-progress"],
+            cwd=tmp_path, env=cli_env(), capture_output=True, text=True, timeout=600, check=False)
+        assert proc.returncode == 0, proc.stderr
+        cams[name] = _cameras(out)
+    assert "1.5000 m above it (--base-antenna-height)" in (tmp_path / "mark" / "report.html"
+                                                          ).read_text()
+    ref = cams["xyz"]
+    assert len(ref) == 589
+    for name in ("llh", "mark"):
+        assert [r["mark"] for r in cams[name]] == [r["mark"] for r in ref]
+        for a, b in zip(ref, cams[name], strict=True):
+            assert a["grade"] == b["grade"]
+            for key in ("x_m", "y_m", "h_m"):  # written to the millimetre
+                assert abs(float(a[key]) - float(b[key])) <= 0.0010001, (name, key, a, b)

@@ -9,6 +9,7 @@ from typing import Any
 import pytest
 
 from groundstation.errors import ConfigError, InputError
+from groundstation.geodesy import ecef_to_llh
 from groundstation.solve import service as sv
 from groundstation.solve.pipeline import SolveResult, SolveSettings
 
@@ -39,11 +40,27 @@ def test_file_then_command_line() -> None:
     assert cli.for_station("whoever").base_ecef_m == (4201000.0, 180000.0, 4779000.0)
 
 
+def test_the_base_as_latitude_longitude_and_antenna_height() -> None:
+    layer = {"stations": {"a": {"base": "b.ubx", "base_llh": [53.28, -8.98, 86.7],
+                                "base_antenna_height_m": 1.5}}}
+    a = sv.build_service_settings(layer).for_station("a")
+    assert a.base_ecef_m is not None
+    lat, lon, h = ecef_to_llh(*a.base_ecef_m)
+    assert abs(lat - 53.28) < 1e-9 and abs(lon + 8.98) < 1e-9 and abs(h - 88.2) < 1e-6
+    assert a.base_given.startswith("given with stations.a.base_llh 53.280000000,-8.98")
+    assert a.base_given.endswith("1.5000 m above it (stations.a.base_antenna_height_m)")
+
+
 @pytest.mark.parametrize(("layer", "key"), [
     ({"stations": {"a": {"base_xyz": [1, 2, "x"], "base": "b"}}}, "stations.a.base_xyz"),
     ({"stations": {"a": {"base": "b"}}}, "stations.a.base_xyz"),
     ({"stations": {"a": {"base_xyz": [4201000, 180000, 4779000]}}}, "stations.a.base"),
     ({"stations": {"a": {"edge": "up"}}}, "stations.a.edge"),
+    ({"stations": {"a": {"base": "b", "base_llh": [95, 8, 100]}}}, "stations.a.base_llh"),
+    ({"stations": {"a": {"base": "b", "base_antenna_height_m": 1.5}}},
+     "stations.a.base_antenna_height_m"),
+    ({"stations": {"a": {"base": "b", "base_llh": [53, -9, 90], "base_xyz": list(XYZ)}}},
+     "stations.a.base_llh"),
     ({"stations": {"a": "b.ubx"}}, "stations.a"),
     ({"stations": {"a": {"max_gap_s": 0}}}, "stations.a.max_gap_s"),
     ({"epsg": "utm"}, "epsg"),

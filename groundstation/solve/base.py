@@ -1,0 +1,257 @@
+"""The base station: its position in the forms surveyors give it, and whether a base recording
+can be this flight's base at all.
+
+Position forms (:func:`base_position`): ECEF (``--base-xyz``), latitude/longitude/ellipsoidal
+height (``--base-llh``), either one as the ground mark with the antenna height measured
+vertically from the mark to the antenna reference point (``--base-antenna-height``). The result
+is the antenna reference point in ECEF metres, the one form the engine takes.
+
+Pairing (:func:`check_pairing`), made before the engine runs (a refusal after minutes of engine
+work names the same problem too late):
+
+- the base must observe while the rover flies: a base of another day has no epoch in the
+  flight's span;
+- the base must be another receiver: two receivers never report the same pseudorange to the
+  millimetre (their clocks differ by microseconds, i.e. hundreds of metres, and their
+  multipath and noise by decimetres), so equal pseudoranges at shared epochs mean the flight's
+  own recording (or a copy of it) was given as its base;
+- the base must be near: an L1-only baseline of :data:`BASE_FAR_REFUSED_M` or more gives no
+  carrier-phase solution worth the name (the differential ionosphere there is decimetres, several
+  times half an L1 wavelength, so ambiguities cannot be fixed, and a float solution is no better
+  than code differences).
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import gzip
+import re
+import zlib
+from collections.abc import Iterable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import numpy.typing as npt
+
+from groundstation.errors import ConfigError, InputError
+from groundstation.geodesy import ecef_to_llh, enu_to_ecef, llh_to_ecef
+from groundstation.gpstime import NS_PER_S, gps_calendar_ns, utc_span
+from groundstation.offline.rinex.convert import observations_of, read_frames
+from groundstation.solve.engine import is_rinex_obs_name
+
+BASE_FAR_REFUSED_M = 100_000.0
+"""A base this far from the flight is refused (module docstring: an L1 baseline that long)."""
+SAME_PR_M = 0.001
+"""Pseudoranges this close are the same measurement (RINEX keeps 1 mm; two receivers differ by
+their clocks, hundreds of metres)."""
+SAME_SHARE = 0.9
+"""The share of shared (epoch, satellite) pseudoranges that must be equal to call the base the
+flight's own recording (a copy damaged in places still qualifies)."""
+
+
+@dataclass(frozen=True, slots=True)
+class ObservationTimes:
+    """When a recording observed, and its L1 pseudoranges by (epoch, satellite), for pairing."""
+
+    t_gps_ns: npt.NDArray[np.int64]
+    """Epoch times, GPS ns, ascending."""
+    pseudoranges: dict[tuple[int, str], float]
+    """L1 C/A pseudorange (m) by (epoch GPS ns, ``G05``); empty when the format has none read."""
+
+    @property
+    def span(self) -> tuple[int, int] | None:
+        if self.t_gps_ns.size == 0:
+            return None
+        return int(self.t_gps_ns[0]), int(self.t_gps_ns[-1])
+
+
+BASE_OPTIONS = {"xyz": "--base-xyz", "llh": "--base-llh", "antenna": "--base-antenna-height"}
+"""The command line's names of the base position's forms."""
+BASE_KEYS = {"xyz": "base_xyz", "llh": "base_llh", "antenna": "base_antenna_height_m"}
+"""The solver configuration's names of the same."""
+
+
+def base_position(
+    xyz: tuple[float, float, float] | None,
+    llh: tuple[float, float, float] | None,
+    antenna_height_m: float | None = None,
+    names: dict[str, str] = BASE_OPTIONS,
+) -> tuple[tuple[float, float, float] | None, str]:
+    """The base antenna reference point, ECEF metres, from the form given (None if none), and
+    how it was given (for the report).
+
+    Args:
+        xyz: ECEF metres (``--base-xyz``).
+        llh: latitude and longitude in degrees, ellipsoidal height in metres (``--base-llh``).
+        antenna_height_m: when given, ``xyz``/``llh`` is the ground mark and the antenna reference
+            point is this far above it along the ellipsoid normal (a vertical tape measure).
+        names: what the forms are called where they were given (:data:`BASE_OPTIONS`,
+            :data:`BASE_KEYS`), for the messages.
+
+    Raises:
+        ConfigError: both forms given, a latitude or longitude out of range, an antenna height
+            that is not a plausible tripod (negative or over 100 m), or one without a position.
+    """
+    if xyz is not None and llh is not None:
+        raise ConfigError(names["llh"], f"give the base as {names['xyz']} or {names['llh']}, "
+                          "not both")
+    if llh is not None:
+        lat, lon, h = llh
+        if not -90.0 <= lat <= 90.0 or not -180.0 <= lon <= 360.0:
+            raise ConfigError(names["llh"], (
+                f"latitude {lat:g} or longitude {lon:g} out of range: expected LAT,LON,H in "
+                "degrees and metres (latitude first)"))
+        if abs(h) > 10_000.0:
+            raise ConfigError(names["llh"], f"height {h:g} m: expected ellipsoidal metres")
+        xyz = llh_to_ecef(lat, lon, h)
+    how = (f"given with {names['llh']} {lat:.9f},{lon:.9f},{h:.4f}" if llh is not None
+           else f"given with {names['xyz']}")
+    if antenna_height_m is None:
+        return xyz, how
+    if xyz is None:
+        raise ConfigError(names["antenna"],
+                          f"needs the mark's position ({names['xyz']} or {names['llh']})")
+    if not 0.0 <= antenna_height_m <= 100.0:
+        raise ConfigError(names["antenna"], (
+            f"{antenna_height_m:g} m: expected the vertical height from the ground mark up to "
+            "the antenna reference point, metres (0 to 100)"))
+    return enu_to_ecef((0.0, 0.0, antenna_height_m), xyz), (
+        f"{how} for the ground mark, antenna reference point {antenna_height_m:.4f} m above it "
+        f"({names['antenna']})")
+
+
+def observation_times(path: Path) -> ObservationTimes:
+    """The epochs (and L1 pseudoranges) of a base or rover: a u-blox recording or RINEX
+    observations (2.x: times only; 3.x: C1C too; ``.gz`` too).
+
+    Raises:
+        InputError: unreadable.
+    """
+    if is_rinex_obs_name(path):
+        return _rinex_times(path)
+    data, index = read_frames(path)
+    _block, obs, _rejected, _times = observations_of(data, index)
+    t = obs.t_gps_ns[obs.epoch]
+    l1 = (obs.code == "1C") & (obs.pr_m != 0.0)
+    prs = {(int(ti), f"{s}{p:02d}"): float(pr) for ti, s, p, pr in zip(
+        t[l1].tolist(), obs.sys[l1].tolist(), obs.prn[l1].tolist(), obs.pr_m[l1].tolist(),
+        strict=True)}
+    return ObservationTimes(np.unique(obs.t_gps_ns).astype(np.int64), prs)
+
+
+_RINEX2_EPOCH = re.compile(
+    r"^ ([ \d]\d) ([ \d]\d) ([ \d]\d) ([ \d]\d) ([ \d]\d) ([ \d]\d\.\d{7})  ([0-6])")
+_RINEX3_EPOCH = re.compile(
+    r"^> (\d{4}) (\d\d) (\d\d) (\d\d) (\d\d) ([ \d]\d\.\d{7})  ([0-6])")
+
+
+def _rinex_times(path: Path) -> ObservationTimes:
+    times: list[int] = []
+    prs: dict[tuple[int, str], float] = {}
+    c1c: dict[str, int] = {}
+    opener = gzip.open if path.name.lower().endswith(".gz") else open
+    try:
+        with opener(path, "rt", encoding="ascii", errors="replace") as f:
+            sys_letter, have = "", 0
+            for line in f:
+                if line[60:].startswith("SYS / # / OBS TYPES"):
+                    if line[0] != " ":
+                        sys_letter = line[0]
+                        c1c[sys_letter] = -1
+                        have = 0
+                    for k, t in enumerate(line[7:60].split()):
+                        if t == "C1C" and sys_letter:
+                            c1c[sys_letter] = have + k
+                    have = have + len(line[7:60].split())
+                if line[60:].startswith("END OF HEADER"):
+                    break
+            t_now = -1
+            for line in f:
+                m = _RINEX3_EPOCH.match(line) or _RINEX2_EPOCH.match(line)
+                if m is not None:
+                    y = int(m.group(1))
+                    y = y + (2000 if y < 80 else 1900) if y < 100 else y
+                    whole, _, frac = m.group(6).strip().partition(".")
+                    mo, d, hh, mi = (int(m.group(i)) for i in (2, 3, 4, 5))
+                    when = dt.datetime(y, mo, d, hh, mi, int(whole), tzinfo=dt.UTC)
+                    t_now = gps_calendar_ns(when) + int((frac + "000000000")[:9])
+                    if m.group(7) in ("0", "1"):
+                        times.append(t_now)
+                    continue
+                j = c1c.get(line[:1], -1)
+                if t_now >= 0 and j >= 0 and len(line) >= 3 + 16 * j + 14:
+                    field = line[3 + 16 * j: 3 + 16 * j + 14].strip()
+                    if field:
+                        prs[(t_now, line[:3].replace(" ", "0"))] = float(field)
+    except (OSError, EOFError, zlib.error, ValueError) as err:
+        raise InputError(f"{path}: cannot read its observation epochs: {err}") from err
+    return ObservationTimes(np.unique(np.asarray(times, dtype=np.int64)), prs)
+
+
+def check_pairing(flight: Path, base: Path) -> str:
+    """Refuse a base recording that cannot be this flight's base; else say how they overlap.
+
+    Returns:
+        How much of the flight the base covers (for the base check's text).
+
+    Raises:
+        ConfigError: naming ``--base``: no epoch of the base falls in the flight's span (both
+            spans said), or the base's pseudoranges are the flight's own.
+    """
+    rover, ref = observation_times(flight), observation_times(base)
+    rs, bs = rover.span, ref.span
+    if rs is None or bs is None:
+        return "" if rs is None else f"the base {base.name} has no observation epoch"
+    if bs[1] < rs[0] or bs[0] > rs[1]:
+        gap_s = (rs[0] - bs[1] if bs[1] < rs[0] else bs[0] - rs[1]) / NS_PER_S
+        raise ConfigError("--base", (
+            f"{base.name} does not overlap the flight in time: flight {utc_span(rs)}, base "
+            f"{utc_span(bs)} ({_gap_words(gap_s)} apart): give the base logged during this "
+            "flight"))
+    shared = [k for k in rover.pseudoranges if k in ref.pseudoranges]
+    if shared:
+        same = sum(abs(rover.pseudoranges[k] - ref.pseudoranges[k]) < SAME_PR_M for k in shared)
+        if same >= SAME_SHARE * len(shared):
+            raise ConfigError("--base", (
+                f"{base.name} is the flight's own recording: its pseudoranges equal the rover's "
+                f"at {same} of {len(shared)} shared satellite epochs (two receivers never agree "
+                "to the millimetre): give the base station's recording"))
+    t = rover.t_gps_ns
+    inside = int(np.count_nonzero((t >= bs[0]) & (t <= bs[1])))
+    share = inside / t.size
+    return "" if share >= 0.999 else (
+        f"the base covers {share:.0%} of the flight's epochs (base {utc_span(bs)})")
+
+
+def _gap_words(seconds: float) -> str:
+    if seconds >= 2 * 86_400:
+        return f"{seconds / 86_400:.1f} days"
+    if seconds >= 2 * 3600:
+        return f"{seconds / 3600:.1f} h"
+    return f"{seconds / 60:.0f} min"
+
+
+def check_distance(
+    base_ecef_m: tuple[float, float, float],
+    flight_fixes_ecef_m: Iterable[tuple[float, float, float]],
+) -> float | None:
+    """The distance (m) from the base to the middle of the flight's own fixes; None without
+    fixes.
+
+    Raises:
+        ConfigError: naming ``--base`` when the base is :data:`BASE_FAR_REFUSED_M` or more
+            from the flight (its coordinates having been checked against its own fixes).
+    """
+    fixes = np.asarray(list(flight_fixes_ecef_m), dtype=np.float64)
+    if fixes.size == 0:
+        return None
+    mid = np.median(fixes.reshape(-1, 3), axis=0)
+    d = float(np.linalg.norm(mid - np.asarray(base_ecef_m)))
+    if d >= BASE_FAR_REFUSED_M:
+        lat, lon, h = ecef_to_llh(*base_ecef_m)
+        raise ConfigError("--base", (
+            f"the base ({lat:.5f}, {lon:.5f}, {h:.0f} m) is {d / 1000:.0f} km from the flight "
+            f"(where its receiver's own fixes put it): an L1-only baseline over "
+            f"{BASE_FAR_REFUSED_M / 1000:.0f} km cannot be fixed (is it this flight's base?)"))
+    return d

@@ -1,0 +1,162 @@
+"""The base station's position forms and the checks that a base recording can be this flight's.
+
+Forms: ECEF, latitude/longitude/ellipsoidal height, and either one as the ground mark plus a
+vertical antenna height give the same antenna reference point. Pairing: a base of another day
+(RINEX 2 and 3 written here, the demo flight's MCAP as the rover), the flight's own recording,
+and a base a continent away are refused with one line that says why; the demo's own base passes.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from once import DemoFlight
+from peers import cli_env
+
+from groundstation.errors import ConfigError
+from groundstation.geodesy import ecef_to_enu, ecef_to_llh, llh_to_ecef
+from groundstation.gpstime import gps_as_datetime, gps_calendar_ns
+from groundstation.solve.base import (
+    BASE_FAR_REFUSED_M,
+    BASE_KEYS,
+    base_position,
+    check_distance,
+    check_pairing,
+    observation_times,
+)
+
+XYZ = (3774696.5547, -596647.9083, 5089485.6511)  # the 2018-10-09 base of the jdesbonnet data
+
+
+def test_ecef_and_latitude_longitude_height_give_the_same_point() -> None:
+    lat, lon, h = ecef_to_llh(*XYZ)
+    xyz, how = base_position(None, (lat, lon, h))
+    assert xyz is not None and "--base-llh" in how
+    assert math.dist(xyz, XYZ) < 1e-6
+    same, how = base_position(XYZ, None)
+    assert same == XYZ and how == "given with --base-xyz"
+
+
+@pytest.mark.parametrize("antenna_m", [0.0, 1.5, 2.137])
+def test_a_ground_mark_and_an_antenna_height_give_the_antenna_point(antenna_m: float) -> None:
+    lat, lon, h = ecef_to_llh(*XYZ)
+    mark = llh_to_ecef(lat, lon, h - antenna_m)
+    from_llh, how = base_position(None, (lat, lon, h - antenna_m), antenna_m)
+    from_xyz, _ = base_position(mark, None, antenna_m)
+    assert from_llh is not None and from_xyz is not None
+    assert math.dist(from_llh, XYZ) < 1e-6 and math.dist(from_xyz, XYZ) < 1e-6
+    e, n, u = ecef_to_enu(from_xyz, mark)  # straight up from the mark
+    assert abs(e) < 1e-6 and abs(n) < 1e-6 and abs(u - antenna_m) < 1e-6
+    assert f"{antenna_m:.4f} m above it" in how
+
+
+@pytest.mark.parametrize(("xyz", "llh", "ant", "key", "says"), [
+    (XYZ, (53.0, -9.0, 80.0), None, "--base-llh", "not both"),
+    (None, (253.0, -9.0, 80.0), None, "--base-llh", "latitude first"),
+    (None, (53.0, -9.0, 3.8e6), None, "--base-llh", "ellipsoidal metres"),
+    (None, None, 1.5, "--base-antenna-height", "needs the mark's position"),
+    (XYZ, None, -1.0, "--base-antenna-height", "from the ground mark up"),
+])
+def test_impossible_base_positions_are_refused_by_name(
+        xyz: tuple[float, float, float] | None, llh: tuple[float, float, float] | None,
+        ant: float | None, key: str, says: str) -> None:
+    with pytest.raises(ConfigError) as err:
+        base_position(xyz, llh, ant)
+    assert err.value.key == key and says in err.value.message
+
+
+def test_the_configuration_names_its_own_keys() -> None:
+    with pytest.raises(ConfigError) as err:
+        base_position(None, None, 1.5, {k: f"stations.a.{v}" for k, v in BASE_KEYS.items()})
+    assert err.value.key == "stations.a.base_antenna_height_m"
+    assert "stations.a.base_xyz or stations.a.base_llh" in err.value.message
+
+
+def _rinex(path: Path, version: int, t0_gps_ns: int, n: int, pr_m: float) -> Path:
+    """A small RINEX observation file: ``n`` epochs a second apart, G05 with C1C/C1."""
+    if version == 3:
+        head = ["     3.04           OBSERVATION DATA    M                   RINEX VERSION / TYPE",
+                "G    2 C1C L1C                                              SYS / # / OBS TYPES"]
+    else:
+        head = ["     2.11           OBSERVATION DATA    G (GPS)             RINEX VERSION / TYPE",
+                "     2    C1    L1                                          # / TYPES OF OBSERV"]
+    lines = [*head, " " * 60 + "END OF HEADER"]
+    for k in range(n):
+        t = gps_as_datetime(t0_gps_ns + k * 1_000_000_000)
+        sec = f"{t.second + t.microsecond / 1e6:10.7f}"
+        if version == 3:
+            lines.append(f"> {t:%Y %m %d %H %M} {sec}  0  1")
+            lines.append(f"G05{pr_m + k:14.3f}  {1.0:14.3f}  ")
+        else:
+            lines.append(f" {t:%y %m %d %H %M}".replace(" 0", "  ") + f" {sec}  0  1G05")
+            lines.append(f"{pr_m + k:14.3f}  {1.0:14.3f}  ")
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+@pytest.mark.parametrize("version", [2, 3])
+def test_rinex_epochs_are_read_on_gps_time(tmp_path: Path, version: int) -> None:
+    t0 = gps_calendar_ns(gps_as_datetime(1_223_122_844_003_000_000))
+    obs = observation_times(_rinex(tmp_path / "b.obs", version, t0, 5, 2.1e7))
+    assert obs.span == (t0, t0 + 4_000_000_000)
+    assert len(obs.pseudoranges) == (5 if version == 3 else 0)  # RINEX 2: times only
+
+
+def test_a_base_of_another_day_is_refused_with_both_spans(
+        demo_flight: DemoFlight, tmp_path: Path) -> None:
+    rover = observation_times(demo_flight.files["MCAP"])
+    assert rover.span is not None
+    for version in (2, 3):
+        base = _rinex(tmp_path / f"other{version}.obs", version, rover.span[0] - 86_400 * 10**9 * 3,
+                      60, 2.1e7)
+        with pytest.raises(ConfigError) as err:
+            check_pairing(demo_flight.files["MCAP"], base)
+        assert err.value.key == "--base"
+        assert "does not overlap the flight in time: flight " in err.value.message
+        assert "(3.0 days apart)" in err.value.message, err.value.message
+
+
+def test_the_flights_own_recording_is_refused_as_its_base(demo_flight: DemoFlight) -> None:
+    with pytest.raises(ConfigError) as err:
+        check_pairing(demo_flight.files["MCAP"], demo_flight.files["MCAP"])
+    assert err.value.key == "--base" and "is the flight's own recording" in err.value.message
+
+
+def test_the_demos_base_is_this_flights(demo_flight: DemoFlight) -> None:
+    covered = check_pairing(demo_flight.files["MCAP"], demo_flight.files["base UBX"])
+    assert covered == ""  # the base covers the whole flight: nothing to add
+
+
+def test_a_base_a_continent_away_is_refused() -> None:
+    fixes = [llh_to_ecef(53.28 + 1e-5 * k, -8.98, 150.0) for k in range(20)]
+    near = llh_to_ecef(53.3, -8.9, 90.0)
+    d = check_distance(near, fixes)
+    assert d is not None and 5_000 < d < 7_000
+    far = llh_to_ecef(49.0, 8.4, 160.0)
+    with pytest.raises(ConfigError) as err:
+        check_distance(far, fixes)
+    assert err.value.key == "--base" and "1300 km from the flight" in err.value.message
+    assert check_distance(far, []) is None  # a flight without fixes: not checked
+    assert float(np.linalg.norm(np.subtract(far, near))) > BASE_FAR_REFUSED_M
+
+
+def test_solve_refuses_the_flight_as_its_own_base_before_writing(
+        demo_flight: DemoFlight, tmp_path: Path) -> None:
+    mcap = demo_flight.files["MCAP"]
+    base = json.loads(demo_flight.files["truth"].read_text())["base"]["ecef_m"]
+    lat, lon, h = ecef_to_llh(*base)
+    proc = subprocess.run(
+        [sys.executable, "-m", "groundstation.cli", "solve", str(mcap), "--base", str(mcap),
+         "--base-llh", f"{lat:.9f},{lon:.9f},{h:.3f}", "--out-dir", "out",
+         "--no-progress"],
+        cwd=tmp_path, env=cli_env(), capture_output=True, text=True, timeout=300, check=False)
+    assert proc.returncode == 2, proc.stderr
+    assert proc.stderr.count("\n") == 1, proc.stderr
+    assert "--base: " in proc.stderr and "the flight's own recording" in proc.stderr
+    assert not (tmp_path / "out").exists()
