@@ -371,6 +371,7 @@ SOLVER_STATION_KEYS: dict[str, Key] = {
     "interp": Key("str", choices_from="groundstation.solve.interpolate:INTERPOLATORS"),
     "edge": Key("str", choices_from="groundstation.solve.interpolate:EDGES"),
     "epsg": EPSG,
+    "geoid": PATH,
     "shutter_delay_ms": _num("float", -10_000.0, 10_000.0),
     "max_gap_s": _num("float", above=0.0, hi=3600.0),
     # fetch the recording over the bus: when not readable here (auto), always, never
@@ -576,9 +577,11 @@ def _parse(spec: Key, value: Any, *, from_text: bool) -> Any:
         return out
     if kind == "epsg":
         text = str(value).strip().upper().removeprefix("EPSG:")
-        if isinstance(value, bool) or not text.isdigit():
-            raise ValueError(f"expected an EPSG code number, got {value!r}")
-        return int(text)
+        parts = text.split("+")
+        if isinstance(value, bool) or len(parts) > 2 or not all(p.isdigit() for p in parts):
+            raise ValueError(f"expected an EPSG code number (or horizontal+vertical, as "
+                             f"32629+5773), got {value!r}")
+        return int(text) if len(parts) == 1 else f"{int(parts[0])}+{int(parts[1])}"
     raise ValueError(f"no converter for {kind!r}")  # pragma: no cover
 
 

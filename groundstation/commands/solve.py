@@ -58,7 +58,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="lever arm in the camera frame, metres (default 0,0,0)")
     parser.add_argument("--eo", metavar="FILE",
                         help="exterior orientations: name, X, Y, Z, omega, phi, kappa")
-    parser.add_argument("--epsg", metavar="CODE", help="output CRS (default: the WGS84 UTM zone)")
+    parser.add_argument("--epsg", metavar="CODE",
+                        help="output CRS (default: the WGS84 UTM zone); a compound code gives "
+                        "heights above its geoid: 9707 (WGS84 + EGM96), 32629+5773 (UTM 29N + "
+                        "EGM96), if PROJ has the geoid grid")
+    parser.add_argument("--geoid", metavar="FILE",
+                        help="geoid grid (.gtx or GeoTIFF, as PROJ reads them): heights above it "
+                        "instead of ellipsoidal heights, with a horizontal --epsg")
     parser.add_argument("--interp", default="linear", metavar="{linear,spline,smoother}",
                         help="interpolation between epochs")
     parser.add_argument("--edge", default="falling", metavar="{falling,rising,mid}",
@@ -133,6 +139,7 @@ def settings_from_args(args: argparse.Namespace) -> SolveSettings:
         lever_arm_m=_option("--lever-arm", "lever_arm", args.lever_arm),
         eo=Path(args.eo) if args.eo else None,
         epsg=epsg,
+        geoid=_option("--geoid", "geoid", args.geoid),
         interp=interp_name,
         edge=edge,
         shutter_delay_ms=_option("--shutter-delay-ms", "shutter_delay_ms", args.shutter_delay_ms),

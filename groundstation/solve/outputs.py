@@ -2,7 +2,9 @@
 
 Rows are built by the pipeline (:class:`CameraRow`); the writers only format them. Writers are
 registered in :data:`WRITERS` by file name. Coordinates in the chosen EPSG come from pyproj
-(:class:`Projector`, the one place that imports it); heights are WGS84 ellipsoidal.
+(:class:`Projector`, the one place that imports it). Heights are WGS84 ellipsoidal, or above a
+geoid when the CRS is compound with a vertical CRS (``--epsg 9707``, ``--epsg 32629+5773``) or
+a geoid grid is given (``--geoid``); every file says which.
 """
 
 from __future__ import annotations
@@ -10,10 +12,12 @@ from __future__ import annotations
 import csv
 import io
 import math
+import os
+import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import numpy.typing as npt
@@ -26,32 +30,139 @@ from groundstation.solve.positions import QUALITY_NAMES
 FloatArray = npt.NDArray[np.float64]
 
 
+ELLIPSOIDAL = "WGS84 ellipsoidal height"
+SYSTEM_GRID_DIRS = (Path("/usr/share/proj"),)
+"""Where Debian's ``proj-data`` puts its grids (EGM96 among them): searched after pyproj's own
+data directory and ``PROJ_DATA``."""
+
+
+def _user_grid_dir() -> str:
+    """Where PROJ looks for grids a user installs (``~/.local/share/proj`` on Linux)."""
+    from pyproj import datadir
+
+    return str(datadir.get_user_data_dir())  # type: ignore[attr-defined]  # not in its stubs
+
+
 class Projector:
-    """WGS84 (lat, lon, ellipsoidal h) ↔ a target EPSG through pyproj; heights pass through."""
+    """WGS84 (lat, lon, ellipsoidal h) -> a target CRS through pyproj.
 
-    def __init__(self, epsg: int) -> None:
-        from pyproj import CRS, Transformer
-        from pyproj.exceptions import CRSError
+    The target is an EPSG code, or two joined by ``+`` (horizontal + vertical, as PROJ writes
+    them). Heights stay ellipsoidal unless the CRS has a vertical part (heights above its geoid,
+    through the PROJ transformation and its grid) or ``geoid`` names a grid file (heights above
+    that grid's geoid). A vertical CRS whose transformation cannot run here (its grid is not
+    installed) is refused: PROJ would otherwise fall back to a "ballpark" transformation that
+    leaves ellipsoidal heights under the vertical CRS's label.
+    """
 
+    def __init__(self, epsg: int | str, geoid: Path | None = None) -> None:
+        from pyproj import CRS, Transformer, datadir
+        from pyproj.exceptions import CRSError, ProjError
+        from pyproj.transformer import TransformerGroup
+
+        for d in SYSTEM_GRID_DIRS:
+            if d.is_dir() and str(d) not in datadir.get_data_dir().split(os.pathsep):
+                datadir.append_data_dir(str(d))
         try:
-            self.crs = CRS.from_epsg(epsg)
+            self.crs = CRS.from_user_input(f"EPSG:{epsg}")
         except CRSError as err:
             raise ConfigError("--epsg", f"unknown EPSG code {epsg}: {err}") from err
         self.epsg = epsg
-        self.projected = bool(self.crs.is_projected)
         self.name = self.crs.name
-        self._fwd = Transformer.from_crs("EPSG:4979", self.crs, always_xy=True)
-        self._inv = Transformer.from_crs(self.crs, "EPSG:4979", always_xy=True)
+        parts = self.crs.sub_crs_list if self.crs.is_compound else [self.crs]
+        horizontal = parts[0]
+        if horizontal.is_vertical or len(parts) > 2:
+            raise ConfigError("--epsg", (
+                f"EPSG:{epsg} ({self.name}) has no horizontal coordinates: give a horizontal CRS, "
+                "or a compound one such as 32629+5773 (UTM 29N + EGM96 height)"))
+        vertical = parts[1] if len(parts) == 2 else None
+        if vertical is not None and geoid is not None:
+            raise ConfigError("--geoid", (
+                f"EPSG:{epsg} already names its heights ({vertical.name}): give --geoid with a "
+                "horizontal CRS only"))
+        self.projected = bool(horizontal.is_projected)
+        with warnings.catch_warnings():  # a missing grid is said below, in one line
+            warnings.simplefilter("ignore", UserWarning)
+            self._fwd = Transformer.from_crs("EPSG:4979", self.crs, always_xy=True)
+            self._inv = Transformer.from_crs(self.crs, "EPSG:4979", always_xy=True)
+        self._geoid: Any = None
+        self.height_datum = ELLIPSOIDAL
+        self.vertical = vertical is not None or geoid is not None
+        if vertical is not None:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", UserWarning)
+                group = TransformerGroup("EPSG:4979", self.crs, always_xy=True)
+            ok = [t for t in group.transformers if "ballpark" not in t.description.lower()]
+            if not group.best_available or not ok:
+                missing = sorted({g.short_name for op in group.unavailable_operations
+                                  for g in op.grids if not g.available})
+                raise ConfigError("--epsg", (
+                    f"EPSG:{epsg} has heights above {vertical.name}, but the geoid grid PROJ "
+                    f"needs for them ({', '.join(missing) or 'none found'}) is not installed: "
+                    "install Debian's proj-data (EGM96), or copy the grid into "
+                    f"{_user_grid_dir()}, or give --geoid FILE with a horizontal CRS "
+                    "(ellipsoidal heights are never written under a vertical CRS's label)"))
+            self._fwd = ok[0]
+            grids = sorted({g.short_name for op in self._fwd.operations or () for g in op.grids})
+            self.height_datum = (f"{vertical.name}, orthometric (geoid grid "
+                                 f"{', '.join(grids) or 'none'} through PROJ)")
+        elif geoid is not None:
+            if not geoid.is_file():
+                raise ConfigError("--geoid", f"{geoid}: no such file")
+            try:
+                self._geoid = Transformer.from_pipeline(
+                    "+proj=pipeline +step +proj=unitconvert +xy_in=deg +xy_out=rad "
+                    f"+step +proj=vgridshift +grids={geoid.resolve()} +multiplier=1")
+            except ProjError as err:
+                raise ConfigError("--geoid", (
+                    f"{geoid}: PROJ cannot read it as a geoid grid (.gtx, GeoTIFF): "
+                    f"{str(err).split('(Internal Proj Error: ')[-1].rstrip(')')}")) from err
+            self.height_datum = f"orthometric height above the geoid grid {geoid.name}"
+        self.geoid = geoid
 
     def forward(self, lat_deg: FloatArray, lon_deg: FloatArray) -> tuple[FloatArray, FloatArray]:
         """(x, y) in the target CRS (easting, northing for a projected CRS; lon, lat else)."""
-        x, y = self._fwd.transform(np.asarray(lon_deg), np.asarray(lat_deg))
+        x, y = self._fwd.transform(np.asarray(lon_deg), np.asarray(lat_deg))[:2]
         return np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64)
 
     def inverse(self, x: FloatArray, y: FloatArray) -> tuple[FloatArray, FloatArray]:
         """(lat, lon) in degrees from target-CRS (x, y)."""
-        lon, lat = self._inv.transform(np.asarray(x), np.asarray(y))
+        lon, lat = self._inv.transform(np.asarray(x), np.asarray(y))[:2]
         return np.asarray(lat, dtype=np.float64), np.asarray(lon, dtype=np.float64)
+
+    def heights(self, lat_deg: FloatArray, lon_deg: FloatArray, h_m: FloatArray) -> FloatArray:
+        """The heights to write for WGS84 (lat, lon, ellipsoidal h): h itself, or h less the
+        geoid's height there.
+
+        Raises:
+            ConfigError: naming ``--geoid`` or ``--epsg``: the grid does not cover a point, or
+                PROJ cannot read it.
+        """
+        from pyproj.exceptions import ProjError
+
+        lat, lon, h = (np.asarray(v, dtype=np.float64) for v in (lat_deg, lon_deg, h_m))
+        if not self.vertical:
+            return h.copy()
+        ok = np.isfinite(lat) & np.isfinite(lon) & np.isfinite(h)
+        out = np.full(h.shape, np.nan)
+        if not ok.any():
+            return out
+        try:
+            if self._geoid is not None:
+                n = cast(FloatArray, self._geoid.transform(
+                    lon[ok], lat[ok], np.zeros(int(ok.sum())))[2])
+                out[ok] = h[ok] - np.asarray(n, dtype=np.float64)
+            else:
+                out[ok] = np.asarray(self._fwd.transform(lon[ok], lat[ok], h[ok])[2])
+        except ProjError as err:
+            raise ConfigError("--geoid" if self._geoid is not None else "--epsg", (
+                f"PROJ cannot compute heights above the geoid: {err}")) from err
+        bad = ok & ~(np.isfinite(out) & (np.abs(out - h) < 200.0))
+        if bad.any():
+            i = int(np.flatnonzero(bad)[0])
+            raise ConfigError("--geoid" if self._geoid is not None else "--epsg", (
+                f"the geoid grid does not cover {lat[i]:.5f}, {lon[i]:.5f} (the flight): "
+                "give a grid that covers it"))
+        return out
 
 
 def utm_epsg(lat_deg: float, lon_deg: float) -> int:
@@ -70,7 +181,8 @@ class CameraRow:
         mark_count: the receiver's count of that mark (``Mark.number``: its falling-edge
             record's, as in ``mark_NNNN``).
         t_gps_ns: instant used (edge + shutter delay), -1 when none.
-        lat_deg, lon_deg, h_m: projection centre, WGS84 (ellipsoidal height).
+        lat_deg, lon_deg, h_m: projection centre, WGS84 latitude and longitude, height as the
+            output says (:attr:`Projector.height_datum`).
         x_m, y_m: projection centre in the output CRS.
         sd_e_m, sd_n_m, sd_u_m: σ east, north, up.
         quality: RTKLIB Q (0 = no position).
@@ -78,6 +190,8 @@ class CameraRow:
         omega_deg, phi_deg, kappa_deg: attitude used for the lever arm (NaN if none).
         attitude: ``eo`` (from the EO file), ``nadir-track`` (assumed) or ``none``.
         antenna_x_m, antenna_y_m, antenna_h_m: antenna position before the lever arm.
+        ellipsoidal_h_m: the projection centre's WGS84 ellipsoidal height (= ``h_m`` unless
+            the heights are above a geoid).
         mark_name: without photos, the name the mark's row carries in the photogrammetry
             exports (:func:`mark_names`); "" otherwise.
         grade: what the position may be called (``fixed``, ``fixed-unchecked``, ``float``,
@@ -106,6 +220,7 @@ class CameraRow:
     antenna_x_m: float = math.nan
     antenna_y_m: float = math.nan
     antenna_h_m: float = math.nan
+    ellipsoidal_h_m: float = math.nan
     mark_name: str = ""
     grade: str = "none"
     check: str = ""
@@ -147,7 +262,7 @@ class SolveOutput:
     """What the writers get: rows, CRS, trajectory for maps, notes for headers."""
 
     rows: tuple[CameraRow, ...]
-    epsg: int
+    epsg: int | str
     crs_name: str
     projected: bool
     trajectory_llh: FloatArray  # (n, 3) lat, lon, h of every epoch
@@ -156,6 +271,8 @@ class SolveOutput:
     mark_llh: FloatArray  # (m, 3) antenna at every mark (NaN where none)
     mark_t_gps_ns: npt.NDArray[np.int64]
     notes: tuple[str, ...] = ()
+    height_datum: str = ELLIPSOIDAL
+    """What the rows' heights are (:attr:`Projector.height_datum`)."""
 
 
 def _f(v: float, nd: int) -> str:
@@ -174,9 +291,10 @@ CAMERAS_COLUMNS = (
     "photo", "mark", "mark_count", "gps_week", "gps_tow_s", "utc",
     "x_m", "y_m", "h_m", "lat_deg", "lon_deg", "sd_e_m", "sd_n_m", "sd_u_m",
     "quality", "quality_name", "grade", "check", "flags", "omega_deg", "phi_deg", "kappa_deg",
-    "attitude", "antenna_x_m", "antenna_y_m", "antenna_h_m",
+    "attitude", "antenna_x_m", "antenna_y_m", "antenna_h_m", "ellipsoidal_h_m",
 )
-"""Columns of ``cameras.csv``; x/y are in the output EPSG, h is WGS84 ellipsoidal."""
+"""Columns of ``cameras.csv``; x/y are in the output EPSG, h as its first line says (WGS84
+ellipsoidal, or above a geoid)."""
 
 
 FORMULA_PREFIXES = ("=", "+", "-", "@", "\t", "\r")
@@ -200,7 +318,7 @@ def _comment(text: str) -> str:
 def cameras_csv(out: SolveOutput) -> str:
     """``cameras.csv``: one row per photo (and per orphan mark), every field the solver knows."""
     buf = io.StringIO()
-    buf.write(f"# crs EPSG:{out.epsg} ({out.crs_name}); h = WGS84 ellipsoidal height\n")
+    buf.write(f"# crs EPSG:{out.epsg} ({out.crs_name}); h = {_comment(out.height_datum)}\n")
     for note in out.notes:
         buf.write(f"# {_comment(note)}\n")
     w = csv.writer(buf, lineterminator="\n")
@@ -221,6 +339,7 @@ def cameras_csv(out: SolveOutput) -> str:
             r.flag_text,
             _f(r.omega_deg, 4), _f(r.phi_deg, 4), _f(r.kappa_deg, 4), r.attitude,
             _f(r.antenna_x_m, nd_xy), _f(r.antenna_y_m, nd_xy), _f(r.antenna_h_m, 3),
+            _f(r.ellipsoidal_h_m, 3),
         ])
     return buf.getvalue()
 
@@ -237,7 +356,8 @@ def geo_txt(out: SolveOutput) -> str:
     Yaw is the compass direction of the image x axis from κ (90 - κ: κ counts
     counter-clockwise from east), pitch and roll 0 for the nadir camera (ODM uses the angles
     for radiometric calibration only, and reads 0 as unknown); horizontal accuracy is the
-    larger of σ east and north. z is the WGS84 ellipsoidal height, as in every export. ODM
+    larger of σ east and north. z is the height of every export (ellipsoidal or above a geoid:
+    the ``EPSG:`` line names a compound CRS for the latter; with ``--geoid`` it cannot). ODM
     splits a line on whitespace, so a photo whose name holds any cannot be listed: it is named
     in a ``#`` comment line (which ODM skips) instead, and keeps its row in the CSV exports.
     """
@@ -265,7 +385,7 @@ REFERENCE_COLUMNS = (
 def reference_csv(out: SolveOutput) -> str:
     """Metashape "Import Reference" CSV (comma, header row, ``#`` comment with the CRS)."""
     buf = io.StringIO()
-    buf.write(f"# EPSG:{out.epsg} {_comment(out.crs_name)}; z = WGS84 ellipsoidal height\n")
+    buf.write(f"# EPSG:{out.epsg} {_comment(out.crs_name)}; z = {_comment(out.height_datum)}\n")
     w = csv.writer(buf, lineterminator="\n")
     w.writerow(REFERENCE_COLUMNS)
     nd = 3 if out.projected else 9
@@ -289,7 +409,7 @@ def pix4d_csv(out: SolveOutput) -> str:
     """
     buf = io.StringIO()
     buf.write(f"#{','.join(PIX4D_COLUMNS)} ; EPSG:{out.epsg} {out.crs_name}; "
-              "Z = WGS84 ellipsoidal height\n")
+              f"Z = {_comment(out.height_datum)}\n")
     w = csv.writer(buf, lineterminator="\n")
     nd = 3 if out.projected else 9
     for r in _photo_rows(out):
@@ -344,7 +464,9 @@ def geojson(out: SolveOutput) -> str:
             "type": "Feature",
             "geometry": {
                 "type": "Point",
-                "coordinates": [round(r.lon_deg, 9), round(r.lat_deg, 9), round(r.h_m, 3)],
+                "coordinates": [round(r.lon_deg, 9), round(r.lat_deg, 9),
+                                round(r.ellipsoidal_h_m if math.isfinite(r.ellipsoidal_h_m)
+                                      else r.h_m, 3)],
             },
             "properties": {
                 "kind": "photo", "photo": r.photo, "mark": r.mark, "utc": _utc(r.t_gps_ns),
@@ -353,8 +475,8 @@ def geojson(out: SolveOutput) -> str:
                 "sd_n_m": _clean(r.sd_n_m), "sd_u_m": _clean(r.sd_u_m), "attitude": r.attitude,
             },
         })
-    # RFC 7946 positions are WGS84 lon, lat, height; the height's datum is said as a foreign
-    # member, as in every other export.
+    # RFC 7946 positions are WGS84 lon, lat, height: ellipsoidal here whatever the other
+    # exports' heights (said as a foreign member, as in every other export).
     return jsonio.dumps({"type": "FeatureCollection", "height_datum": "WGS84 ellipsoidal",
                          "features": feats}).decode()
 

@@ -75,7 +75,8 @@ class SolveSettings:
     photos: Path | None = None
     lever_arm_m: tuple[float, float, float] | None = None
     eo: Path | None = None
-    epsg: int | None = None
+    epsg: int | str | None = None
+    geoid: Path | None = None
     interp: str = "linear"
     edge: mi.Edge = "falling"
     shutter_delay_ms: float = 0.0
@@ -120,7 +121,7 @@ class SolveResult:
     match: photos.MatchResult | None
     lever: leverarm.LeverArmEstimate | None
     files: tuple[Path, ...]
-    epsg: int
+    epsg: int | str
     notes: tuple[str, ...] = field(default_factory=tuple)
     reconciliation: tuple[str, ...] = field(default_factory=tuple)
 
@@ -197,6 +198,13 @@ def _validate(s: SolveSettings) -> BaseCheck | None:
         raise ConfigError("--base-xyz", "the base's known coordinates are required with --base")
     if s.photos is not None and not s.photos.is_dir():
         raise ConfigError("--photos", f"{s.photos} is not a directory")
+    if s.epsg is not None or s.geoid is not None:
+        # the CRS, its heights and the geoid grid, before any work (a grid PROJ does not have,
+        # or that does not cover the base, would be found out after the engine)
+        proj = outputs.Projector(s.epsg or 4326, s.geoid)
+        if s.base_ecef_m is not None:
+            lat, lon, h = ecef_to_llh(*s.base_ecef_m)
+            proj.heights(np.array([lat]), np.array([lon]), np.array([h]))
     # never write over an input or a recording (groundstation.outpaths)
     outputs.check_output_dir(s.out_dir, [s.photos, s.flight, s.positions, s.base, s.eo])
     # The inputs' contents, before anything is created: a JPEG or a text file given as the
@@ -410,7 +418,7 @@ class _Cameras:
     """Stage 5's result: one row per photo (or mark), antenna and camera coordinates."""
 
     rows: tuple[outputs.CameraRow, ...]
-    epsg: int
+    epsg: int | str
     proj: outputs.Projector
     traj_llh: npt.NDArray[np.float64]
     mark_llh: npt.NDArray[np.float64]
@@ -425,6 +433,7 @@ class _Cameras:
             projected=self.proj.projected, trajectory_llh=self.traj_llh,
             trajectory_quality=traj.quality, trajectory_t_gps_ns=traj.t_gps_ns,
             mark_llh=self.mark_llh, mark_t_gps_ns=mp.t_gps_ns, notes=tuple(notes),
+            height_datum=self.proj.height_datum,
         )
 
 
@@ -477,7 +486,7 @@ def _attitude(
 
 
 def _lever_arm(
-    s: SolveSettings, proj: outputs.Projector, epsg: int, llh: npt.NDArray[np.float64],
+    s: SolveSettings, proj: outputs.Projector, epsg: int | str, llh: npt.NDArray[np.float64],
     ant: npt.NDArray[np.float64], opk: npt.NDArray[np.float64], attitude: list[str],
     entries: list[tuple[str, int]], eo_by_name: dict[str, leverarm.ExteriorOrientation],
     notes: list[str],
@@ -532,7 +541,7 @@ def _cameras(
             mark_llh[i] = ecef_to_llh(*xyz)
     traj_llh = np.array([ecef_to_llh(*xyz) for xyz in traj.ecef_m.tolist()])
     epsg = s.epsg or outputs.utm_epsg(float(traj_llh[0, 0]), float(traj_llh[0, 1]))
-    proj = outputs.Projector(epsg)
+    proj = outputs.Projector(epsg, s.geoid)
     entries = _row_entries(len(marks), photo_list, match)
     mk = np.array([k for _, k in entries], dtype=np.int64)
     has = mk >= 0
@@ -547,6 +556,8 @@ def _cameras(
         lat, lon = proj.inverse(cam[:, 0], cam[:, 1])
     else:
         lat, lon = cam[:, 1], cam[:, 0]
+    # Heights as the output CRS has them (ellipsoidal, or above its geoid)
+    h_out, ant_h_out = proj.heights(lat, lon, cam[:, 2]), proj.heights(llh[:, 0], llh[:, 1], ant_h)
     # Without photos every mark is exported under its name (mark_0031), for pairing by hand.
     names = outputs.mark_names([m.number for m in marks]) if s.photos is None else None
     rows: list[outputs.CameraRow] = []
@@ -556,14 +567,15 @@ def _cameras(
         rows.append(outputs.CameraRow(
             photo=name, mark=k, mark_count=m.number if m else -1,
             t_gps_ns=int(mp.t_gps_ns[k]) if k >= 0 else -1,
-            lat_deg=float(lat[i]), lon_deg=float(lon[i]), h_m=float(cam[i, 2]),
+            lat_deg=float(lat[i]), lon_deg=float(lon[i]), h_m=float(h_out[i]),
             x_m=float(cam[i, 0]), y_m=float(cam[i, 1]),
             sd_e_m=float(sd[0]), sd_n_m=float(sd[1]), sd_u_m=float(sd[2]),
             quality=int(mp.quality[k]) if k >= 0 else 0,
             flags=int(mp.flags[k]) if k >= 0 else 0,
             omega_deg=float(opk[i, 0]), phi_deg=float(opk[i, 1]), kappa_deg=float(opk[i, 2]),
             attitude=attitude[i],
-            antenna_x_m=float(ant_x[i]), antenna_y_m=float(ant_y[i]), antenna_h_m=float(ant_h[i]),
+            antenna_x_m=float(ant_x[i]), antenna_y_m=float(ant_y[i]),
+            antenna_h_m=float(ant_h_out[i]), ellipsoidal_h_m=float(cam[i, 2]),
             mark_name=names[k] if names is not None and k >= 0 else "",
             grade=gr.GRADE_NAMES[int(mp.grade[k])] if k >= 0 else "none",
             check=gr.CHECK_NAMES[int(mp.check[k])] if k >= 0 else "",
@@ -598,7 +610,7 @@ def _report(
         base_name=s.base.name if s.base else None,
         base_ecef_m=s.base_ecef_m or report.pos_header(s.positions).ref_ecef_m,
         base_check=base_check, base_doubtful=base_doubtful, epsg=epsg, crs_name=proj.name,
-        projected=proj.projected, lever_arm_m=s.lever_arm_m,
+        projected=proj.projected, height_datum=proj.height_datum, lever_arm_m=s.lever_arm_m,
         shutter_delay_ms=s.shutter_delay_ms, edge=s.edge, interp=s.interp, max_gap_s=s.max_gap_s,
         rows=tuple(rows), marks_total=len(marks),
         marks_duplicate=len(match.duplicate_marks) if match else 0,

@@ -146,7 +146,7 @@ class ReportInput:
     base_ecef_m: tuple[float, float, float] | None
     base_check: str
     base_doubtful: bool
-    epsg: int
+    epsg: int | str
     crs_name: str
     projected: bool
     lever_arm_m: tuple[float, float, float] | None
@@ -161,7 +161,7 @@ class ReportInput:
     track_x_m: FloatArray
     track_y_m: FloatArray
     track_quality: IntArray
-    height_datum: str = "WGS84 ellipsoidal height (no geoid applied)"
+    height_datum: str = "WGS84 ellipsoidal height"
     photos_total: int = 0
     photos_given: bool = True
     lost_marks: tuple[tuple[int, int], ...] = ()

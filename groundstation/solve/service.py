@@ -101,7 +101,8 @@ class StationSolve:
     lever_arm_m: tuple[float, float, float] | None = None
     interp: str = "smoother"
     edge: str = "falling"
-    epsg: int | None = None
+    epsg: int | str | None = None
+    geoid: Path | None = None
     shutter_delay_ms: float = 0.0
     max_gap_s: float = mi.DEFAULT_MAX_GAP_S
     fetch: str = "auto"
@@ -361,6 +362,7 @@ def plan(station: str, session: Mapping[str, Any], conf: StationSolve,
             photos=photos,
             lever_arm_m=conf.lever_arm_m,
             epsg=conf.epsg,
+            geoid=conf.geoid,
             interp=conf.interp,
             edge=conf.edge,  # type: ignore[arg-type]  # checked against mi.EDGES on load
             shutter_delay_ms=conf.shutter_delay_ms,
