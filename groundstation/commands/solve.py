@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from pathlib import Path
 from typing import Any
@@ -35,6 +36,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--base-llh", metavar="LAT,LON,H",
                         help="known base position instead: WGS84 latitude, longitude (degrees) "
                         "and ellipsoidal height (m)")
+    parser.add_argument("--base-sigma", metavar="S|E,N,U",
+                        help="the base position's own uncertainty, metres (one value or east,"
+                        "north,up): added to the cameras' absolute sigmas")
     parser.add_argument("--base-antenna-height", metavar="M",
                         help="the base position given is the ground mark; the antenna reference "
                         "point is M metres vertically above it")
@@ -89,6 +93,26 @@ def _option(option: str, key: str, text: str | None) -> Any:
     return convert(SOLVER_STATION_KEYS[key], option, text, from_text=True)
 
 
+def _base_sigma(
+    text: str | None, base_xyz: tuple[float, float, float] | None,
+) -> tuple[float, float, float] | None:
+    """``--base-sigma``: one value for every axis or east,north,up, metres."""
+    if text is None:
+        return None
+    if base_xyz is None:
+        raise ConfigError("--base-sigma", "goes with the base's coordinates (--base-xyz or "
+                          "--base-llh); without them the base's own fixes give the sigma")
+    try:
+        values = [float(v) for v in text.replace(" ", "").split(",")]
+    except ValueError:
+        values = []
+    if len(values) not in (1, 3) or not all(math.isfinite(v) and v >= 0 for v in values):
+        raise ConfigError("--base-sigma", f"expected one value or east,north,up in metres "
+                          f"(>= 0), got {text!r}")
+    e, n, u = values * 3 if len(values) == 1 else values
+    return e, n, u
+
+
 def settings_from_args(args: argparse.Namespace) -> SolveSettings:
     """Resolve and check the command line (every problem is a ConfigError naming the option)."""
     if args.positions is None and args.base is None and args.source != "receiver":
@@ -97,9 +121,6 @@ def settings_from_args(args: argparse.Namespace) -> SolveSettings:
         )
     if args.positions is not None and args.base is not None:
         raise ConfigError("--base", "use either --positions or --base, not both")
-    if args.base is not None and args.base_xyz is None and args.base_llh is None:
-        raise ConfigError("--base-xyz", "required with --base (the base's known ECEF position, "
-                          "or --base-llh LAT,LON,H)")
     interp_name = _option("--interp", "interp", args.interp)
     edge = _option("--edge", "edge", args.edge)
     epsg = _option("--epsg", "epsg", args.epsg)
@@ -134,6 +155,7 @@ def settings_from_args(args: argparse.Namespace) -> SolveSettings:
         base=Path(args.base) if args.base else None,
         base_ecef_m=base_xyz,
         base_given=base_given,
+        base_sd_enu_m=_base_sigma(args.base_sigma, base_xyz),
         source=args.source,
         photos=Path(args.photos) if args.photos else None,
         lever_arm_m=_option("--lever-arm", "lever_arm", args.lever_arm),

@@ -35,7 +35,7 @@ import numpy as np
 import numpy.typing as npt
 
 from groundstation.errors import ConfigError, InputError
-from groundstation.geodesy import ecef_to_llh, enu_to_ecef, llh_to_ecef
+from groundstation.geodesy import ecef_to_llh, enu_rotation, enu_to_ecef, llh_to_ecef
 from groundstation.gpstime import NS_PER_S, gps_calendar_ns, utc_span
 from groundstation.offline.rinex.convert import observations_of, read_frames
 from groundstation.solve.engine import is_rinex_obs_name
@@ -255,3 +255,36 @@ def check_distance(
             f"(where its receiver's own fixes put it): an L1-only baseline over "
             f"{BASE_FAR_REFUSED_M / 1000:.0f} km cannot be fixed (is it this flight's base?)"))
     return d
+
+
+OWN_FIX_FLOOR_ENU_M = (2.0, 2.0, 5.0)
+"""The least sigma (east, north, up) of a base position averaged from its own stand-alone
+fixes. Their scatter shows noise and multipath, not the errors every fix of the session shares:
+the broadcast orbits and clocks (about 1 m) and the ionosphere the broadcast model leaves (it
+removes about half of a daytime zenith delay of 2-10 m, mostly seen in height). Averaging does
+not remove those, so the mean is not better than metres whatever the number of fixes."""
+
+
+def base_from_own_fixes(
+    fixes_ecef_m: Iterable[tuple[float, float, float]],
+) -> tuple[tuple[float, float, float], tuple[float, float, float], int]:
+    """A base position when none is given: the mean of the base receiver's own fixes, its
+    sigma (east, north, up: the fixes' scatter, at least :data:`OWN_FIX_FLOOR_ENU_M`) and the
+    number of fixes.
+
+    Raises:
+        ConfigError: naming ``--base-xyz``: the base recording has no fix to average.
+    """
+    fixes = np.asarray(list(fixes_ecef_m), dtype=np.float64).reshape(-1, 3)
+    if fixes.shape[0] < 2:
+        raise ConfigError("--base-xyz", (
+            "the base's coordinates are needed (--base-xyz X,Y,Z or --base-llh LAT,LON,H): its "
+            "recording has no receiver fixes to average instead"))
+    mean = fixes.mean(axis=0)
+    lat, lon, _h = ecef_to_llh(*mean)
+    rot = np.asarray(enu_rotation(lat, lon))
+    enu = (fixes - mean) @ rot.T
+    sd = np.maximum(enu.std(axis=0, ddof=1), OWN_FIX_FLOOR_ENU_M)
+    return ((float(mean[0]), float(mean[1]), float(mean[2])),
+            (float(sd[0]), float(sd[1]), float(sd[2])), int(fixes.shape[0]))
+

@@ -165,6 +165,19 @@ class Projector:
         return out
 
 
+def absolute_sd(
+    sd_enu_m: npt.NDArray[np.float64], base_sd_enu_m: tuple[float, float, float] | None,
+) -> npt.NDArray[np.float64]:
+    """Camera sigmas (n, 3: east, north, up) with the base's own sigma added: the camera's
+    absolute uncertainty. The base's error is the same for every camera (a shift of the whole
+    block), so it adds in quadrature to each one's relative sigma; ``None``: the base is taken
+    as exact."""
+    sd = np.asarray(sd_enu_m, dtype=np.float64)
+    if base_sd_enu_m is None:
+        return sd.copy()
+    return np.hypot(sd, np.asarray(base_sd_enu_m, dtype=np.float64))
+
+
 def utm_epsg(lat_deg: float, lon_deg: float) -> int:
     """EPSG code of the WGS84 UTM zone containing a point (326xx north, 327xx south)."""
     zone = int((lon_deg + 180.0) // 6.0) % 60 + 1
@@ -273,6 +286,8 @@ class SolveOutput:
     notes: tuple[str, ...] = ()
     height_datum: str = ELLIPSOIDAL
     """What the rows' heights are (:attr:`Projector.height_datum`)."""
+    base_sd_enu_m: tuple[float, float, float] | None = None
+    """The base position's sigma (east, north, up); None: taken as exact."""
 
 
 def _f(v: float, nd: int) -> str:
@@ -292,9 +307,11 @@ CAMERAS_COLUMNS = (
     "x_m", "y_m", "h_m", "lat_deg", "lon_deg", "sd_e_m", "sd_n_m", "sd_u_m",
     "quality", "quality_name", "grade", "check", "flags", "omega_deg", "phi_deg", "kappa_deg",
     "attitude", "antenna_x_m", "antenna_y_m", "antenna_h_m", "ellipsoidal_h_m",
+    "abs_sd_e_m", "abs_sd_n_m", "abs_sd_u_m",
 )
 """Columns of ``cameras.csv``; x/y are in the output EPSG, h as its first line says (WGS84
-ellipsoidal, or above a geoid)."""
+ellipsoidal, or above a geoid). ``sd_*`` are relative to the base, ``abs_sd_*`` include the base
+position's own sigma (equal to ``sd_*`` when the base is taken as exact: the second line says)."""
 
 
 FORMULA_PREFIXES = ("=", "+", "-", "@", "\t", "\r")
@@ -319,12 +336,19 @@ def cameras_csv(out: SolveOutput) -> str:
     """``cameras.csv``: one row per photo (and per orphan mark), every field the solver knows."""
     buf = io.StringIO()
     buf.write(f"# crs EPSG:{out.epsg} ({out.crs_name}); h = {_comment(out.height_datum)}\n")
+    base = out.base_sd_enu_m
+    buf.write("# sd_*: relative to the base; abs_sd_*: with the base position's sigma "
+              + ("(" + "/".join(f"{v:.3f}" for v in base) + " m east/north/up)\n" if base
+                 else "(none given: the base is taken as exact)\n"))
     for note in out.notes:
         buf.write(f"# {_comment(note)}\n")
     w = csv.writer(buf, lineterminator="\n")
     w.writerow(CAMERAS_COLUMNS)
     nd_xy = 3 if out.projected else 9
-    for r in out.rows:
+    absolute = absolute_sd(
+        np.array([(r.sd_e_m, r.sd_n_m, r.sd_u_m) for r in out.rows], dtype=np.float64
+                 ).reshape(-1, 3), base)
+    for r, ab in zip(out.rows, absolute.tolist(), strict=True):
         week, tow = ("", "")
         if r.t_gps_ns >= 0:
             wk, tow_ns = gpstime.week_tow(r.t_gps_ns)
@@ -339,7 +363,7 @@ def cameras_csv(out: SolveOutput) -> str:
             r.flag_text,
             _f(r.omega_deg, 4), _f(r.phi_deg, 4), _f(r.kappa_deg, 4), r.attitude,
             _f(r.antenna_x_m, nd_xy), _f(r.antenna_y_m, nd_xy), _f(r.antenna_h_m, 3),
-            _f(r.ellipsoidal_h_m, 3),
+            _f(r.ellipsoidal_h_m, 3), _f(ab[0], 3), _f(ab[1], 3), _f(ab[2], 3),
         ])
     return buf.getvalue()
 

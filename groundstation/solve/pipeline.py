@@ -33,7 +33,7 @@ from groundstation.records import NavSolution, TimeMark
 from groundstation.rules.marks import Mark, build_marks
 from groundstation.solve import interpolate as mi
 from groundstation.solve import leverarm, outputs, photos, positions, report
-from groundstation.solve.base import check_distance, check_pairing
+from groundstation.solve.base import base_from_own_fixes, check_distance, check_pairing
 from groundstation.solve.engine import DEFAULT_ENGINE, is_rinex_obs_name
 from groundstation.solve.integrity import grade as gr
 from groundstation.storage.reading import Recording, check_regular
@@ -71,6 +71,10 @@ class SolveSettings:
     base: Path | None = None
     base_ecef_m: tuple[float, float, float] | None = None
     base_given: str = "given with --base-xyz"
+    base_sd_enu_m: tuple[float, float, float] | None = None
+    """The base position's own sigma (east, north, up), None when taken as exact."""
+    base_estimated: bool = False
+    """No base position was given: it is the mean of the base receiver's own fixes."""
     source: str | None = None
     photos: Path | None = None
     lever_arm_m: tuple[float, float, float] | None = None
@@ -182,8 +186,13 @@ def read_flight(path: Path, progress: Progress | None = None) -> FlightRecords:
     return FlightRecords(tuple(tms), tuple(nav), st.frames, st.bad_checksum + st.truncated)
 
 
-def _validate(s: SolveSettings) -> BaseCheck | None:
-    """Every check made before anything is written; the base check when it can be made now."""
+def _validate(s: SolveSettings) -> tuple[SolveSettings, BaseCheck | None]:
+    """Every check made before anything is written; the base check when it can be made now.
+
+    Returns:
+        The settings, with the base position the base's own fixes give when none was given
+        (and its sigma), and the base check.
+    """
     if s.interp not in mi.INTERPOLATORS:
         raise ConfigError("--interp", f"unknown method {s.interp!r}")
     if s.edge not in mi.EDGES:
@@ -194,8 +203,6 @@ def _validate(s: SolveSettings) -> BaseCheck | None:
         raise ConfigError("--shutter-delay-ms", "must be a number")
     if s.source_name() not in positions.POSITION_SOURCES:
         raise ConfigError("--source", f"unknown position source {s.source!r}")
-    if s.base is not None and s.base_ecef_m is None and s.positions is None:
-        raise ConfigError("--base-xyz", "the base's known coordinates are required with --base")
     if s.photos is not None and not s.photos.is_dir():
         raise ConfigError("--photos", f"{s.photos} is not a directory")
     if s.epsg is not None or s.geoid is not None:
@@ -217,11 +224,15 @@ def _validate(s: SolveSettings) -> BaseCheck | None:
             _require_rinex_obs(s.base)
         else:
             require_ubx_frames(s.base)
+    own = s.base is not None and s.base_ecef_m is None and s.positions is None
+    if own and s.base is not None:
+        s = _base_from_own_fixes(s.base, s)
     if s.base is None or s.base_ecef_m is None:
-        return None
+        return s, None
     # Before the engine: coordinates kilometres off give no solution at all, and a half hour
     # of engine work before saying so (report.BASE_REFUSED_M).
-    text, doubtful = report.check_base(s.base, s.base_ecef_m, None, s.positions, s.base_given)
+    text, doubtful = (s.base_given, False) if own else report.check_base(
+        s.base, s.base_ecef_m, None, s.positions, s.base_given)
     if s.positions is None:
         # The same for a base of another day, the flight's own recording, or a base hundreds
         # of kilometres away.
@@ -229,7 +240,26 @@ def _validate(s: SolveSettings) -> BaseCheck | None:
         check_distance(s.base_ecef_m, [
             n.ecef_m for n in read_flight(s.flight).nav if n.fix_ok and n.ecef_m])
         text = f"{text}; {covered}" if covered else text
-    return text, doubtful
+    return s, (text, doubtful)
+
+
+def _base_from_own_fixes(path: Path, s: SolveSettings) -> SolveSettings:
+    """No base coordinates given: the mean of the base receiver's own fixes, known to metres.
+
+    Raises:
+        ConfigError: naming ``--base-xyz``: a RINEX base, or a recording without fixes.
+    """
+    if is_rinex_obs_name(path):
+        raise ConfigError("--base-xyz", (
+            f"the coordinates of the base {path.name} are needed (--base-xyz X,Y,Z or --base-llh "
+            "LAT,LON,H): RINEX observations carry no receiver fixes to average instead"))
+    xyz, sd, n = base_from_own_fixes(
+        n.ecef_m for n in read_flight(path).nav if n.fix_ok and n.ecef_m)
+    sd_text = "/".join(f"{v:.1f}" for v in sd)
+    return replace(s, base_ecef_m=xyz, base_sd_enu_m=sd, base_estimated=True, base_given=(
+        f"not given: the mean of the base receiver's own {n} stand-alone fixes, σ east/north/"
+        f"up {sd_text} m (camera positions are relative to a base known to metres only; give "
+        "--base-xyz or --base-llh for a surveyed point)"))
 
 
 def _require_rinex_obs(path: Path) -> None:
@@ -263,8 +293,7 @@ def solve(settings: SolveSettings, progress: Progress | None = None) -> SolveRes
         positions.NoSolutionError: the engine positioned no epoch.
         NothingPositionedError: no mark was positioned (nothing is written).
     """
-    s = settings
-    base_check = _validate(s)
+    s, base_check = _validate(settings)
     with outpaths.staged_output(s.out_dir, "--out-dir") as stage:
         result = _solve(replace(s, out_dir=stage), progress, base_check)
     return _relocated(result, stage, s.out_dir)
@@ -304,8 +333,16 @@ def _solve(s: SolveSettings, progress: Progress | None,
     jumps = report.lost_marks(marks)
     if jumps:
         notes.append(report.lost_marks_text(jumps))
+    if s.base_estimated:
+        notes.append(f"WARNING base position {s.base_given}")
+    if s.base_sd_enu_m is not None:
+        notes.append(
+            "base position σ east/north/up " + "/".join(f"{v:.3f}" for v in s.base_sd_enu_m)
+            + " m: in the absolute sigmas of cameras.csv (abs_sd_*); the photogrammetry exports "
+            "carry the relative ones (weight the cameras by them: the base's error moves the "
+            "whole block alike)")
     cams = _cameras(s, marks, mp, traj, photo_list, match, notes)
-    files = outputs.write_all(cams.output(traj, mp, notes), s.out_dir)
+    files = outputs.write_all(cams.output(traj, mp, notes, s.base_sd_enu_m), s.out_dir)
     report_files, report_notes = _report(s, traj, marks, mp, photo_list, match, cams, notes,
                                          base_check)
     files.extend(report_files)
@@ -426,14 +463,15 @@ class _Cameras:
     lever: leverarm.LeverArmEstimate | None
 
     def output(
-        self, traj: positions.Trajectory, mp: mi.MarkPositions, notes: list[str]
+        self, traj: positions.Trajectory, mp: mi.MarkPositions, notes: list[str],
+        base_sd_enu_m: tuple[float, float, float] | None = None,
     ) -> outputs.SolveOutput:
         return outputs.SolveOutput(
             rows=self.rows, epsg=self.epsg, crs_name=self.proj.name,
             projected=self.proj.projected, trajectory_llh=self.traj_llh,
             trajectory_quality=traj.quality, trajectory_t_gps_ns=traj.t_gps_ns,
             mark_llh=self.mark_llh, mark_t_gps_ns=mp.t_gps_ns, notes=tuple(notes),
-            height_datum=self.proj.height_datum,
+            height_datum=self.proj.height_datum, base_sd_enu_m=base_sd_enu_m,
         )
 
 
@@ -609,7 +647,8 @@ def _report(
         engine_options=engine_opts, position_source=f"{traj.source}: {len(traj)} epochs",
         base_name=s.base.name if s.base else None,
         base_ecef_m=s.base_ecef_m or report.pos_header(s.positions).ref_ecef_m,
-        base_check=base_check, base_doubtful=base_doubtful, epsg=epsg, crs_name=proj.name,
+        base_check=base_check, base_doubtful=base_doubtful, base_sd_enu_m=s.base_sd_enu_m,
+        epsg=epsg, crs_name=proj.name,
         projected=proj.projected, height_datum=proj.height_datum, lever_arm_m=s.lever_arm_m,
         shutter_delay_ms=s.shutter_delay_ms, edge=s.edge, interp=s.interp, max_gap_s=s.max_gap_s,
         rows=tuple(rows), marks_total=len(marks),

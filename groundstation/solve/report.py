@@ -162,6 +162,7 @@ class ReportInput:
     track_y_m: FloatArray
     track_quality: IntArray
     height_datum: str = "WGS84 ellipsoidal height"
+    base_sd_enu_m: tuple[float, float, float] | None = None
     photos_total: int = 0
     photos_given: bool = True
     lost_marks: tuple[tuple[int, int], ...] = ()
@@ -407,7 +408,13 @@ def _summary(inp: ReportInput) -> str:
         base = (f"{name}ECEF X {inp.base_ecef_m[0]:.4f}, "
                 f"Y {inp.base_ecef_m[1]:.4f}, Z {inp.base_ecef_m[2]:.4f} m<br>"
                 f"lat {la:.9f}°, lon {lo:.9f}°, h {h:.3f} m (WGS84)<br>"
-                f"checked: {_e(inp.base_check)}")
+                f"checked: {_e(inp.base_check)}<br>σ east/north/up " + _e(
+                    "/".join(f"{v:.3f}" for v in inp.base_sd_enu_m) + " m: in the cameras' "
+                    "absolute sigmas (cameras.csv abs_sd_*); the photogrammetry exports carry "
+                    "the relative sigmas, which a bundle adjustment should weight the cameras by "
+                    "(the base's error shifts the whole block alike)"
+                    if inp.base_sd_enu_m is not None else
+                    "not given: the base is taken as exact (--base-sigma gives it)"))
     else:
         base = _e(inp.base_check or "none")
     opts = ""

@@ -107,3 +107,30 @@ def test_the_base_as_ecef_as_latitude_longitude_and_as_a_mark_give_the_same_came
             assert a["grade"] == b["grade"]
             for key in ("x_m", "y_m", "h_m"):  # written to the millimetre
                 assert abs(float(a[key]) - float(b[key])) <= 0.0010001, (name, key, a, b)
+
+
+XYZ_1009_1M_EAST = "3774696.7108,-596646.9206,5089485.6511"  # XYZ_1009 moved 1 m east
+
+
+def test_a_base_1_m_off_with_a_1_m_sigma_widens_the_absolute_sigmas_only(
+        shared_data: Path, tmp_path: Path) -> None:
+    cams = {}
+    for name, args in {"right": ["--base-xyz", XYZ_1009],
+                       "off": ["--base-xyz", XYZ_1009_1M_EAST, "--base-sigma", "1"]}.items():
+        out = tmp_path / name
+        proc = subprocess.run(
+            [sys.executable, "-m", "groundstation.cli", "solve", str(shared_data / JD / ROVER_1009),
+             "--base", str(shared_data / JD / BASE_1009), *args, "--out-dir", str(out),
+             "--no-progress"],
+            cwd=tmp_path, env=cli_env(), capture_output=True, text=True, timeout=600, check=False)
+        assert proc.returncode == 0, proc.stderr
+        cams[name] = _cameras(out)
+    sd = ("sd_e_m", "sd_n_m", "sd_u_m")
+    for a, b in zip(cams["right"], cams["off"], strict=True):
+        assert all(float(b[f"abs_{k}"]) >= 1.0 for k in sd), b
+        assert all(a[f"abs_{k}"] == a[k] for k in sd)  # no sigma given: the base taken as exact
+        if a["grade"] == "fixed":  # the engine's fixed solution does not move with the base
+            assert all(abs(float(a[k]) - float(b[k])) < 0.01 for k in sd), (a, b)
+            assert abs(float(b["x_m"]) - float(a["x_m"]) - 1.0) < 0.05  # the whole block moves
+    report = (tmp_path / "off" / "report.html").read_text()
+    assert "σ east/north/up 1.000/1.000/1.000 m: in the cameras&#x27; absolute sigmas" in report

@@ -25,11 +25,14 @@ from groundstation.gpstime import gps_as_datetime, gps_calendar_ns
 from groundstation.solve.base import (
     BASE_FAR_REFUSED_M,
     BASE_KEYS,
+    OWN_FIX_FLOOR_ENU_M,
+    base_from_own_fixes,
     base_position,
     check_distance,
     check_pairing,
     observation_times,
 )
+from groundstation.solve.outputs import absolute_sd
 
 XYZ = (3774696.5547, -596647.9083, 5089485.6511)  # the 2018-10-09 base of the jdesbonnet data
 
@@ -160,3 +163,25 @@ def test_solve_refuses_the_flight_as_its_own_base_before_writing(
     assert proc.stderr.count("\n") == 1, proc.stderr
     assert "--base: " in proc.stderr and "the flight's own recording" in proc.stderr
     assert not (tmp_path / "out").exists()
+
+
+def test_the_bases_sigma_adds_to_every_cameras_absolute_sigma() -> None:
+    rel = np.array([[0.01, 0.012, 0.03], [0.5, 0.4, 1.2], [np.nan, np.nan, np.nan]])
+    assert np.array_equal(absolute_sd(rel, None), rel, equal_nan=True)  # base taken as exact
+    ab = absolute_sd(rel, (1.0, 1.0, 2.0))
+    np.testing.assert_allclose(ab[0], np.hypot(rel[0], (1.0, 1.0, 2.0)))
+    assert (ab[:2] >= (1.0, 1.0, 2.0)).all() and np.isnan(ab[2]).all()
+
+
+def test_without_coordinates_the_bases_own_fixes_give_it_to_metres() -> None:
+    rng = np.random.default_rng(7)
+    lat, lon, h = ecef_to_llh(*XYZ)
+    fixes = [llh_to_ecef(lat + e / 111_000, lon, h + u)
+             for e, u in zip(rng.normal(0, 0.5, 600), rng.normal(0, 12.0, 600), strict=True)]
+    xyz, sd, n = base_from_own_fixes(fixes)
+    assert n == 600 and math.dist(xyz, XYZ) < 2.0
+    assert sd[0] == OWN_FIX_FLOOR_ENU_M[0] and sd[1] == OWN_FIX_FLOOR_ENU_M[1]  # floors
+    assert 11.0 < sd[2] < 13.0  # the scatter where it is larger
+    with pytest.raises(ConfigError) as err:
+        base_from_own_fixes(fixes[:1])
+    assert err.value.key == "--base-xyz" and "no receiver fixes" in err.value.message
