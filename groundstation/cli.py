@@ -14,6 +14,7 @@ import argparse
 import importlib
 import logging
 import os
+import re
 import sys
 from collections.abc import Sequence
 from typing import NoReturn
@@ -39,8 +40,11 @@ class OneLineParser(argparse.ArgumentParser):
     failure; ``--help`` still prints the usage."""
 
     def error(self, message: str) -> NoReturn:
-        self.exit(EXIT_CONFIG, f"{self.prog}: error: {' '.join(message.split())} "
-                               "(see --help)\n")
+        hint = "see --help"
+        m = re.match(r"argument (--[\w-]+): expected one argument", message)
+        if m is not None:  # "--base-xyz -3978241.9,..." reads as an option to argparse
+            hint = f"a value that starts with '-' goes after '=': {m.group(1)}=-1.5,... ; {hint}"
+        self.exit(EXIT_CONFIG, f"{self.prog}: error: {' '.join(message.split())} ({hint})\n")
 
 
 class HelpFormatter(argparse.RawDescriptionHelpFormatter):

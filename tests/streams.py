@@ -12,12 +12,14 @@ TOW0_MS = 345_600_000
 
 
 
-def rxm_raw(week: int, tow_ms: int, sats: list[tuple[int, int]]) -> bytes:
-    """An RXM-RAW frame; ``sats`` are (prn, lli) with made-up but plausible values."""
+def rxm_raw(week: int, tow_ms: int, sats: list[tuple[int, int]],
+            pr_offset_m: float = 0.0) -> bytes:
+    """An RXM-RAW frame; ``sats`` are (prn, lli) with made-up but plausible values
+    (``pr_offset_m``: another receiver's clock)."""
     rows = [
         {
             "cpMes": 110_000_000.125 + prn * 1000.5 + tow_ms / 1000.0,
-            "prMes": 21_000_000.5 + prn * 100.25,
+            "prMes": 21_000_000.5 + prn * 100.25 + pr_offset_m,
             "doMes": -1234.5 + prn,
             "sv": prn,
             "mesQI": 7,
@@ -54,10 +56,12 @@ def tim_tm2(
 
 
 def flight_stream(
-    n_epochs: int = 50, *, drop_epochs: set[int] | None = None, mark_every: int = 5
+    n_epochs: int = 50, *, drop_epochs: set[int] | None = None, mark_every: int = 5,
+    pr_offset_m: float = 0.0,
 ) -> tuple[bytes, list[bytes]]:
     """A 5 Hz stream of RXM-RAW epochs with a mark (falling, then rising 14 ms later) every
-    ``mark_every`` epochs. Returns the stream and the list of its frames in order."""
+    ``mark_every`` epochs (``pr_offset_m``: as another receiver sees it, its clock elsewhere).
+    Returns the stream and the list of its frames in order."""
     drop = drop_epochs or set()
     frames: list[bytes] = []
     count = 0
@@ -65,7 +69,7 @@ def flight_stream(
         tow = TOW0_MS + 200 * k
         if k in drop:
             continue
-        frames.append(rxm_raw(WEEK, tow, [(p, 0) for p in (3, 7, 11, 19, 23)]))
+        frames.append(rxm_raw(WEEK, tow, [(p, 0) for p in (3, 7, 11, 19, 23)], pr_offset_m))
         if k % mark_every == 2:
             fall_ms, fall_sub = tow + 57, 123_456
             frames.append(tim_tm2(count, WEEK, fall_ms, fall_sub, None))

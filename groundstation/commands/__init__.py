@@ -18,6 +18,7 @@ COMMANDS: dict[str, str] = {
     "demo": "groundstation.commands.demo",
     "replay": "groundstation.commands.replay",
     "solve": "groundstation.commands.solve",
+    "locate-base": "groundstation.commands.locate_base",
     "solver": "groundstation.commands.solver",
     "router": "groundstation.commands.router",
 }
@@ -34,6 +35,7 @@ HELP: dict[str, str] = {
     "demo": "simulator + daemon + live view, the embedded default",
     "replay": "MCAP/.ubx through the live pipeline (to Zenoh), at xN or max speed",
     "solve": "post-flight: positions -> marks -> photos -> lever arm -> outputs",
+    "locate-base": "the base's position from a reference station's RINEX (static baseline)",
     "solver": "the solver service (listens on Zenoh, solves when a session ends)",
     "router": "a Zenoh router: TLS, mutual TLS, access control per station (from TOML)",
 }
@@ -59,6 +61,11 @@ EXAMPLES: dict[str, str] = {
     "solve": "groundstation solve flight.mcap --base base.ubx "
              "--base-xyz 4201000.1,180000.2,4779000.3 --photos photos/ --out-dir solution/\n"
              "groundstation solve flight.mcap --positions flight.pos --out-dir solution/",
+    "locate-base": "groundstation locate-base base.ubx --reference "
+                   "ABCD00IRL_R_20250010000_01D_30S_MO.crx.gz --reference-xyz "
+                   "3774696.55,-596647.91,5089485.65 --out base.json\n"
+                   "groundstation solve flight.mcap --base base.ubx --base-position base.json "
+                   "--out-dir solution/",
     "solver": "groundstation solver --config config/solver.toml",
     "router": "groundstation router --config config/router.toml\n"
               "groundstation router --listen tcp/0.0.0.0:7447 --duration 3600",

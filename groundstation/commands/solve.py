@@ -13,6 +13,7 @@ from groundstation.errors import ConfigError
 from groundstation.solve import engine as ppk
 from groundstation.solve import interpolate as interp
 from groundstation.solve.base import base_position
+from groundstation.solve.locate import read_base_position
 from groundstation.solve.photos import JPEG_SUFFIXES
 from groundstation.solve.pipeline import SolveResult, SolveSettings, solve
 from groundstation.solve.report import grades_text
@@ -36,6 +37,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--base-llh", metavar="LAT,LON,H",
                         help="known base position instead: WGS84 latitude, longitude (degrees) "
                         "and ellipsoidal height (m)")
+    parser.add_argument("--base-position", metavar="FILE",
+                        help="the base position (and its sigma) from groundstation locate-base "
+                        "--out")
     parser.add_argument("--base-sigma", metavar="S|E,N,U",
                         help="the base position's own uncertainty, metres (one value or east,"
                         "north,up): added to the cameras' absolute sigmas")
@@ -143,6 +147,15 @@ def settings_from_args(args: argparse.Namespace) -> SolveSettings:
         _option("--base-xyz", "base_xyz", args.base_xyz),
         _option("--base-llh", "base_llh", args.base_llh),
         _option("--base-antenna-height", "base_antenna_height_m", args.base_antenna_height))
+    file_sd = None
+    if args.base_position is not None:
+        if base_xyz is not None or args.base_antenna_height is not None:
+            raise ConfigError("--base-position", "give the base as one of --base-position, "
+                              "--base-xyz or --base-llh (the file is the antenna's position)")
+        if not Path(args.base_position).is_file():
+            raise ConfigError("--base-position", f"{args.base_position}: no such file")
+        base_xyz, file_sd, base_given = read_base_position(Path(args.base_position))
+    base_sd = _base_sigma(args.base_sigma, base_xyz) or file_sd
     if args.base is not None:  # the engine runs: check its options now, before any work
         ppk.resolve_options(
             ppk.get_engine(args.engine), base_xyz,
@@ -155,7 +168,7 @@ def settings_from_args(args: argparse.Namespace) -> SolveSettings:
         base=Path(args.base) if args.base else None,
         base_ecef_m=base_xyz,
         base_given=base_given,
-        base_sd_enu_m=_base_sigma(args.base_sigma, base_xyz),
+        base_sd_enu_m=base_sd,
         source=args.source,
         photos=Path(args.photos) if args.photos else None,
         lever_arm_m=_option("--lever-arm", "lever_arm", args.lever_arm),

@@ -189,39 +189,49 @@ def _rinex_times(path: Path) -> ObservationTimes:
     return ObservationTimes(np.unique(np.asarray(times, dtype=np.int64)), prs)
 
 
-def check_pairing(flight: Path, base: Path) -> str:
+def check_pairing(flight: Path, base: Path, *, key: str = "--base",
+                  words: tuple[str, str] = ("flight", "base")) -> str:
     """Refuse a base recording that cannot be this flight's base; else say how they overlap.
+
+    Args:
+        flight, base: the rover's and the base's observations.
+        key: the option that named the base, for the refusal.
+        words: what the two are called in the messages (``locate-base``: the user's base and
+            the reference station).
 
     Returns:
         How much of the flight the base covers (for the base check's text).
 
     Raises:
-        ConfigError: naming ``--base``: no epoch of the base falls in the flight's span (both
+        ConfigError: naming ``key``: no epoch of the base falls in the flight's span (both
             spans said), or the base's pseudoranges are the flight's own.
     """
+    rover_word, base_word = words
     rover, ref = observation_times(flight), observation_times(base)
     rs, bs = rover.span, ref.span
     if rs is None or bs is None:
-        return "" if rs is None else f"the base {base.name} has no observation epoch"
+        return "" if rs is None else f"the {base_word} {base.name} has no observation epoch"
     if bs[1] < rs[0] or bs[0] > rs[1]:
         gap_s = (rs[0] - bs[1] if bs[1] < rs[0] else bs[0] - rs[1]) / NS_PER_S
-        raise ConfigError("--base", (
-            f"{base.name} does not overlap the flight in time: flight {utc_span(rs)}, base "
-            f"{utc_span(bs)} ({_gap_words(gap_s)} apart): give the base logged during this "
-            "flight"))
+        raise ConfigError(key, (
+            f"{base.name} does not overlap the {rover_word} in time: {rover_word} "
+            f"{utc_span(rs)}, {base_word} {utc_span(bs)} ({_gap_words(gap_s)} apart): give the "
+            f"{base_word} logged during this {rover_word}"))
     shared = [k for k in rover.pseudoranges if k in ref.pseudoranges]
     if shared:
         same = sum(abs(rover.pseudoranges[k] - ref.pseudoranges[k]) < SAME_PR_M for k in shared)
         if same >= SAME_SHARE * len(shared):
-            raise ConfigError("--base", (
-                f"{base.name} is the flight's own recording: its pseudoranges equal the rover's "
+            raise ConfigError(key, (
+                f"{base.name} is the {rover_word}'s own recording: its pseudoranges equal the "
+                f"{rover_word}'s "
                 f"at {same} of {len(shared)} shared satellite epochs (two receivers never agree "
-                "to the millimetre): give the base station's recording"))
+                f"to the millimetre): give the {base_word} station's recording"))
     t = rover.t_gps_ns
     inside = int(np.count_nonzero((t >= bs[0]) & (t <= bs[1])))
     share = inside / t.size
     return "" if share >= 0.999 else (
-        f"the base covers {share:.0%} of the flight's epochs (base {utc_span(bs)})")
+        f"the {base_word} covers {share:.0%} of the {rover_word}'s epochs ({base_word} "
+        f"{utc_span(bs)})")
 
 
 def _gap_words(seconds: float) -> str:

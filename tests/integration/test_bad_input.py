@@ -254,7 +254,9 @@ CASES: list[Case] = [
     # failures after the output directory was created leave nothing behind (the snapshot)
     c("solve-positions-text", "solve good.ubx --positions notes.txt --out o", 2,
       "cannot parse", logs=True),
-    c("solve-engine-no-solution", f"solve good.ubx --base good.ubx --base-xyz {BASE_XYZ} "
+    c("solve-base-is-the-flight", f"solve good.ubx --base good.ubx --base-xyz {BASE_XYZ} "
+      "--out o --no-progress", 2, "--base: good.ubx is the flight's own recording"),
+    c("solve-engine-no-solution", f"solve good.ubx --base base.ubx --base-xyz {BASE_XYZ} "
       "--out o --no-progress", 1, "no navigation data", logs=True),
     # -- configure ----------------------------------------------------------------------------
     c("configure-unknown-profile", "configure --port /dev/null --profile nope --dry-run", 2,
@@ -317,6 +319,7 @@ def _workspace(root: Path) -> None:
     """The inputs every case may name."""
     data, _ = flight_stream(10)
     (root / "good.ubx").write_bytes(data)
+    (root / "base.ubx").write_bytes(flight_stream(10, pr_offset_m=300.0)[0])  # no ephemerides
     (root / "nav_only.ubx").write_bytes(bytes.fromhex(  # one NAV-POSLLH, no epoch
         "b56201021c00" + "00" * 28 + "1fa6"))
     (root / "rec.mcap").write_bytes(MCAP_MAGIC + b"\x00" * 32)

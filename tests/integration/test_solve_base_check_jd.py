@@ -6,12 +6,14 @@ distance and where the base receiver's own fixes put the base (exit 2, nothing w
 base of another day (right coordinates of the 2018-10-04 base with that day's recording), and
 the rover's own recording as its base, are refused before the engine too (exit 2, one line
 giving both spans or the equal pseudoranges, nothing written). The base given as ECEF, as
-latitude/longitude/height and as the ground mark plus an antenna height gives the same cameras.
+latitude/longitude/height, as the ground mark plus an antenna height, or in a base position
+file gives the same cameras.
 """
 
 from __future__ import annotations
 
 import csv
+import json
 import subprocess
 import sys
 from pathlib import Path
@@ -83,7 +85,12 @@ def _cameras(out: Path) -> list[dict[str, str]]:
 def test_the_base_as_ecef_as_latitude_longitude_and_as_a_mark_give_the_same_cameras(
         shared_data: Path, tmp_path: Path) -> None:
     lat, lon, h = ecef_to_llh(*(float(v) for v in XYZ_1009.split(",")))
+    position = tmp_path / "base.json"  # as locate-base --out writes it
+    position.write_text(json.dumps({"ecef_m": [float(v) for v in XYZ_1009.split(",")],
+                                    "sigma_enu_m": [0.02, 0.02, 0.04],
+                                    "reference": "ABCD00IRL.crx.gz", "baseline_m": 12345.0}))
     forms = {"xyz": ["--base-xyz", XYZ_1009],
+             "file": ["--base-position", str(position)],
              "llh": ["--base-llh", f"{lat:.10f},{lon:.10f},{h:.4f}"],
              "mark": ["--base-llh", f"{lat:.10f},{lon:.10f},{h - 1.5:.4f}",
                       "--base-antenna-height", "1.5"]}
@@ -101,7 +108,9 @@ def test_the_base_as_ecef_as_latitude_longitude_and_as_a_mark_give_the_same_came
                                                           ).read_text()
     ref = cams["xyz"]
     assert len(ref) == 589
-    for name in ("llh", "mark"):
+    assert "from base.json (located against ABCD00IRL.crx.gz, baseline 12.35 km)" in (
+        tmp_path / "file" / "report.html").read_text()
+    for name in ("llh", "mark", "file"):
         assert [r["mark"] for r in cams[name]] == [r["mark"] for r in ref]
         for a, b in zip(ref, cams[name], strict=True):
             assert a["grade"] == b["grade"]

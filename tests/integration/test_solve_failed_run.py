@@ -1,7 +1,8 @@
 """A solve that fails after it started writing leaves no half outputs in its directory.
 
 The command line, in a subprocess, on a flight whose engine run fails after the rover and base
-were converted to RINEX (``good.ubx`` holds observations but no ephemerides): a directory the
+were converted to RINEX (``good.ubx`` and ``base.ubx`` hold observations but no ephemerides): a
+directory the
 run created is gone; in a directory that existed, everything is as it was, byte for byte (the
 run wrote into a staging folder, removed with it), and no failure note or staging folder is
 left.
@@ -29,7 +30,8 @@ def _solve(cwd: Path, out: str) -> subprocess.CompletedProcess[str]:
 def _workspace(root: Path) -> None:
     data, _ = flight_stream(10)
     (root / "good.ubx").write_bytes(data)
-    (root / "base.ubx").write_bytes(data)
+    # another receiver (its clock 300 m off), no ephemerides either: the engine fails
+    (root / "base.ubx").write_bytes(flight_stream(10, pr_offset_m=300.0)[0])
 
 
 def test_a_failed_run_removes_the_directory_it_created(tmp_path: Path) -> None:

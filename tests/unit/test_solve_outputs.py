@@ -160,7 +160,7 @@ def test_output_dir_inside_photos_is_refused(tmp_path: Path) -> None:
     ("extra", "option"),
     [
         ([], "--positions"),
-        (["--base", "B"], "--base-xyz"),
+        (["--base", "B", "--base-sigma", "1"], "--base-sigma"),
         (["--positions", "P", "--interp", "cubic"], "--interp"),
         (["--positions", "P", "--edge", "up"], "--edge"),
         (["--positions", "P", "--max-gap", "-1"], "--max-gap"),

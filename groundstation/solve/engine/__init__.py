@@ -372,8 +372,12 @@ def run_engine(
     condition: bool = True,
     dynamics: bool = True,
     integrity: bool = True,
+    extra_nav: Sequence[Path] = (),
 ) -> EngineRun:
     """Convert rover and base to RINEX if needed, run the engine, record how.
+
+    Navigation: what the recordings carry, RINEX navigation files beside RINEX observations
+    (same first name part), and ``extra_nav``.
 
     With ``condition`` the rover's carrier phase is conditioned on the way to RINEX
     (:mod:`groundstation.solve.conditioning`: hidden slips found, slips repaired or flagged,
@@ -410,7 +414,7 @@ def run_engine(
 
     rover_obs, rover_nav = _to_rinex(rover, work_dir / "rover", progress, hook)
     base_obs, base_nav = _to_rinex(base, work_dir / "base", progress, base_hook)
-    nav = tuple(rover_nav + base_nav)
+    nav = tuple(rover_nav + base_nav + list(extra_nav))
     if not nav:
         raise EngineError("no navigation data (ephemerides) in the rover or base recording")
     job = EngineJob(rover_obs, base_obs, nav, opts, work_dir, timeout_s)
