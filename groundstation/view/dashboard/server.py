@@ -586,8 +586,9 @@ class DashboardHTTPServer(ThreadingHTTPServer):
         traceback at debug."""
         err = sys.exc_info()[1]
         if isinstance(err, (ConnectionError, TimeoutError)):
-            self.count("disconnects")
+            # logged before it is counted: whoever sees the count sees the line too
             log.debug("client %s went away: %s", client_address, err)
+            self.count("disconnects")
             return
         self.count("errors")
         log.warning("request from %s failed: %s: %s", client_address, type(err).__name__, err)
