@@ -199,6 +199,12 @@ def locate_base(
     from groundstation.solve.engine import EngineError, run_engine
     from groundstation.solve.positions import read_pos
 
+    for what, path in (("--reference", reference), ("BASE", base)):
+        if what == "BASE" and not (is_rinex_obs_name(base) or HATANAKA.search(base.name)):
+            continue
+        if "RINEX VERSION / TYPE" not in _text(path)[:400]:
+            raise InputError(f"{path}: not RINEX observations (no RINEX VERSION / TYPE header "
+                             "line)")
     if reference_xyz is not None:
         ref_xyz, ref_from = reference_xyz, "given with --reference-xyz"
     else:

@@ -258,6 +258,19 @@ CASES: list[Case] = [
       "--out o --no-progress", 2, "--base: good.ubx is the flight's own recording"),
     c("solve-engine-no-solution", f"solve good.ubx --base base.ubx --base-xyz {BASE_XYZ} "
       "--out o --no-progress", 1, "no navigation data", logs=True),
+    # -- locate-base --------------------------------------------------------------------------
+    c("locate-base-no-reference-file", "locate-base good.ubx --reference nope.crx.gz", 2,
+      "--reference: nope.crx.gz: no such file"),
+    c("locate-base-base-dir", "locate-base adir --reference good.ubx", 2,
+      "BASE: adir: not a regular file"),
+    c("locate-base-reference-not-rinex", "locate-base good.ubx --reference notes.txt", 2,
+      "notes.txt: not RINEX observations"),
+    c("locate-base-reference-xyz-llh", "locate-base good.ubx --reference notes.txt "
+      "--reference-xyz 53.2,-8.9,90", 2, "--reference-xyz:"),
+    c("locate-base-out-is-the-base", "locate-base good.ubx --reference notes.txt --out good.ubx",
+      2, "--out: good.ubx is the input"),
+    c("locate-base-negative-xyz", "locate-base good.ubx --reference notes.txt --reference-xyz "
+      "-3978241.9,3382840.2,3649900.8", 2, "goes after '='"),
     # -- configure ----------------------------------------------------------------------------
     c("configure-unknown-profile", "configure --port /dev/null --profile nope --dry-run", 2,
       "unknown profile"),
