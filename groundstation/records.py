@@ -398,6 +398,10 @@ class MarkStatus:
     multi_in_epoch: int
     rate_per_min: float
     last_acc_ns: int | None
+    lost_on_link: int = 0
+    """Of ``missed``: lost on the radio link (count jumped across a link loss)."""
+    not_reported: int = 0
+    """Of ``missed``: not reported by the receiver (count jumped, link intact)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -461,7 +465,15 @@ class PipelineStatus:
     """Frames whose time cannot belong to the session (in ``undecodable`` too)."""
 
 
+@dataclass(frozen=True, slots=True)
+class DamagedData:
+    """Bytes that are no frame (nor NMEA) came between two frames: the link garbled or dropped
+    some (the monitor names marks lost there: :func:`groundstation.rules.marks.lost_cause`)."""
+
+    t_host_ns: int
+
+
 Item = (RawChunk | RawEpoch | TimeMark | Subframe | Ephemeris | NavSolution | SvInfo | Event
-        | Status | PipelineStatus)
+        | Status | PipelineStatus | DamagedData)
 """What travels through the live pipeline's fanout: the received bytes, the decoded records, and
 what the stages say about themselves (events, status snapshots, the pipeline's counters)."""

@@ -104,6 +104,12 @@ def format_summary(s: Summary) -> str:
             f"{tm.rising} rising edges, {tm.count_jumps} count jumps "
             f"({tm.missed_marks} marks missed), {tm.repeated_counts} repeated"
         )
+    if tm.missed_marks:
+        lines.append(
+            f"          missed: {tm.lost_on_link} lost on the radio link (their epochs did "
+            f"not arrive either: check the link, or log on board), {tm.not_reported} not "
+            "received although the epochs around them were (damaged bytes, or two pulses in "
+            "one measurement period)")
     if tm.records:
         lines.append(
             f"          count {tm.first_count} .. {tm.last_count} (the receiver's, at each "

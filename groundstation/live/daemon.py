@@ -31,6 +31,7 @@ from groundstation.live.publisher import ZenohPublisherSink
 from groundstation.live.recorder_sink import RecorderSink
 from groundstation.live.sources import FileSource, Source, make_source
 from groundstation.records import (
+    DamagedData,
     Event,
     Frame,
     Item,
@@ -42,7 +43,7 @@ from groundstation.rules.plausible import Jump, span_text
 from groundstation.storage.mcapio import ExactFile
 from groundstation.storage.session import FileOpener, SessionRecorder
 from groundstation.ubx.decode import Decoder
-from groundstation.ubx.framer import UbxFramer
+from groundstation.ubx.framer import BetweenFrames, UbxFramer
 
 log = logging.getLogger("groundstation.daemon")
 
@@ -118,6 +119,7 @@ class Pipeline:
         self._clock = clock
         self.fanout = Fanout(clock=clock)
         self.framer = UbxFramer(settings.framer.max_payload_bytes)
+        self.between = BetweenFrames()  # damaged data between frames, for the monitor
         self.decoder = Decoder()
         self.source: Source = source or make_source(settings.source, self.publish, clock=clock)
         self.specs: list[SinkSpec] = []
@@ -204,6 +206,7 @@ class Pipeline:
         source's data clock from the epochs its frames decoded to (possibly held, or several
         released). The decoder judges every time (rules/plausible) before the data clock sees
         it, so the clock follows only plausible epochs."""
+        self.between.feed(chunk)
         if t_host_ns != UNTIMED or self._data_clock is None:
             return [(chunk, self._decode(self.framer.feed(chunk, t_host_ns)), t_host_ns)]
         return self._data_clock.stamp(chunk, self._decode(self.framer.feed(chunk, UNTIMED)))
@@ -223,6 +226,8 @@ class Pipeline:
         jumps = self.decoder.clock.jumps
         out: list[Item] = []
         for frame in frames:
+            if self.between.damaged_before(frame):
+                out.append(DamagedData(frame.t_host_ns))
             seen = len(jumps)
             record = self.decoder.decode(frame)
             if len(jumps) != seen:

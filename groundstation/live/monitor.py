@@ -31,6 +31,7 @@ from groundstation.live.monitor_marks import Marks
 from groundstation.live.monitor_sats import Satellites
 from groundstation.records import (
     STATUS_SCHEMA_VERSION,
+    DamagedData,
     Event,
     Item,
     PipelineStatus,
@@ -142,6 +143,8 @@ class Monitor:
             self._on_event(item, now_ns, events)
         elif isinstance(item, RawChunk):
             self.on_bytes(len(item.data), item.t_host_ns)
+        elif isinstance(item, DamagedData):  # where the link garbled bytes, to the epoch
+            self.link.on_damage()
         elif isinstance(item, PipelineStatus):  # the pipeline's own counters
             self.link.on_counters(
                 item.bad_checksum, item.garbage_bytes, item.frames, item.nmea_sentences,

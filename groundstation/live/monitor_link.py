@@ -52,6 +52,8 @@ class Link:
         self._early: list[int] = []  # epochs seen before the interval was known
         # the recent dropouts (a long session on a shared channel has thousands) and a count
         self.dropouts: deque[Dropout] = deque(maxlen=RECENT_DROPOUTS)
+        # the last epoch before each stretch of damaged data seen (lost marks' causes)
+        self.damage_times: deque[tuple[int, int]] = deque(maxlen=RECENT_DROPOUTS)
         self.dropout_count = 0
         self.missing_epochs = 0
         self._ongoing_since_ns: int | None = None  # host time the ongoing dropout was declared
@@ -93,6 +95,11 @@ class Link:
         self._frameless_since_ns = None
         self._frameless_bytes = 0
         self._frameless_nmea = 0
+
+    def on_damage(self) -> None:
+        """Damaged data came after the last epoch (the pipeline's :class:`DamagedData`)."""
+        if self.last_epoch_ns is not None:
+            self.damage_times.append((self.last_epoch_ns, self.last_epoch_ns))
 
     def on_counters(
         self, bad_checksum: int, garbage_bytes: int, frames: int | None, nmea: int,

@@ -15,7 +15,15 @@ from groundstation.gpstime import NS_PER_S
 from groundstation.live.monitor_alerts import Alerts
 from groundstation.live.monitor_link import LINK_HISTORY_NS, Link
 from groundstation.records import Event, MarkStatus, TimeMark
-from groundstation.rules.marks import Mark, MarkTracker, count_jump
+from groundstation.rules.marks import (
+    LOST_CAUSE_TEXT,
+    LOST_ON_LINK,
+    Mark,
+    MarkTracker,
+    count_jump,
+    lost_cause,
+    lost_times,
+)
 
 MAX_PULSE_MS = 10_000  # a longer "pulse" pairs edges of different exposures
 EPOCH_SLOTS_KEPT = 4096
@@ -39,6 +47,9 @@ class Marks:
         self.last_pulse_ms: float | None = None
         self._last_missed_ns: int | None = None
         self._missed_acked = 0  # rule.missed when the operator last acknowledged
+        self._last_edge_ns: int | None = None  # the previous mark's time
+        self.lost_on_link = 0
+        self.not_reported = 0
 
     def on_mark(self, m: TimeMark, now_ns: int, events: list[Event]) -> None:
         if m.new_rising and m.rising_t_gps_ns is not None and m.falling_t_gps_ns is not None:
@@ -59,13 +70,23 @@ class Marks:
         if recovered:
             self.recovered += 1
         jump = count_jump(mark)
+        edge = mark.falling_t_gps_ns if mark.falling_t_gps_ns is not None else (
+            mark.rising_t_gps_ns)
         if jump is not None:
             last, number = jump
             self._last_missed_ns = now_ns
+            causes = [lost_cause(t, self._holes(edge), self.link.damage_times,
+                                 self.link.interval_ns)
+                      for t in lost_times(self._last_edge_ns, edge, mark.lost_before)]
+            on_link = sum(c == LOST_ON_LINK for c in causes)
+            self.lost_on_link += on_link
+            self.not_reported += len(causes) - on_link
+            cause = LOST_ON_LINK if on_link else next(iter(set(causes)), LOST_ON_LINK)
             events.append(Event(
-                kinds.MARK_MISSED, now_ns, f"{mark.lost_before} time mark(s) missed "
-                f"(count {last} -> {number})", "warning",
-                {"from_count": last, "to_count": number, "missed": mark.lost_before},
+                kinds.MARK_MISSED, now_ns, f"{mark.lost_before} time mark(s) "
+                f"{LOST_CAUSE_TEXT[cause]} (count {last} -> {number})", "warning",
+                {"from_count": last, "to_count": number, "missed": mark.lost_before,
+                 "lost_on_link": on_link, "not_reported": len(causes) - on_link},
             ))
             unacked = self.rule.missed - self._missed_acked
             since = "since the last acknowledgement" if self._missed_acked else "this session"
@@ -75,6 +96,8 @@ class Marks:
                 "acknowledge to clear",
                 now_ns, events, {"missed": self.rule.missed, "unacknowledged": unacked},
             )
+        if edge is not None:
+            self._last_edge_ns = edge
         ft = mark.falling_t_gps_ns
         if ft is None:
             return  # no exposure time to place among the epochs
@@ -104,6 +127,17 @@ class Marks:
             if d.start_t_gps_ns - iv < ft < d.end_t_gps_ns + iv:
                 self._mark_in_dropout(ft, now_ns, events)
                 break
+
+    def _holes(self, edge: int | None) -> list[tuple[int, int]]:
+        """The holes in the received epochs so far (last before, first after), one still open
+        included (no epoch since the last one, at this mark's time)."""
+        link = self.link
+        iv = link.interval_ns or 0
+        holes = [(d.start_t_gps_ns - iv, d.end_t_gps_ns + iv) for d in link.dropouts]
+        if (link.last_epoch_ns is not None and edge is not None
+                and edge - link.last_epoch_ns > 1.5 * iv):
+            holes.append((link.last_epoch_ns, 1 << 62))
+        return holes
 
     def on_gap(self, prev: int, t: int, now_ns: int, events: list[Event]) -> None:
         """Marks already received whose exposure falls in a measured hole sit on an
@@ -157,4 +191,6 @@ class Marks:
             multi_in_epoch=self.multi_in_epoch,
             rate_per_min=self.rule.marks / minutes if minutes > 0 else 0.0,
             last_acc_ns=lm.acc_ns if lm else None,
+            lost_on_link=self.lost_on_link,
+            not_reported=self.not_reported,
         )

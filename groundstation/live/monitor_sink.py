@@ -18,6 +18,7 @@ from groundstation import events as kinds
 from groundstation.live.fanout import Inbox, InboxClosed, Publish
 from groundstation.live.monitor import ALERT_CLEAR_AFTER_S, ALERT_RAISE_AFTER_S, Monitor
 from groundstation.records import (
+    DamagedData,
     Event,
     Item,
     PipelineStatus,
@@ -44,7 +45,7 @@ without data ticked in 100 ms steps held the daemon for minutes, took gigabytes 
 to SIGTERM (issue 27)."""
 
 MONITOR_INPUTS: frozenset[type] = frozenset(
-    (RawChunk, RawEpoch, TimeMark, SvInfo, Event, PipelineStatus)
+    (RawChunk, RawEpoch, TimeMark, SvInfo, Event, PipelineStatus, DamagedData)
 )
 """What the monitor's rules read; nothing else is routed to it."""
 

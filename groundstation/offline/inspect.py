@@ -24,7 +24,12 @@ from groundstation.records import (
     sv_label,
 )
 from groundstation.rules.epochs import Gap, find_gaps, nominal_interval_ns
-from groundstation.rules.marks import track_marks
+from groundstation.rules.marks import (
+    LOST_IN_RECEIVER,
+    LOST_ON_LINK,
+    lost_by_cause,
+    track_marks,
+)
 from groundstation.storage.reading import Recording
 from groundstation.storage.skipped import Skipped
 from groundstation.ubx.decode import Decoder, message_name
@@ -53,6 +58,10 @@ class TimeMarkSummary:
     rising: int = 0
     count_jumps: int = 0
     missed_marks: int = 0
+    lost_on_link: int = 0
+    """Of ``missed_marks``: their epochs lie in holes of the received epochs (inspect sees the
+    holes, not damaged bytes between frames: those count as not reported here)."""
+    not_reported: int = 0
     repeated_counts: int = 0
     first_count: int | None = None
     last_count: int | None = None
@@ -202,7 +211,8 @@ class Inspector:
             last_epoch_t_gps_ns=times[-1] if times else None,
             gaps=tuple(gaps),
             missing_epochs=sum(g.missing_epochs for g in gaps),
-            timemarks=summarise_marks(self.marks),
+            timemarks=summarise_marks(
+                self.marks, [(g.after_t_gps_ns, g.before_t_gps_ns) for g in gaps], interval_ns),
             satellites=tuple(sorted({sv_label(g, sv) for g, sv in self.sats})),
             max_sats_per_epoch=self.max_sats,
             unknown_slot_signals=self.unknown_slot,
@@ -211,13 +221,18 @@ class Inspector:
         )
 
 
-def summarise_marks(records: list[TimeMark]) -> TimeMarkSummary:
+def summarise_marks(records: list[TimeMark], holes: Sequence[tuple[int, int]] = (),
+                    interval_ns: int | None = None) -> TimeMarkSummary:
     """Pulses, their edges, count continuity and duplicates, from TIM-TM2 records (the marks
-    rule of :mod:`groundstation.rules.marks`, as for RINEX, the solver and the monitor)."""
+    rule of :mod:`groundstation.rules.marks`, as for RINEX, the solver and the monitor); the
+    lost ones by cause (:func:`~groundstation.rules.marks.lost_cause`, ``holes`` in the
+    received epochs)."""
     if not records:
         return TimeMarkSummary()
     marks, tracker = track_marks(records)
+    lost = lost_by_cause(marks, holes, (), interval_ns)
     return TimeMarkSummary(
+        lost_on_link=len(lost[LOST_ON_LINK]), not_reported=len(lost[LOST_IN_RECEIVER]),
         records=len(records),
         falling=sum(m.falling_t_gps_ns is not None for m in marks),
         rising=sum(m.rising_t_gps_ns is not None for m in marks),

@@ -81,6 +81,122 @@ def count_jump(mark: Mark) -> tuple[int, int] | None:
     return (mark.number - mark.lost_before - 1) & 0xFFFF, mark.number
 
 
+LOST_ON_LINK = "link"
+"""Pulses the receiver counted whose TIM-TM2 records never arrived: the count jumped across a
+hole in the received epochs or a stretch of damaged data."""
+LOST_IN_RECEIVER = "receiver"
+"""Pulses the receiver counted but did not report although the link delivered everything: the
+count jumped with no hole and no damage around it (two pulses within one measurement period,
+of which a TIM-TM2 carries only the latest, or a record the receiver did not send)."""
+LOST_CAUSE_TEXT = {
+    LOST_ON_LINK: ("lost on the radio link (the receiver counted them; their TIM-TM2 messages "
+                   "fell into link dropouts or damaged data): check the radio link, or log the "
+                   "receiver on board"),
+    LOST_IN_RECEIVER: ("not reported by the receiver (its count jumped with no link loss "
+                       "around: two pulses within one measurement period, of which only the "
+                       "latest is reported): check the camera's trigger interval against the "
+                       "receiver's measurement rate"),
+}
+"""What each cause means and what to do, for every place that names it."""
+NOT_COUNTED_TEXT = ("not counted by the receiver (photos with no mark and no jump in the "
+                    "count): check the camera's trigger wiring to the receiver's EXTINT pin")
+
+
+def lost_cause(
+    lost_t_ns: int, holes: Sequence[tuple[int, int]], damage: Sequence[tuple[int, int]],
+    interval_ns: int | None,
+) -> str:
+    """Why a pulse the receiver counted never arrived (:data:`LOST_ON_LINK` or
+    :data:`LOST_IN_RECEIVER`): the one rule of the monitor, inspect and the solver.
+
+    A pulse's TIM-TM2 is output with the first measurement epoch after it, after that epoch's
+    measurements. It was lost on the link when that epoch is missing from the received ones
+    (it lies inside a hole), or damaged bytes came after the epoch before it or after it (a
+    dropout that began inside the epoch's burst cuts a frame). An epoch that arrived whole, even the last one
+    before a hole, brought its TIM-TM2 too: a dropout that begins after the measurements
+    mostly begins after the burst. Otherwise the receiver did not report it.
+
+    Args:
+        lost_t_ns: the lost pulse's time, as well as it is known (a photo's time through the
+            camera clock, else spread evenly between the received marks around it).
+        holes: ``(last epoch before, first epoch after)`` of every hole in the received epochs
+            (``first after`` far in the future for a hole still open).
+        damage: for every stretch of damaged data, the epochs it lies between, as well as
+            they are known (a file: the epoch before it, twice; the monitor: the epochs when
+            the counters last showed none and showed it).
+        interval_ns: the measurement interval.
+    """
+    iv = interval_ns or 0
+    e = -(-lost_t_ns // iv) * iv if iv else lost_t_ns  # the epoch its record comes with
+    if any(a < e < b for a, b in holes):
+        return LOST_ON_LINK
+    if any(d0 <= e and d1 >= e - iv for d0, d1 in damage):  # after the epoch before, or it
+        return LOST_ON_LINK
+    return LOST_IN_RECEIVER
+
+
+def lost_times(before_t_ns: int | None, after_t_ns: int | None, n: int,
+               known_t_ns: Sequence[int] = ()) -> list[int]:
+    """The times of ``n`` pulses lost between two received marks: ``known_t_ns`` when it holds
+    exactly ``n`` (photos timed by the camera clock), else spread evenly between the two."""
+    if len(known_t_ns) == n:
+        return sorted(known_t_ns)
+    if before_t_ns is None or after_t_ns is None:
+        return [t for t in (before_t_ns, after_t_ns) if t is not None]
+    step = (after_t_ns - before_t_ns) / (n + 1)
+    return [round(before_t_ns + k * step) for k in range(1, n + 1)]
+
+
+def lost_by_cause(
+    marks: Sequence[Mark], holes: Sequence[tuple[int, int]], damage: Sequence[tuple[int, int]],
+    interval_ns: int | None, known_t_ns: Sequence[int] = (),
+) -> dict[str, list[int]]:
+    """The numbers of the pulses lost in the count jumps (:func:`count_jump`) of a recording's
+    marks, by :func:`lost_cause`; ``known_t_ns``: times of pulses known otherwise (photos
+    without a mark, timed by the camera clock)."""
+    out: dict[str, list[int]] = {LOST_ON_LINK: [], LOST_IN_RECEIVER: []}
+    prev: Mark | None = None
+    for m in marks:
+        jump = count_jump(m)
+        if jump is not None:
+            a, b = (_edge(prev) if prev is not None else None), _edge(m)
+            known = [t for t in known_t_ns
+                     if (a is None or t > a) and (b is None or t < b)]
+            n = jump_size(jump)
+            times = lost_times(a, b, n, known)
+            for k, t in enumerate(times[:n]):
+                out[lost_cause(t, holes, damage, interval_ns)].append(
+                    (jump[0] + 1 + k) & 0xFFFF)
+        prev = m
+    return out
+
+
+def numbers_text(numbers: Sequence[int], most: int = 40) -> str:
+    """``12, 30-33, 41`` (runs joined; at most ``most`` items, then how many more; -1 stands
+    for a mark whose number no count jump tells)."""
+    unknown = sum(1 for n in numbers if n < 0)
+    runs: list[list[int]] = []
+    for n in (n for n in numbers if n >= 0):
+        if runs and n == runs[-1][-1] + 1:
+            runs[-1].append(n)
+        else:
+            runs.append([n])
+    items = [f"{r[0]}" if len(r) == 1 else f"{r[0]}-{r[-1]}" for r in runs]
+    more = f" and {len(items) - most} more" if len(items) > most else ""
+    tail = (f"{' and ' if items else ''}{unknown} outside the received marks' numbers"
+            if unknown else "")
+    return ", ".join(items[:most]) + more + tail
+
+
+def jump_size(jump: tuple[int, int]) -> int:
+    """Pulses lost in a jump ``(last number before, this number)``."""
+    return ((jump[1] - jump[0]) & 0xFFFF) - 1
+
+
+def _edge(m: Mark) -> int | None:
+    return m.falling_t_gps_ns if m.falling_t_gps_ns is not None else m.rising_t_gps_ns
+
+
 @dataclass(frozen=True, slots=True)
 class MarkUpdate:
     """What one TIM-TM2 record changed.

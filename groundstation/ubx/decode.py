@@ -294,23 +294,23 @@ class Decoder:
         self._decoded[name] += 1
         return record
 
-    def judge_epoch(self, frame: Frame) -> bool:
+    def judge_epoch(self, frame: Frame) -> int | None:
         """Take a measurement epoch (RXM-RAW / RXM-RAWX) into the session's clock without
         decoding its measurements, for a reader that wants only marks and fixes (the solver):
         the marks are then judged as :meth:`decode` judges them after the same frames. Returns
-        whether the epoch is plausible (an implausible one is counted and logged, a payload that
-        does not fit is not an epoch)."""
+        the epoch's GPS time when it is plausible, else None (an implausible one is counted and
+        logged, a payload that does not fit is not an epoch, week 0 has no time yet)."""
         name = "RXM-RAW" if frame.key == RXM_RAW else "RXM-RAWX"
         rows_of = _raw_epoch_rows if frame.key == RXM_RAW else _rawx_epoch_rows
         try:
             week, tow_ns, _ = rows_of(frame.payload)
             self._epoch(week, tow_ns, frame)
         except PayloadError:
-            return False
+            return None
         except ImplausibleTime as err:
             self._count_implausible(name, frame, err)
-            return False
-        return True
+            return None
+        return week * NS_PER_WEEK + tow_ns if week != 0 else None
 
     def _count_implausible(self, name: str, frame: Frame, err: ImplausibleTime) -> None:
         n = self._implausible[name] = self._implausible[name] + 1

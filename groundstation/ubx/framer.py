@@ -600,3 +600,37 @@ def scan_ubx_arrays(
     if not final and hold == n and n > max(lo, pos) and data[n - 1] == SYNC1:
         hold = n - 1  # may be the first half of a sync word
     return UbxScanArrays(cs, ce - cs - OVERHEAD, n_bad, n_long, truncated, hold)
+
+
+_NMEA_ONLY = re.compile(rb"(\$[\x20-\x7e]*\r?\n)*")
+
+
+class BetweenFrames:
+    """Whether damaged data lies between consecutive frames: bytes between them that are not
+    NMEA sentences (what a radio link that drops and garbles bytes leaves). Fed the same chunks
+    as the framer, then asked of each frame it yields, in order."""
+
+    KEEP_BYTES = 1 << 21
+    """Bytes kept to look back at (a chunk or two; a gap longer than this counts as damage)."""
+
+    def __init__(self) -> None:
+        self._recent = bytearray()
+        self._start = 0  # stream offset of _recent[0]
+        self._frame_end = 0
+
+    def feed(self, chunk: bytes) -> None:
+        self._recent += chunk
+        if len(self._recent) > 2 * self.KEEP_BYTES:
+            cut = len(self._recent) - self.KEEP_BYTES
+            del self._recent[:cut]
+            self._start += cut
+
+    def damaged_before(self, frame: Frame) -> bool:
+        """True when non-NMEA bytes lie between the previous frame and this one."""
+        damaged = False
+        if frame.offset > self._frame_end:
+            lo = self._frame_end - self._start
+            gap = bytes(self._recent[max(lo, 0): frame.offset - self._start])
+            damaged = lo < 0 or not _NMEA_ONLY.fullmatch(gap)
+        self._frame_end = max(self._frame_end, frame.offset + len(frame.raw))
+        return damaged

@@ -316,7 +316,11 @@ def _status_body(st: dict[str, Any], marks: list[dict[str, Any]],
     lt = ms.get("last_falling_t_gps_ns")
     if lt:
         mark_line.append(f"at {gpstime.gps_to_datetime(lt):%H:%M:%S.%f} UTC  ")
-    mark_line.append(f"missed {ms['missed']}  ", style="bold red" if ms["missed"] else "")
+    mark_line.append(f"missed {ms['missed']}", style="bold red" if ms["missed"] else "")
+    if ms["missed"]:  # why: the radio (fix the link) or the receiver (the trigger rate)
+        mark_line.append(f" ({ms.get('lost_on_link', 0)} radio, "
+                         f"{ms.get('not_reported', 0)} receiver)", style="red")
+    mark_line.append("  ")
     mark_line.append(f"in dropout {ms['in_dropout']}  ",
                      style="bold yellow" if ms["in_dropout"] else "")
     mark_line.append(f"pulse {_fmt(ms.get('last_pulse_width_ms'), '.1f')} ms  "

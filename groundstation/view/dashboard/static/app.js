@@ -402,7 +402,8 @@ function renderPpk(ppk) {
 
 function renderMarks(ms) {
   setText("marks-count", num(ms.marks));
-  setText("marks-missed", num(ms.missed), ms.missed ? "alarm" : "good");
+  setText("marks-missed", num(ms.missed) + (ms.missed ? " (" + num(ms.lost_on_link || 0) +
+    " radio, " + num(ms.not_reported || 0) + " receiver)" : ""), ms.missed ? "alarm" : "good");
   setText("marks-indrop", num(ms.in_dropout), ms.in_dropout ? "alarm" : "good");
   setText("marks-rate", num(ms.rate_per_min, 1));
   setText("marks-last", ms.last_utc ? ms.last_utc + (ms.last_age_s !== null ?
