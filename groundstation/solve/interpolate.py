@@ -40,6 +40,8 @@ FLAG_NOT_FIXED = 16
 """At least one bracketing epoch is not an ambiguity-fixed solution."""
 FLAG_DUPLICATE = 32
 """Same time as an earlier mark."""
+FLAG_CAMERA_CLOCK = 64
+"""A photo without a received mark, timed by the camera clock fitted on the paired photos."""
 
 FLAG_NAMES: dict[int, str] = {
     FLAG_GAP: "gap",
@@ -48,6 +50,7 @@ FLAG_NAMES: dict[int, str] = {
     FLAG_METRE_LEVEL: "metre_level",
     FLAG_NOT_FIXED: "not_fixed",
     FLAG_DUPLICATE: "duplicate",
+    FLAG_CAMERA_CLOCK: "camera_clock",
 }
 
 DEFAULT_MAX_GAP_S = 1.0

@@ -354,7 +354,8 @@ def cameras_csv(out: SolveOutput) -> str:
             wk, tow_ns = gpstime.week_tow(r.t_gps_ns)
             week, tow = str(wk), f"{tow_ns // 10**9}.{tow_ns % 10**9:09d}"
         w.writerow([
-            text_cell(r.photo), r.mark if r.mark >= 0 else "", r.mark_count if r.mark >= 0 else "",
+            text_cell(r.photo), r.mark if r.mark >= 0 else "",
+            r.mark_count if r.mark_count >= 0 else "",
             week, tow, _utc(r.t_gps_ns),
             _f(r.x_m, nd_xy), _f(r.y_m, nd_xy), _f(r.h_m, 3),
             _f(r.lat_deg, 9), _f(r.lon_deg, 9),

@@ -15,7 +15,7 @@ import logging
 import math
 import re
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import BinaryIO, Literal
 
@@ -679,6 +679,8 @@ class MatchResult:
     leap_s: int = 0
     notes: tuple[str, ...] = ()
     warnings: tuple[str, ...] = ()
+    photo_precise: npt.NDArray[np.bool_] = field(default_factory=lambda: np.zeros(0, bool))
+    """Per photo: its time has sub-second digits (:attr:`PhotoTimes.precise`)."""
 
     @property
     def gps_minus_camera_s(self) -> float:
@@ -798,8 +800,57 @@ def match(
         offset_s, float(tol.max()) if tol.size else max_pair_s, tuple(pairs), unmatched,
         orphans, tuple(dups), photo_s,
         residual_sigma_s(np.array([p.residual_s for p in pairs], dtype=np.float64)),
-        leap_s, choice.notes, choice.warnings,
+        leap_s, choice.notes, choice.warnings, exact.astype(bool),
     )
+
+
+MAX_CLOCK_ERROR_S = 86_400.0
+"""A camera clock further than this from UTC (after its declared zone and whole-hour zones) is
+not a clock error: the photos belong to another flight (a camera loses its time after a flat
+battery, but then shows its reset date, years off, which this refuses too)."""
+SPAN_MARGIN_S = 120.0
+"""Photos may lie this far outside the marks' span (shots on the ground before and after)."""
+
+
+def check_belongs(result: MatchResult, mark_t_gps_ns: Sequence[int | None]) -> None:
+    """Refuse photos that cannot be this flight's: a camera clock error beyond
+    :data:`MAX_CLOCK_ERROR_S`, or most photos outside the marks' span after the offset.
+
+    Raises:
+        ConfigError: naming ``--photos``, saying by how much they miss the flight.
+    """
+    from groundstation.errors import ConfigError
+
+    marks = np.array([t / 1e9 for t in mark_t_gps_ns if t is not None], dtype=np.float64)
+    timed = result.photo_s[np.isfinite(result.photo_s)]
+    if marks.size == 0 or timed.size == 0:
+        return
+    zone_free = (result.offset_s + 1800.0) % 3600.0 - 1800.0  # what a whole-hour zone leaves
+    if abs(result.offset_s) > MAX_CLOCK_ERROR_S:
+        raise ConfigError("--photos", (
+            f"the photos' clock is {_duration_words(abs(result.offset_s))} off the flight's "
+            f"time marks (GPS - camera {result.gps_minus_camera_s:+.0f} s; a camera clock error "
+            f"is seconds, a time zone whole hours): photos of another flight? (a camera whose "
+            "clock really is that far off: shift the photos' times, e.g. exiftool -AllDates)"))
+    shifted = timed + result.offset_s
+    lo, hi = marks.min() - SPAN_MARGIN_S, marks.max() + SPAN_MARGIN_S
+    inside = int(np.count_nonzero((shifted >= lo) & (shifted <= hi)))
+    if inside * 2 < timed.size:
+        raise ConfigError("--photos", (
+            f"{timed.size - inside} of {timed.size} photos lie outside the flight's marks "
+            f"(photos span {_duration_words(float(shifted.max() - shifted.min()))}, marks "
+            f"{_duration_words(float(marks.max() - marks.min()))}; camera clock "
+            f"{zone_free:+.1f} s off a whole-hour zone): photos of another flight?"))
+
+
+def _duration_words(seconds: float) -> str:
+    if seconds >= 2 * 365.25 * 86_400:
+        return f"{seconds / (365.25 * 86_400):.1f} years"
+    if seconds >= 2 * 86_400:
+        return f"{seconds / 86_400:.0f} days"
+    if seconds >= 2 * 3600:
+        return f"{seconds / 3600:.1f} h"
+    return f"{seconds / 60:.1f} min"
 
 
 def reconciliation_lines(

@@ -117,19 +117,21 @@ def photos_at_times(
     zone_s: int = 7200,
     write_zone: bool = False,
     subsec: bool = False,
+    drift_ppm: float = 0.0,
 ) -> tuple[SimPhoto, ...]:
     """One photo per true shutter time (e.g. a simulated flight's exposures), in that order.
 
     File names number the shots from ``IMG_0001.JPG``; the EXIF times are those of a camera
-    clock running local time (``zone_s`` east of UTC) plus ``clock_error_s``, in whole seconds
-    unless ``subsec``.
+    clock running local time (``zone_s`` east of UTC) plus ``clock_error_s`` at the first shot,
+    drifting by ``drift_ppm`` from there, in whole seconds unless ``subsec`` (10 ms digits).
     """
     sign = "+" if zone_s >= 0 else "-"
     zone = f"{sign}{abs(zone_s) // 3600:02d}:{abs(zone_s) % 3600 // 60:02d}"
     photos: list[SimPhoto] = []
+    t0 = true_t_gps_ns[0] if true_t_gps_ns else 0
     for k, tn in enumerate(true_t_gps_ns):
         unix_ns = gpstime.gps_to_unix_ns(tn)
-        cam_ns = unix_ns + round((zone_s + clock_error_s) * 1e9)
+        cam_ns = unix_ns + round((zone_s + clock_error_s) * 1e9 + (tn - t0) * drift_ppm * 1e-6)
         sec, frac = divmod(cam_ns, gpstime.NS_PER_S)
         when = dt.datetime.fromtimestamp(sec, tz=dt.UTC).replace(tzinfo=None)
         photos.append(

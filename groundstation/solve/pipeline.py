@@ -17,7 +17,7 @@ import gzip
 import logging
 import math
 import zlib
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -29,10 +29,11 @@ from groundstation.errors import ConfigError, GroundstationError, InputError
 from groundstation.geodesy import ecef_to_llh, enu_rotation
 from groundstation.gpstime import utc_span
 from groundstation.offline.inspect import require_ubx_frames
-from groundstation.records import NavSolution, TimeMark
-from groundstation.rules.marks import Mark, build_marks
+from groundstation.records import Frame, NavSolution, TimeMark
+from groundstation.rules.epochs import find_gaps, nominal_interval_ns
+from groundstation.rules.marks import LOST_ON_LINK, Mark, build_marks, lost_by_cause, lost_cause
+from groundstation.solve import camclock, leverarm, outputs, photos, positions, report
 from groundstation.solve import interpolate as mi
-from groundstation.solve import leverarm, outputs, photos, positions, report
 from groundstation.solve.base import base_from_own_fixes, check_distance, check_pairing
 from groundstation.solve.engine import DEFAULT_ENGINE, is_rinex_obs_name
 from groundstation.solve.integrity import grade as gr
@@ -46,7 +47,7 @@ from groundstation.ubx.decode import (
     TIM_TM2,
     Decoder,
 )
-from groundstation.ubx.framer import UbxFramer
+from groundstation.ubx.framer import BetweenFrames, UbxFramer
 
 log = logging.getLogger("groundstation.solve")
 
@@ -112,6 +113,30 @@ class FlightRecords:
     nav: tuple[NavSolution, ...]
     frames: int
     damaged: int
+    epoch_t_gps_ns: tuple[int, ...] = ()
+    """The received measurement epochs (plausible ones), in stream order."""
+    damage_t_gps_ns: tuple[int, ...] = ()
+    """For every stretch of bytes between frames that is not NMEA (damaged data), the time of
+    the last epoch before it."""
+
+    def holes(self) -> tuple[list[tuple[int, int]], int | None]:
+        """The holes in the received epochs (last before, first after) and the interval."""
+        t = sorted(set(self.epoch_t_gps_ns))
+        iv = nominal_interval_ns(t)
+        return [(g.after_t_gps_ns, g.before_t_gps_ns) for g in find_gaps(t, iv)], iv
+
+    def lost_by_cause(self, marks: Sequence[Mark], known_t_ns: Sequence[int] = (),
+                      ) -> dict[str, list[int]]:
+        """The count jumps of the marks by cause (:func:`groundstation.rules.marks.lost_cause`;
+        ``known_t_ns``: the photos without a mark, timed by the camera clock)."""
+        holes, iv = self.holes()
+        damage = [(t, t) for t in self.damage_t_gps_ns]
+        return lost_by_cause(marks, holes, damage, iv, sorted(known_t_ns))
+
+    def cause_at(self, t_gps_ns: int) -> str:
+        """Why a pulse at this time never arrived (:func:`groundstation.rules.marks.lost_cause`)."""
+        holes, iv = self.holes()
+        return lost_cause(t_gps_ns, holes, [(t, t) for t in self.damage_t_gps_ns], iv)
 
 
 @dataclass(frozen=True, slots=True)
@@ -159,31 +184,38 @@ def read_flight(path: Path, progress: Progress | None = None) -> FlightRecords:
     decoder = Decoder()
     tms: list[TimeMark] = []
     nav: list[NavSolution] = []
+    epochs: list[int] = []
+    damage: list[int] = []
+    between = BetweenFrames()
+
+    def take(fr: Frame) -> None:
+        if between.damaged_before(fr):
+            damage.append(epochs[-1] if epochs else -1)
+        if fr.key in _EPOCHS:  # the session's clock the marks are judged by (issue 27)
+            t = decoder.judge_epoch(fr)
+            if t is not None:
+                epochs.append(t)
+        if fr.key not in _WANTED:
+            return
+        rec = decoder.decode(fr)
+        if isinstance(rec, TimeMark):
+            tms.append(rec)
+        elif isinstance(rec, NavSolution):
+            nav.append(rec)
+
     recording = Recording(path)
     for chunk, t_host in recording.chunks():
+        between.feed(chunk)
         for fr in framer.feed(chunk, t_host):
-            if fr.key in _EPOCHS:  # the session's clock the marks are judged by (issue 27)
-                decoder.judge_epoch(fr)
-            if fr.key not in _WANTED:
-                continue
-            rec = decoder.decode(fr)
-            if isinstance(rec, TimeMark):
-                tms.append(rec)
-            elif isinstance(rec, NavSolution):
-                nav.append(rec)
+            take(fr)
         if progress is not None:
             progress("read flight", recording.progress)
     for fr in framer.flush():
-        if fr.key in _EPOCHS:
-            decoder.judge_epoch(fr)
-        if fr.key in _WANTED:
-            rec = decoder.decode(fr)
-            if isinstance(rec, TimeMark):
-                tms.append(rec)
-            elif isinstance(rec, NavSolution):
-                nav.append(rec)
+        take(fr)
     st = framer.stats
-    return FlightRecords(tuple(tms), tuple(nav), st.frames, st.bad_checksum + st.truncated)
+    return FlightRecords(tuple(tms), tuple(nav), st.frames, st.bad_checksum + st.truncated,
+                         tuple(epochs), tuple(damage))
+
 
 
 def _validate(s: SolveSettings) -> tuple[SolveSettings, BaseCheck | None]:
@@ -224,6 +256,11 @@ def _validate(s: SolveSettings) -> tuple[SolveSettings, BaseCheck | None]:
             _require_rinex_obs(s.base)
         else:
             require_ubx_frames(s.base)
+    if s.photos is not None:  # photos of another flight: said now, not after the engine
+        marks = build_marks(read_flight(s.flight).timemarks)
+        times = _mark_times(s, marks)
+        photos.check_belongs(photos.match(photos.photo_times(photos.scan_photos(s.photos)),
+                                          times), times)
     own = s.base is not None and s.base_ecef_m is None and s.positions is None
     if own and s.base is not None:
         s = _base_from_own_fixes(s.base, s)
@@ -330,9 +367,18 @@ def _solve(s: SolveSettings, progress: Progress | None,
     if s.photos is None:
         notes.append(f"no photos given: marks named {outputs.MARK_NAME_PREFIX}NNNN (the "
                      "receiver's mark count) in geo.txt, reference.csv, pix4d.csv")
-    jumps = report.lost_marks(marks)
-    if jumps:
-        notes.append(report.lost_marks_text(jumps))
+    by_clock, numbers = _clock_photos(s, traj, marks, times, match, notes)
+    lost = rec.lost_by_cause(marks, by_clock.t_gps_ns.tolist() if by_clock else ())
+    # photos no count jump accounts for (before the first received mark, after the last, or
+    # never counted): lost on the link where their epoch was, else never counted
+    not_counted = 0
+    for j, p in enumerate(by_clock.photo if by_clock is not None else ()):
+        if p not in numbers and by_clock is not None:
+            if rec.cause_at(int(by_clock.t_gps_ns[j])) == LOST_ON_LINK:
+                lost[LOST_ON_LINK].append(-1)
+            else:
+                not_counted += 1
+    notes.extend(report.lost_marks_text(lost))
     if s.base_estimated:
         notes.append(f"WARNING base position {s.base_given}")
     if s.base_sd_enu_m is not None:
@@ -341,10 +387,10 @@ def _solve(s: SolveSettings, progress: Progress | None,
             + " m: in the absolute sigmas of cameras.csv (abs_sd_*); the photogrammetry exports "
             "carry the relative ones (weight the cameras by them: the base's error moves the "
             "whole block alike)")
-    cams = _cameras(s, marks, mp, traj, photo_list, match, notes)
+    cams = _cameras(s, marks, mp, traj, photo_list, match, notes, by_clock, numbers)
     files = outputs.write_all(cams.output(traj, mp, notes, s.base_sd_enu_m), s.out_dir)
     report_files, report_notes = _report(s, traj, marks, mp, photo_list, match, cams, notes,
-                                         base_check)
+                                         base_check, lost, not_counted)
     files.extend(report_files)
     notes.extend(report_notes)
     if s.exif_copies and s.photos is not None:
@@ -354,6 +400,42 @@ def _solve(s: SolveSettings, progress: Progress | None,
         cams.rows, marks, mp, traj, match, cams.lever, tuple(files), cams.epsg, tuple(notes),
         tuple(recon),
     )
+
+
+def _clock_photos(
+    s: SolveSettings, traj: positions.Trajectory, marks: tuple[Mark, ...],
+    times: list[int | None], match: photos.MatchResult | None, notes: list[str],
+) -> tuple[camclock.ClockPositions | None, dict[int, int]]:
+    """Stage 4b: the photos without a received mark, positioned at their own time through the
+    camera clock fitted on the paired ones, and the lost marks' numbers they stand for (where a
+    count jump accounts for them)."""
+    if match is None or not match.unmatched_photos:
+        return None, {}
+    mark_s = np.array([t / 1e9 if t is not None else np.nan for t in times])
+    pairs = match.pairs
+    precise = np.zeros(match.photo_s.size, dtype=np.bool_)
+    if match.photo_precise.size == precise.size:
+        precise = match.photo_precise.astype(np.bool_)
+    clock = camclock.fit(
+        np.array([match.photo_s[p.photo] for p in pairs]),
+        np.array([mark_s[p.mark] for p in pairs]),
+        np.array([precise[p.photo] for p in pairs], dtype=bool))
+    timed = [i for i in match.unmatched_photos if math.isfinite(match.photo_s[i])]
+    if clock is None or not timed:
+        return None, {}
+    by_clock = camclock.position_photos(traj, clock, match.photo_s, precise, timed,
+                                        s.interp, s.max_gap_s)
+    gps_s = [float(t) / 1e9 for t in by_clock.t_gps_ns]
+    numbers = {by_clock.photo[j]: n for j, n in camclock.lost_numbers(
+        gps_s, marks, mark_s.tolist()).items()}
+    notes.append(clock.text())
+    positioned = int(np.sum(np.all(np.isfinite(by_clock.ecef_m), axis=1)))
+    notes.append(
+        f"{len(timed)} photo(s) without a received mark timed by the camera clock, "
+        f"{positioned} positioned there (flag camera_clock; timing sigma median "
+        f"{float(np.median(by_clock.timing_sd_s)) * 1e3:.0f} ms, times the speed added to "
+        f"their sigma); {len(numbers)} named by the lost mark they stand for")
+    return by_clock, numbers
 
 
 def _why_nothing(s: SolveSettings, traj: positions.Trajectory, marks: tuple[Mark, ...],
@@ -417,10 +499,7 @@ def _positions_at_marks(
     progress: Progress | None,
 ) -> tuple[list[int | None], mi.MarkPositions]:
     """Stage 3: each mark's exposure time (edge and shutter delay) and the antenna there."""
-    times = [
-        mi.mark_time_ns(m.falling_t_gps_ns, m.rising_t_gps_ns, s.edge, s.shutter_delay_ms)
-        for m in marks
-    ]
+    times = _mark_times(s, marks)
     if progress is not None:
         progress(f"interpolate ({s.interp})", 0.0)
     mp = mi.interpolate(traj, times, s.interp, s.max_gap_s)
@@ -432,6 +511,12 @@ def _positions_at_marks(
         f"{int(np.sum((mp.flags & mi.FLAG_GAP) != 0))} in gaps > {s.max_gap_s:g} s"
     )
     return times, mp
+
+
+def _mark_times(s: SolveSettings, marks: Sequence[Mark]) -> list[int | None]:
+    """Each mark's exposure time (the chosen edge and the shutter delay)."""
+    return [mi.mark_time_ns(m.falling_t_gps_ns, m.rising_t_gps_ns, s.edge, s.shutter_delay_ms)
+            for m in marks]
 
 
 def _photos(
@@ -488,7 +573,7 @@ def _row_entries(
 
 
 def _attitude(
-    s: SolveSettings, entries: list[tuple[str, int]], mk: npt.NDArray[np.int64],
+    s: SolveSettings, entries: list[tuple[str, int]], row_t: npt.NDArray[np.float64],
     ant_x: npt.NDArray[np.float64], ant_y: npt.NDArray[np.float64],
     proj: outputs.Projector, llh: npt.NDArray[np.float64],
 ) -> tuple[npt.NDArray[np.float64], list[str], dict[str, leverarm.ExteriorOrientation]]:
@@ -505,7 +590,7 @@ def _attitude(
                 attitude[i] = "eo"
     # κ from the direction of travel: track order of the positioned marks.
     if any(a == "none" for a in attitude):
-        order = np.argsort(np.where(mk >= 0, mk, 1 << 40))
+        order = np.argsort(np.where(np.isfinite(row_t), row_t, np.inf), kind="stable")
         ok = order[np.isfinite(ant_x[order])]
         if ok.size:
             # κ from metric east/north: in a geographic CRS x/y are degrees, and a degree of
@@ -571,8 +656,10 @@ def _cameras(
     s: SolveSettings, marks: tuple[Mark, ...], mp: mi.MarkPositions,
     traj: positions.Trajectory, photo_list: list[photos.Photo],
     match: photos.MatchResult | None, notes: list[str],
+    by_clock: camclock.ClockPositions | None = None, numbers: dict[int, int] | None = None,
 ) -> _Cameras:
-    """Stage 5: the rows, in the output CRS, with attitude and the lever arm applied."""
+    """Stage 5: the rows, in the output CRS, with attitude and the lever arm applied (photos
+    without a mark at their camera-clock position, ``by_clock``, named by ``numbers``)."""
     mark_llh = np.full((len(marks), 3), np.nan)
     for i, xyz in enumerate(mp.ecef_m.tolist()):
         if math.isfinite(xyz[0]):
@@ -585,9 +672,16 @@ def _cameras(
     has = mk >= 0
     llh = np.full((len(entries), 3), np.nan)
     llh[has] = mark_llh[mk[has]]
+    row_t = np.full(len(entries), np.nan)
+    row_t[has] = np.where(mp.t_gps_ns[mk[has]] >= 0, mp.t_gps_ns[mk[has]], np.nan)
+    clock_at = by_clock.index() if by_clock is not None else {}
+    for i, j in clock_at.items():  # entry i is photo i (photos come first, in order)
+        if math.isfinite(by_clock.ecef_m[j, 0]):  # type: ignore[union-attr]
+            llh[i] = ecef_to_llh(*by_clock.ecef_m[j].tolist())  # type: ignore[union-attr]
+            row_t[i] = by_clock.t_gps_ns[j]  # type: ignore[union-attr]
     ant_x, ant_y = proj.forward(llh[:, 0], llh[:, 1])
     ant_h = llh[:, 2]
-    opk, attitude, eo_by_name = _attitude(s, entries, mk, ant_x, ant_y, proj, llh)
+    opk, attitude, eo_by_name = _attitude(s, entries, row_t, ant_x, ant_y, proj, llh)
     cam, lever_est = _lever_arm(s, proj, epsg, llh, np.column_stack([ant_x, ant_y, ant_h]),
                                 opk, attitude, entries, eo_by_name, notes)
     if proj.projected:
@@ -599,24 +693,33 @@ def _cameras(
     # Without photos every mark is exported under its name (mark_0031), for pairing by hand.
     names = outputs.mark_names([m.number for m in marks]) if s.photos is None else None
     rows: list[outputs.CameraRow] = []
+    numbers = numbers or {}
     for i, (name, k) in enumerate(entries):
-        sd = mp.sd_enu_m[k] if k >= 0 else np.full(3, np.nan)
+        # where the row's instant and position came from: its mark, the camera clock, nothing
+        src: tuple[mi.MarkPositions | camclock.ClockPositions, int] | None = (
+            (mp, k) if k >= 0 else
+            (by_clock, clock_at[i]) if by_clock is not None and i in clock_at else None)
         m = marks[k] if k >= 0 else None
+        if src is None:
+            t, sd, q, fl, g, c = -1, np.full(3, np.nan), 0, 0, "none", ""
+        else:
+            pos, j = src
+            t, sd, q, fl = (int(pos.t_gps_ns[j]), pos.sd_enu_m[j], int(pos.quality[j]),
+                            int(pos.flags[j]))
+            g, c = gr.GRADE_NAMES[int(pos.grade[j])], gr.CHECK_NAMES[int(pos.check[j])]
         rows.append(outputs.CameraRow(
-            photo=name, mark=k, mark_count=m.number if m else -1,
-            t_gps_ns=int(mp.t_gps_ns[k]) if k >= 0 else -1,
+            photo=name, mark=k, mark_count=m.number if m else numbers.get(i, -1),
+            t_gps_ns=t,
             lat_deg=float(lat[i]), lon_deg=float(lon[i]), h_m=float(h_out[i]),
             x_m=float(cam[i, 0]), y_m=float(cam[i, 1]),
             sd_e_m=float(sd[0]), sd_n_m=float(sd[1]), sd_u_m=float(sd[2]),
-            quality=int(mp.quality[k]) if k >= 0 else 0,
-            flags=int(mp.flags[k]) if k >= 0 else 0,
+            quality=q, flags=fl,
             omega_deg=float(opk[i, 0]), phi_deg=float(opk[i, 1]), kappa_deg=float(opk[i, 2]),
             attitude=attitude[i],
             antenna_x_m=float(ant_x[i]), antenna_y_m=float(ant_y[i]),
             antenna_h_m=float(ant_h_out[i]), ellipsoidal_h_m=float(cam[i, 2]),
             mark_name=names[k] if names is not None and k >= 0 else "",
-            grade=gr.GRADE_NAMES[int(mp.grade[k])] if k >= 0 else "none",
-            check=gr.CHECK_NAMES[int(mp.check[k])] if k >= 0 else "",
+            grade=g, check=c,
         ))
     return _Cameras(tuple(rows), epsg, proj, traj_llh, mark_llh, cam, lever_est)
 
@@ -625,6 +728,7 @@ def _report(
     s: SolveSettings, traj: positions.Trajectory, marks: tuple[Mark, ...],
     mp: mi.MarkPositions, photo_list: list[photos.Photo], match: photos.MatchResult | None,
     cams: _Cameras, notes: list[str], base_check_made: BaseCheck | None,
+    lost: report.LostMarks, not_counted: int,
 ) -> tuple[list[Path], list[str]]:
     """Stage 7: ``report.html`` and ``report.pdf`` (summary, counts, per-mark table, figures,
     warnings); returns the files written and notes on what could not be written."""
@@ -656,7 +760,8 @@ def _report(
         track_t_gps_ns=traj.t_gps_ns, track_x_m=te if proj.projected else traj_llh[:, 1],
         track_y_m=tn if proj.projected else traj_llh[:, 0], track_quality=traj.quality,
         photos_total=len(photo_list), photos_unmatched=unmatched,
-        photos_given=s.photos is not None, lost_marks=report.lost_marks(marks),
+        photos_given=s.photos is not None, lost_marks=lost,
+        photos_not_counted=not_counted,
         orphan_marks=match.orphan_marks if match else (),
         clock_offset_s=match.gps_minus_camera_s if match else None,
         clock_leap_s=match.leap_s if match else 0,

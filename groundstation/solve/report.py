@@ -21,7 +21,7 @@ import re
 import shutil
 import subprocess
 import tempfile
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -31,11 +31,17 @@ import numpy.typing as npt
 
 from groundstation import gpstime, jsonio
 from groundstation.errors import ConfigError, GroundstationError
-from groundstation.rules.marks import Mark, count_jump
+from groundstation.rules.marks import (
+    LOST_CAUSE_TEXT,
+    LOST_IN_RECEIVER,
+    LOST_ON_LINK,
+    NOT_COUNTED_TEXT,
+    numbers_text,
+)
 from groundstation.solve import figures, photos
 from groundstation.solve.figures import QUALITY_COLOURS, Span
 from groundstation.solve.integrity.grade import GRADE_MEANING, GRADE_NAMES
-from groundstation.solve.interpolate import FLAG_GAP
+from groundstation.solve.interpolate import FLAG_GAP, flag_names
 from groundstation.solve.outputs import CameraRow
 from groundstation.solve.positions import (
     Q_DGPS,
@@ -97,6 +103,11 @@ class SatelliteObs:
     repaired: BoolArray | None = None
 
 
+LostMarks = Mapping[str, Sequence[int]]
+"""The numbers of the marks lost in count jumps, by cause
+(:func:`groundstation.rules.marks.lost_by_cause`)."""
+
+
 @dataclass(frozen=True, slots=True)
 class ReportInput:
     """Everything the report shows; the pipeline fills it.
@@ -117,8 +128,10 @@ class ReportInput:
         photos_total: photos found (0 without ``--photos``).
         photos_given: ``--photos`` was given (without, the marks are exported by name,
             ``mark_0031``, and a mark without photo is no warning).
-        lost_marks: ``(last count, next count)`` of every jump in the receiver's mark count
-            (marks the receiver counted but whose records never arrived: :func:`lost_marks`).
+        lost_marks: the numbers of the pulses the receiver counted whose records never
+            arrived (jumps in its count), by cause (lost on the link, not reported by the
+            receiver: :func:`groundstation.rules.marks.lost_by_cause`).
+        photos_not_counted: photos without a mark that no count jump accounts for.
         photos_unmatched: (photo name, reason) of every photo without a mark.
         orphan_marks: mark indices without a photo.
         clock_offset_s, pair_window_s: photo matching (None without photos); the clock offset
@@ -165,7 +178,8 @@ class ReportInput:
     base_sd_enu_m: tuple[float, float, float] | None = None
     photos_total: int = 0
     photos_given: bool = True
-    lost_marks: tuple[tuple[int, int], ...] = ()
+    lost_marks: LostMarks = field(default_factory=dict)
+    photos_not_counted: int = 0
     photos_unmatched: tuple[tuple[str, str], ...] = ()
     orphan_marks: tuple[int, ...] = ()
     clock_offset_s: float | None = None
@@ -223,22 +237,16 @@ def _num(v: float, nd: int) -> str:
 # -- counts -----------------------------------------------------------------------------------
 
 
-def lost_marks(marks: Sequence[Mark]) -> tuple[tuple[int, int], ...]:
-    """``(last count, next count)`` of every jump in the marks' count (the marks rule's
-    :func:`~groundstation.rules.marks.count_jump`, as the live view alerts on them)."""
-    return tuple(j for j in map(count_jump, marks) if j is not None)
+def lost_marks_text(lost: LostMarks) -> list[str]:
+    """One sentence per cause: how many marks were lost, why, what to do, and which (the
+    receiver's numbers, as ``mark_NNNN`` and ``mark_count``)."""
+    return [f"{len(nums)} time mark(s) {LOST_CAUSE_TEXT[cause]}: number(s) "
+            f"{numbers_text(nums)}." for cause, nums in lost.items() if nums]
 
 
-def _missed_numbers(jumps: Sequence[tuple[int, int]]) -> int:
-    return sum(((b - a) & 0xFFFF) - 1 for a, b in jumps)
-
-
-def lost_marks_text(jumps: Sequence[tuple[int, int]]) -> str:
-    """One sentence: how many marks the receiver missed and where (``count 29 -> 31``)."""
-    shown = ", ".join(f"count {a} -> {b}" for a, b in jumps[:12])
-    more = f" and {len(jumps) - 12} more jumps" if len(jumps) > 12 else ""
-    return (f"{_missed_numbers(jumps)} time mark(s) missed by the receiver (the camera fired, "
-            f"the receiver recorded no mark; no position for those photos): {shown}{more}.")
+def not_counted_text(n: int) -> str:
+    """The photos no mark and no count jump account for."""
+    return f"{n} photo(s) {NOT_COUNTED_TEXT}."
 
 
 def counts(inp: ReportInput) -> dict[str, int]:
@@ -258,7 +266,10 @@ def counts(inp: ReportInput) -> dict[str, int]:
         "photos_matched": sum(1 for r in rows if r.photo and r.mark >= 0),
         "photos_unmatched": sum(1 for r in rows if r.photo and r.mark < 0),
         "orphan_marks": sum(1 for r in rows if not r.photo and r.mark >= 0),
-        "marks_missed": _missed_numbers(inp.lost_marks),
+        "marks_missed": sum(len(j) for j in inp.lost_marks.values()),
+        "marks_lost_on_link": len(inp.lost_marks.get(LOST_ON_LINK, ())),
+        "marks_not_reported": len(inp.lost_marks.get(LOST_IN_RECEIVER, ())),
+        "photos_not_counted": inp.photos_not_counted,
         "marks_bridging_gap": sum(1 for r in rows if r.flags & FLAG_GAP),
         "marks_in_radio_gap": in_radio,
         "nadir_assumed": sum(1 for r in rows if r.attitude == "nadir-track"),
@@ -314,8 +325,9 @@ def warnings(inp: ReportInput) -> list[str]:
         extra = len(inp.photos_unmatched) - 8
         more = f" and {extra} more" if extra > 0 else ""
         out.append(f"{c['photos_unmatched']} photo(s) without a time mark: {names}{more}.")
-    if inp.lost_marks:
-        out.append(lost_marks_text(inp.lost_marks))
+    out.extend(lost_marks_text(inp.lost_marks))
+    if inp.photos_not_counted:
+        out.append(not_counted_text(inp.photos_not_counted))
     if c["orphan_marks"] and inp.photos_given:
         out.append(f"{c['orphan_marks']} time mark(s) without a photo (camera fired, no image "
                    "found): check the image count.")
@@ -352,6 +364,7 @@ table.marks{font-size:12px;width:100%}
 table.marks th,table.marks td{padding:1px 5px;border-bottom:1px solid #e3e3e3;white-space:nowrap}
 table.marks th{background:#eee;position:sticky;top:0;text-align:left}
 table.marks td.n{text-align:right;font-variant-numeric:tabular-nums}
+table.marks td.w{white-space:normal;min-width:7em}
 tr.q-float td{background:#fff3df}tr.q-single td,tr.q-none td{background:#fde2e0}
 .q{display:inline-block;width:.8em;height:.8em;border-radius:50%;vertical-align:-1px;
 margin-right:3px}
@@ -474,8 +487,8 @@ def _result(inp: ReportInput) -> str:
     positioned = sum(1 for r in marks if r.positioned)
     missed = c["marks_missed"]
     missed_text = ("none" if not missed else
-                   f"{missed} (the camera fired, the receiver recorded no mark: no position for "
-                   "those photos)")
+                   f"{missed}: {c['marks_lost_on_link']} lost on the radio link, "
+                   f"{c['marks_not_reported']} not reported by the receiver")
     unmatched = c["photos_unmatched"]
     lines = [
         ("Fixed", (f'<b class="big">{fixed} of {n_pos}</b> computed camera positions '
@@ -615,7 +628,12 @@ def _counts_table(inp: ReportInput) -> str:
         f"{inp.marks_duplicate}</td></tr>"
         + row("photos", "photos") + row("photos matched to a mark", "photos_matched")
         + row("photos without mark", "photos_unmatched")
-        + row("marks missed by the receiver (count jumps)", "marks_missed")
+        + row("marks lost on the radio link (count jumps across link losses)",
+              "marks_lost_on_link")
+        + row("marks not reported by the receiver (count jumps, link intact)",
+              "marks_not_reported")
+        + (row("photos not counted by the receiver (no mark, no count jump)",
+               "photos_not_counted") if inp.photos_given else "")
         + (row("marks without photo (orphans)", "orphan_marks") if inp.photos_given
            else row("marks named mark_NNNN (no photos given)", "orphan_marks"))
         + "<tr><th>cycle slips "
@@ -647,8 +665,12 @@ def _marks_notes(inp: ReportInput) -> str:
     if not inp.photos_given:
         out.append(
             f'<p class="marks-names">{NO_PHOTOS_TEXT}</p>')
-    if inp.lost_marks:
-        out.append(f'<p class="marks-missed">{_e(lost_marks_text(inp.lost_marks))}</p>')
+    for cause, text in zip((c for c, j in inp.lost_marks.items() if j),
+                           lost_marks_text(inp.lost_marks), strict=True):
+        out.append(f'<p class="marks-missed" data-cause="{cause}">{_e(text)}</p>')
+    if inp.photos_not_counted:
+        out.append(f'<p class="marks-missed" data-cause="not-counted">'
+                   f"{_e(not_counted_text(inp.photos_not_counted))}</p>")
     return "".join(out)
 
 
@@ -671,17 +693,19 @@ def _marks_table(inp: ReportInput) -> str:
         cls = {Q_FIX: "q-fix", Q_FLOAT: "q-float", Q_SINGLE: "q-single"}.get(q, "q-none")
         cells = [
             _e(r.photo), str(r.mark) if r.mark >= 0 else "",
-            str(r.mark_count) if r.mark >= 0 else "",
+            str(r.mark_count) if r.mark_count >= 0 else "",
             _e(utc_text(r.t_gps_ns)), _e(gps_text(r.t_gps_ns)),
             _num(r.x_m, nd), _num(r.y_m, nd), _num(r.h_m, 3),
             _num(r.sd_e_m, 3), _num(r.sd_n_m, 3), _num(r.sd_u_m, 3),
         ]
         tds = "".join(f'<td class="n">{c}</td>' if i > 0 else f"<td>{c}</td>"
                       for i, c in enumerate(cells))
-        check = (f'<br><span class="muted">{_e(r.check.replace(":", ": "))}</span>'
+        check = (f'<br><span class="muted">'
+                 f'{_e(r.check.replace(":", ": ")).replace("-", "-<wbr>")}</span>'
                  if r.check else "")
-        tds += f"<td>{_quality_dot(q)}</td><td>{_e(r.grade)}{check}</td>"
-        tds += f'<td class="n">{_num(dt_s, 3)}</td><td>{_e(r.flag_text)}</td>'
+        tds += f'<td>{_quality_dot(q)}</td><td class="w">{_e(r.grade)}{check}</td>'
+        flags = "<br>".join(map(_e, flag_names(r.flags)))  # one a line: the table fits
+        tds += f'<td class="n">{_num(dt_s, 3)}</td><td>{flags}</td>'
         body.append(f'<tr class="{cls}">{tds}</tr>')
     return (f'<table class="marks" id="marks"><thead><tr>{head}</tr></thead>'
             f"<tbody>{''.join(body)}</tbody></table>")

@@ -67,11 +67,14 @@ def test_report_names_the_marks_and_lists_the_missed_ones(solved: dict[str, Any]
     assert "without a photo" not in text  # no photos were given: none are missing
     assert "No photos given: marks named mark_NNNN" in text
     section = text[text.index('<section class="positions">'):]
-    said = re.search(r'<p class="marks-missed">(\d+) time mark\(s\) missed by the receiver'
-                     r"[^<]*</p>", section)
+    # the faults file makes the receiver leave marks out; the link loses nothing
+    said = re.search(r'<p class="marks-missed" data-cause="receiver">(\d+) time mark\(s\) not '
+                     r"reported by the receiver[^<]*number\(s\) ([-\d, ]+)\.</p>", section)
     assert said is not None, section[:2000]
     assert int(said.group(1)) == len(solved["missed"])
-    jumps = re.findall(r"count (\d+) -&gt; (\d+)", said.group(0))
-    listed = [n for a, b in jumps for n in range(int(a) + 1, int(b))]
+    listed = [n for item in said.group(2).split(", ")
+              for n in range(int(item.split("-")[0]), int(item.split("-")[-1]) + 1)]
     assert listed == solved["missed"]
-    assert f'data-count="marks_missed">{len(solved["missed"])}<' in text
+    assert 'data-cause="link"' not in section
+    assert f'data-count="marks_not_reported">{len(solved["missed"])}<' in text
+    assert 'data-count="marks_lost_on_link">0<' in text

@@ -80,12 +80,15 @@ CHECK_NAMES: tuple[str, ...] = (
     "demoted:interpolation",    # 10: fixed epochs, but the mark between them is not a
                                 #     centimetre position (a gap, a quick manoeuvre)
     "arcs-and-engine",          # 11: our fix and an engine fix in one direction agree
+    "demoted:camera-clock",     # 12: fixed epochs, but the photo's time comes from the
+                                #     camera clock, too loose for a centimetre position
 )
 """Check code -> name: which check decided an epoch's grade."""
 C_ARCS, C_BOTH, C_OTHER_FLOAT = 1, 2, 3
 C_DEM_DIRECTIONS, C_DEM_FLOAT, C_DEM_ARCS, C_DEM_ONE, C_FLOAT, C_UNCHECKED = 4, 5, 6, 7, 8, 9
 C_DEM_INTERP = 10
 C_ARCS_ENGINE = 11
+C_DEM_CLOCK = 12
 TAINT_EPOCHS = 5
 """Contradicted epochs that take away an arc's standing (one is an accident of the engine)."""
 PHASE_MODEL_FACTOR = 2.0
