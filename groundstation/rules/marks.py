@@ -112,9 +112,9 @@ def lost_cause(
     A pulse's TIM-TM2 is output with the first measurement epoch after it, after that epoch's
     measurements. It was lost on the link when that epoch is missing from the received ones
     (it lies inside a hole), or damaged bytes came after the epoch before it or after it (a
-    dropout that began inside the epoch's burst cuts a frame). An epoch that arrived whole, even the last one
-    before a hole, brought its TIM-TM2 too: a dropout that begins after the measurements
-    mostly begins after the burst. Otherwise the receiver did not report it.
+    dropout that began inside the epoch's burst cuts a frame). An epoch that arrived whole,
+    even the last one before a hole, brought its TIM-TM2 too: a dropout that begins after the
+    measurements mostly begins after the burst. Otherwise the receiver did not report it.
 
     Args:
         lost_t_ns: the lost pulse's time, as well as it is known (a photo's time through the
