@@ -561,6 +561,8 @@ def write_exif_copies(
         if not src.is_file():
             raise InputError(f"{src}: photo vanished")
         dst = out_dir / r.photo
-        if write_gps_copy(src, dst, r.lat_deg, r.lon_deg, r.h_m):  # else a warning, skipped
+        # the accuracy as pix4d.csv gives it: the larger horizontal sigma, the vertical one
+        if write_gps_copy(src, dst, r.lat_deg, r.lon_deg, r.h_m, max(r.sd_e_m, r.sd_n_m),
+                          r.sd_u_m):  # else a warning, skipped
             written.append(dst)
     return written

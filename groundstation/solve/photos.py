@@ -2,10 +2,10 @@
 
 The matching core (:func:`match`) is sans-I/O: it takes photo times on the camera clock and mark
 times in GPS seconds. EXIF reading (a bounded parser of its own: a crafted photo must not hang
-the solver) and GPS tag writing (:func:`tiff_with_gps`, of its own too: the ``exif`` library
-cannot add tags to a file without a thumbnail IFD) live here too, at the edge:
-:func:`read_photo`, :func:`scan_photos`, :func:`write_gps_copy`, and :func:`make_jpeg` (test
-and demo photos, EXIF by the ``exif`` library).
+the solver) and GPS tag writing (exiv2 through ``pyexiv2``: position and accuracy, EXIF and
+XMP, the rest of the metadata kept) live here too, at the edge: :func:`read_photo`,
+:func:`scan_photos`, :func:`write_gps_copy`, and :func:`make_jpeg` (test and demo photos, EXIF
+by the ``exif`` library).
 """
 
 from __future__ import annotations
@@ -938,152 +938,68 @@ def make_jpeg(
     return bytes(img.get_file())
 
 
-def _dms(value: float) -> tuple[float, float, float]:
+def _dms(value: float) -> str:
+    """Degrees as EXIF rationals: ``53/1 16/1 496192/10000``."""
     v = abs(value)
     d = math.floor(v)
     m = math.floor((v - d) * 60)
     s = (v - d - m / 60) * 3600
-    return float(d), float(m), round(s, 6)
+    return f"{d}/1 {m}/1 {round(s * 1_000_000)}/1000000"
 
 
-_BYTE, _ASCII, _RATIONAL = 1, 2, 5
-_TYPE_SIZE = {_BYTE: 1, _ASCII: 1, _RATIONAL: 8}
-_TIFF_IFD0 = 4  # where the TIFF header keeps IFD0's offset
+PIX4D_CAMERA_NS = "http://pix4d.com/camera/1.0/"
+"""The XMP namespace (prefix ``Camera``) whose ``GPSXYAccuracy`` and ``GPSZAccuracy`` Pix4D
+reads for each image's position accuracy."""
 
 
-def _gps_entries(
-    lat_deg: float, lon_deg: float, h_m: float, order: Literal["little", "big"]
-) -> list[tuple[int, int, int, bytes]]:
-    """The GPS IFD's entries (tag, type, count, value bytes), in tag order."""
-
-    def rationals(*pairs: tuple[int, int]) -> bytes:
-        return b"".join(n.to_bytes(4, order) + d.to_bytes(4, order) for n, d in pairs)
-
-    def dms(v: float) -> bytes:
-        d, m, sec = _dms(v)
-        return rationals((int(d), 1), (int(m), 1), (round(sec * 1_000_000), 1_000_000))
-
-    return [
-        (0x0000, _BYTE, 4, bytes([2, 3, 0, 0])),  # GPSVersionID 2.3
-        (0x0001, _ASCII, 2, (b"N" if lat_deg >= 0 else b"S") + b"\x00"),
-        (0x0002, _RATIONAL, 3, dms(lat_deg)),
-        (0x0003, _ASCII, 2, (b"E" if lon_deg >= 0 else b"W") + b"\x00"),
-        (0x0004, _RATIONAL, 3, dms(lon_deg)),
-        (0x0005, _BYTE, 1, bytes([0 if h_m >= 0 else 1])),
-        (0x0006, _RATIONAL, 1, rationals((round(abs(h_m) * 1000), 1000))),
-        (0x0012, _ASCII, 7, b"WGS-84\x00"),
-    ]
-
-
-def tiff_with_gps(tiff: bytes, lat_deg: float, lon_deg: float, h_m: float) -> bytes:
-    """An EXIF TIFF block with a new GPS IFD; every byte already there stays where it was.
-
-    IFD0 cannot grow in place (what follows it would move, and with it every offset a maker
-    note keeps to itself). So a copy of IFD0 with the GPS pointer added (or replaced) and the
-    GPS IFD are appended at the end and the header points to the copy: the old IFD0 is left
-    unused, IFD1 (thumbnail) stays chained when there is one and nothing needs one when
-    there is none (the ``exif`` library refuses such files). A ``tiff`` of ``b""`` gives a
-    block of its own (the photo had no EXIF).
-
-    Raises:
-        ExifError: a damaged TIFF header or IFD0.
-    """
-    if not tiff:
-        tiff = b"II*\x00" + (8).to_bytes(4, "little") + bytes(6)  # empty IFD0, no IFD1
-    order, u = _tiff_reader(tiff)
-
-    ifd0 = u(_TIFF_IFD0, 4)
-    count = u(ifd0, 2)
-    if count > EXIF_MAX_ENTRIES:
-        raise ExifError(f"EXIF IFD0 with {count} entries")
-    u(ifd0 + 2 + 12 * count, 4)  # the whole IFD0 is inside the block
-    kept = [tiff[ifd0 + 2 + 12 * k : ifd0 + 14 + 12 * k] for k in range(count)]
-    kept = [e for e in kept if int.from_bytes(e[:2], order) != _TAG_GPS_IFD]
-    next_ifd = tiff[ifd0 + 2 + 12 * count : ifd0 + 6 + 12 * count]
-    base = len(tiff) + (len(tiff) & 1)  # IFDs start on a word boundary
-    new_ifd0_size = 2 + 12 * (len(kept) + 1) + 4
-    gps_at = base + new_ifd0_size
-    entries = _gps_entries(lat_deg, lon_deg, h_m, order)
-    data_at = gps_at + 2 + 12 * len(entries) + 4
-    gps_ifd, data = [len(entries).to_bytes(2, order)], b""
-    for tag, kind, n, value in entries:
-        field = tag.to_bytes(2, order) + kind.to_bytes(2, order) + n.to_bytes(4, order)
-        if len(value) <= 4:
-            gps_ifd.append(field + value.ljust(4, b"\x00"))
-        else:
-            gps_ifd.append(field + (data_at + len(data)).to_bytes(4, order))
-            data += value + b"\x00" * (len(value) & 1)
-    gps_ifd.append(bytes(4))  # no next IFD
-    pointer = (_TAG_GPS_IFD.to_bytes(2, order) + (4).to_bytes(2, order) + (1).to_bytes(4, order)
-               + gps_at.to_bytes(4, order))
-    new_ifd0 = sorted([*kept, pointer], key=lambda e: int.from_bytes(e[:2], order))
-    return (
-        tiff[:_TIFF_IFD0] + base.to_bytes(4, order) + tiff[_TIFF_IFD0 + 4 :]
-        + b"\x00" * (base - len(tiff))
-        + len(new_ifd0).to_bytes(2, order) + b"".join(new_ifd0) + next_ifd
-        + b"".join(gps_ifd) + data
-    )
-
-
-def _exif_segment(jpeg: bytes) -> tuple[int, int]:
-    """Where a JPEG's ``Exif`` APP1 segment is (start, end), or where one goes (start == end:
-    after SOI and a JFIF APP0).
-
-    Raises:
-        ExifError: not a JPEG, or damaged before its image data.
-    """
-    if jpeg[:2] != b"\xff\xd8":
-        raise ExifError("not a JPEG")
-    pos, insert_at = 2, 2
-    for _ in range(EXIF_MAX_SEGMENTS):
-        if pos + 4 > len(jpeg) or jpeg[pos] != 0xFF:
-            raise ExifError(f"damaged JPEG segment at byte {pos}")
-        marker = jpeg[pos + 1]
-        if marker in (0xD9, 0xDA):
-            return insert_at, insert_at
-        end = pos + 2 + int.from_bytes(jpeg[pos + 2 : pos + 4], "big")
-        if end > len(jpeg):
-            raise ExifError(f"JPEG segment at byte {pos} runs past the end")
-        if marker == 0xE1 and jpeg[pos + 4 : pos + 10] == b"Exif\x00\x00":
-            return pos, end
-        if marker == 0xE0 and pos == 2:
-            insert_at = end
-        pos = end
-    raise ExifError(f"no EXIF within the first {EXIF_MAX_SEGMENTS} JPEG segments")
-
-
-def jpeg_with_gps(jpeg: bytes, lat_deg: float, lon_deg: float, h_m: float) -> bytes:
-    """The JPEG with EXIF GPS position tags (WGS-84); the image data is not touched.
-
-    Raises:
-        ExifError: the JPEG or its EXIF is damaged, or the EXIF block would outgrow its
-            64 KiB segment.
-    """
-    start, end = _exif_segment(jpeg)
-    tiff = jpeg[start + 10 : end] if end > start else b""
-    body = b"Exif\x00\x00" + tiff_with_gps(tiff, lat_deg, lon_deg, h_m)
-    if len(body) + 2 > 0xFFFF:
-        raise ExifError("EXIF block too large to add GPS tags (over 64 KiB)")
-    segment = b"\xff\xe1" + (len(body) + 2).to_bytes(2, "big") + body
-    return jpeg[:start] + segment + jpeg[end:]
-
-
-def write_gps_copy(src: Path, dst: Path, lat_deg: float, lon_deg: float, h_m: float) -> bool:
-    """Copy a photo to ``dst`` with EXIF GPS position tags set; ``src`` is only read.
+def write_gps_copy(src: Path, dst: Path, lat_deg: float, lon_deg: float, h_m: float,
+                   sd_h_m: float = math.nan, sd_v_m: float = math.nan) -> bool:
+    """Copy a photo to ``dst`` with its position in the EXIF GPS tags (WGS-84) and its
+    accuracy where photogrammetry tools look for it (EXIF ``GPSHPositioningError``, XMP
+    ``Camera:GPSXYAccuracy`` / ``Camera:GPSZAccuracy``); ``src`` is only read. Written by
+    exiv2 (``pyexiv2``), which keeps the rest of the metadata (maker notes, thumbnail, XMP)
+    as it was.
 
     Returns:
-        Whether the copy was written; a photo whose EXIF cannot take the tags (damaged) is
-        skipped with one warning line naming it.
+        Whether the copy was written; a photo whose metadata cannot take the tags (damaged)
+        is skipped with one warning line naming it.
 
     Raises:
         InputError: ``dst`` is ``src``.
     """
+    import shutil
+
+    import pyexiv2
+
     if src.resolve() == dst.resolve():
         raise InputError(f"{dst}: refusing to overwrite the original photo")
+    exif = {
+        "Exif.GPSInfo.GPSVersionID": "2 3 0 0",
+        "Exif.GPSInfo.GPSLatitudeRef": "N" if lat_deg >= 0 else "S",
+        "Exif.GPSInfo.GPSLatitude": _dms(lat_deg),
+        "Exif.GPSInfo.GPSLongitudeRef": "E" if lon_deg >= 0 else "W",
+        "Exif.GPSInfo.GPSLongitude": _dms(lon_deg),
+        "Exif.GPSInfo.GPSAltitudeRef": "0" if h_m >= 0 else "1",
+        "Exif.GPSInfo.GPSAltitude": f"{round(abs(h_m) * 1000)}/1000",
+        "Exif.GPSInfo.GPSMapDatum": "WGS-84",
+    }
+    xmp = {}
+    if math.isfinite(sd_h_m):
+        exif["Exif.GPSInfo.GPSHPositioningError"] = f"{round(sd_h_m * 1000)}/1000"
+        xmp["Xmp.Camera.GPSXYAccuracy"] = f"{sd_h_m:.3f}"
+    if math.isfinite(sd_v_m):
+        xmp["Xmp.Camera.GPSZAccuracy"] = f"{sd_v_m:.3f}"
+    part = dst.with_name(f".{dst.name}.part")
     try:
-        out = jpeg_with_gps(src.read_bytes(), lat_deg, lon_deg, h_m)
-    except ExifError as err:
+        shutil.copyfile(src, part)
+        pyexiv2.registerNs(PIX4D_CAMERA_NS, "Camera")
+        with pyexiv2.Image(str(part)) as img:
+            img.modify_exif(exif)
+            if xmp:
+                img.modify_xmp(xmp)
+    except (RuntimeError, ValueError, KeyError) as err:  # exiv2's errors on damaged metadata
+        part.unlink(missing_ok=True)
         log.warning("%s: no copy with GPS tags written: %s", src.name, err)
         return False
-    dst.write_bytes(out)
+    part.replace(dst)
     return True

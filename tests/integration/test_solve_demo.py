@@ -13,6 +13,8 @@ import csv
 import html.parser
 import json
 import math
+import shutil
+import subprocess
 import time
 from pathlib import Path
 from typing import Any
@@ -93,6 +95,34 @@ def test_every_output_is_written_and_named(solved: dict[str, Any]) -> None:
         assert lat == pytest.approx(float(rows[p.name]["lat_deg"]), abs=1e-7)
         assert lon == pytest.approx(float(rows[p.name]["lon_deg"]), abs=1e-7)
         assert img.gps_altitude == pytest.approx(float(rows[p.name]["h_m"]), abs=1e-3)
+        # the accuracy where photogrammetry tools read it: EXIF, and Pix4D's XMP
+        horz = max(float(rows[p.name]["sd_e_m"]), float(rows[p.name]["sd_n_m"]))
+        assert img.gps_horizontal_positioning_error == pytest.approx(horz, abs=1e-3)
+        xmp = p.read_bytes()
+        assert f'Camera:GPSXYAccuracy="{horz:.3f}"'.encode() in xmp
+        assert f'Camera:GPSZAccuracy="{float(rows[p.name]["sd_u_m"]):.3f}"'.encode() in xmp
+
+
+@pytest.mark.skipif(shutil.which("exiftool") is None,
+                    reason="no exiftool (apt install libimage-exiftool-perl)")
+def test_exiftool_reads_the_position_and_accuracy_of_every_copy(solved: dict[str, Any]) -> None:
+    out: Path = solved["out"]
+    rows = {r["photo"]: r for r in _table(out / "cameras.csv")}
+    proc = subprocess.run(
+        ["exiftool", "-json", "-n", "-GPSLatitude", "-GPSLongitude", "-GPSAltitude",
+         "-GPSHPositioningError", "-XMP-Camera:GPSXYAccuracy", "-XMP-Camera:GPSZAccuracy",
+         str(out / "photos")], capture_output=True, text=True, timeout=120, check=True)
+    tags = json.loads(proc.stdout)
+    assert len(tags) == len(rows) > 0
+    for t in tags:
+        r = rows[Path(t["SourceFile"]).name]
+        assert t["GPSLatitude"] == pytest.approx(float(r["lat_deg"]), abs=1e-7)
+        assert t["GPSLongitude"] == pytest.approx(float(r["lon_deg"]), abs=1e-7)
+        assert t["GPSAltitude"] == pytest.approx(float(r["h_m"]), abs=1e-3)
+        horz = max(float(r["sd_e_m"]), float(r["sd_n_m"]))
+        assert t["GPSHPositioningError"] == pytest.approx(horz, abs=1e-3)
+        assert t["GPSXYAccuracy"] == pytest.approx(horz, abs=1e-3)
+        assert t["GPSZAccuracy"] == pytest.approx(float(r["sd_u_m"]), abs=1e-3)
 
 
 def test_cameras_csv_against_truth(solved: dict[str, Any]) -> None:
