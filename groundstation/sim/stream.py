@@ -368,7 +368,10 @@ def _truth(
             "speed_m_s": np.linalg.norm(vel, axis=1).round(3).tolist(),
         },
         "exposures": [
-            {**asdict(m), "ecef_m": list(m.ecef_m), "sent": m.count in sent_counts,
+            # "number": the receiver's mark number, as the exports' mark_count and mark_NNNN
+            # name it ("count" is the raw TIM-TM2 count of its rising-edge record, one more)
+            {**asdict(m), "number": m.count - 1, "ecef_m": list(m.ecef_m),
+             "sent": m.count in sent_counts,
              "missed": m.count in missed, "duplicated": m.count in duplicated}
             for m in marks
         ],

@@ -104,10 +104,9 @@ def test_every_photo_is_positioned_and_those_timed_by_the_camera_clock_are_hones
         err = np.abs(ecef_to_enu(got, tuple(exposures[k]["ecef_m"])))
         sd = np.array([float(r[f"sd_{a}_m"]) for a in "enu"])
         ok += bool(np.all(err <= np.maximum(0.10, 3 * sd)))
-        # named by the lost mark it stands for where the count jump says which (the
-        # simulator's count is the rising-edge record's: the mark's number plus one)
+        # named by the lost mark it stands for where the count jump says which
         if r["mark_count"]:
-            assert int(r["mark_count"]) == exposures[k]["count"] - 1
+            assert int(r["mark_count"]) == exposures[k]["number"]
     assert ok >= 0.99 * len(by_clock), (ok, len(by_clock))
 
 
@@ -132,7 +131,10 @@ def test_lost_marks_are_counted_by_cause_as_the_truth_says(flight: dict[str, Any
     # received mark or after the last (no photos live)
     numbers = [int(r["mark_count"]) for r in flight["rows"] if r["mark"]]
     exposures = flight["truth"]["exposures"]
-    edge = [e for e in exposures if not min(numbers) <= e["count"] - 1 <= max(numbers)]
+    # the exports' numbers are the truth's (every paired photo)
+    assert all(int(r["mark_count"]) == exposures[int(r["photo"][4:8]) - 1]["number"]
+               for r in flight["rows"] if r["mark"] and r["photo"])
+    edge = [e for e in exposures if not min(numbers) <= e["number"] <= max(numbers)]
     edge_missed = sum(bool(e["missed"]) for e in edge)
     missed_events = [e for e in flight["events"] if e.kind == "mark.missed"]
     live_link = sum(e.data["lost_on_link"] for e in missed_events)
