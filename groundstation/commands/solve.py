@@ -24,7 +24,10 @@ HELP = "post-flight: positions -> marks -> photos -> lever arm -> outputs"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("flight", help="rover recording: .mcap, .ubx or .ubx.gz")
+    parser.add_argument("flight", nargs="+",
+                        help="rover recording: .mcap, .ubx or .ubx.gz; several recordings of "
+                        "the same receiver (the radio's and an on-board log) are merged frame "
+                        "by frame")
     parser.add_argument("--out-dir", "--out", dest="out", required=True, metavar="DIR",
                         help="output directory (created; an earlier result in it is replaced when "
                         "the run completes, other files are left alone)")
@@ -162,7 +165,8 @@ def settings_from_args(args: argparse.Namespace) -> SolveSettings:
             Path(args.rtk_conf) if args.rtk_conf else None, rtk_opts,
         )
     return SolveSettings(
-        flight=Path(args.flight),
+        flight=Path(args.flight[0]),
+        flight_copies=tuple(Path(f) for f in args.flight[1:]),
         out_dir=Path(args.out),
         positions=Path(args.positions) if args.positions else None,
         base=Path(args.base) if args.base else None,

@@ -74,6 +74,10 @@ class SolveSettings:
     base_given: str = "given with --base-xyz"
     base_sd_enu_m: tuple[float, float, float] | None = None
     """The base position's own sigma (east, north, up), None when taken as exact."""
+    flight_copies: tuple[Path, ...] = ()
+    """More recordings of the same receiver (an on-board log): merged with ``flight``."""
+    merged_from: str = ""
+    """What the merge of several recordings took from each (for the notes)."""
     base_estimated: bool = False
     """No base position was given: it is the mean of the base receiver's own fixes."""
     source: str | None = None
@@ -330,10 +334,31 @@ def solve(settings: SolveSettings, progress: Progress | None = None) -> SolveRes
         positions.NoSolutionError: the engine positioned no epoch.
         NothingPositionedError: no mark was positioned (nothing is written).
     """
+    if settings.flight_copies:
+        return _solve_merged(settings, progress)
     s, base_check = _validate(settings)
     with outpaths.staged_output(s.out_dir, "--out-dir") as stage:
         result = _solve(replace(s, out_dir=stage), progress, base_check)
     return _relocated(result, stage, s.out_dir)
+
+
+def _solve_merged(settings: SolveSettings, progress: Progress | None) -> SolveResult:
+    """Several recordings of the flight's receiver (the radio's and an on-board log): merged
+    frame by frame (:mod:`groundstation.offline.merge`) into one, solved as the flight."""
+    import tempfile
+
+    from groundstation.offline.merge import merge
+
+    copies = (settings.flight, *settings.flight_copies)
+    outputs.check_output_dir(settings.out_dir, copies)
+    for p in copies:
+        require_ubx_frames(p)
+    with tempfile.TemporaryDirectory(prefix="groundstation-merge-") as tmp:
+        merged = Path(tmp) / f"{settings.flight.name.split('.')[0]}_merged.ubx"
+        report = merge(copies, merged)
+        log.info("%s", report.text())
+        return solve(replace(settings, flight=merged, flight_copies=(),
+                             merged_from=report.text()), progress)
 
 
 def _relocated(r: SolveResult, stage: Path, out_dir: Path) -> SolveResult:
@@ -353,7 +378,7 @@ def _traj_unstaged(traj: positions.Trajectory, stage: Path) -> positions.Traject
 def _solve(s: SolveSettings, progress: Progress | None,
            base_check: BaseCheck | None) -> SolveResult:
     """:func:`solve` after the checks, into the (staging) folder ``s.out_dir``."""
-    notes: list[str] = []
+    notes: list[str] = [s.merged_from] if s.merged_from else []
     rec, marks = _marks(s, progress)
     traj = _positions(s, rec, notes, progress)
     times, mp = _positions_at_marks(s, traj, marks, notes, progress)
