@@ -131,17 +131,20 @@ BoolArray = npt.NDArray[np.bool_]
 IntArray = npt.NDArray[np.int64]
 
 
-def span_text(ns: int) -> str:
-    """A signed time difference for a log line: ``+1.2 s``, ``-3.0 h``, ``+6.2 days``."""
+def span_text(ns: int, signed: bool = True) -> str:
+    """A time difference for a message: ``+1.2 s``, ``-3.0 h``, ``+6.2 days``, ``6.6 years``
+    (``signed``: with its sign)."""
     a = abs(ns) / NS_PER_S
-    sign = "-" if ns < 0 else "+"
+    sign = ("-" if ns < 0 else "+") if signed else ""
     if a < 120:
         return f"{sign}{a:.1f} s"
     if a < 7200:
         return f"{sign}{a / 60:.1f} min"
     if a < 172_800:
         return f"{sign}{a / 3600:.1f} h"
-    return f"{sign}{a / 86_400:.1f} days"
+    if a < 2 * 365.25 * 86_400:
+        return f"{sign}{a / 86_400:.1f} days"
+    return f"{sign}{a / (365.25 * 86_400):.1f} years"
 
 
 # -- 1. the receiver's ranges ------------------------------------------------------------------

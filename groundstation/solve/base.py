@@ -235,11 +235,9 @@ def check_pairing(flight: Path, base: Path, *, key: str = "--base",
 
 
 def _gap_words(seconds: float) -> str:
-    if seconds >= 2 * 86_400:
-        return f"{seconds / 86_400:.1f} days"
-    if seconds >= 2 * 3600:
-        return f"{seconds / 3600:.1f} h"
-    return f"{seconds / 60:.0f} min"
+    from groundstation.rules.plausible import span_text
+
+    return span_text(round(seconds * 1e9), signed=False)
 
 
 def check_distance(

@@ -844,13 +844,9 @@ def check_belongs(result: MatchResult, mark_t_gps_ns: Sequence[int | None]) -> N
 
 
 def _duration_words(seconds: float) -> str:
-    if seconds >= 2 * 365.25 * 86_400:
-        return f"{seconds / (365.25 * 86_400):.1f} years"
-    if seconds >= 2 * 86_400:
-        return f"{seconds / 86_400:.0f} days"
-    if seconds >= 2 * 3600:
-        return f"{seconds / 3600:.1f} h"
-    return f"{seconds / 60:.1f} min"
+    from groundstation.rules.plausible import span_text
+
+    return span_text(round(seconds * 1e9), signed=False)
 
 
 def reconciliation_lines(

@@ -76,6 +76,23 @@ def test_the_rover_as_its_own_base_is_refused_before_the_engine(
     assert not (tmp_path / "out").exists()
 
 
+def _solved(shared_data: Path, tmp_path: Path, forms: dict[str, list[str]],
+            ) -> dict[str, list[dict[str, str]]]:
+    """The 2018-10-09 flight solved with its base given each way (``--out-dir`` by name):
+    every run's cameras.csv rows."""
+    cams = {}
+    for name, args in forms.items():
+        out = tmp_path / name
+        proc = subprocess.run(
+            [sys.executable, "-m", "groundstation.cli", "solve", str(shared_data / JD / ROVER_1009),
+             "--base", str(shared_data / JD / BASE_1009), *args, "--out-dir", str(out),
+             "--no-progress"],
+            cwd=tmp_path, env=cli_env(), capture_output=True, text=True, timeout=600, check=False)
+        assert proc.returncode == 0, proc.stderr
+        cams[name] = _cameras(out)
+    return cams
+
+
 def _cameras(out: Path) -> list[dict[str, str]]:
     lines = [ln for ln in (out / "cameras.csv").read_text().splitlines()
              if not ln.startswith("#")]
@@ -94,16 +111,7 @@ def test_the_base_as_ecef_as_latitude_longitude_and_as_a_mark_give_the_same_came
              "llh": ["--base-llh", f"{lat:.10f},{lon:.10f},{h:.4f}"],
              "mark": ["--base-llh", f"{lat:.10f},{lon:.10f},{h - 1.5:.4f}",
                       "--base-antenna-height", "1.5"]}
-    cams = {}
-    for name, args in forms.items():
-        out = tmp_path / name
-        proc = subprocess.run(
-            [sys.executable, "-m", "groundstation.cli", "solve", str(shared_data / JD / ROVER_1009),
-             "--base", str(shared_data / JD / BASE_1009), *args, "--out-dir", str(out),
-             "--no-progress"],
-            cwd=tmp_path, env=cli_env(), capture_output=True, text=True, timeout=600, check=False)
-        assert proc.returncode == 0, proc.stderr
-        cams[name] = _cameras(out)
+    cams = _solved(shared_data, tmp_path, forms)
     assert "1.5000 m above it (--base-antenna-height)" in (tmp_path / "mark" / "report.html"
                                                           ).read_text()
     ref = cams["xyz"]
@@ -123,17 +131,9 @@ XYZ_1009_1M_EAST = "3774696.7108,-596646.9206,5089485.6511"  # XYZ_1009 moved 1 
 
 def test_a_base_1_m_off_with_a_1_m_sigma_widens_the_absolute_sigmas_only(
         shared_data: Path, tmp_path: Path) -> None:
-    cams = {}
-    for name, args in {"right": ["--base-xyz", XYZ_1009],
-                       "off": ["--base-xyz", XYZ_1009_1M_EAST, "--base-sigma", "1"]}.items():
-        out = tmp_path / name
-        proc = subprocess.run(
-            [sys.executable, "-m", "groundstation.cli", "solve", str(shared_data / JD / ROVER_1009),
-             "--base", str(shared_data / JD / BASE_1009), *args, "--out-dir", str(out),
-             "--no-progress"],
-            cwd=tmp_path, env=cli_env(), capture_output=True, text=True, timeout=600, check=False)
-        assert proc.returncode == 0, proc.stderr
-        cams[name] = _cameras(out)
+    cams = _solved(shared_data, tmp_path, {
+        "right": ["--base-xyz", XYZ_1009],
+        "off": ["--base-xyz", XYZ_1009_1M_EAST, "--base-sigma", "1"]})
     sd = ("sd_e_m", "sd_n_m", "sd_u_m")
     for a, b in zip(cams["right"], cams["off"], strict=True):
         assert all(float(b[f"abs_{k}"]) >= 1.0 for k in sd), b
