@@ -25,7 +25,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         "(.crx, .YYd) and .gz/.Z too; navigation files beside it are used")
     parser.add_argument("--reference-xyz", metavar="X,Y,Z",
                         help="the reference station's published position, ECEF metres "
-                        "(default: its RINEX header's approximate position, said so)")
+                        "(default: its RINEX header's approximate position, said so); a value "
+                        "starting with '-' is written --reference-xyz=-3978241.9,...")
     parser.add_argument("--engine", default=ppk.DEFAULT_ENGINE,
                         metavar="{" + ",".join(ppk.ENGINES) + "}", help="PPK engine")
     parser.add_argument("--json", action="store_true", help="print one JSON object")

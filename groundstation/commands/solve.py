@@ -36,7 +36,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--base", metavar="FILE",
                         help="base observations (.obs RINEX or .ubx recording)")
     parser.add_argument("--base-xyz", metavar="X,Y,Z",
-                        help="known base position, ECEF metres (not lat,lon,h)")
+                        help="known base position, ECEF metres (not lat,lon,h; a value starting "
+                        "with '-' is written --base-xyz=-3976219.2,...); without any base "
+                        "position the mean of the base receiver's own fixes is used, known to "
+                        "metres (said so)")
     parser.add_argument("--base-llh", metavar="LAT,LON,H",
                         help="known base position instead: WGS84 latitude, longitude (degrees) "
                         "and ellipsoidal height (m)")
