@@ -41,7 +41,7 @@ from groundstation.rules.marks import (
 from groundstation.solve import figures, photos
 from groundstation.solve.figures import QUALITY_COLOURS, Span
 from groundstation.solve.integrity.grade import GRADE_MEANING, GRADE_NAMES
-from groundstation.solve.interpolate import FLAG_GAP, flag_names
+from groundstation.solve.interpolate import FLAG_CAMERA_CLOCK, FLAG_GAP, flag_names
 from groundstation.solve.outputs import CameraRow
 from groundstation.solve.positions import (
     Q_DGPS,
@@ -265,6 +265,8 @@ def counts(inp: ReportInput) -> dict[str, int]:
         "photos": inp.photos_total,
         "photos_matched": sum(1 for r in rows if r.photo and r.mark >= 0),
         "photos_unmatched": sum(1 for r in rows if r.photo and r.mark < 0),
+        "photos_by_camera_clock": sum(1 for r in rows if r.flags & FLAG_CAMERA_CLOCK
+                                      and r.positioned),
         "orphan_marks": sum(1 for r in rows if not r.photo and r.mark >= 0),
         "marks_missed": sum(len(j) for j in inp.lost_marks.values()),
         "marks_lost_on_link": len(inp.lost_marks.get(LOST_ON_LINK, ())),
@@ -324,7 +326,10 @@ def warnings(inp: ReportInput) -> list[str]:
         names = ", ".join(n for n, _ in inp.photos_unmatched[:8])
         extra = len(inp.photos_unmatched) - 8
         more = f" and {extra} more" if extra > 0 else ""
-        out.append(f"{c['photos_unmatched']} photo(s) without a time mark: {names}{more}.")
+        timed = c["photos_by_camera_clock"]
+        how = (f" ({timed} positioned at their own time through the camera clock fitted on the "
+               "paired photos: flag camera_clock, the timing in their sigma)" if timed else "")
+        out.append(f"{c['photos_unmatched']} photo(s) without a time mark{how}: {names}{more}.")
     out.extend(lost_marks_text(inp.lost_marks))
     if inp.photos_not_counted:
         out.append(not_counted_text(inp.photos_not_counted))
@@ -500,7 +505,10 @@ def _result(inp: ReportInput) -> str:
         ("Missed marks", _e(missed_text)),
     ]
     if inp.photos_given:
-        lines.append(("Photos without a mark", str(unmatched) if unmatched else "none"))
+        timed = c["photos_by_camera_clock"]
+        lines.append(("Photos without a mark", (
+            f"{unmatched} ({timed} positioned by the camera clock)" if timed else str(unmatched))
+            if unmatched else "none"))
     lines.append(("Accuracy", _e(accuracy_text(inp))))
     return _kv(lines, "kv result")
 
@@ -628,6 +636,7 @@ def _counts_table(inp: ReportInput) -> str:
         f"{inp.marks_duplicate}</td></tr>"
         + row("photos", "photos") + row("photos matched to a mark", "photos_matched")
         + row("photos without mark", "photos_unmatched")
+        + row("of them positioned by the camera clock", "photos_by_camera_clock")
         + row("marks lost on the radio link (count jumps across link losses)",
               "marks_lost_on_link")
         + row("marks not reported by the receiver (count jumps, link intact)",

@@ -204,6 +204,8 @@ def test_every_count_equals_the_exports(flight: dict[str, Any]) -> None:
         "photos": len(list(flight["photos"].iterdir())),
         "photos_matched": sum(bool(r["photo"] and r["mark"]) for r in rows),
         "photos_unmatched": sum(bool(r["photo"] and not r["mark"]) for r in rows),
+        "photos_by_camera_clock": sum("camera_clock" in r["flags"].split(";") and bool(r["x_m"])
+                                      for r in rows),
         "orphan_marks": sum(bool(r["mark"] and not r["photo"]) for r in rows),
         "marks_bridging_gap": sum("gap" in r["flags"].split(";") for r in rows),
         "nadir_assumed": sum(r["attitude"] == "nadir-track" for r in rows),
