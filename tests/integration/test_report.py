@@ -274,7 +274,10 @@ def test_the_result_comes_first_and_the_full_options_last(flight: dict[str, Any]
     if flight["name"] == "demo":
         assert unmatched > 0  # the demo's missed marks leave photos without a mark
     if unmatched:
-        assert re.search(rf"Photos without a mark</th>\s*<td>{unmatched}<", result), result
+        timed = sum("camera_clock" in r["flags"].split(";") for r in rows if r["photo"])
+        said = f"{unmatched} ({timed} positioned by the camera clock)" if timed else unmatched
+        assert re.search(rf"Photos without a mark</th>\s*<td>{re.escape(str(said))}<",
+                         result), result
     assert f"of {flight['marks']}</b> marks in the flight" in result
     assert "Missed marks" in result and "σ horizontal" in result and " cm " in result
     head, _, tail = text.partition('id="engine-options"')
