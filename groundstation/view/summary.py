@@ -95,8 +95,10 @@ def status_lines(st: Status, *, injected_lost_epochs: int | None = None,
         (f"  link: {link.epochs} epochs at {link.epoch_interval_s or 0:g} s, {link.dropouts} "
         f"dropouts ({link.missing_epochs} epochs missing{sim_link}), {link.damaged_frames} "
         "damaged frames"),
-        (f"  marks: {marks.marks} received, {marks.missed} missed, {marks.duplicates} "
-         f"duplicates, "
+        (f"  marks: {marks.marks} received, {marks.missed} missed"
+         + (f" ({marks.lost_on_link} lost on the radio link, {marks.not_reported} not reported "
+            "by the receiver)" if marks.missed else "")
+         + f", {marks.duplicates} duplicates, "
         f"{marks.in_dropout} inside dropouts{sim_marks}"),
         (f"  {at}: {st.tracked} satellites tracked{notes}, {st.ppk_ready} "
          f"{ppk_label(clean_s)}, {need} needed; alerts: "

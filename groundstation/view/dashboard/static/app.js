@@ -402,13 +402,15 @@ function renderPpk(ppk) {
 
 function renderMarks(ms) {
   setText("marks-count", num(ms.marks));
-  setText("marks-missed", num(ms.missed) + (ms.missed ? " (" + num(ms.lost_on_link || 0) +
-    " radio, " + num(ms.not_reported || 0) + " receiver)" : ""), ms.missed ? "alarm" : "good");
+  setText("marks-missed", num(ms.missed), ms.missed ? "alarm" : "good");
   setText("marks-indrop", num(ms.in_dropout), ms.in_dropout ? "alarm" : "good");
   setText("marks-rate", num(ms.rate_per_min, 1));
   setText("marks-last", ms.last_utc ? ms.last_utc + (ms.last_age_s !== null ?
     "  (" + num(ms.last_age_s, 0) + " s ago)" : "") : "none yet");
-  $("marks-detail").textContent = "count " + num(ms.last_count) + " · pulse " +
+  // why the missed ones were lost: the radio (fix the link) or the receiver (trigger rate)
+  $("marks-detail").textContent = (ms.missed ? "missed: " + num(ms.lost_on_link || 0) +
+    " lost on the radio, " + num(ms.not_reported || 0) + " not reported by the receiver · " :
+    "") + "count " + num(ms.last_count) + " · pulse " +
     num(ms.last_pulse_width_ms, 1) + " ms · duplicates " + num(ms.duplicates) +
     " · 2 in one epoch " + num(ms.multi_in_epoch) + " · mark messages here " + num(ms.received);
 }
