@@ -199,32 +199,21 @@ def locate_base(
     from groundstation.solve.engine import EngineError, run_engine
     from groundstation.solve.positions import read_pos
 
-    for what, path in (("--reference", reference), ("BASE", base)):
-        if what == "BASE" and not (is_rinex_obs_name(base) or HATANAKA.search(base.name)):
-            continue
-        if "RINEX VERSION / TYPE" not in _text(path)[:400]:
-            raise InputError(f"{path}: not RINEX observations (no RINEX VERSION / TYPE header "
-                             "line)")
-    if reference_xyz is not None:
-        ref_xyz, ref_from = reference_xyz, "given with --reference-xyz"
-    else:
-        head = header_position(reference)
-        if head is None:
-            raise ConfigError("--reference-xyz", (
-                f"{reference.name} gives no position in its header (APPROX POSITION XYZ): give "
-                "the reference station's coordinates, ECEF metres, from its network's page"))
-        ref_xyz, ref_from = head, (
-            "from the APPROX POSITION XYZ of its RINEX header: check it against the network's "
-            "published coordinates, which --reference-xyz takes")
     with tempfile.TemporaryDirectory(prefix="locate-base-") as tmp:
         work = Path(tmp)
-        # the reference (and a RINEX base) decompressed into the work folder, with the
+        # the reference (and a RINEX base) decompressed into the work folder once, with the
         # navigation files beside them; a recording is converted by the engine's own step
         ref_obs = plain_rinex(reference, work, "reference")
-        navs = [plain_rinex(n, work, "nav") for n in navigation_beside(reference)]
         base_obs = base
         if is_rinex_obs_name(base) or HATANAKA.search(base.name):
             base_obs = plain_rinex(base, work, "base")
+        for given, plain in ((reference, ref_obs), (base, base_obs)):
+            if plain.parent == work and "RINEX VERSION / TYPE" not in _text(plain)[:400]:
+                raise InputError(f"{given}: not RINEX observations (no RINEX VERSION / TYPE "
+                                 "header line)")
+        ref_xyz, ref_from = _reference_position(reference, ref_obs, reference_xyz)
+        navs = [plain_rinex(n, work, "nav") for n in navigation_beside(reference)]
+        if base_obs != base:
             navs += [plain_rinex(n, work, "nav") for n in navigation_beside(base)]
         check_pairing(base_obs, ref_obs, key="--reference", words=("base", "reference"))
         run = run_engine(
@@ -254,6 +243,25 @@ def locate_base(
         span_gps_ns=(int(traj.t_gps_ns[0]), int(traj.t_gps_ns[-1])), baseline_m=baseline,
         base=base.name, reference=reference.name, reference_ecef_m=ref_xyz,
         reference_from=ref_from, engine=f"{run.engine} {run.version}")
+
+
+def _reference_position(
+    reference: Path, plain: Path, given: tuple[float, float, float] | None,
+) -> tuple[tuple[float, float, float], str]:
+    """The reference station's position and where it came from: given, or its header's.
+
+    Raises:
+        ConfigError: naming ``--reference-xyz``: none given and none in the header.
+    """
+    if given is not None:
+        return given, "given with --reference-xyz"
+    head = header_position(plain)
+    if head is None:
+        raise ConfigError("--reference-xyz", (
+            f"{reference.name} gives no position in its header (APPROX POSITION XYZ): give the "
+            "reference station's coordinates, ECEF metres, from its network's page"))
+    return head, ("from the APPROX POSITION XYZ of its RINEX header: check it against the "
+                  "network's published coordinates, which --reference-xyz takes")
 
 
 def read_base_position(path: Path) -> tuple[tuple[float, float, float],

@@ -222,13 +222,21 @@ def read_flight(path: Path, progress: Progress | None = None) -> FlightRecords:
 
 
 
-def _validate(s: SolveSettings) -> tuple[SolveSettings, BaseCheck | None]:
+def _validate(s: SolveSettings) -> tuple[SolveSettings, BaseCheck | None, FlightRecords | None]:
     """Every check made before anything is written; the base check when it can be made now.
 
     Returns:
         The settings, with the base position the base's own fixes give when none was given
-        (and its sigma), and the base check.
+        (and its sigma); the base check; the flight's records when a check read them (the
+        marks stage takes them instead of reading the flight again).
     """
+    read: list[FlightRecords] = []
+
+    def flight() -> FlightRecords:
+        if not read:
+            read.append(read_flight(s.flight))
+        return read[0]
+
     if s.interp not in mi.INTERPOLATORS:
         raise ConfigError("--interp", f"unknown method {s.interp!r}")
     if s.edge not in mi.EDGES:
@@ -261,7 +269,7 @@ def _validate(s: SolveSettings) -> tuple[SolveSettings, BaseCheck | None]:
         else:
             require_ubx_frames(s.base)
     if s.photos is not None:  # photos of another flight: said now, not after the engine
-        marks = build_marks(read_flight(s.flight).timemarks)
+        marks = build_marks(flight().timemarks)
         times = _mark_times(s, marks)
         photos.check_belongs(photos.match(photos.photo_times(photos.scan_photos(s.photos)),
                                           times), times)
@@ -269,7 +277,7 @@ def _validate(s: SolveSettings) -> tuple[SolveSettings, BaseCheck | None]:
     if own and s.base is not None:
         s = _base_from_own_fixes(s.base, s)
     if s.base is None or s.base_ecef_m is None:
-        return s, None
+        return s, None, (read[0] if read else None)
     # Before the engine: coordinates kilometres off give no solution at all, and a half hour
     # of engine work before saying so (report.BASE_REFUSED_M).
     text, doubtful = (s.base_given, False) if own else report.check_base(
@@ -279,9 +287,9 @@ def _validate(s: SolveSettings) -> tuple[SolveSettings, BaseCheck | None]:
         # of kilometres away.
         covered = check_pairing(s.flight, s.base)
         check_distance(s.base_ecef_m, [
-            n.ecef_m for n in read_flight(s.flight).nav if n.fix_ok and n.ecef_m])
+            n.ecef_m for n in flight().nav if n.fix_ok and n.ecef_m])
         text = f"{text}; {covered}" if covered else text
-    return s, (text, doubtful)
+    return s, (text, doubtful), (read[0] if read else None)
 
 
 def _base_from_own_fixes(path: Path, s: SolveSettings) -> SolveSettings:
@@ -336,9 +344,9 @@ def solve(settings: SolveSettings, progress: Progress | None = None) -> SolveRes
     """
     if settings.flight_copies:
         return _solve_merged(settings, progress)
-    s, base_check = _validate(settings)
+    s, base_check, rec = _validate(settings)
     with outpaths.staged_output(s.out_dir, "--out-dir") as stage:
-        result = _solve(replace(s, out_dir=stage), progress, base_check)
+        result = _solve(replace(s, out_dir=stage), progress, base_check, rec)
     return _relocated(result, stage, s.out_dir)
 
 
@@ -376,10 +384,10 @@ def _traj_unstaged(traj: positions.Trajectory, stage: Path) -> positions.Traject
 
 
 def _solve(s: SolveSettings, progress: Progress | None,
-           base_check: BaseCheck | None) -> SolveResult:
+           base_check: BaseCheck | None, rec_read: FlightRecords | None = None) -> SolveResult:
     """:func:`solve` after the checks, into the (staging) folder ``s.out_dir``."""
     notes: list[str] = [s.merged_from] if s.merged_from else []
-    rec, marks = _marks(s, progress)
+    rec, marks = _marks(s, progress, rec_read)
     traj = _positions(s, rec, notes, progress)
     times, mp = _positions_at_marks(s, traj, marks, notes, progress)
     if mp.positioned == 0:  # every export would be empty: a failed run, nothing written
@@ -396,13 +404,11 @@ def _solve(s: SolveSettings, progress: Progress | None,
     lost = rec.lost_by_cause(marks, by_clock.t_gps_ns.tolist() if by_clock else ())
     # photos no count jump accounts for (before the first received mark, after the last, or
     # never counted): lost on the link where their epoch was, else never counted
-    not_counted = 0
-    for j, p in enumerate(by_clock.photo if by_clock is not None else ()):
-        if p not in numbers and by_clock is not None:
-            if rec.cause_at(int(by_clock.t_gps_ns[j])) == LOST_ON_LINK:
-                lost[LOST_ON_LINK].append(-1)
-            else:
-                not_counted += 1
+    unnumbered = ([int(t) for p, t in zip(by_clock.photo, by_clock.t_gps_ns.tolist(), strict=True)
+                   if p not in numbers] if by_clock is not None else [])
+    on_link = [t for t in unnumbered if rec.cause_at(t) == LOST_ON_LINK]
+    lost[LOST_ON_LINK].extend([-1] * len(on_link))
+    not_counted = len(unnumbered) - len(on_link)
     notes.extend(report.lost_marks_text(lost))
     if s.base_estimated:
         notes.append(f"WARNING base position {s.base_given}")
@@ -481,9 +487,11 @@ def _why_nothing(s: SolveSettings, traj: positions.Trajectory, marks: tuple[Mark
             f"--max-gap {s.max_gap_s:g} s")
 
 
-def _marks(s: SolveSettings, progress: Progress | None) -> tuple[FlightRecords, tuple[Mark, ...]]:
-    """Stage 1: the flight's TIM-TM2 records (and receiver fixes) and the marks they make."""
-    rec = read_flight(s.flight, progress)
+def _marks(s: SolveSettings, progress: Progress | None, rec: FlightRecords | None = None,
+           ) -> tuple[FlightRecords, tuple[Mark, ...]]:
+    """Stage 1: the flight's TIM-TM2 records (and receiver fixes) and the marks they make
+    (``rec``: already read by the checks)."""
+    rec = rec if rec is not None else read_flight(s.flight, progress)
     marks = tuple(build_marks(rec.timemarks))
     if not marks and s.photos is None:
         raise InputError(f"{s.flight}: no camera marks in this flight: nothing to position "
