@@ -36,8 +36,9 @@ import numpy.typing as npt
 
 from groundstation.errors import ConfigError, InputError
 from groundstation.geodesy import ecef_to_llh, enu_rotation, enu_to_ecef, llh_to_ecef
-from groundstation.gpstime import NS_PER_S, gps_calendar_ns, utc_span
+from groundstation.gpstime import gps_calendar_ns, utc_span
 from groundstation.offline.rinex.convert import observations_of, read_frames
+from groundstation.rules.plausible import span_text
 from groundstation.solve.engine import is_rinex_obs_name
 
 BASE_FAR_REFUSED_M = 100_000.0
@@ -212,10 +213,11 @@ def check_pairing(flight: Path, base: Path, *, key: str = "--base",
     if rs is None or bs is None:
         return "" if rs is None else f"the {base_word} {base.name} has no observation epoch"
     if bs[1] < rs[0] or bs[0] > rs[1]:
-        gap_s = (rs[0] - bs[1] if bs[1] < rs[0] else bs[0] - rs[1]) / NS_PER_S
+        gap_ns = rs[0] - bs[1] if bs[1] < rs[0] else bs[0] - rs[1]
+        apart = span_text(gap_ns, signed=False)
         raise ConfigError(key, (
             f"{base.name} does not overlap the {rover_word} in time: {rover_word} "
-            f"{utc_span(rs)}, {base_word} {utc_span(bs)} ({_gap_words(gap_s)} apart): give the "
+            f"{utc_span(rs)}, {base_word} {utc_span(bs)} ({apart} apart): give the "
             f"{base_word} logged during this {rover_word}"))
     shared = [k for k in rover.pseudoranges if k in ref.pseudoranges]
     if shared:
@@ -232,12 +234,6 @@ def check_pairing(flight: Path, base: Path, *, key: str = "--base",
     return "" if share >= 0.999 else (
         f"the {base_word} covers {share:.0%} of the {rover_word}'s epochs ({base_word} "
         f"{utc_span(bs)})")
-
-
-def _gap_words(seconds: float) -> str:
-    from groundstation.rules.plausible import span_text
-
-    return span_text(round(seconds * 1e9), signed=False)
 
 
 def check_distance(

@@ -820,6 +820,7 @@ def check_belongs(result: MatchResult, mark_t_gps_ns: Sequence[int | None]) -> N
         ConfigError: naming ``--photos``, saying by how much they miss the flight.
     """
     from groundstation.errors import ConfigError
+    from groundstation.rules.plausible import span_text
 
     marks = np.array([t / 1e9 for t in mark_t_gps_ns if t is not None], dtype=np.float64)
     timed = result.photo_s[np.isfinite(result.photo_s)]
@@ -828,7 +829,8 @@ def check_belongs(result: MatchResult, mark_t_gps_ns: Sequence[int | None]) -> N
     zone_free = (result.offset_s + 1800.0) % 3600.0 - 1800.0  # what a whole-hour zone leaves
     if abs(result.offset_s) > MAX_CLOCK_ERROR_S:
         raise ConfigError("--photos", (
-            f"the photos' clock is {_duration_words(abs(result.offset_s))} off the flight's "
+            f"the photos' clock is {span_text(round(result.offset_s * 1e9), signed=False)} off "
+            "the flight's "
             f"time marks (GPS - camera {result.gps_minus_camera_s:+.0f} s; a camera clock error "
             f"is seconds, a time zone whole hours): photos of another flight? (a camera whose "
             "clock really is that far off: shift the photos' times, e.g. exiftool -AllDates)"))
@@ -838,15 +840,9 @@ def check_belongs(result: MatchResult, mark_t_gps_ns: Sequence[int | None]) -> N
     if inside * 2 < timed.size:
         raise ConfigError("--photos", (
             f"{timed.size - inside} of {timed.size} photos lie outside the flight's marks "
-            f"(photos span {_duration_words(float(shifted.max() - shifted.min()))}, marks "
-            f"{_duration_words(float(marks.max() - marks.min()))}; camera clock "
+            f"(photos span {span_text(round(np.ptp(shifted) * 1e9), signed=False)}, marks "
+            f"{span_text(round(np.ptp(marks) * 1e9), signed=False)}; camera clock "
             f"{zone_free:+.1f} s off a whole-hour zone): photos of another flight?"))
-
-
-def _duration_words(seconds: float) -> str:
-    from groundstation.rules.plausible import span_text
-
-    return span_text(round(seconds * 1e9), signed=False)
 
 
 def reconciliation_lines(
