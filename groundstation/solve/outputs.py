@@ -314,6 +314,16 @@ ellipsoidal, or above a geoid). ``sd_*`` are relative to the base, ``abs_sd_*`` 
 position's own sigma (equal to ``sd_*`` when the base is taken as exact: the second line says)."""
 
 
+def mark_numbers_text(count_column: str = "mark_count") -> str:
+    """What the ``mark`` and ``mark_count`` columns are and why they differ, in the same words
+    in ``cameras.csv``'s header and the report (whose column is ``count``)."""
+    return ("mark is the row's index among the marks received in the flight (0, 1, 2, ...; "
+            f"empty for a photo without one); {count_column} is the receiver's own number of "
+            "the pulse (its TIM-TM2 count: the number in mark_NNNN, inspect and marks.csv). "
+            "They differ after a mark that never arrived (not reported by the receiver, or "
+            "lost on the radio link): the receiver counted it, the index has no row for it.")
+
+
 FORMULA_PREFIXES = ("=", "+", "-", "@", "\t", "\r")
 """A spreadsheet reads a cell starting with one of these as a formula (CSV injection)."""
 
@@ -340,6 +350,7 @@ def cameras_csv(out: SolveOutput) -> str:
     buf.write("# sd_*: relative to the base; abs_sd_*: with the base position's sigma "
               + ("(" + "/".join(f"{v:.3f}" for v in base) + " m east/north/up)\n" if base
                  else "(none given: the base is taken as exact)\n"))
+    buf.write(f"# {mark_numbers_text()}\n")
     for note in out.notes:
         buf.write(f"# {_comment(note)}\n")
     w = csv.writer(buf, lineterminator="\n")

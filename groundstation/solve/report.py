@@ -42,7 +42,7 @@ from groundstation.solve import figures, photos
 from groundstation.solve.figures import QUALITY_COLOURS, Span
 from groundstation.solve.integrity.grade import GRADE_MEANING, GRADE_NAMES
 from groundstation.solve.interpolate import FLAG_CAMERA_CLOCK, FLAG_GAP, flag_names
-from groundstation.solve.outputs import CameraRow
+from groundstation.solve.outputs import CameraRow, mark_numbers_text
 from groundstation.solve.positions import (
     Q_DGPS,
     Q_FIX,
@@ -811,7 +811,8 @@ def render_html(inp: ReportInput) -> str:
         f'<section class="positions"><h2>Camera positions</h2>'
         f'<p class="muted">One row per photo (then per mark without photo), as in cameras.csv. '
         f"E/N in EPSG:{inp.epsg}, h {_e(inp.height_datum)}; σ east/north/up; Δt epoch: time "
-        f"from the mark to the nearest solved epoch.</p>{_marks_notes(inp)}"
+        f"from the mark to the nearest solved epoch; "
+        f"{_e(mark_numbers_text('count (mark_count in cameras.csv)'))}</p>{_marks_notes(inp)}"
         f"{_marks_table(inp)}</section>"
         + (f"<h2>Photos without mark</h2><ul>{unmatched}</ul>" if unmatched else "")
         + f"<h2>Notes</h2><ul>{notes}</ul>"

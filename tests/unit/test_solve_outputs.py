@@ -71,6 +71,40 @@ def test_cameras_csv(out: outputs.SolveOutput) -> None:
     assert rows[3]["photo"] == "" and rows[3]["mark_count"] == "7"
 
 
+def test_cameras_csv_and_the_report_say_what_mark_and_mark_count_are(
+    out: outputs.SolveOutput,
+) -> None:
+    """``mark`` and ``mark_count`` differ after the first mark that never arrived (here 0/3,
+    1/5, 2/7): the file's own header and the report's marks section say which is which and
+    why, not only the README."""
+    header = [ln for ln in outputs.cameras_csv(out).splitlines() if ln.startswith("#")]
+    lines = [ln for ln in header if "mark_count" in ln]
+    assert len(lines) == 1, header
+    said = lines[0]
+    for words in ("mark is the row's index among the marks received",
+                  "mark_count is the receiver's own number of the pulse", "TIM-TM2",
+                  "mark_NNNN", "They differ after a mark that never arrived"):
+        assert words in said, said
+    inp = report.ReportInput(
+        flight="f.ubx", engine_name="E", engine_version="", engine_options={},
+        position_source="p", base_name=None, base_ecef_m=None, base_check="none",
+        base_doubtful=False, epsg=out.epsg, crs_name=out.crs_name, projected=True,
+        lever_arm_m=None, shutter_delay_ms=0.0, edge="falling", interp="linear", max_gap_s=1.0,
+        rows=out.rows, marks_total=3, marks_duplicate=0, track_t_gps_ns=out.trajectory_t_gps_ns,
+        track_x_m=np.array([500000.0, 500007.0, 500014.0]),
+        track_y_m=np.array([5538000.0, 5538011.0, 5538022.0]),
+        track_quality=np.array([1, 2, 5]), photos_total=3, photos_unmatched=(),
+        pair_t_gps_ns=out.trajectory_t_gps_ns[:2], pair_residual_s=np.array([0.01, -0.02]),
+        pair_window_s=0.1, lever_residual_m=np.array([0.001, 0.2]),
+        lever_outlier=np.array([False, True]), notes=(),
+    )
+    html = report.render_html(inp)
+    legend = html[html.index('<section class="positions">'):html.index('id="marks"')]
+    # the report's column is "count" (cameras.csv's mark_count)
+    assert "count (mark_count in cameras.csv) is the receiver&#x27;s own number" in legend
+    assert "They differ after a mark that never arrived" in legend
+
+
 def test_geo_txt(out: outputs.SolveOutput) -> None:
     lines = outputs.geo_txt(out).splitlines()
     assert lines[0] == "EPSG:25832"
