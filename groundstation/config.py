@@ -364,6 +364,8 @@ SOLVER_STATION_KEYS: dict[str, Key] = {
     "base": STR,
     "base_xyz": ECEF,
     "base_llh": TRIPLE,
+    "base_en": TRIPLE,
+    "base_crs": EPSG,
     "base_antenna_height_m": _num("float", 0.0, 100.0),
     "photos": STR,
     "out_root": PATH,

@@ -43,6 +43,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--base-llh", metavar="LAT,LON,H",
                         help="known base position instead: WGS84 latitude, longitude (degrees) "
                         "and ellipsoidal height (m)")
+    parser.add_argument("--base-en", metavar="E,N,H",
+                        help="known base position instead: easting, northing and height (m) in "
+                        "the projected CRS of --base-crs")
+    parser.add_argument("--base-crs", metavar="CODE",
+                        help="EPSG code of --base-en: projected (height ellipsoidal), or "
+                        "projected+vertical for a height above the geoid, e.g. 32629+5773 "
+                        "(UTM 29N + EGM96) or 2157+5731 (Irish ITM + Malin Head), if PROJ has "
+                        "the geoid grid")
     parser.add_argument("--base-position", metavar="FILE",
                         help="the base position (and its sigma) from groundstation locate-base "
                         "--out")
@@ -152,12 +160,15 @@ def settings_from_args(args: argparse.Namespace) -> SolveSettings:
     base_xyz, base_given = base_position(
         _option("--base-xyz", "base_xyz", args.base_xyz),
         _option("--base-llh", "base_llh", args.base_llh),
-        _option("--base-antenna-height", "base_antenna_height_m", args.base_antenna_height))
+        _option("--base-antenna-height", "base_antenna_height_m", args.base_antenna_height),
+        en=_option("--base-en", "base_en", args.base_en),
+        crs=_option("--base-crs", "base_crs", args.base_crs))
     file_sd = None
     if args.base_position is not None:
         if base_xyz is not None or args.base_antenna_height is not None:
             raise ConfigError("--base-position", "give the base as one of --base-position, "
-                              "--base-xyz or --base-llh (the file is the antenna's position)")
+                              "--base-xyz, --base-llh or --base-en (the file is the antenna's "
+                              "position)")
         if not Path(args.base_position).is_file():
             raise ConfigError("--base-position", f"{args.base_position}: no such file")
         base_xyz, file_sd, base_given = read_base_position(Path(args.base_position))

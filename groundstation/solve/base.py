@@ -67,9 +67,11 @@ class ObservationTimes:
         return int(self.t_gps_ns[0]), int(self.t_gps_ns[-1])
 
 
-BASE_OPTIONS = {"xyz": "--base-xyz", "llh": "--base-llh", "antenna": "--base-antenna-height"}
+BASE_OPTIONS = {"xyz": "--base-xyz", "llh": "--base-llh", "en": "--base-en",
+                "crs": "--base-crs", "antenna": "--base-antenna-height"}
 """The command line's names of the base position's forms."""
-BASE_KEYS = {"xyz": "base_xyz", "llh": "base_llh", "antenna": "base_antenna_height_m"}
+BASE_KEYS = {"xyz": "base_xyz", "llh": "base_llh", "en": "base_en", "crs": "base_crs",
+             "antenna": "base_antenna_height_m"}
 """The solver configuration's names of the same."""
 
 
@@ -78,6 +80,8 @@ def base_position(
     llh: tuple[float, float, float] | None,
     antenna_height_m: float | None = None,
     names: dict[str, str] = BASE_OPTIONS,
+    en: tuple[float, float, float] | None = None,
+    crs: int | str | None = None,
 ) -> tuple[tuple[float, float, float] | None, str]:
     """The base antenna reference point, ECEF metres, from the form given (None if none), and
     how it was given (for the report).
@@ -85,6 +89,10 @@ def base_position(
     Args:
         xyz: ECEF metres (``--base-xyz``).
         llh: latitude and longitude in degrees, ellipsoidal height in metres (``--base-llh``).
+        en: easting, northing and height in the projected CRS ``crs`` (``--base-en``,
+            ``--base-crs``): an EPSG code, or horizontal+vertical (``2157+5731``, Irish Grid
+            + Malin Head heights) for a height above the geoid, converted by PROJ with the
+            vertical CRS's geoid grid (refused when the grid is not installed).
         antenna_height_m: when given, ``xyz``/``llh`` is the ground mark and the antenna reference
             point is this far above it along the ellipsoid normal (a vertical tape measure).
         names: what the forms are called where they were given (:data:`BASE_OPTIONS`,
@@ -94,9 +102,16 @@ def base_position(
         ConfigError: both forms given, a latitude or longitude out of range, an antenna height
             that is not a plausible tripod (negative or over 100 m), or one without a position.
     """
-    if xyz is not None and llh is not None:
-        raise ConfigError(names["llh"], f"give the base as {names['xyz']} or {names['llh']}, "
-                          "not both")
+    given = [names[k] for k, v in (("xyz", xyz), ("llh", llh), ("en", en)) if v is not None]
+    if len(given) > 1:
+        raise ConfigError(given[1], f"give the base as one of {names['xyz']}, {names['llh']} "
+                          f"or {names['en']}, not {' and '.join(given)}")
+    if (en is None) != (crs is None):
+        raise ConfigError(names["en"] if en is None else names["crs"], (
+            f"{names['en']} E,N,H and {names['crs']} CODE go together (the CRS the easting, "
+            "northing and height are in)"))
+    if en is not None and crs is not None:
+        llh, crs_how = _from_crs(en, crs, names)
     if llh is not None:
         lat, lon, h = llh
         if not -90.0 <= lat <= 90.0 or not -180.0 <= lon <= 360.0:
@@ -106,8 +121,13 @@ def base_position(
         if abs(h) > 10_000.0:
             raise ConfigError(names["llh"], f"height {h:g} m: expected ellipsoidal metres")
         xyz = llh_to_ecef(lat, lon, h)
-    how = (f"given with {names['llh']} {lat:.9f},{lon:.9f},{h:.4f}" if llh is not None
-           else f"given with {names['xyz']}")
+    if en is not None:
+        how = (f"given with {names['en']} {en[0]:.4f},{en[1]:.4f},{en[2]:.4f} in EPSG:{crs} "
+               f"({crs_how}): WGS84 {lat:.9f},{lon:.9f},{h:.4f}")
+    elif llh is not None:
+        how = f"given with {names['llh']} {lat:.9f},{lon:.9f},{h:.4f}"
+    else:
+        how = f"given with {names['xyz']}"
     if antenna_height_m is None:
         return xyz, how
     if xyz is None:
@@ -120,6 +140,27 @@ def base_position(
     return enu_to_ecef((0.0, 0.0, antenna_height_m), xyz), (
         f"{how} for the ground mark, antenna reference point {antenna_height_m:.4f} m above it "
         f"({names['antenna']})")
+
+
+def _from_crs(en: tuple[float, float, float], crs: int | str, names: dict[str, str],
+              ) -> tuple[tuple[float, float, float], str]:
+    """WGS84 latitude, longitude and ellipsoidal height of a point given in a projected CRS,
+    and what its height was (for the report)."""
+    from groundstation.solve.outputs import Projector
+
+    try:
+        proj = Projector(crs)
+        if not proj.projected:
+            raise ConfigError("--epsg", (
+                f"EPSG:{crs} ({proj.name}) is not a projected CRS: give easting and northing "
+                f"in one, or latitude and longitude with {names['llh']}"))
+        llh = proj.to_wgs84(*en)
+    except ConfigError as err:  # named as the base's option
+        msg = err.message.split(", or give --geoid")[0]
+        if msg != err.message:
+            msg += ", or give an ellipsoidal height with the projected CRS alone"
+        raise ConfigError(names["crs"], msg) from err
+    return llh, f"{proj.name}; heights: {proj.height_datum}"
 
 
 def observation_times(path: Path) -> ObservationTimes:

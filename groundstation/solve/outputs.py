@@ -129,6 +129,36 @@ class Projector:
         lon, lat = self._inv.transform(np.asarray(x), np.asarray(y))[:2]
         return np.asarray(lat, dtype=np.float64), np.asarray(lon, dtype=np.float64)
 
+    def to_wgs84(self, x: float, y: float, h: float) -> tuple[float, float, float]:
+        """WGS84 (lat, lon, ellipsoidal h) of a point given in the target CRS: (x, y) as it
+        orders them (easting, northing for a projected CRS) and its height (above the geoid
+        when the CRS has a vertical part or ``geoid`` was given, else ellipsoidal): the exact
+        inverse of :meth:`forward` and :meth:`heights`.
+
+        Raises:
+            ConfigError: naming ``--epsg``/``--geoid``: PROJ cannot do it, or the geoid grid
+                does not cover the point.
+        """
+        from pyproj.enums import TransformDirection
+        from pyproj.exceptions import ProjError
+
+        try:
+            if self.vertical and self._geoid is None:
+                lon, lat, he = self._fwd.transform(x, y, h, direction=TransformDirection.INVERSE)
+            else:
+                lon, lat = self._inv.transform(x, y)[:2]
+                he = h
+                if self._geoid is not None:
+                    he = h + float(self._geoid.transform(lon, lat, 0.0)[2])
+        except ProjError as err:
+            raise ConfigError("--geoid" if self._geoid is not None else "--epsg", (
+                f"PROJ cannot convert {x:.3f}, {y:.3f}, {h:.3f}: {err}")) from err
+        out = (float(lat), float(lon), float(he))
+        if not all(np.isfinite(out)) or abs(out[2] - h) > 200.0:
+            raise ConfigError("--geoid" if self._geoid is not None else "--epsg", (
+                f"{x:.3f}, {y:.3f}, {h:.3f} is outside {self.name} (or its geoid grid)"))
+        return out
+
     def heights(self, lat_deg: FloatArray, lon_deg: FloatArray, h_m: FloatArray) -> FloatArray:
         """The heights to write for WGS84 (lat, lon, ellipsoidal h): h itself, or h less the
         geoid's height there.

@@ -94,6 +94,8 @@ class StationSolve:
     base: str | None = None
     base_ecef_m: tuple[float, float, float] | None = None
     base_llh: tuple[float, float, float] | None = None
+    base_en: tuple[float, float, float] | None = None
+    base_crs: int | str | None = None
     base_antenna_height_m: float | None = None
     base_given: str = "given with base_xyz"
     photos: str | None = None
@@ -161,12 +163,14 @@ def _station_solve(base: StationSolve, values: Mapping[str, Any], prefix: str,
         raise ConfigError(f"{prefix}base", "expected a non-empty path")
     base_station(out.base, f"{prefix}base", station)
     xyz, how = base_position(out.base_ecef_m, out.base_llh, out.base_antenna_height_m,
-                             {k: f"{prefix}{v}" for k, v in BASE_KEYS.items()})
+                             {k: f"{prefix}{v}" for k, v in BASE_KEYS.items()},
+                             en=out.base_en, crs=out.base_crs)
     if (out.base is None) != (xyz is None):
         missing = "base_xyz" if xyz is None else "base"
         raise ConfigError(f"{prefix}{missing}", "base and base_xyz (or base_llh) go together")
     # the antenna reference point from now on
-    return replace(out, base_ecef_m=xyz, base_llh=None, base_antenna_height_m=None,
+    return replace(out, base_ecef_m=xyz, base_llh=None, base_en=None, base_crs=None,
+                   base_antenna_height_m=None,
                    base_given=how)
 
 

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from grids import needs_egm96
 from once import DemoFlight
 from peers import cli_env
 
@@ -60,7 +61,7 @@ def test_a_ground_mark_and_an_antenna_height_give_the_antenna_point(antenna_m: f
 
 
 @pytest.mark.parametrize(("xyz", "llh", "ant", "key", "says"), [
-    (XYZ, (53.0, -9.0, 80.0), None, "--base-llh", "not both"),
+    (XYZ, (53.0, -9.0, 80.0), None, "--base-llh", "not --base-xyz and --base-llh"),
     (None, (253.0, -9.0, 80.0), None, "--base-llh", "latitude first"),
     (None, (53.0, -9.0, 3.8e6), None, "--base-llh", "ellipsoidal metres"),
     (None, None, 1.5, "--base-antenna-height", "needs the mark's position"),
@@ -72,6 +73,42 @@ def test_impossible_base_positions_are_refused_by_name(
     with pytest.raises(ConfigError) as err:
         base_position(xyz, llh, ant)
     assert err.value.key == key and says in err.value.message
+
+
+@pytest.mark.parametrize("crs", [
+    32629,
+    pytest.param("32629+5773", marks=needs_egm96),
+])
+def test_a_base_in_a_projected_crs_is_the_same_point(crs: int | str) -> None:
+    """Easting, northing and height (above the geoid with a vertical CRS) as a surveyor has
+    them give the antenna's ECEF position to well under a millimetre; the exports' own
+    projection is the forward direction."""
+    from groundstation.solve.outputs import Projector
+
+    lat, lon, h = ecef_to_llh(*XYZ)
+    p = Projector(crs)
+    e, n = p.forward(np.array([lat]), np.array([lon]))
+    height = float(p.heights(np.array([lat]), np.array([lon]), np.array([h]))[0])
+    if crs != 32629:
+        assert 50.0 < h - height < 65.0  # the geoid is about 57 m above the ellipsoid there
+    got, how = base_position(None, None, en=(float(e[0]), float(n[0]), height), crs=crs)
+    assert got is not None and math.dist(got, XYZ) < 1e-4
+    assert f"EPSG:{crs}" in how and f"WGS84 {lat:.9f}" in how
+
+
+@pytest.mark.parametrize(("kw", "key", "says"), [
+    ({"en": (501190.0, 5903719.0, 30.0)}, "--base-crs", "go together"),
+    ({"crs": 32629}, "--base-en", "go together"),
+    ({"en": (500000.0, 5.0e6, 10.0), "crs": 4326}, "--base-crs", "not a projected CRS"),
+    ({"en": (1e9, 1e9, 10.0), "crs": 32629}, "--base-crs", "outside WGS 84 / UTM zone 29N"),
+    ({"en": (501190.0, 5903719.0, 30.0), "crs": 32629, "xyz": XYZ}, "--base-en", "one of"),
+])
+def test_impossible_projected_bases_are_refused_by_name(
+        kw: dict[str, object], key: str, says: str) -> None:
+    xyz = kw.pop("xyz", None)
+    with pytest.raises(ConfigError) as err:
+        base_position(xyz, None, **kw)  # type: ignore[arg-type]
+    assert err.value.key == key and says in err.value.message, err.value
 
 
 def test_the_configuration_names_its_own_keys() -> None:

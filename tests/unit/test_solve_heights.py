@@ -15,10 +15,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from grids import needs_egm96
 
 from groundstation.config import SOLVER_STATION_KEYS, convert
 from groundstation.errors import ConfigError
-from groundstation.solve.outputs import ELLIPSOIDAL, SYSTEM_GRID_DIRS, Projector
+from groundstation.solve.outputs import ELLIPSOIDAL, Projector
 
 
 def _plane_geoid(path: Path) -> Path:
@@ -94,15 +95,7 @@ def test_compound_codes_are_read_from_the_configuration() -> None:
             convert(key, "epsg", bad, from_text=True)
 
 
-def _egm96_available() -> bool:
-    import pyproj
-
-    dirs = [*SYSTEM_GRID_DIRS, Path(pyproj.datadir.get_user_data_dir())]  # type: ignore[attr-defined]
-    return any((d / g).is_file() for d in dirs
-               for g in ("egm96_15.gtx", "us_nga_egm96_15.tif"))
-
-
-@pytest.mark.skipif(not _egm96_available(), reason="no EGM96 grid (apt install proj-data)")
+@needs_egm96
 @pytest.mark.parametrize("epsg", [9707, "32629+5773"])
 def test_egm96_heights_equal_pyprojs_with_the_same_grid(epsg: int | str) -> None:
     from pyproj import Transformer
