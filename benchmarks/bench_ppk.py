@@ -368,10 +368,12 @@ def _judge(res: Any, ref_xyz: FloatArray, ref_fixed: npt.NDArray[np.bool_],
     }
 
 
-def _solve(rover: Path, base: Path, base_xyz: tuple[float, float, float], out: Path) -> Any:
+def _solve(rover: Path, base: Path, base_xyz: tuple[float, float, float], out: Path,
+           rtk_options: tuple[tuple[str, str], ...] = ()) -> Any:
     from groundstation.solve.pipeline import SolveSettings, solve
 
-    return solve(SolveSettings(flight=rover, out_dir=out, base=base, base_ecef_m=base_xyz))
+    return solve(SolveSettings(flight=rover, out_dir=out, base=base, base_ecef_m=base_xyz,
+                               rtk_options=rtk_options))
 
 
 def sweep_sim(work: Path, seed: int, severity: float) -> dict[str, Any]:
@@ -404,13 +406,18 @@ def sweep_sim(work: Path, seed: int, severity: float) -> dict[str, Any]:
 
 
 def _reference(work: Path, day: str, rover: str, base: str,
-               base_xyz: tuple[float, float, float]) -> tuple[dict[int, Any], Path, Path]:
+               base_xyz: tuple[float, float, float], gps_only: bool = False,
+               ) -> tuple[dict[int, Any], Path, Path]:
     """The untouched recording's fixed solution (the engine's own combined one, as the issue
     counts it: 496 fixed camera positions on 2018-10-09): the antenna per mark number, at the
-    marks where its two bracketing epochs are fixed."""
+    marks where its two bracketing epochs are fixed. ``gps_only``: the same recording solved
+    with GPS alone (``pos1-navsys=1``), what a LEA-6T sees of the same sky (the u-blox 8
+    recordings track GLONASS too): the share a GPS L1 receiver could reach at best."""
     src = SHARED / "real" / "jdesbonnet__GNSS_RTK_data" / day
-    res = _solve(src / f"{rover}.ubx.gz", src / f"{base}.ubx.gz", base_xyz, work / "reference")
-    engine_traj = read_pos(work / "reference" / "rtklib" / "rover.pos")
+    out = work / ("reference-gps" if gps_only else "reference")
+    res = _solve(src / f"{rover}.ubx.gz", src / f"{base}.ubx.gz", base_xyz, out,
+                 (("pos1-navsys", "1"),) if gps_only else ())
+    engine_traj = read_pos(out / "rtklib" / "rover.pos")
     times = [mi.mark_time_ns(m.falling_t_gps_ns, m.rising_t_gps_ns, "falling")
              for m in res.marks]
     mp = mi.interpolate(engine_traj, times, "linear")
@@ -432,6 +439,7 @@ def sweep_real(work: Path, name: str, fault_seeds: list[int]) -> list[dict[str, 
         return [{"flight": name, "error": "../shared/data absent"}]
     work.mkdir(parents=True, exist_ok=True)
     ref, rover_src, base_src = _reference(work, day, rover, base, base_xyz)
+    ref_gps, _, _ = _reference(work, day, rover, base, base_xyz, gps_only=True)
     base_lea = work / "base.ubx"
     base_lea.write_bytes(rewrite(base_src, RewriteConfig()).data)
     rows = []
@@ -442,7 +450,8 @@ def sweep_real(work: Path, name: str, fault_seeds: list[int]) -> list[dict[str, 
         t0 = time.perf_counter()
         row: dict[str, Any] = {"flight": f"{name} as LEA-6T", "seed": seed,
                                "faults": "seed link" if seed else "none",
-                               "reference_fixed": len(ref)}
+                               "reference_fixed": len(ref),
+                               "reference_gps_fixed": len(ref_gps)}
         try:
             res = _solve(rv, base_lea, base_xyz, work / f"out-{seed}")
         except Exception as err:
@@ -453,6 +462,7 @@ def sweep_real(work: Path, name: str, fault_seeds: list[int]) -> list[dict[str, 
         has = np.all(np.isfinite(refx), axis=1)
         row.update(_judge(res, refx, has, t0))
         row["fixed_of_reference"] = round(row["fixed"] / max(len(ref), 1), 4)
+        row["fixed_of_gps_reference"] = round(row["fixed"] / max(len(ref_gps), 1), 4)
         rows.append(row)
     return rows
 
@@ -475,7 +485,11 @@ def _summary(rows: list[dict[str, Any]]) -> None:
         share = "fixed_of_reference" if "fixed_of_reference" in ok[0] else "fixed_share"
 
         wrong = [r["wrong"] for r in ok]
-        print(f"| {key} | {len(rs)} | {len(rs) - len(ok)} | {_mmm(ok, share)} | {sum(wrong)}, "
+        fixed = _mmm(ok, share)
+        if "fixed_of_gps_reference" in ok[0]:
+            fixed += (f" (of the {ok[0]['reference_gps_fixed']} of GPS alone: "
+                      f"{_mmm(ok, 'fixed_of_gps_reference')})")
+        print(f"| {key} | {len(rs)} | {len(rs) - len(ok)} | {fixed} | {sum(wrong)}, "
               f"{max(wrong)} | {max(r['worst_fixed_m'] for r in ok):.3f} m | "
               f"{_mmm(ok, 'beyond_share')} | {_mmm(ok, 'wall_s', False)} |")
 
