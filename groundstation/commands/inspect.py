@@ -4,9 +4,12 @@ from __future__ import annotations
 
 import argparse
 import sys
+from dataclasses import replace
+from pathlib import Path
 
 from groundstation import gpstime
 from groundstation.offline.inspect import Summary, inspect_path, require_ubx_frames
+from groundstation.offline.merge import one_recording
 
 NAME = "inspect"
 HELP = "summary of a recording: span, epochs, gaps, marks, satellites"
@@ -14,7 +17,10 @@ MAX_GAPS_SHOWN = 20
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("path", help="recording: .ubx, .ubx.gz, raw log or .mcap")
+    parser.add_argument("path", nargs="+", metavar="RECORDING",
+                        help="recording: .ubx, .ubx.gz, raw log or .mcap; several copies of "
+                        "one receiver's recording (the radio link's and an on-board log) are "
+                        "inspected as merged frame by frame")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     parser.add_argument(
         "--max-payload", type=int, default=8192, metavar="BYTES",
@@ -23,15 +29,26 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    # No UBX frame at all: an error (exit 2), not an all-zero report that reads like a result.
-    require_ubx_frames(args.path, max_payload=args.max_payload)
-    summary = inspect_path(args.path, max_payload=args.max_payload)
+    paths = [Path(p) for p in args.path]
+    if len(paths) == 1:
+        # No UBX frame at all: an error (exit 2), not an all-zero report that reads like a
+        # result.
+        require_ubx_frames(paths[0], max_payload=args.max_payload)
+    with one_recording(paths) as (source, merged):
+        summary = inspect_path(source, max_payload=args.max_payload)
+    if merged is not None:  # the copies' names, not the temporary file's
+        summary = replace(summary, path=" + ".join(str(p) for p in paths) + " (merged)")
     if args.json:
         from groundstation import jsonio  # msgspec only for --json (start-up time of inspect)
 
-        sys.stdout.write(jsonio.dumps(summary.as_json(), indent=2).decode())
+        obj = summary.as_json()
+        if merged is not None:
+            obj["merged_from"] = merged.text()
+        sys.stdout.write(jsonio.dumps(obj, indent=2).decode())
         sys.stdout.write("\n")
     else:
+        if merged is not None:
+            sys.stdout.write(merged.text() + "\n")
         sys.stdout.write(format_summary(summary))
     return 0
 

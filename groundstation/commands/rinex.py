@@ -10,6 +10,7 @@ from pathlib import Path
 
 from groundstation.errors import ConfigError
 from groundstation.offline import rinex
+from groundstation.offline.merge import one_recording
 from groundstation.outpaths import check_output_dir, existing_outputs, make_output_dir
 from groundstation.rules.marks import MARK_EDGES
 from groundstation.storage.reading import Recording
@@ -21,7 +22,10 @@ PROGRESS_MIN_BYTES = 4 << 20
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("input", help="recording: .ubx, .ubx.gz, raw log or .mcap")
+    parser.add_argument("input", nargs="+", metavar="RECORDING",
+                        help="recording: .ubx, .ubx.gz, raw log or .mcap; several copies of "
+                        "one receiver's recording (the radio link's and an on-board log) are "
+                        "merged frame by frame first")
     parser.add_argument("-o", "--out-dir", required=True, metavar="DIR", help="output directory")
     parser.add_argument(
         "--rinex", choices=rinex.RINEX_VERSIONS, default="3.04", help="RINEX version"
@@ -77,32 +81,41 @@ def run(args: argparse.Namespace) -> int:
         shutter_delay_ns=round(args.shutter_delay_ms * 1e6),
         marker=args.marker,
     )
-    recording = Recording(args.input)  # a missing, non-regular or unreadable input: one line
-    stem = Path(args.input).name
+    inputs = [Path(p) for p in args.input]
+    # a missing, non-regular or unreadable input: one line
+    recordings = [Recording(p) for p in inputs]
+    stem = inputs[0].name
     for suffix in (".gz", ".ubx", ".mcap", ".log"):  # rinex.convert's names
         stem = stem.removesuffix(suffix)
+    if len(inputs) > 1:
+        stem = f"{inputs[0].name.split('.')[0]}_merged"  # merge.one_recording's name
     writes = (f"{stem}.obs", f"{stem}.nav", f"{stem}.marks.csv")
-    check_output_dir(Path(args.out_dir), recording.parts, key="--out-dir", writes=writes)
+    check_output_dir(Path(args.out_dir), [q for r in recordings for q in r.parts],
+                     key="--out-dir", writes=writes)
     replaced = existing_outputs(Path(args.out_dir), writes)
     if replaced:  # an earlier conversion (another RINEX version, another edge): not silently
         print(f"rinex: replacing the earlier {', '.join(replaced)} in {args.out_dir}",
               file=sys.stderr)
     show = args.progress == "always"
     if args.progress == "auto":
-        show = recording.size_bytes >= PROGRESS_MIN_BYTES and sys.stderr.isatty()
+        show = (sum(r.size_bytes for r in recordings) >= PROGRESS_MIN_BYTES
+                and sys.stderr.isatty())
     out = Path(args.out_dir)
-    created = make_output_dir(out, "--out-dir")
     prog = _Progress() if show else None
-    try:
-        res = rinex.convert(args.input, args.out_dir, opts, prog)
-    except BaseException:
-        if created:  # nothing of a failed run is left behind
-            with contextlib.suppress(OSError):
-                out.rmdir()  # only if empty
-        raise
-    finally:
-        if prog is not None:
-            prog.done()
+    with one_recording(inputs) as (source, merged):
+        created = make_output_dir(out, "--out-dir")
+        try:
+            res = rinex.convert(source, args.out_dir, opts, prog)
+        except BaseException:
+            if created:  # nothing of a failed run is left behind
+                with contextlib.suppress(OSError):
+                    out.rmdir()  # only if empty
+            raise
+        finally:
+            if prog is not None:
+                prog.done()
+    if merged is not None:
+        print(merged.text())
     if res.obs_written:
         print(f"{res.obs_path}: {res.epochs} epochs ({res.source}), {res.events} event epochs")
     names = {"R": "GLONASS", "E": "Galileo", "C": "BeiDou"}

@@ -12,8 +12,10 @@ first epoch come first. What each copy supplied is counted for the report.
 
 from __future__ import annotations
 
+import contextlib
 import struct
-from collections.abc import Sequence
+import tempfile
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -116,3 +118,25 @@ def merge(paths: Sequence[Path], out: Path) -> MergeReport:
             if t != _BEFORE:
                 report.epochs += 1
     return report
+
+
+@contextlib.contextmanager
+def one_recording(paths: Sequence[Path]) -> Iterator[tuple[Path, MergeReport | None]]:
+    """The receiver's recording for a command given one or more copies of it: the one path
+    itself (no report), or the copies merged (:func:`merge`) into a temporary ``.ubx`` named
+    after the first (``rover_merged.ubx``), removed on leaving. Each copy must hold UBX
+    frames (the same one-line error as for one recording).
+
+    Raises:
+        InputError: a copy is missing, unreadable or holds no UBX frame; none has an epoch.
+    """
+    from groundstation.offline.inspect import require_ubx_frames
+
+    if len(paths) == 1:
+        yield paths[0], None
+        return
+    for p in paths:
+        require_ubx_frames(p)
+    with tempfile.TemporaryDirectory(prefix="groundstation-merge-") as tmp:
+        out = Path(tmp) / f"{paths[0].name.split('.')[0]}_merged.ubx"
+        yield out, merge(paths, out)

@@ -353,17 +353,12 @@ def solve(settings: SolveSettings, progress: Progress | None = None) -> SolveRes
 def _solve_merged(settings: SolveSettings, progress: Progress | None) -> SolveResult:
     """Several recordings of the flight's receiver (the radio's and an on-board log): merged
     frame by frame (:mod:`groundstation.offline.merge`) into one, solved as the flight."""
-    import tempfile
-
-    from groundstation.offline.merge import merge
+    from groundstation.offline.merge import one_recording
 
     copies = (settings.flight, *settings.flight_copies)
     outputs.check_output_dir(settings.out_dir, copies)
-    for p in copies:
-        require_ubx_frames(p)
-    with tempfile.TemporaryDirectory(prefix="groundstation-merge-") as tmp:
-        merged = Path(tmp) / f"{settings.flight.name.split('.')[0]}_merged.ubx"
-        report = merge(copies, merged)
+    with one_recording(copies) as (merged, report):
+        assert report is not None
         log.info("%s", report.text())
         return solve(replace(settings, flight=merged, flight_copies=(),
                              merged_from=report.text()), progress)

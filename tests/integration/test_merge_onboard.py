@@ -76,3 +76,30 @@ def test_the_solve_from_the_merge_equals_the_solve_from_the_onboard_log(
     # the merge's note, in the report too
     assert "merged 2 recordings" in (d / "merged" / "report.html").read_text()
     json.dumps(flight["truth"]["exposures"][0])  # the truth is at hand for a reader
+
+
+def test_inspect_and_rinex_take_the_copies_merged(flight: dict[str, Any]) -> None:
+    """``inspect`` and ``rinex`` with both copies see the on-board log's epochs and marks, and
+    say what each copy supplied."""
+    d = flight["dir"]
+    got = {}
+    for name, flights in {"onboard": ["onboard.ubx"], "merged": ["radio.ubx", "onboard.ubx"]
+                          }.items():
+        proc = cli_without_rtklib("inspect", *flights, "--json", cwd=d)
+        assert proc.returncode == 0, proc.stderr
+        got[name] = json.loads(proc.stdout)
+    assert got["merged"]["epochs"] == got["onboard"]["epochs"]
+    assert got["merged"]["timemarks"] == got["onboard"]["timemarks"]
+    assert got["merged"]["merged_from"].startswith("merged 2 recordings of the receiver")
+    text = cli_without_rtklib("inspect", "radio.ubx", "onboard.ubx", cwd=d).stdout
+    assert "radio.ubx + onboard.ubx (merged)" in text and "groundstation-merge-" not in text
+    for name, flights in {"onboard": ["onboard.ubx"], "merged": ["radio.ubx", "onboard.ubx"]
+                          }.items():
+        proc = cli_without_rtklib("rinex", *flights, "--out-dir", f"rinex-{name}", cwd=d)
+        assert proc.returncode == 0, proc.stderr
+        got[name] = proc.stdout
+    assert "radio_merged.obs" in got["merged"] and "merged 2 recordings" in got["merged"]
+    epochs = [ln.split(": ")[1].split(" epochs")[0] for run in (got["onboard"], got["merged"])
+              for ln in run.splitlines() if ".obs: " in ln]
+    assert epochs[0] == epochs[1], epochs
+    assert (d / "rinex-merged" / "radio_merged.obs").is_file()
