@@ -23,7 +23,7 @@ from groundstation.geodesy import enu_rotation, llh_to_ecef
 from groundstation.solve import interpolate as ip
 from groundstation.solve import photos
 from groundstation.solve.photosim import photo_scenario
-from groundstation.solve.positions import Trajectory, make_trajectory
+from groundstation.solve.trajectory import Trajectory, make_trajectory
 
 FloatArray = npt.NDArray[np.float64]
 T0 = 2022 * 604_800 * 10**9

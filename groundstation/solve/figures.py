@@ -33,7 +33,7 @@ from matplotlib.patches import Patch, Rectangle  # noqa: E402
 from matplotlib.ticker import FuncFormatter  # noqa: E402
 
 from groundstation import gpstime  # noqa: E402
-from groundstation.solve.positions import QUALITY_NAMES  # noqa: E402
+from groundstation.solve.trajectory import QUALITY_NAMES  # noqa: E402
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]

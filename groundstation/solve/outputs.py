@@ -25,7 +25,7 @@ import numpy.typing as npt
 from groundstation import gpstime, jsonio, outpaths
 from groundstation.errors import ConfigError, InputError
 from groundstation.solve.interpolate import flag_names
-from groundstation.solve.positions import QUALITY_NAMES
+from groundstation.solve.trajectory import QUALITY_NAMES
 
 FloatArray = npt.NDArray[np.float64]
 

@@ -32,11 +32,12 @@ from groundstation.offline.inspect import require_ubx_frames
 from groundstation.records import Frame, NavSolution, TimeMark
 from groundstation.rules.epochs import find_gaps, nominal_interval_ns
 from groundstation.rules.marks import LOST_ON_LINK, Mark, build_marks, lost_by_cause, lost_cause
-from groundstation.solve import camclock, leverarm, outputs, photos, positions, report
+from groundstation.solve import camclock, leverarm, outputs, photos, posfile, positions, report
 from groundstation.solve import interpolate as mi
 from groundstation.solve.base import base_from_own_fixes, check_distance, check_pairing
 from groundstation.solve.engine import DEFAULT_ENGINE, is_rinex_obs_name
 from groundstation.solve.integrity import grade as gr
+from groundstation.solve.trajectory import Q_FIX, Trajectory
 from groundstation.storage.reading import Recording, check_regular
 from groundstation.ubx.decode import (
     NAV_POSLLH,
@@ -150,7 +151,7 @@ class SolveResult:
     rows: tuple[outputs.CameraRow, ...]
     marks: tuple[Mark, ...]
     mark_positions: mi.MarkPositions
-    trajectory: positions.Trajectory
+    trajectory: Trajectory
     match: photos.MatchResult | None
     lever: leverarm.LeverArmEstimate | None
     files: tuple[Path, ...]
@@ -165,7 +166,7 @@ class SolveResult:
             "marks": len(self.marks),
             "marks_positioned": mp.positioned,
             "marks_in_gap": int(np.sum((mp.flags & mi.FLAG_GAP) != 0)),
-            "marks_fixed": int(np.sum(mp.quality == positions.Q_FIX)),
+            "marks_fixed": int(np.sum(mp.quality == Q_FIX)),
             "marks_by_grade": {name: int(np.sum(mp.grade == code))
                                for code, name in gr.GRADE_NAMES.items()
                                if np.any(mp.grade == code)},
@@ -262,7 +263,7 @@ def _validate(s: SolveSettings) -> tuple[SolveSettings, BaseCheck | None, Flight
     # flight or the base gets inspect's verdict, not a later "no camera marks" or half a run.
     require_ubx_frames(s.flight)
     if s.positions is not None:
-        positions.check_pos_file(s.positions)
+        posfile.check_pos_file(s.positions)
     if s.base is not None:
         if is_rinex_obs_name(s.base):
             _require_rinex_obs(s.base)
@@ -338,7 +339,7 @@ def solve(settings: SolveSettings, progress: Progress | None = None) -> SolveRes
     Raises:
         ConfigError: inconsistent settings (names the option).
         InputError: unreadable inputs, no marks, no epochs.
-        positions.ToolMissingError: the RTKLIB engine was chosen and rnx2rtkp is missing.
+        engine.protocol.ToolMissingError: the RTKLIB engine was chosen and rnx2rtkp is missing.
         positions.NoSolutionError: the engine positioned no epoch.
         NothingPositionedError: no mark was positioned (nothing is written).
     """
@@ -378,7 +379,7 @@ def _relocated(r: SolveResult, stage: Path, out_dir: Path) -> SolveResult:
     return replace(r, files=files, notes=notes, trajectory=_traj_unstaged(r.trajectory, stage))
 
 
-def _traj_unstaged(traj: positions.Trajectory, stage: Path) -> positions.Trajectory:
+def _traj_unstaged(traj: Trajectory, stage: Path) -> Trajectory:
     """The trajectory with its notes naming the final place of the staging folder's files."""
     return replace(traj, notes=tuple(outpaths.unstaged(n, stage) for n in traj.notes))
 
@@ -434,7 +435,7 @@ def _solve(s: SolveSettings, progress: Progress | None,
 
 
 def _clock_photos(
-    s: SolveSettings, traj: positions.Trajectory, marks: tuple[Mark, ...],
+    s: SolveSettings, traj: Trajectory, marks: tuple[Mark, ...],
     times: list[int | None], match: photos.MatchResult | None, notes: list[str],
 ) -> tuple[camclock.ClockPositions | None, dict[int, int]]:
     """Stage 4b: the photos without a received mark, positioned at their own time through the
@@ -469,7 +470,7 @@ def _clock_photos(
     return by_clock, numbers
 
 
-def _why_nothing(s: SolveSettings, traj: positions.Trajectory, marks: tuple[Mark, ...],
+def _why_nothing(s: SolveSettings, traj: Trajectory, marks: tuple[Mark, ...],
                  times: list[int | None]) -> str:
     """Why no mark was positioned, in one line: the time spans when they do not overlap."""
     head = f"no camera position computed ({len(marks)} marks, 0 positioned)"
@@ -504,7 +505,7 @@ def _marks(s: SolveSettings, progress: Progress | None, rec: FlightRecords | Non
 
 def _positions(
     s: SolveSettings, rec: FlightRecords, notes: list[str], progress: Progress | None
-) -> positions.Trajectory:
+) -> Trajectory:
     """Stage 2: the antenna's trajectory from the chosen position source (a .pos file, RTKLIB
     against the base, or the receiver's own fix). An engine run has stages of its own
     (``engine.run_engine``): RINEX and phase conditioning, "dynamics" (a forward pass measures
@@ -528,7 +529,7 @@ def _positions(
 
 
 def _positions_at_marks(
-    s: SolveSettings, traj: positions.Trajectory, marks: tuple[Mark, ...], notes: list[str],
+    s: SolveSettings, traj: Trajectory, marks: tuple[Mark, ...], notes: list[str],
     progress: Progress | None,
 ) -> tuple[list[int | None], mi.MarkPositions]:
     """Stage 3: each mark's exposure time (edge and shutter delay) and the antenna there."""
@@ -581,7 +582,7 @@ class _Cameras:
     lever: leverarm.LeverArmEstimate | None
 
     def output(
-        self, traj: positions.Trajectory, mp: mi.MarkPositions, notes: list[str],
+        self, traj: Trajectory, mp: mi.MarkPositions, notes: list[str],
         base_sd_enu_m: tuple[float, float, float] | None = None,
     ) -> outputs.SolveOutput:
         return outputs.SolveOutput(
@@ -687,7 +688,7 @@ def _lever_arm(
 
 def _cameras(
     s: SolveSettings, marks: tuple[Mark, ...], mp: mi.MarkPositions,
-    traj: positions.Trajectory, photo_list: list[photos.Photo],
+    traj: Trajectory, photo_list: list[photos.Photo],
     match: photos.MatchResult | None, notes: list[str],
     by_clock: camclock.ClockPositions | None = None, numbers: dict[int, int] | None = None,
 ) -> _Cameras:
@@ -758,7 +759,7 @@ def _cameras(
 
 
 def _report(
-    s: SolveSettings, traj: positions.Trajectory, marks: tuple[Mark, ...],
+    s: SolveSettings, traj: Trajectory, marks: tuple[Mark, ...],
     mp: mi.MarkPositions, photo_list: list[photos.Photo], match: photos.MatchResult | None,
     cams: _Cameras, notes: list[str], base_check_made: BaseCheck | None,
     lost: report.LostMarks, not_counted: int,
@@ -768,7 +769,7 @@ def _report(
     proj, traj_llh = cams.proj, cams.traj_llh
     rows, epsg, lever_est = cams.rows, cams.epsg, cams.lever
     te, tn = proj.forward(traj_llh[:, 0], traj_llh[:, 1])
-    engine, version, engine_opts = report.engine_of(traj, dict(s.rtk_options), s.positions)
+    engine, version, engine_opts = positions.engine_of(traj, dict(s.rtk_options), s.positions)
     base_check, base_doubtful = base_check_made or report.check_base(
         s.base, s.base_ecef_m, traj, s.positions, s.base_given)
     if base_doubtful:
@@ -783,7 +784,7 @@ def _report(
         flight=s.flight.name, engine_name=engine, engine_version=version,
         engine_options=engine_opts, position_source=f"{traj.source}: {len(traj)} epochs",
         base_name=s.base.name if s.base else None,
-        base_ecef_m=s.base_ecef_m or report.pos_header(s.positions).ref_ecef_m,
+        base_ecef_m=s.base_ecef_m or posfile.pos_header(s.positions).ref_ecef_m,
         base_check=base_check, base_doubtful=base_doubtful, base_sd_enu_m=s.base_sd_enu_m,
         epsg=epsg, crs_name=proj.name,
         projected=proj.projected, height_datum=proj.height_datum, lever_arm_m=s.lever_arm_m,
@@ -808,9 +809,9 @@ def _report(
         lever_residual_m=lever_est.residual_m if lever_est else np.zeros(0),
         lever_outlier=lever_est.outlier if lever_est else np.zeros(0, bool),
         metre_level=traj.metre_level, notes=tuple(notes),
-        integrity=(report.engine_info(traj) or {}).get("integrity"),
+        integrity=(positions.engine_info(traj) or {}).get("integrity"),
     )
-    cond = report.conditioning_of(traj)
+    cond = positions.conditioning_of(traj)
     if cond is not None:  # the receiver's flags plus the slips hidden in radio gaps
         data = replace(data, slips_found=cond[0], slips_repaired=cond[1])
     elif data.satellites is not None:

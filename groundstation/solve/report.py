@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from groundstation import gpstime, jsonio
+from groundstation import gpstime
 from groundstation.errors import ConfigError, GroundstationError
 from groundstation.rules.marks import (
     LOST_CAUSE_TEXT,
@@ -38,12 +38,12 @@ from groundstation.rules.marks import (
     NOT_COUNTED_TEXT,
     numbers_text,
 )
-from groundstation.solve import figures, photos
+from groundstation.solve import figures, photos, posfile
 from groundstation.solve.figures import QUALITY_COLOURS, Span
 from groundstation.solve.integrity.grade import GRADE_MEANING, GRADE_NAMES
 from groundstation.solve.interpolate import FLAG_CAMERA_CLOCK, FLAG_GAP, flag_names
 from groundstation.solve.outputs import CameraRow
-from groundstation.solve.positions import (
+from groundstation.solve.trajectory import (
     Q_DGPS,
     Q_FIX,
     Q_FLOAT,
@@ -946,92 +946,6 @@ def station_events(path: Path) -> tuple[tuple[Span, ...], tuple[Span, ...], bool
     return tuple(gaps), outages, True
 
 
-@dataclass(frozen=True, slots=True)
-class PosHeader:
-    """What an imported RTKLIB ``.pos`` file says about itself."""
-
-    program: str = ""
-    ref_ecef_m: tuple[float, float, float] | None = None
-    lines: tuple[str, ...] = ()
-
-
-def pos_header(path: Path | None) -> PosHeader:
-    """The ``%`` header of a ``.pos`` file (plain or gzip); empty when none or unreadable."""
-    import gzip
-
-    from groundstation.solve.positions import _layout_from_header
-
-    if path is None:
-        return PosHeader()
-    lines: list[str] = []
-    try:
-        opener = gzip.open if path.suffix == ".gz" else open
-        with opener(path, "rt", encoding="ascii", errors="replace") as f:
-            for line in f:
-                if not line.startswith("%"):
-                    break
-                lines.append(line.rstrip("\n"))
-    except OSError:
-        return PosHeader()
-    program = ""
-    for line in lines:
-        body = line.lstrip("%").strip()
-        if body.startswith("program"):
-            program = body.split(":", 1)[-1].strip()
-    return PosHeader(program, _layout_from_header(lines, None).ref_ecef_m, tuple(lines))
-
-
-_ENGINE_INFO_NOTE = "engine options in "
-"""How the engine names its info file (engine, version, full option set) in the notes."""
-
-
-def engine_info(traj: Trajectory) -> dict[str, Any] | None:
-    """The ``engine.json`` of the engine run that made the trajectory, if any."""
-    info_path = next((Path(n.removeprefix(_ENGINE_INFO_NOTE)) for n in traj.notes
-                      if n.startswith(_ENGINE_INFO_NOTE)), None)
-    if info_path is None:
-        return None
-    try:
-        info = jsonio.loads(info_path.read_bytes())
-    except (OSError, ValueError):
-        return None
-    return info if isinstance(info, dict) else None
-
-
-def conditioning_of(traj: Trajectory) -> tuple[int, int, int] | None:
-    """(slips found, repaired, flagged) by the phase conditioning before the engine; None when
-    it did not run (an imported solution, a RINEX or RXM-RAWX rover)."""
-    info = engine_info(traj)
-    cond = info.get("conditioning") if info else None
-    if not isinstance(cond, dict) or not cond.get("applied"):
-        return None
-    tot = cond.get("totals") or {}
-    found = int(tot.get("receiver_slips", 0)) + int(tot.get("hidden_found", 0))
-    return found, int(tot.get("repaired", 0)), int(tot.get("flagged", 0))
-
-
-def engine_of(
-    traj: Trajectory, rtklib_overrides: dict[str, str], positions_file: Path | None
-) -> tuple[str, str, dict[str, str]]:
-    """Name, version and options of the engine that made the trajectory.
-
-    A solution our engine made carries its ``engine.json`` (engine, version, every option); an
-    imported ``.pos`` states its program in its header; ``rtklib_overrides`` is kept for callers
-    that imported a solution made with known options.
-    """
-    info = engine_info(traj)
-    if info is not None:
-        opts = {str(k): str(v) for k, v in dict(info.get("options") or {}).items()}
-        return str(info.get("engine", traj.source)), str(info.get("version", "")), opts
-    if traj.metre_level:
-        return "receiver's own fix", "", {}
-    head = pos_header(positions_file)
-    if head.program:
-        name, _, version = head.program.partition(" ")
-        return name, f"{version} (from the header of {traj.source})".strip(), dict(rtklib_overrides)
-    return f"imported solution file ({traj.source})", "", dict(rtklib_overrides)
-
-
 def check_base(
     base: Path | None,
     base_ecef_m: tuple[float, float, float] | None,
@@ -1053,7 +967,7 @@ def check_base(
     if base_ecef_m is None:
         if traj is not None and traj.metre_level:
             return "no base (receiver's own fix)", False
-        ref = pos_header(positions_file).ref_ecef_m
+        ref = posfile.pos_header(positions_file).ref_ecef_m
         if ref is not None:
             return ("reference position from the header of the imported solution; not checked "
                     "against a base recording"), False

@@ -16,7 +16,7 @@ from groundstation.cli import main
 from groundstation.solve import interpolate as ip
 from groundstation.solve import photos, pipeline
 from groundstation.solve.engine import run_engine
-from groundstation.solve.positions import read_pos
+from groundstation.solve.posfile import read_pos
 
 pytestmark = pytest.mark.shared_data
 
