@@ -549,7 +549,7 @@ def write_exif_copies(
     Raises:
         ConfigError: ``out_dir`` is the photo directory or inside it.
     """
-    from groundstation.solve.photos import write_gps_copy
+    from groundstation.solve.exif import write_gps_copy
 
     check_output_dir(out_dir, [photo_dir])
     out_dir.mkdir(parents=True, exist_ok=True)

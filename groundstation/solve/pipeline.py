@@ -32,7 +32,17 @@ from groundstation.offline.inspect import require_ubx_frames
 from groundstation.records import Frame, NavSolution, TimeMark
 from groundstation.rules.epochs import find_gaps, nominal_interval_ns
 from groundstation.rules.marks import LOST_ON_LINK, Mark, build_marks, lost_by_cause, lost_cause
-from groundstation.solve import camclock, leverarm, outputs, photos, posfile, positions, report
+from groundstation.solve import (
+    camclock,
+    clockoffset,
+    exif,
+    leverarm,
+    outputs,
+    photos,
+    posfile,
+    positions,
+    report,
+)
 from groundstation.solve import interpolate as mi
 from groundstation.solve.base import base_from_own_fixes, check_distance, check_pairing
 from groundstation.solve.engine import DEFAULT_ENGINE, is_rinex_obs_name
@@ -272,7 +282,7 @@ def _validate(s: SolveSettings) -> tuple[SolveSettings, BaseCheck | None, Flight
     if s.photos is not None:  # photos of another flight: said now, not after the engine
         marks = build_marks(flight().timemarks)
         times = _mark_times(s, marks)
-        photos.check_belongs(photos.match(photos.photo_times(photos.scan_photos(s.photos)),
+        photos.check_belongs(photos.match(clockoffset.photo_times(exif.scan_photos(s.photos)),
                                           times), times)
     own = s.base is not None and s.base_ecef_m is None and s.positions is None
     if own and s.base is not None:
@@ -555,14 +565,14 @@ def _mark_times(s: SolveSettings, marks: Sequence[Mark]) -> list[int | None]:
 
 def _photos(
     s: SolveSettings, times: list[int | None], progress: Progress | None
-) -> tuple[list[photos.Photo], photos.MatchResult | None, list[str]]:
+) -> tuple[list[exif.Photo], photos.MatchResult | None, list[str]]:
     """Stage 4: the photos, paired with the marks by time (none without ``--photos``)."""
     if s.photos is None:
         return [], None, []
-    photo_list = photos.scan_photos(s.photos)
+    photo_list = exif.scan_photos(s.photos)
     if progress is not None:
         progress("photos", 0.5)
-    match = photos.match(photos.photo_times(photo_list), times)
+    match = photos.match(clockoffset.photo_times(photo_list), times)
     recon = photos.reconciliation_lines(match, photo_list, times)
     if progress is not None:
         progress("photos", 1.0)
@@ -595,7 +605,7 @@ class _Cameras:
 
 
 def _row_entries(
-    n_marks: int, photo_list: list[photos.Photo], match: photos.MatchResult | None
+    n_marks: int, photo_list: list[exif.Photo], match: photos.MatchResult | None
 ) -> list[tuple[str, int]]:
     """Which marks become rows: photos (paired or not), then orphan marks; or every mark."""
     if match is None:
@@ -688,7 +698,7 @@ def _lever_arm(
 
 def _cameras(
     s: SolveSettings, marks: tuple[Mark, ...], mp: mi.MarkPositions,
-    traj: Trajectory, photo_list: list[photos.Photo],
+    traj: Trajectory, photo_list: list[exif.Photo],
     match: photos.MatchResult | None, notes: list[str],
     by_clock: camclock.ClockPositions | None = None, numbers: dict[int, int] | None = None,
 ) -> _Cameras:
@@ -760,7 +770,7 @@ def _cameras(
 
 def _report(
     s: SolveSettings, traj: Trajectory, marks: tuple[Mark, ...],
-    mp: mi.MarkPositions, photo_list: list[photos.Photo], match: photos.MatchResult | None,
+    mp: mi.MarkPositions, photo_list: list[exif.Photo], match: photos.MatchResult | None,
     cams: _Cameras, notes: list[str], base_check_made: BaseCheck | None,
     lost: report.LostMarks, not_counted: int,
 ) -> tuple[list[Path], list[str]]:

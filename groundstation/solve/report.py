@@ -38,7 +38,7 @@ from groundstation.rules.marks import (
     NOT_COUNTED_TEXT,
     numbers_text,
 )
-from groundstation.solve import figures, photos, posfile
+from groundstation.solve import clockoffset, figures, posfile
 from groundstation.solve.figures import QUALITY_COLOURS, Span
 from groundstation.solve.integrity.grade import GRADE_MEANING, GRADE_NAMES
 from groundstation.solve.interpolate import FLAG_CAMERA_CLOCK, FLAG_GAP, flag_names
@@ -456,7 +456,7 @@ def _summary(inp: ReportInput) -> str:
         ("Interpolation", f"{_e(inp.interp)}; gaps longer than {inp.max_gap_s:g} s are flagged"),
     ]
     if inp.clock_offset_s is not None:
-        sigma = photos.residual_sigma_text(photos.residual_sigma_s(inp.pair_residual_s))
+        sigma = clockoffset.residual_sigma_text(clockoffset.residual_sigma_s(inp.pair_residual_s))
         clock = (f"GPS − camera {inp.clock_offset_s:+.3f} s = {inp.clock_leap_s} s leap seconds "
                  f"(GPS − UTC) {inp.clock_offset_s - inp.clock_leap_s:+.3f} s (UTC − camera)")
         rows.append(("Camera clock", (f"{clock}; pairing window "
@@ -768,7 +768,7 @@ def _figures(inp: ReportInput) -> list[tuple[str, str, str]]:
             "Photo timing residuals",
             figures.timing_residuals(inp.pair_t_gps_ns, inp.pair_residual_s,
                                      inp.pair_window_s or math.nan,
-                                     photos.residual_sigma_s(inp.pair_residual_s)),
+                                     clockoffset.residual_sigma_s(inp.pair_residual_s)),
             ("Time of each mark minus the photo's EXIF time corrected by the camera clock offset. "
             "Whole-second EXIF times spread over ±500 ms; sub-second times sit near zero."),
         ))

@@ -13,8 +13,8 @@ import pytest
 
 from groundstation import gpstime
 from groundstation.cli import main
+from groundstation.solve import exif, pipeline
 from groundstation.solve import interpolate as ip
-from groundstation.solve import photos, pipeline
 from groundstation.solve.engine import run_engine
 from groundstation.solve.posfile import read_pos
 
@@ -76,7 +76,7 @@ def _photos_for_marks(
         sec, frac = divmod(cam_ns, 10**9)
         when = dt.datetime.fromtimestamp(sec, tz=dt.UTC).replace(tzinfo=None)
         name = f"IMG_{k:04d}.JPG"
-        (d / name).write_bytes(photos.make_jpeg(when, subsec=f"{frac // 10**7:02d}"))
+        (d / name).write_bytes(exif.make_jpeg(when, subsec=f"{frac // 10**7:02d}"))
         names[i] = name
     return names
 
@@ -202,7 +202,7 @@ def test_photo_subset_in_utc_is_not_shifted_by_whole_marks(
         assert t is not None
         sec = gpstime.gps_to_unix_ns(t) // 10**9
         when = dt.datetime.fromtimestamp(sec, tz=dt.UTC).replace(tzinfo=None)
-        (d / f"IMG_{i + 1:04d}.JPG").write_bytes(photos.make_jpeg(when))
+        (d / f"IMG_{i + 1:04d}.JPG").write_bytes(exif.make_jpeg(when))
     out = tmp_path / "out"
     rc = main(["solve", str(jd["rover"]), "--positions", str(jd["pos"]), "--photos", str(d),
                "--out-dir", str(out), "--no-progress"])
