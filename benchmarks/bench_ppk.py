@@ -61,8 +61,8 @@ from groundstation.sim.stream import simulate
 from groundstation.solve import engine
 from groundstation.solve import interpolate as mi
 from groundstation.solve.engine import options as eo
+from groundstation.solve.flight import read_flight
 from groundstation.solve.integrity.grade import GRADE_NAMES
-from groundstation.solve.pipeline import read_flight
 from groundstation.solve.posfile import read_pos
 from groundstation.solve.trajectory import Q_FIX, Trajectory
 

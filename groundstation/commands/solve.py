@@ -16,7 +16,7 @@ from groundstation.solve.base import base_position
 from groundstation.solve.exif import JPEG_SUFFIXES
 from groundstation.solve.locate import read_base_position
 from groundstation.solve.pipeline import SolveResult, SolveSettings, solve
-from groundstation.solve.report import grades_text
+from groundstation.solve.report_data import grades_text
 from groundstation.solve.report_notes import printed_notes
 
 NAME = "solve"

@@ -29,9 +29,7 @@ from groundstation.errors import ConfigError, GroundstationError, InputError
 from groundstation.geodesy import ecef_to_llh, enu_rotation
 from groundstation.gpstime import utc_span
 from groundstation.offline.inspect import require_ubx_frames
-from groundstation.records import Frame, NavSolution, TimeMark
-from groundstation.rules.epochs import find_gaps, nominal_interval_ns
-from groundstation.rules.marks import LOST_ON_LINK, Mark, build_marks, lost_by_cause, lost_cause
+from groundstation.rules.marks import LOST_ON_LINK, Mark, build_marks
 from groundstation.solve import (
     camclock,
     clockoffset,
@@ -44,29 +42,24 @@ from groundstation.solve import (
     report,
 )
 from groundstation.solve import interpolate as mi
-from groundstation.solve.base import base_from_own_fixes, check_distance, check_pairing
-from groundstation.solve.engine import DEFAULT_ENGINE, is_rinex_obs_name
-from groundstation.solve.integrity import grade as gr
-from groundstation.solve.trajectory import Q_FIX, Trajectory
-from groundstation.storage.reading import Recording, check_regular
-from groundstation.ubx.decode import (
-    NAV_POSLLH,
-    NAV_PVT,
-    NAV_SOL,
-    RXM_RAW,
-    RXM_RAWX,
-    TIM_TM2,
-    Decoder,
+from groundstation.solve.base import (
+    base_from_own_fixes,
+    check_base,
+    check_distance,
+    check_pairing,
 )
-from groundstation.ubx.framer import BetweenFrames, UbxFramer
+from groundstation.solve.engine import DEFAULT_ENGINE, is_rinex_obs_name
+from groundstation.solve.flight import FlightObservations, FlightRecords, read_flight
+from groundstation.solve.integrity import grade as gr
+from groundstation.solve.report_data import LostMarks, ReportInput, lost_marks_text
+from groundstation.solve.trajectory import Q_FIX, Trajectory
+from groundstation.storage.reading import check_regular
 
 log = logging.getLogger("groundstation.solve")
 
 Progress = Callable[[str, float], None]
 BaseCheck = tuple[str, bool]
-"""How the base coordinates were checked: (text, doubtful) (:func:`report.check_base`)."""
-_WANTED = {TIM_TM2, NAV_SOL, NAV_PVT, NAV_POSLLH}
-_EPOCHS = {RXM_RAW, RXM_RAWX}
+"""How the base coordinates were checked: (text, doubtful) (:func:`base.check_base`)."""
 
 
 class NothingPositionedError(GroundstationError):
@@ -121,40 +114,6 @@ class SolveSettings:
 
 
 @dataclass(frozen=True, slots=True)
-class FlightRecords:
-    """What the solver needs from a recording."""
-
-    timemarks: tuple[TimeMark, ...]
-    nav: tuple[NavSolution, ...]
-    frames: int
-    damaged: int
-    epoch_t_gps_ns: tuple[int, ...] = ()
-    """The received measurement epochs (plausible ones), in stream order."""
-    damage_t_gps_ns: tuple[int, ...] = ()
-    """For every stretch of bytes between frames that is not NMEA (damaged data), the time of
-    the last epoch before it."""
-
-    def holes(self) -> tuple[list[tuple[int, int]], int | None]:
-        """The holes in the received epochs (last before, first after) and the interval."""
-        t = sorted(set(self.epoch_t_gps_ns))
-        iv = nominal_interval_ns(t)
-        return [(g.after_t_gps_ns, g.before_t_gps_ns) for g in find_gaps(t, iv)], iv
-
-    def lost_by_cause(self, marks: Sequence[Mark], known_t_ns: Sequence[int] = (),
-                      ) -> dict[str, list[int]]:
-        """The count jumps of the marks by cause (:func:`groundstation.rules.marks.lost_cause`;
-        ``known_t_ns``: the photos without a mark, timed by the camera clock)."""
-        holes, iv = self.holes()
-        damage = [(t, t) for t in self.damage_t_gps_ns]
-        return lost_by_cause(marks, holes, damage, iv, sorted(known_t_ns))
-
-    def cause_at(self, t_gps_ns: int) -> str:
-        """Why a pulse at this time never arrived (:func:`groundstation.rules.marks.lost_cause`)."""
-        holes, iv = self.holes()
-        return lost_cause(t_gps_ns, holes, [(t, t) for t in self.damage_t_gps_ns], iv)
-
-
-@dataclass(frozen=True, slots=True)
 class SolveResult:
     """Everything a solve produced, for the command line, the service and the tests."""
 
@@ -192,47 +151,6 @@ class SolveResult:
         }
 
 
-def read_flight(path: Path, progress: Progress | None = None) -> FlightRecords:
-    """TIM-TM2 and receiver fixes from a recording (``.ubx``, ``.ubx.gz``, ``.mcap``; a
-    session's later parts too)."""
-    framer = UbxFramer()
-    decoder = Decoder()
-    tms: list[TimeMark] = []
-    nav: list[NavSolution] = []
-    epochs: list[int] = []
-    damage: list[int] = []
-    between = BetweenFrames()
-
-    def take(fr: Frame) -> None:
-        if between.damaged_before(fr):
-            damage.append(epochs[-1] if epochs else -1)
-        if fr.key in _EPOCHS:  # the session's clock the marks are judged by (issue 27)
-            t = decoder.judge_epoch(fr)
-            if t is not None:
-                epochs.append(t)
-        if fr.key not in _WANTED:
-            return
-        rec = decoder.decode(fr)
-        if isinstance(rec, TimeMark):
-            tms.append(rec)
-        elif isinstance(rec, NavSolution):
-            nav.append(rec)
-
-    recording = Recording(path)
-    for chunk, t_host in recording.chunks():
-        between.feed(chunk)
-        for fr in framer.feed(chunk, t_host):
-            take(fr)
-        if progress is not None:
-            progress("read flight", recording.progress)
-    for fr in framer.flush():
-        take(fr)
-    st = framer.stats
-    return FlightRecords(tuple(tms), tuple(nav), st.frames, st.bad_checksum + st.truncated,
-                         tuple(epochs), tuple(damage))
-
-
-
 def _validate(s: SolveSettings) -> tuple[SolveSettings, BaseCheck | None, FlightRecords | None]:
     """Every check made before anything is written; the base check when it can be made now.
 
@@ -245,7 +163,7 @@ def _validate(s: SolveSettings) -> tuple[SolveSettings, BaseCheck | None, Flight
 
     def flight() -> FlightRecords:
         if not read:
-            read.append(read_flight(s.flight))
+            read.append(read_flight(s.flight, observations=True))
         return read[0]
 
     if s.interp not in mi.INTERPOLATORS:
@@ -290,8 +208,8 @@ def _validate(s: SolveSettings) -> tuple[SolveSettings, BaseCheck | None, Flight
     if s.base is None or s.base_ecef_m is None:
         return s, None, (read[0] if read else None)
     # Before the engine: coordinates kilometres off give no solution at all, and a half hour
-    # of engine work before saying so (report.BASE_REFUSED_M).
-    text, doubtful = (s.base_given, False) if own else report.check_base(
+    # of engine work before saying so (base.BASE_REFUSED_M).
+    text, doubtful = (s.base_given, False) if own else check_base(
         s.base, s.base_ecef_m, None, s.positions, s.base_given)
     if s.positions is None:
         # The same for a base of another day, the flight's own recording, or a base hundreds
@@ -420,7 +338,7 @@ def _solve(s: SolveSettings, progress: Progress | None,
     on_link = [t for t in unnumbered if rec.cause_at(t) == LOST_ON_LINK]
     lost[LOST_ON_LINK].extend([-1] * len(on_link))
     not_counted = len(unnumbered) - len(on_link)
-    notes.extend(report.lost_marks_text(lost))
+    notes.extend(lost_marks_text(lost))
     if s.base_estimated:
         notes.append(f"WARNING base position {s.base_given}")
     if s.base_sd_enu_m is not None:
@@ -432,7 +350,8 @@ def _solve(s: SolveSettings, progress: Progress | None,
     cams = _cameras(s, marks, mp, traj, photo_list, match, notes, by_clock, numbers)
     files = outputs.write_all(cams.output(traj, mp, notes, s.base_sd_enu_m), s.out_dir)
     report_files, report_notes = _report(s, traj, marks, mp, photo_list, match, cams, notes,
-                                         base_check, lost, not_counted)
+                                         base_check, lost, not_counted,
+                                         rec.observed or FlightObservations())
     files.extend(report_files)
     notes.extend(report_notes)
     if s.exif_copies and s.photos is not None:
@@ -502,7 +421,7 @@ def _marks(s: SolveSettings, progress: Progress | None, rec: FlightRecords | Non
            ) -> tuple[FlightRecords, tuple[Mark, ...]]:
     """Stage 1: the flight's TIM-TM2 records (and receiver fixes) and the marks they make
     (``rec``: already read by the checks)."""
-    rec = rec if rec is not None else read_flight(s.flight, progress)
+    rec = rec if rec is not None else read_flight(s.flight, progress, observations=True)
     marks = tuple(build_marks(rec.timemarks))
     if not marks and s.photos is None:
         raise InputError(f"{s.flight}: no camera marks in this flight: nothing to position "
@@ -772,7 +691,7 @@ def _report(
     s: SolveSettings, traj: Trajectory, marks: tuple[Mark, ...],
     mp: mi.MarkPositions, photo_list: list[exif.Photo], match: photos.MatchResult | None,
     cams: _Cameras, notes: list[str], base_check_made: BaseCheck | None,
-    lost: report.LostMarks, not_counted: int,
+    lost: LostMarks, not_counted: int, observed: FlightObservations,
 ) -> tuple[list[Path], list[str]]:
     """Stage 7: ``report.html`` and ``report.pdf`` (summary, counts, per-mark table, figures,
     warnings); returns the files written and notes on what could not be written."""
@@ -780,17 +699,16 @@ def _report(
     rows, epsg, lever_est = cams.rows, cams.epsg, cams.lever
     te, tn = proj.forward(traj_llh[:, 0], traj_llh[:, 1])
     engine, version, engine_opts = positions.engine_of(traj, dict(s.rtk_options), s.positions)
-    base_check, base_doubtful = base_check_made or report.check_base(
+    base_check, base_doubtful = base_check_made or check_base(
         s.base, s.base_ecef_m, traj, s.positions, s.base_given)
     if base_doubtful:
         notes.append(f"WARNING base coordinates: {base_check}")
         log.warning("base coordinates doubtful: %s", base_check)
-    radio_gaps, outages, events_recorded = report.station_events(s.flight)
     unmatched = tuple(
         (photo_list[i].name, photo_list[i].error or "no mark within the pairing window")
         for i in match.unmatched_photos
     ) if match else ()
-    data = report.ReportInput(
+    data = ReportInput(
         flight=s.flight.name, engine_name=engine, engine_version=version,
         engine_options=engine_opts, position_source=f"{traj.source}: {len(traj)} epochs",
         base_name=s.base.name if s.base else None,
@@ -814,8 +732,8 @@ def _report(
         pair_t_gps_ns=np.array([mp.t_gps_ns[p.mark] for p in match.pairs], dtype=np.int64)
         if match else np.zeros(0, np.int64),
         pair_residual_s=np.array([p.residual_s for p in match.pairs]) if match else np.zeros(0),
-        radio_gaps=radio_gaps, source_outages=outages, station_events=events_recorded,
-        satellites=report.satellites_from_recording(s.flight),
+        radio_gaps=observed.radio_gaps, source_outages=observed.source_outages,
+        station_events=observed.station_events, satellites=observed.satellites,
         lever_residual_m=lever_est.residual_m if lever_est else np.zeros(0),
         lever_outlier=lever_est.outlier if lever_est else np.zeros(0, bool),
         metre_level=traj.metre_level, notes=tuple(notes),

@@ -13,9 +13,10 @@ import pytest
 
 from groundstation import gpstime
 from groundstation.cli import main
-from groundstation.solve import exif, pipeline
+from groundstation.solve import exif
 from groundstation.solve import interpolate as ip
 from groundstation.solve.engine import run_engine
+from groundstation.solve.flight import read_flight
 from groundstation.solve.posfile import read_pos
 
 pytestmark = pytest.mark.shared_data
@@ -36,7 +37,7 @@ def jd(shared_data: Path) -> dict[str, Path]:
 
 
 def test_linear_marks_equal_rtklib_events_within_a_millimetre(jd: dict[str, Path]) -> None:
-    rec = pipeline.read_flight(jd["rover"])
+    rec = read_flight(jd["rover"])
     from groundstation.rules.marks import build_marks
 
     marks = build_marks(rec.timemarks)
@@ -83,7 +84,7 @@ def _photos_for_marks(
 
 def test_solve_command_end_to_end(jd: dict[str, Path], tmp_path: Path,
                                   capsys: pytest.CaptureFixture[str]) -> None:
-    rec = pipeline.read_flight(jd["rover"])
+    rec = read_flight(jd["rover"])
     from groundstation.rules.marks import build_marks
 
     marks = build_marks(rec.timemarks)
@@ -194,7 +195,7 @@ def test_photo_subset_in_utc_is_not_shifted_by_whole_marks(
     # clock set to UTC names the right one and the solve says so.
     from groundstation.rules.marks import build_marks
 
-    marks = build_marks(pipeline.read_flight(jd["rover"]).timemarks)
+    marks = build_marks(read_flight(jd["rover"]).timemarks)
     d = tmp_path / "photos"
     d.mkdir()
     for i in range(first, first + count):
