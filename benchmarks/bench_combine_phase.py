@@ -32,7 +32,7 @@ from groundstation.offline import rinex
 from groundstation.offline.rinex.observations import ObsSet
 from groundstation.solve import engine
 from groundstation.solve.engine import combine as cb
-from groundstation.solve.positions import read_pos
+from groundstation.solve.posfile import read_pos
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 UBX = SHARED / "real" / "jdesbonnet__GNSS_RTK_data" / "20181009"

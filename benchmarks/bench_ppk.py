@@ -61,9 +61,10 @@ from groundstation.sim.stream import simulate
 from groundstation.solve import engine
 from groundstation.solve import interpolate as mi
 from groundstation.solve.engine import options as eo
+from groundstation.solve.flight import read_flight
 from groundstation.solve.integrity.grade import GRADE_NAMES
-from groundstation.solve.pipeline import read_flight
-from groundstation.solve.positions import Q_FIX, Trajectory, read_pos
+from groundstation.solve.posfile import read_pos
+from groundstation.solve.trajectory import Q_FIX, Trajectory
 
 FloatArray = npt.NDArray[np.float64]
 SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "data"
@@ -347,7 +348,7 @@ def _judge(res: Any, ref_xyz: FloatArray, ref_fixed: npt.NDArray[np.bool_],
     fixed = mp.quality == Q_FIX
     beyond = np.any(np.abs(d) > 3 * mp.sd_enu_m, axis=1) & (err > 0.05)
     n = int(pos.sum())
-    from groundstation.solve.report import engine_info
+    from groundstation.solve.positions import engine_info
 
     integ = (engine_info(res.trajectory) or {}).get("integrity") or {}
     fac = integ.get("float_sigma_factor") or {}

@@ -20,10 +20,10 @@ import numpy as np
 import numpy.typing as npt
 
 from groundstation.geodesy import enu_rotation, llh_to_ecef
+from groundstation.solve import clockoffset, photos
 from groundstation.solve import interpolate as ip
-from groundstation.solve import photos
 from groundstation.solve.photosim import photo_scenario
-from groundstation.solve.positions import Trajectory, make_trajectory
+from groundstation.solve.trajectory import Trajectory, make_trajectory
 
 FloatArray = npt.NDArray[np.float64]
 T0 = 2022 * 604_800 * 10**9
@@ -110,26 +110,26 @@ def per_axis_smoother(traj: Trajectory, times: list[int | None]) -> FloatArray:
 
 def naive_match(photo_s: FloatArray, mark_s: FloatArray) -> tuple[float, list[tuple[int, int]]]:
     """Vote over every difference photo by photo, refine, pair each photo with its nearest."""
-    w = photos.VOTE_BIN_S
+    w = clockoffset.VOTE_BIN_S
     base = float(mark_s.min() - photo_s.max()) - 1.0
     size = int((mark_s.max() - photo_s.min() - base) / w) + 2
     votes = np.zeros(size)
     for p in photo_s.tolist():
         np.add.at(votes, np.round((mark_s - p - base) / w).astype(np.int64), 1.0)
-    half = int(round(photos.MAX_PAIR_S / w))
+    half = int(round(clockoffset.MAX_PAIR_S / w))
     box = np.convolve(votes, np.ones(2 * half + 1), mode="same")
     coarse = base + int(np.argmax(box)) * w
     steps = np.arange(-0.8, 0.8 + 1e-9, 0.01)
     costs = []
     for s in steps.tolist():
         r = np.array([np.min(np.abs(mark_s - (p + coarse + s))) for p in photo_s.tolist()])
-        costs.append(np.sum(np.minimum(r, photos.MAX_PAIR_S)))
+        costs.append(np.sum(np.minimum(r, clockoffset.MAX_PAIR_S)))
     off = coarse + float(steps[int(np.argmin(costs))])
     pairs = []
     for i, p in enumerate(photo_s.tolist()):
         r = np.abs(mark_s - (p + off))
         j = int(np.argmin(r))
-        if r[j] <= photos.MAX_PAIR_S:
+        if r[j] <= clockoffset.MAX_PAIR_S:
             pairs.append((i, j))
     return off, pairs
 
@@ -162,11 +162,11 @@ def main() -> None:
     sc = photo_scenario(a.photos, subsec=True, seed=1)
     import datetime as dt
 
-    from groundstation.solve.photos import Photo
+    from groundstation.solve.exif import Photo
 
     ph = [Photo(p.name, "", int(p.exif_datetime.replace(tzinfo=dt.UTC).timestamp()) * 10**9,
                 int(p.subsec or "0") * 10_000_000) for p in sc.photos]
-    pt = photos.photo_times(ph)
+    pt = clockoffset.photo_times(ph)
     marks: list[int | None] = list(sc.mark_t_gps_ns)
     t_ours, res = best_of(lambda: photos.match(pt, marks), a.repeat)
     mark_s = np.array(sc.mark_t_gps_ns, dtype=np.float64) / 1e9

@@ -13,10 +13,10 @@ from groundstation.errors import ConfigError
 from groundstation.solve import engine as ppk
 from groundstation.solve import interpolate as interp
 from groundstation.solve.base import base_position
+from groundstation.solve.exif import JPEG_SUFFIXES
 from groundstation.solve.locate import read_base_position
-from groundstation.solve.photos import JPEG_SUFFIXES
 from groundstation.solve.pipeline import SolveResult, SolveSettings, solve
-from groundstation.solve.report import grades_text
+from groundstation.solve.report_data import grades_text
 from groundstation.solve.report_notes import printed_notes
 
 NAME = "solve"

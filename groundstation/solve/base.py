@@ -19,6 +19,10 @@ work names the same problem too late):
   carrier-phase solution worth the name (the differential ionosphere there is decimetres, several
   times half an L1 wavelength, so ambiguities cannot be fixed, and a float solution is no better
   than code differences).
+
+Given coordinates are checked against the mean of the base receiver's own fixes
+(:func:`check_base`): :data:`BASE_DOUBTFUL_M` away is said as doubtful, :data:`BASE_REFUSED_M`
+refused before any work.
 """
 
 from __future__ import annotations
@@ -27,19 +31,23 @@ import datetime as dt
 import gzip
 import re
 import zlib
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import numpy.typing as npt
 
-from groundstation.errors import ConfigError, InputError
+from groundstation.errors import ConfigError, GroundstationError, InputError
 from groundstation.geodesy import ecef_to_llh, enu_rotation, enu_to_ecef, llh_to_ecef
 from groundstation.gpstime import gps_calendar_ns, utc_span
 from groundstation.offline.rinex.convert import observations_of, read_frames
 from groundstation.rules.plausible import span_text
 from groundstation.solve.engine import is_rinex_obs_name
+from groundstation.solve.flight import read_flight
+from groundstation.solve.posfile import pos_header
+from groundstation.solve.trajectory import Trajectory
+from groundstation.storage.reading import detect_format
 
 BASE_FAR_REFUSED_M = 100_000.0
 """A base this far from the flight is refused (module docstring: an L1 baseline that long)."""
@@ -333,3 +341,86 @@ def base_from_own_fixes(
     return ((float(mean[0]), float(mean[1]), float(mean[2])),
             (float(sd[0]), float(sd[1]), float(sd[2])), int(fixes.shape[0]))
 
+
+# -- given coordinates against the base receiver's own fixes ------------------------------------
+
+
+BASE_DOUBTFUL_M = 30.0
+"""The given base coordinates are doubtful when this far from the base receiver's own fixes
+(a stand-alone fix is good to a few metres; a wrong base shifts every camera position)."""
+BASE_REFUSED_M = 500.0
+"""Given base coordinates this far from the base receiver's own fixes are refused before any
+work: the mean of a base's stand-alone fixes is good to a few metres (10 m in a bad hour), and
+mixing up the height reference (geoid instead of ellipsoid, <= 107 m anywhere) stays far below
+it; what lies beyond is another site's or day's coordinates or a typo, and the engine then
+positions nothing (5 km: no solution rows) or a result shifted by the same distance. Between
+:data:`BASE_DOUBTFUL_M` and this, the solve runs and warns."""
+
+
+def check_base(
+    base: Path | None,
+    base_ecef_m: tuple[float, float, float] | None,
+    traj: Trajectory | None,
+    positions_file: Path | None,
+    how: str = "given with --base-xyz",
+) -> tuple[str, bool]:
+    """How the base coordinates were checked: (text, doubtful); ``how`` says how they were
+    given.
+
+    Given coordinates are compared with the mean of the base receiver's own fixes in a u-blox
+    base recording (before the engine runs: ``traj`` is not needed then); an imported
+    solution's reference position is taken from its header.
+
+    Raises:
+        ConfigError: naming ``--base-xyz``: far from the base receiver's fixes
+            (:func:`compare_base`).
+    """
+    if base_ecef_m is None:
+        if traj is not None and traj.metre_level:
+            return "no base (receiver's own fix)", False
+        ref = pos_header(positions_file).ref_ecef_m
+        if ref is not None:
+            return ("reference position from the header of the imported solution; not checked "
+                    "against a base recording"), False
+        return "unknown (the imported solution does not state its base)", True
+    if base is None or detect_recording(base) is None:
+        return f"{how}; not checked (no u-blox base recording)", False
+    try:
+        fixes = [n.ecef_m for n in read_flight(base).nav if n.fix_ok and n.ecef_m]
+    except GroundstationError as err:
+        return f"{how}; not checked ({err})", True
+    return compare_base(fixes, base_ecef_m, how)
+
+
+def detect_recording(path: Path) -> str | None:
+    """The recording format of a base file (``mcap``, ``gzip``, ``raw``); None for RINEX."""
+    if path.suffix.lower() in (".obs", ".rnx") or re.search(r"\.\d\d[oO]$", path.name):
+        return None
+    try:
+        return detect_format(path)
+    except GroundstationError:
+        return None
+
+
+def compare_base(
+    base_fixes_ecef_m: Sequence[tuple[float, float, float]],
+    base_ecef_m: tuple[float, float, float],
+    how_given: str,
+) -> tuple[str, bool]:
+    """How the base coordinates compare with the base receiver's own fixes: (text, doubtful).
+
+    Raises:
+        ConfigError: naming ``--base-xyz``: more than :data:`BASE_REFUSED_M` away.
+    """
+    if not base_fixes_ecef_m:
+        return f"{how_given}; not checked (the base recording has no receiver fix)", False
+    mean = np.mean(np.asarray(base_fixes_ecef_m, dtype=np.float64), axis=0)
+    d = float(np.linalg.norm(mean - np.asarray(base_ecef_m)))
+    if d > BASE_REFUSED_M:
+        raise ConfigError("--base-xyz", (
+            f"{d / 1000:.2f} km from where the base receiver's own {len(base_fixes_ecef_m)} "
+            f"fixes put the base ({mean[0]:.1f},{mean[1]:.1f},{mean[2]:.1f}; stand-alone fixes "
+            f"are good to a few metres): not this base's coordinates (another day's or site's?)"))
+    text = (f"{how_given}; {d:.1f} m from the mean of the base receiver's own "
+            f"{len(base_fixes_ecef_m)} fixes (stand-alone, metre level)")
+    return text, d > BASE_DOUBTFUL_M

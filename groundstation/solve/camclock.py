@@ -22,7 +22,7 @@ import numpy as np
 import numpy.typing as npt
 
 from groundstation.rules.marks import Mark, count_jump
-from groundstation.solve.positions import Trajectory
+from groundstation.solve.trajectory import Trajectory
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -196,7 +196,7 @@ def position_photos(
     from groundstation.geodesy import ecef_to_llh, enu_rotation
     from groundstation.solve import interpolate as mi
     from groundstation.solve.integrity import grade as gr
-    from groundstation.solve.positions import Q_FLOAT
+    from groundstation.solve.trajectory import Q_FLOAT
 
     idx = [i for i in photos if math.isfinite(photo_s[i])]
     t_ns = [round(clock.gps_s(float(photo_s[i])) * 1e9) for i in idx]

@@ -14,7 +14,6 @@ import io
 import math
 import re
 from collections.abc import Sequence
-from dataclasses import dataclass
 from typing import Any
 
 import matplotlib
@@ -33,7 +32,8 @@ from matplotlib.patches import Patch, Rectangle  # noqa: E402
 from matplotlib.ticker import FuncFormatter  # noqa: E402
 
 from groundstation import gpstime  # noqa: E402
-from groundstation.solve.positions import QUALITY_NAMES  # noqa: E402
+from groundstation.solve.flight import Span  # noqa: E402
+from groundstation.solve.trajectory import QUALITY_NAMES  # noqa: E402
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
@@ -61,14 +61,6 @@ _RC: dict[Any, Any] = {
     "grid.linewidth": 0.6,
     "date.epoch": "1970-01-01T00:00:00",
 }
-
-
-@dataclass(frozen=True, slots=True)
-class Span:
-    """A time interval (GPS ns); ``end`` equals ``start`` for an interval still open."""
-
-    start_gps_ns: int
-    end_gps_ns: int
 
 
 def to_svg(fig: Figure, name: str) -> str:

@@ -19,7 +19,7 @@ from groundstation.errors import ConfigError
 from groundstation.geodesy import ecef_to_llh, enu_rotation
 from groundstation.rules.marks import edge_time_ns
 from groundstation.solve.integrity import grade as gr
-from groundstation.solve.positions import Q_FIX, Q_FLOAT, Q_SINGLE, Trajectory
+from groundstation.solve.trajectory import Q_FIX, Q_FLOAT, Q_SINGLE, Trajectory
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]

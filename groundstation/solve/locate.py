@@ -194,10 +194,11 @@ def locate_base(
             ``--reference`` (no time overlap with the base, or further than
             :data:`~groundstation.solve.base.BASE_FAR_REFUSED_M`).
         InputError: an unreadable input.
-        groundstation.solve.engine.EngineError: the engine positioned nothing.
+        groundstation.solve.engine.protocol.EngineError: the engine positioned nothing.
     """
-    from groundstation.solve.engine import EngineError, run_engine
-    from groundstation.solve.positions import read_pos
+    from groundstation.solve.engine import run_engine
+    from groundstation.solve.engine.protocol import EngineError
+    from groundstation.solve.posfile import read_pos
 
     with tempfile.TemporaryDirectory(prefix="locate-base-") as tmp:
         work = Path(tmp)

@@ -25,7 +25,7 @@ import numpy.typing as npt
 from groundstation import gpstime, jsonio, outpaths
 from groundstation.errors import ConfigError, InputError
 from groundstation.solve.interpolate import flag_names
-from groundstation.solve.positions import QUALITY_NAMES
+from groundstation.solve.trajectory import QUALITY_NAMES
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -590,7 +590,7 @@ def write_exif_copies(
     Raises:
         ConfigError: ``out_dir`` is the photo directory or inside it.
     """
-    from groundstation.solve.photos import write_gps_copy
+    from groundstation.solve.exif import write_gps_copy
 
     check_output_dir(out_dir, [photo_dir])
     out_dir.mkdir(parents=True, exist_ok=True)

@@ -1,7 +1,7 @@
 """Synthetic photo sets with known truth: camera clock error, bursts, missing and extra marks.
 
 Used by the tests, the matching benchmark and the demo flight. :func:`photo_scenario` is pure;
-:func:`write_photo_set` writes real JPEGs with real EXIF through :func:`photos.make_jpeg`.
+:func:`write_photo_set` writes real JPEGs with real EXIF through :func:`exif.make_jpeg`.
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from groundstation import gpstime
-from groundstation.solve.photos import make_jpeg
+from groundstation.solve.exif import make_jpeg
 
 
 @dataclass(frozen=True, slots=True)
@@ -65,7 +65,7 @@ def photo_scenario(
 
     Shots come singly (1.3-2.5 s apart, any phase in the second) or as bursts of 4 at 4 frames
     per second. Without sub-second EXIF times a burst fills one EXIF second the way
-    :data:`~groundstation.solve.photos.BURST_SPREAD_S` assumes (first frame at 0.10 ± 0.02 s).
+    :data:`~groundstation.solve.clockoffset.BURST_SPREAD_S` assumes (first frame at 0.10 ± 0.02 s).
     The camera clock runs local time (``zone_s`` east of UTC) plus ``clock_error_s``. A fraction
     of marks is lost, and extra marks (loose contact) are added at least ``extra_min_sep_s`` from
     any shot.

@@ -29,33 +29,37 @@ from groundstation.errors import ConfigError, GroundstationError, InputError
 from groundstation.geodesy import ecef_to_llh, enu_rotation
 from groundstation.gpstime import utc_span
 from groundstation.offline.inspect import require_ubx_frames
-from groundstation.records import Frame, NavSolution, TimeMark
-from groundstation.rules.epochs import find_gaps, nominal_interval_ns
-from groundstation.rules.marks import LOST_ON_LINK, Mark, build_marks, lost_by_cause, lost_cause
-from groundstation.solve import camclock, leverarm, outputs, photos, positions, report
-from groundstation.solve import interpolate as mi
-from groundstation.solve.base import base_from_own_fixes, check_distance, check_pairing
-from groundstation.solve.engine import DEFAULT_ENGINE, is_rinex_obs_name
-from groundstation.solve.integrity import grade as gr
-from groundstation.storage.reading import Recording, check_regular
-from groundstation.ubx.decode import (
-    NAV_POSLLH,
-    NAV_PVT,
-    NAV_SOL,
-    RXM_RAW,
-    RXM_RAWX,
-    TIM_TM2,
-    Decoder,
+from groundstation.rules.marks import LOST_ON_LINK, Mark, build_marks
+from groundstation.solve import (
+    camclock,
+    clockoffset,
+    exif,
+    leverarm,
+    outputs,
+    photos,
+    posfile,
+    positions,
+    report,
 )
-from groundstation.ubx.framer import BetweenFrames, UbxFramer
+from groundstation.solve import interpolate as mi
+from groundstation.solve.base import (
+    base_from_own_fixes,
+    check_base,
+    check_distance,
+    check_pairing,
+)
+from groundstation.solve.engine import DEFAULT_ENGINE, is_rinex_obs_name
+from groundstation.solve.flight import FlightObservations, FlightRecords, read_flight
+from groundstation.solve.integrity import grade as gr
+from groundstation.solve.report_data import LostMarks, ReportInput, lost_marks_text
+from groundstation.solve.trajectory import Q_FIX, Trajectory
+from groundstation.storage.reading import check_regular
 
 log = logging.getLogger("groundstation.solve")
 
 Progress = Callable[[str, float], None]
 BaseCheck = tuple[str, bool]
-"""How the base coordinates were checked: (text, doubtful) (:func:`report.check_base`)."""
-_WANTED = {TIM_TM2, NAV_SOL, NAV_PVT, NAV_POSLLH}
-_EPOCHS = {RXM_RAW, RXM_RAWX}
+"""How the base coordinates were checked: (text, doubtful) (:func:`base.check_base`)."""
 
 
 class NothingPositionedError(GroundstationError):
@@ -110,47 +114,13 @@ class SolveSettings:
 
 
 @dataclass(frozen=True, slots=True)
-class FlightRecords:
-    """What the solver needs from a recording."""
-
-    timemarks: tuple[TimeMark, ...]
-    nav: tuple[NavSolution, ...]
-    frames: int
-    damaged: int
-    epoch_t_gps_ns: tuple[int, ...] = ()
-    """The received measurement epochs (plausible ones), in stream order."""
-    damage_t_gps_ns: tuple[int, ...] = ()
-    """For every stretch of bytes between frames that is not NMEA (damaged data), the time of
-    the last epoch before it."""
-
-    def holes(self) -> tuple[list[tuple[int, int]], int | None]:
-        """The holes in the received epochs (last before, first after) and the interval."""
-        t = sorted(set(self.epoch_t_gps_ns))
-        iv = nominal_interval_ns(t)
-        return [(g.after_t_gps_ns, g.before_t_gps_ns) for g in find_gaps(t, iv)], iv
-
-    def lost_by_cause(self, marks: Sequence[Mark], known_t_ns: Sequence[int] = (),
-                      ) -> dict[str, list[int]]:
-        """The count jumps of the marks by cause (:func:`groundstation.rules.marks.lost_cause`;
-        ``known_t_ns``: the photos without a mark, timed by the camera clock)."""
-        holes, iv = self.holes()
-        damage = [(t, t) for t in self.damage_t_gps_ns]
-        return lost_by_cause(marks, holes, damage, iv, sorted(known_t_ns))
-
-    def cause_at(self, t_gps_ns: int) -> str:
-        """Why a pulse at this time never arrived (:func:`groundstation.rules.marks.lost_cause`)."""
-        holes, iv = self.holes()
-        return lost_cause(t_gps_ns, holes, [(t, t) for t in self.damage_t_gps_ns], iv)
-
-
-@dataclass(frozen=True, slots=True)
 class SolveResult:
     """Everything a solve produced, for the command line, the service and the tests."""
 
     rows: tuple[outputs.CameraRow, ...]
     marks: tuple[Mark, ...]
     mark_positions: mi.MarkPositions
-    trajectory: positions.Trajectory
+    trajectory: Trajectory
     match: photos.MatchResult | None
     lever: leverarm.LeverArmEstimate | None
     files: tuple[Path, ...]
@@ -165,7 +135,7 @@ class SolveResult:
             "marks": len(self.marks),
             "marks_positioned": mp.positioned,
             "marks_in_gap": int(np.sum((mp.flags & mi.FLAG_GAP) != 0)),
-            "marks_fixed": int(np.sum(mp.quality == positions.Q_FIX)),
+            "marks_fixed": int(np.sum(mp.quality == Q_FIX)),
             "marks_by_grade": {name: int(np.sum(mp.grade == code))
                                for code, name in gr.GRADE_NAMES.items()
                                if np.any(mp.grade == code)},
@@ -181,47 +151,6 @@ class SolveResult:
         }
 
 
-def read_flight(path: Path, progress: Progress | None = None) -> FlightRecords:
-    """TIM-TM2 and receiver fixes from a recording (``.ubx``, ``.ubx.gz``, ``.mcap``; a
-    session's later parts too)."""
-    framer = UbxFramer()
-    decoder = Decoder()
-    tms: list[TimeMark] = []
-    nav: list[NavSolution] = []
-    epochs: list[int] = []
-    damage: list[int] = []
-    between = BetweenFrames()
-
-    def take(fr: Frame) -> None:
-        if between.damaged_before(fr):
-            damage.append(epochs[-1] if epochs else -1)
-        if fr.key in _EPOCHS:  # the session's clock the marks are judged by (issue 27)
-            t = decoder.judge_epoch(fr)
-            if t is not None:
-                epochs.append(t)
-        if fr.key not in _WANTED:
-            return
-        rec = decoder.decode(fr)
-        if isinstance(rec, TimeMark):
-            tms.append(rec)
-        elif isinstance(rec, NavSolution):
-            nav.append(rec)
-
-    recording = Recording(path)
-    for chunk, t_host in recording.chunks():
-        between.feed(chunk)
-        for fr in framer.feed(chunk, t_host):
-            take(fr)
-        if progress is not None:
-            progress("read flight", recording.progress)
-    for fr in framer.flush():
-        take(fr)
-    st = framer.stats
-    return FlightRecords(tuple(tms), tuple(nav), st.frames, st.bad_checksum + st.truncated,
-                         tuple(epochs), tuple(damage))
-
-
-
 def _validate(s: SolveSettings) -> tuple[SolveSettings, BaseCheck | None, FlightRecords | None]:
     """Every check made before anything is written; the base check when it can be made now.
 
@@ -234,7 +163,7 @@ def _validate(s: SolveSettings) -> tuple[SolveSettings, BaseCheck | None, Flight
 
     def flight() -> FlightRecords:
         if not read:
-            read.append(read_flight(s.flight))
+            read.append(read_flight(s.flight, observations=True))
         return read[0]
 
     if s.interp not in mi.INTERPOLATORS:
@@ -262,7 +191,7 @@ def _validate(s: SolveSettings) -> tuple[SolveSettings, BaseCheck | None, Flight
     # flight or the base gets inspect's verdict, not a later "no camera marks" or half a run.
     require_ubx_frames(s.flight)
     if s.positions is not None:
-        positions.check_pos_file(s.positions)
+        posfile.check_pos_file(s.positions)
     if s.base is not None:
         if is_rinex_obs_name(s.base):
             _require_rinex_obs(s.base)
@@ -271,7 +200,7 @@ def _validate(s: SolveSettings) -> tuple[SolveSettings, BaseCheck | None, Flight
     if s.photos is not None:  # photos of another flight: said now, not after the engine
         marks = build_marks(flight().timemarks)
         times = _mark_times(s, marks)
-        photos.check_belongs(photos.match(photos.photo_times(photos.scan_photos(s.photos)),
+        photos.check_belongs(photos.match(clockoffset.photo_times(exif.scan_photos(s.photos)),
                                           times), times)
     own = s.base is not None and s.base_ecef_m is None and s.positions is None
     if own and s.base is not None:
@@ -279,8 +208,8 @@ def _validate(s: SolveSettings) -> tuple[SolveSettings, BaseCheck | None, Flight
     if s.base is None or s.base_ecef_m is None:
         return s, None, (read[0] if read else None)
     # Before the engine: coordinates kilometres off give no solution at all, and a half hour
-    # of engine work before saying so (report.BASE_REFUSED_M).
-    text, doubtful = (s.base_given, False) if own else report.check_base(
+    # of engine work before saying so (base.BASE_REFUSED_M).
+    text, doubtful = (s.base_given, False) if own else check_base(
         s.base, s.base_ecef_m, None, s.positions, s.base_given)
     if s.positions is None:
         # The same for a base of another day, the flight's own recording, or a base hundreds
@@ -338,7 +267,7 @@ def solve(settings: SolveSettings, progress: Progress | None = None) -> SolveRes
     Raises:
         ConfigError: inconsistent settings (names the option).
         InputError: unreadable inputs, no marks, no epochs.
-        positions.ToolMissingError: the RTKLIB engine was chosen and rnx2rtkp is missing.
+        engine.protocol.ToolMissingError: the RTKLIB engine was chosen and rnx2rtkp is missing.
         positions.NoSolutionError: the engine positioned no epoch.
         NothingPositionedError: no mark was positioned (nothing is written).
     """
@@ -373,7 +302,7 @@ def _relocated(r: SolveResult, stage: Path, out_dir: Path) -> SolveResult:
     return replace(r, files=files, notes=notes, trajectory=_traj_unstaged(r.trajectory, stage))
 
 
-def _traj_unstaged(traj: positions.Trajectory, stage: Path) -> positions.Trajectory:
+def _traj_unstaged(traj: Trajectory, stage: Path) -> Trajectory:
     """The trajectory with its notes naming the final place of the staging folder's files."""
     return replace(traj, notes=tuple(outpaths.unstaged(n, stage) for n in traj.notes))
 
@@ -404,7 +333,7 @@ def _solve(s: SolveSettings, progress: Progress | None,
     on_link = [t for t in unnumbered if rec.cause_at(t) == LOST_ON_LINK]
     lost[LOST_ON_LINK].extend([-1] * len(on_link))
     not_counted = len(unnumbered) - len(on_link)
-    notes.extend(report.lost_marks_text(lost))
+    notes.extend(lost_marks_text(lost))
     if s.base_estimated:
         notes.append(f"WARNING base position {s.base_given}")
     if s.base_sd_enu_m is not None:
@@ -416,7 +345,8 @@ def _solve(s: SolveSettings, progress: Progress | None,
     cams = _cameras(s, marks, mp, traj, photo_list, match, notes, by_clock, numbers)
     files = outputs.write_all(cams.output(traj, mp, notes, s.base_sd_enu_m), s.out_dir)
     report_files, report_notes = _report(s, traj, marks, mp, photo_list, match, cams, notes,
-                                         base_check, lost, not_counted)
+                                         base_check, lost, not_counted,
+                                         rec.observed or FlightObservations())
     files.extend(report_files)
     notes.extend(report_notes)
     if s.exif_copies and s.photos is not None:
@@ -429,7 +359,7 @@ def _solve(s: SolveSettings, progress: Progress | None,
 
 
 def _clock_photos(
-    s: SolveSettings, traj: positions.Trajectory, marks: tuple[Mark, ...],
+    s: SolveSettings, traj: Trajectory, marks: tuple[Mark, ...],
     times: list[int | None], match: photos.MatchResult | None, notes: list[str],
 ) -> tuple[camclock.ClockPositions | None, dict[int, int]]:
     """Stage 4b: the photos without a received mark, positioned at their own time through the
@@ -464,7 +394,7 @@ def _clock_photos(
     return by_clock, numbers
 
 
-def _why_nothing(s: SolveSettings, traj: positions.Trajectory, marks: tuple[Mark, ...],
+def _why_nothing(s: SolveSettings, traj: Trajectory, marks: tuple[Mark, ...],
                  times: list[int | None]) -> str:
     """Why no mark was positioned, in one line: the time spans when they do not overlap."""
     head = f"no camera position computed ({len(marks)} marks, 0 positioned)"
@@ -486,7 +416,7 @@ def _marks(s: SolveSettings, progress: Progress | None, rec: FlightRecords | Non
            ) -> tuple[FlightRecords, tuple[Mark, ...]]:
     """Stage 1: the flight's TIM-TM2 records (and receiver fixes) and the marks they make
     (``rec``: already read by the checks)."""
-    rec = rec if rec is not None else read_flight(s.flight, progress)
+    rec = rec if rec is not None else read_flight(s.flight, progress, observations=True)
     marks = tuple(build_marks(rec.timemarks))
     if not marks and s.photos is None:
         raise InputError(f"{s.flight}: no camera marks in this flight: nothing to position "
@@ -499,7 +429,7 @@ def _marks(s: SolveSettings, progress: Progress | None, rec: FlightRecords | Non
 
 def _positions(
     s: SolveSettings, rec: FlightRecords, notes: list[str], progress: Progress | None
-) -> positions.Trajectory:
+) -> Trajectory:
     """Stage 2: the antenna's trajectory from the chosen position source (a .pos file, RTKLIB
     against the base, or the receiver's own fix). An engine run has stages of its own
     (``engine.run_engine``): RINEX and phase conditioning, "dynamics" (a forward pass measures
@@ -523,7 +453,7 @@ def _positions(
 
 
 def _positions_at_marks(
-    s: SolveSettings, traj: positions.Trajectory, marks: tuple[Mark, ...], notes: list[str],
+    s: SolveSettings, traj: Trajectory, marks: tuple[Mark, ...], notes: list[str],
     progress: Progress | None,
 ) -> tuple[list[int | None], mi.MarkPositions]:
     """Stage 3: each mark's exposure time (edge and shutter delay) and the antenna there."""
@@ -549,14 +479,14 @@ def _mark_times(s: SolveSettings, marks: Sequence[Mark]) -> list[int | None]:
 
 def _photos(
     s: SolveSettings, times: list[int | None], progress: Progress | None
-) -> tuple[list[photos.Photo], photos.MatchResult | None, list[str]]:
+) -> tuple[list[exif.Photo], photos.MatchResult | None, list[str]]:
     """Stage 4: the photos, paired with the marks by time (none without ``--photos``)."""
     if s.photos is None:
         return [], None, []
-    photo_list = photos.scan_photos(s.photos)
+    photo_list = exif.scan_photos(s.photos)
     if progress is not None:
         progress("photos", 0.5)
-    match = photos.match(photos.photo_times(photo_list), times)
+    match = photos.match(clockoffset.photo_times(photo_list), times)
     recon = photos.reconciliation_lines(match, photo_list, times)
     if progress is not None:
         progress("photos", 1.0)
@@ -576,7 +506,7 @@ class _Cameras:
     lever: leverarm.LeverArmEstimate | None
 
     def output(
-        self, traj: positions.Trajectory, mp: mi.MarkPositions, notes: list[str],
+        self, traj: Trajectory, mp: mi.MarkPositions, notes: list[str],
         base_sd_enu_m: tuple[float, float, float] | None = None,
     ) -> outputs.SolveOutput:
         return outputs.SolveOutput(
@@ -589,7 +519,7 @@ class _Cameras:
 
 
 def _row_entries(
-    n_marks: int, photo_list: list[photos.Photo], match: photos.MatchResult | None
+    n_marks: int, photo_list: list[exif.Photo], match: photos.MatchResult | None
 ) -> list[tuple[str, int]]:
     """Which marks become rows: photos (paired or not), then orphan marks; or every mark."""
     if match is None:
@@ -682,7 +612,7 @@ def _lever_arm(
 
 def _cameras(
     s: SolveSettings, marks: tuple[Mark, ...], mp: mi.MarkPositions,
-    traj: positions.Trajectory, photo_list: list[photos.Photo],
+    traj: Trajectory, photo_list: list[exif.Photo],
     match: photos.MatchResult | None, notes: list[str],
     by_clock: camclock.ClockPositions | None = None, numbers: dict[int, int] | None = None,
 ) -> _Cameras:
@@ -753,32 +683,31 @@ def _cameras(
 
 
 def _report(
-    s: SolveSettings, traj: positions.Trajectory, marks: tuple[Mark, ...],
-    mp: mi.MarkPositions, photo_list: list[photos.Photo], match: photos.MatchResult | None,
+    s: SolveSettings, traj: Trajectory, marks: tuple[Mark, ...],
+    mp: mi.MarkPositions, photo_list: list[exif.Photo], match: photos.MatchResult | None,
     cams: _Cameras, notes: list[str], base_check_made: BaseCheck | None,
-    lost: report.LostMarks, not_counted: int,
+    lost: LostMarks, not_counted: int, observed: FlightObservations,
 ) -> tuple[list[Path], list[str]]:
     """Stage 7: ``report.html`` and ``report.pdf`` (summary, counts, per-mark table, figures,
     warnings); returns the files written and notes on what could not be written."""
     proj, traj_llh = cams.proj, cams.traj_llh
     rows, epsg, lever_est = cams.rows, cams.epsg, cams.lever
     te, tn = proj.forward(traj_llh[:, 0], traj_llh[:, 1])
-    engine, version, engine_opts = report.engine_of(traj, dict(s.rtk_options), s.positions)
-    base_check, base_doubtful = base_check_made or report.check_base(
+    engine, version, engine_opts = positions.engine_of(traj, dict(s.rtk_options), s.positions)
+    base_check, base_doubtful = base_check_made or check_base(
         s.base, s.base_ecef_m, traj, s.positions, s.base_given)
     if base_doubtful:
         notes.append(f"WARNING base coordinates: {base_check}")
         log.warning("base coordinates doubtful: %s", base_check)
-    radio_gaps, outages, events_recorded = report.station_events(s.flight)
     unmatched = tuple(
         (photo_list[i].name, photo_list[i].error or "no mark within the pairing window")
         for i in match.unmatched_photos
     ) if match else ()
-    data = report.ReportInput(
+    data = ReportInput(
         flight=s.flight.name, engine_name=engine, engine_version=version,
         engine_options=engine_opts, position_source=f"{traj.source}: {len(traj)} epochs",
         base_name=s.base.name if s.base else None,
-        base_ecef_m=s.base_ecef_m or report.pos_header(s.positions).ref_ecef_m,
+        base_ecef_m=s.base_ecef_m or posfile.pos_header(s.positions).ref_ecef_m,
         base_check=base_check, base_doubtful=base_doubtful, base_sd_enu_m=s.base_sd_enu_m,
         epsg=epsg, crs_name=proj.name,
         projected=proj.projected, height_datum=proj.height_datum, lever_arm_m=s.lever_arm_m,
@@ -798,14 +727,14 @@ def _report(
         pair_t_gps_ns=np.array([mp.t_gps_ns[p.mark] for p in match.pairs], dtype=np.int64)
         if match else np.zeros(0, np.int64),
         pair_residual_s=np.array([p.residual_s for p in match.pairs]) if match else np.zeros(0),
-        radio_gaps=radio_gaps, source_outages=outages, station_events=events_recorded,
-        satellites=report.satellites_from_recording(s.flight),
+        radio_gaps=observed.radio_gaps, source_outages=observed.source_outages,
+        station_events=observed.station_events, satellites=observed.satellites,
         lever_residual_m=lever_est.residual_m if lever_est else np.zeros(0),
         lever_outlier=lever_est.outlier if lever_est else np.zeros(0, bool),
         metre_level=traj.metre_level, notes=tuple(notes),
-        integrity=(report.engine_info(traj) or {}).get("integrity"),
+        integrity=(positions.engine_info(traj) or {}).get("integrity"),
     )
-    cond = report.conditioning_of(traj)
+    cond = positions.conditioning_of(traj)
     if cond is not None:  # the receiver's flags plus the slips hidden in radio gaps
         data = replace(data, slips_found=cond[0], slips_repaired=cond[1])
     elif data.satellites is not None:

@@ -1,78 +1,49 @@
 """The flight report: ``report.html`` (self-contained, printable) and ``report.pdf`` beside it.
 
-The pipeline fills one :class:`ReportInput` (engine, base, CRS, lever arm, the camera rows that
-``cameras.csv`` is written from, the trajectory, link events, satellite observations) and calls
-:func:`write_report`. Everything on the page is derived from that input, so the counts and the
-per-mark table agree with the exports by construction. Figures come from
+The page is rendered from one :class:`~groundstation.solve.report_data.ReportInput` alone (the
+pipeline fills it from the solve's results; the counts, warnings and texts derived from it are
+:mod:`groundstation.solve.report_data`), so the counts and the per-mark table agree with the
+exports by construction; nothing here reads a recording or any other file. Figures come from
 :mod:`groundstation.solve.figures` as inline SVG; the page has no scripts and fetches nothing.
 
-One rendering path: the PDF is the same HTML printed by headless Chromium (``--print-to-pdf``),
-so the paper copy is exactly the page. Without Chromium, ``report.pdf`` is not written and the
-solve says so (print ``report.html`` from any browser instead).
+One rendering path: the PDF is the same HTML printed by headless Chromium
+(:mod:`groundstation.solve.pdf`), so the paper copy is exactly the page. Without Chromium,
+``report.pdf`` is not written and the solve says so (print ``report.html`` from any browser
+instead).
 """
 
 from __future__ import annotations
 
 import html
-import json
-import logging
 import math
-import re
-import shutil
-import subprocess
-import tempfile
-from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-import numpy.typing as npt
 
-from groundstation import gpstime, jsonio
-from groundstation.errors import ConfigError, GroundstationError
-from groundstation.rules.marks import (
-    LOST_CAUSE_TEXT,
-    LOST_IN_RECEIVER,
-    LOST_ON_LINK,
-    NOT_COUNTED_TEXT,
-    numbers_text,
+from groundstation import gpstime
+from groundstation.solve import clockoffset, figures
+from groundstation.solve.figures import QUALITY_COLOURS
+from groundstation.solve.integrity.grade import GRADE_MEANING
+from groundstation.solve.interpolate import flag_names
+from groundstation.solve.outputs import mark_numbers_text
+from groundstation.solve.pdf import find_chromium, print_pdf
+from groundstation.solve.report_data import (
+    QUALITY_KEYS,
+    ReportInput,
+    accuracy_text,
+    counts,
+    gps_text,
+    grades_text,
+    lost_marks_text,
+    nearest_epoch_s,
+    not_counted_text,
+    utc_text,
+    warnings,
 )
-from groundstation.solve import figures, photos
-from groundstation.solve.figures import QUALITY_COLOURS, Span
-from groundstation.solve.integrity.grade import GRADE_MEANING, GRADE_NAMES
-from groundstation.solve.interpolate import FLAG_CAMERA_CLOCK, FLAG_GAP, flag_names
-from groundstation.solve.outputs import CameraRow, mark_numbers_text
-from groundstation.solve.positions import (
-    Q_DGPS,
-    Q_FIX,
-    Q_FLOAT,
-    Q_PPP,
-    Q_SBAS,
-    Q_SINGLE,
-    QUALITY_NAMES,
-    Trajectory,
-)
+from groundstation.solve.trajectory import Q_FIX, Q_FLOAT, Q_SINGLE, QUALITY_NAMES
 
-log = logging.getLogger("groundstation.solve")
-
-FloatArray = npt.NDArray[np.float64]
-IntArray = npt.NDArray[np.int64]
-BoolArray = npt.NDArray[np.bool_]
-
-CHROMIUM_NAMES = ("chromium", "chromium-browser", "google-chrome", "google-chrome-stable")
-"""Executables tried, in order, for printing the PDF."""
-PDF_TIMEOUT_S = 120.0
-BASE_DOUBTFUL_M = 30.0
-"""The given base coordinates are doubtful when this far from the base receiver's own fixes
-(a stand-alone fix is good to a few metres; a wrong base shifts every camera position)."""
-BASE_REFUSED_M = 500.0
-"""Given base coordinates this far from the base receiver's own fixes are refused before any
-work: the mean of a base's stand-alone fixes is good to a few metres (10 m in a bad hour), and
-mixing up the height reference (geoid instead of ellipsoid, <= 107 m anywhere) stays far below
-it; what lies beyond is another site's or day's coordinates or a typo, and the engine then
-positions nothing (5 km: no solution rows) or a result shifted by the same distance. Between
-:data:`BASE_DOUBTFUL_M` and this, the solve runs and warns."""
 LEVER_ARM_CONVENTION = (
     "The lever arm L = (x, y, z) is given in the camera frame, from the projection centre to the "
     "antenna phase centre: x along the image x axis (right), y along the image y axis (up), z "
@@ -82,272 +53,9 @@ LEVER_ARM_CONVENTION = (
 )
 
 
-@dataclass(frozen=True, slots=True)
-class SatelliteObs:
-    """Raw measurements of the rover, one row per satellite and epoch (first band only).
-
-    Attributes:
-        sat: satellite names (``G05``, ``R12`` ...).
-        t_gps_ns: epoch time of each row.
-        cno_dbhz: carrier-to-noise density.
-        slip: loss of lock / cycle slip flagged at this epoch (RINEX LLI bit 0).
-        half: half-cycle ambiguity unresolved (LLI bit 1).
-        repaired: slips repaired by the conditioning (None when none ran).
-    """
-
-    sat: tuple[str, ...]
-    t_gps_ns: IntArray
-    cno_dbhz: FloatArray
-    slip: BoolArray
-    half: BoolArray
-    repaired: BoolArray | None = None
-
-
-LostMarks = Mapping[str, Sequence[int]]
-"""The numbers of the marks lost in count jumps, by cause
-(:func:`groundstation.rules.marks.lost_by_cause`)."""
-
-
-@dataclass(frozen=True, slots=True)
-class ReportInput:
-    """Everything the report shows; the pipeline fills it.
-
-    Attributes:
-        flight: recording name.
-        engine_name, engine_version, engine_options: the positioning engine and its option set.
-        position_source: where the trajectory came from (engine or imported file).
-        base_name: base recording (None without one).
-        base_ecef_m: base coordinates used (WGS84 ECEF), None when unknown.
-        base_check: how the base coordinates were checked, in words.
-        base_doubtful: the check failed or was impossible in a way a reviewer must know.
-        epsg, crs_name, projected: output CRS; ``height_datum`` names the heights.
-        lever_arm_m: lever arm in the camera frame (None: not applied).
-        shutter_delay_ms, edge, interp, max_gap_s: how marks became camera positions.
-        rows: the camera rows ``cameras.csv`` is written from (photos, then orphan marks).
-        marks_total, marks_duplicate: marks in the flight and duplicates set aside.
-        photos_total: photos found (0 without ``--photos``).
-        photos_given: ``--photos`` was given (without, the marks are exported by name,
-            ``mark_0031``, and a mark without photo is no warning).
-        lost_marks: the numbers of the pulses the receiver counted whose records never
-            arrived (jumps in its count), by cause (lost on the link, not reported by the
-            receiver: :func:`groundstation.rules.marks.lost_by_cause`).
-        photos_not_counted: photos without a mark that no count jump accounts for.
-        photos_unmatched: (photo name, reason) of every photo without a mark.
-        orphan_marks: mark indices without a photo.
-        clock_offset_s, pair_window_s: photo matching (None without photos); the clock offset
-            is GPS − camera (``MatchResult.gps_minus_camera_s``).
-        clock_leap_s: GPS − UTC leap seconds in ``clock_offset_s``.
-        pairing_warnings: an ambiguous photo pairing (``MatchResult.warnings``).
-        pair_t_gps_ns, pair_residual_s: mark time and residual of every pair.
-        track_*: the trajectory in the output CRS.
-        radio_gaps, source_outages: link dropouts and source outages recorded by the station.
-        station_events: the recording is a station session that records them (else unknown).
-        satellites: the rover's raw observations (None when the recording has none).
-        slips_found, slips_repaired: cycle slips found and repaired by the conditioning (None
-            when none ran; the pipeline then counts the receiver's loss-of-lock flags).
-        lever_residual_m, lever_outlier: lever-arm estimate from an EO file.
-        metre_level: the positions are the receiver's own fix.
-        notes: the solve's notes.
-    """
-
-    flight: str
-    engine_name: str
-    engine_version: str
-    engine_options: dict[str, str]
-    position_source: str
-    base_name: str | None
-    base_ecef_m: tuple[float, float, float] | None
-    base_check: str
-    base_doubtful: bool
-    epsg: int | str
-    crs_name: str
-    projected: bool
-    lever_arm_m: tuple[float, float, float] | None
-    shutter_delay_ms: float
-    edge: str
-    interp: str
-    max_gap_s: float
-    rows: tuple[CameraRow, ...]
-    marks_total: int
-    marks_duplicate: int
-    track_t_gps_ns: IntArray
-    track_x_m: FloatArray
-    track_y_m: FloatArray
-    track_quality: IntArray
-    height_datum: str = "WGS84 ellipsoidal height"
-    base_sd_enu_m: tuple[float, float, float] | None = None
-    photos_total: int = 0
-    photos_given: bool = True
-    lost_marks: LostMarks = field(default_factory=dict)
-    photos_not_counted: int = 0
-    photos_unmatched: tuple[tuple[str, str], ...] = ()
-    orphan_marks: tuple[int, ...] = ()
-    clock_offset_s: float | None = None
-    clock_leap_s: int = 0
-    pairing_warnings: tuple[str, ...] = ()
-    pair_window_s: float | None = None
-    pair_t_gps_ns: IntArray = field(default_factory=lambda: np.zeros(0, np.int64))
-    pair_residual_s: FloatArray = field(default_factory=lambda: np.zeros(0))
-    radio_gaps: tuple[Span, ...] = ()
-    source_outages: tuple[Span, ...] = ()
-    station_events: bool = True
-    satellites: SatelliteObs | None = None
-    slips_found: int | None = None
-    slips_repaired: int | None = None
-    lever_residual_m: FloatArray = field(default_factory=lambda: np.zeros(0))
-    lever_outlier: BoolArray = field(default_factory=lambda: np.zeros(0, bool))
-    metre_level: bool = False
-    notes: tuple[str, ...] = ()
-    integrity: dict[str, Any] | None = None
-    """The integrity stage's summary (``engine.json``'s ``integrity``), None when it did not
-    run."""
-
-
-QUALITY_KEYS = {Q_FIX: "fixed", Q_FLOAT: "float", Q_SBAS: "sbas", Q_DGPS: "dgps",
-                Q_SINGLE: "single", Q_PPP: "ppp"}
-"""Count keys of the positioned rows per RTKLIB quality (every positioned row has one)."""
-
-
-# -- time and number formatting ---------------------------------------------------------------
-
-
-def utc_text(t_gps_ns: int, decimals: int = 3) -> str:
-    """``2018-10-09 12:21:33.123`` (UTC) for a GPS instant; "" for none (< 0)."""
-    if t_gps_ns < 0:
-        return ""
-    unix_ns = gpstime.gps_to_unix_ns(t_gps_ns)
-    sec, frac = divmod(unix_ns, gpstime.NS_PER_S)
-    base = gpstime.gps_to_datetime(t_gps_ns).strftime("%Y-%m-%d %H:%M:%S")
-    return base + (f".{frac // 10 ** (9 - decimals):0{decimals}d}" if decimals else "")
-
-
-def gps_text(t_gps_ns: int, decimals: int = 3) -> str:
-    """``2022 130893.123`` (GPS week and seconds of week); "" for none."""
-    if t_gps_ns < 0:
-        return ""
-    week, tow_ns = gpstime.week_tow(t_gps_ns)
-    sec, frac = divmod(tow_ns, gpstime.NS_PER_S)
-    return f"{week} {sec}" + (f".{frac // 10 ** (9 - decimals):0{decimals}d}" if decimals else "")
-
-
 def _num(v: float, nd: int) -> str:
     return f"{v:.{nd}f}" if math.isfinite(v) else ""
 
-
-# -- counts -----------------------------------------------------------------------------------
-
-
-def lost_marks_text(lost: LostMarks) -> list[str]:
-    """One sentence per cause: how many marks were lost, why, what to do, and which (the
-    receiver's numbers, as ``mark_NNNN`` and ``mark_count``)."""
-    return [f"{len(nums)} time mark(s) {LOST_CAUSE_TEXT[cause]}: number(s) "
-            f"{numbers_text(nums)}." for cause, nums in lost.items() if nums]
-
-
-def not_counted_text(n: int) -> str:
-    """The photos no mark and no count jump account for."""
-    return f"{n} photo(s) {NOT_COUNTED_TEXT}."
-
-
-def counts(inp: ReportInput) -> dict[str, int]:
-    """The summary counts, all derived from the rows (so they equal ``cameras.csv``'s)."""
-    rows = inp.rows
-    pos = [r for r in rows if r.positioned]
-    in_radio = 0
-    for r in rows:
-        if r.t_gps_ns >= 0 and any(s.start_gps_ns <= r.t_gps_ns <= s.end_gps_ns
-                                   for s in inp.radio_gaps):
-            in_radio += 1
-    return {
-        "rows": len(rows),
-        **{QUALITY_KEYS[q]: sum(1 for r in pos if r.quality == q) for q in QUALITY_KEYS},
-        "not_positioned": sum(1 for r in rows if not r.positioned),
-        "photos": inp.photos_total,
-        "photos_matched": sum(1 for r in rows if r.photo and r.mark >= 0),
-        "photos_unmatched": sum(1 for r in rows if r.photo and r.mark < 0),
-        "photos_by_camera_clock": sum(1 for r in rows if r.flags & FLAG_CAMERA_CLOCK
-                                      and r.positioned),
-        "orphan_marks": sum(1 for r in rows if not r.photo and r.mark >= 0),
-        "marks_missed": sum(len(j) for j in inp.lost_marks.values()),
-        "marks_lost_on_link": len(inp.lost_marks.get(LOST_ON_LINK, ())),
-        "marks_not_reported": len(inp.lost_marks.get(LOST_IN_RECEIVER, ())),
-        "photos_not_counted": inp.photos_not_counted,
-        "marks_bridging_gap": sum(1 for r in rows if r.flags & FLAG_GAP),
-        "marks_in_radio_gap": in_radio,
-        "nadir_assumed": sum(1 for r in rows if r.attitude == "nadir-track"),
-    }
-
-
-def nearest_epoch_s(inp: ReportInput) -> FloatArray:
-    """Per row: seconds from its instant to the nearest solved epoch (NaN without instant)."""
-    t = inp.track_t_gps_ns
-    out = np.full(len(inp.rows), np.nan)
-    if t.size == 0:
-        return out
-    for i, r in enumerate(inp.rows):
-        if r.t_gps_ns < 0:
-            continue
-        j = int(np.searchsorted(t, r.t_gps_ns))
-        cand = [k for k in (j - 1, j) if 0 <= k < t.size]
-        out[i] = min(abs(int(t[k]) - r.t_gps_ns) for k in cand) / 1e9
-    return out
-
-
-# -- warnings ---------------------------------------------------------------------------------
-
-
-def warnings(inp: ReportInput) -> list[str]:
-    """Every condition a reviewer must know before signing off, most serious first."""
-    c = counts(inp)
-    out: list[str] = []
-    if inp.metre_level:
-        out.append("The positions are the receiver's own fix (metre level): not for mapping.")
-    if inp.base_doubtful:
-        out.append(f"Base coordinates doubtful: {inp.base_check}")
-    out.extend(f"{w[:1].upper()}{w[1:]}" for w in inp.pairing_warnings)
-    if c["not_positioned"]:
-        out.append(f"{c['not_positioned']} camera position(s) could not be computed (see the "
-                   "flags column: outside the trajectory, no edge, or a photo without mark).")
-    worse = {k: c[k] for k in QUALITY_KEYS.values() if k != "fixed" and c[k]}
-    if worse:
-        parts = ", ".join(f"{v} {k}" for k, v in worse.items())
-        out.append(f"{sum(worse.values())} camera position(s) are not ambiguity-fixed ({parts}): "
-                   "expect decimetres (float) to metres (dgps, single).")
-    if c["marks_bridging_gap"]:
-        out.append(f"{c['marks_bridging_gap']} camera position(s) are interpolated across a gap "
-                   f"of more than {inp.max_gap_s:g} s between solved epochs.")
-    if c["marks_in_radio_gap"]:
-        out.append(f"{c['marks_in_radio_gap']} mark(s) fall inside radio dropouts recorded by "
-                   "the ground station.")
-    if inp.source_outages:
-        out.append(f"{len(inp.source_outages)} outage(s) of the receiver connection during the "
-                   "session.")
-    if c["photos_unmatched"]:
-        names = ", ".join(n for n, _ in inp.photos_unmatched[:8])
-        extra = len(inp.photos_unmatched) - 8
-        more = f" and {extra} more" if extra > 0 else ""
-        timed = c["photos_by_camera_clock"]
-        how = (f" ({timed} positioned at their own time through the camera clock fitted on the "
-               "paired photos: flag camera_clock, the timing in their sigma)" if timed else "")
-        out.append(f"{c['photos_unmatched']} photo(s) without a time mark{how}: {names}{more}.")
-    out.extend(lost_marks_text(inp.lost_marks))
-    if inp.photos_not_counted:
-        out.append(not_counted_text(inp.photos_not_counted))
-    if c["orphan_marks"] and inp.photos_given:
-        out.append(f"{c['orphan_marks']} time mark(s) without a photo (camera fired, no image "
-                   "found): check the image count.")
-    if inp.marks_duplicate:
-        out.append(f"{inp.marks_duplicate} duplicate time mark(s) set aside.")
-    if c["nadir_assumed"]:
-        out.append(f"Attitude assumed for {c['nadir_assumed']} camera position(s): nadir camera "
-                   "(omega = phi = 0), kappa from the direction of travel. The lever arm is "
-                   "applied with this assumed attitude.")
-    if inp.lever_arm_m is None and c["rows"]:
-        out.append("No lever arm applied: the positions are those of the antenna, not of the "
-                   "camera's projection centre.")
-    if not inp.engine_version:
-        out.append("The engine version is not recorded for this solution.")
-    return out
 
 
 # -- HTML -------------------------------------------------------------------------------------
@@ -456,28 +164,12 @@ def _summary(inp: ReportInput) -> str:
         ("Interpolation", f"{_e(inp.interp)}; gaps longer than {inp.max_gap_s:g} s are flagged"),
     ]
     if inp.clock_offset_s is not None:
-        sigma = photos.residual_sigma_text(photos.residual_sigma_s(inp.pair_residual_s))
+        sigma = clockoffset.residual_sigma_text(clockoffset.residual_sigma_s(inp.pair_residual_s))
         clock = (f"GPS − camera {inp.clock_offset_s:+.3f} s = {inp.clock_leap_s} s leap seconds "
                  f"(GPS − UTC) {inp.clock_offset_s - inp.clock_leap_s:+.3f} s (UTC − camera)")
         rows.append(("Camera clock", (f"{clock}; pairing window "
                      f"±{(inp.pair_window_s or 0) * 1e3:.0f} ms; timing residual σ {sigma}")))
     return _kv(rows)
-
-
-def _cm(v: float) -> str:
-    return f"{v * 100:.1f} cm" if v < 1.0 else f"{v:.2f} m"
-
-
-def accuracy_text(inp: ReportInput) -> str:
-    """The engine's σ at the positioned camera positions, horizontal and up: median and worst."""
-    pos = [r for r in inp.rows if r.positioned and math.isfinite(r.sd_u_m)]
-    if not pos:
-        return "no camera position"
-    hor = np.array([math.hypot(r.sd_e_m, r.sd_n_m) for r in pos])
-    up = np.array([r.sd_u_m for r in pos])
-    return (f"σ horizontal {_cm(float(np.median(hor)))} median, {_cm(float(hor.max()))} worst; "
-            f"σ up {_cm(float(np.median(up)))} median, {_cm(float(up.max()))} worst "
-            f"(the engine's estimate at the {len(pos)} positioned camera position(s))")
 
 
 def _result(inp: ReportInput) -> str:
@@ -511,25 +203,6 @@ def _result(inp: ReportInput) -> str:
             if unmatched else "none"))
     lines.append(("Accuracy", _e(accuracy_text(inp))))
     return _kv(lines, "kv result")
-
-
-def grades_text(rows: Sequence[CameraRow]) -> str:
-    """Camera positions per grade, with the checks that decided them:
-    ``fixed 636 (arcs 600, both-directions 36); float 21 (demoted:interpolation 14, ...)``."""
-    pos = [r for r in rows if r.positioned]
-    if not pos:
-        return "no camera position"
-    parts = []
-    for name in GRADE_NAMES.values():
-        mine = [r for r in pos if r.grade == name]
-        if not mine:
-            continue
-        by: dict[str, int] = {}
-        for r in mine:
-            by[r.check or "no check"] = by.get(r.check or "no check", 0) + 1
-        detail = ", ".join(f"{k} {v}" for k, v in sorted(by.items(), key=lambda kv: -kv[1]))
-        parts.append(f"{name} {len(mine)} ({detail})")
-    return "; ".join(parts)
 
 
 INTEGRITY_TEXT = (
@@ -768,7 +441,7 @@ def _figures(inp: ReportInput) -> list[tuple[str, str, str]]:
             "Photo timing residuals",
             figures.timing_residuals(inp.pair_t_gps_ns, inp.pair_residual_s,
                                      inp.pair_window_s or math.nan,
-                                     photos.residual_sigma_s(inp.pair_residual_s)),
+                                     clockoffset.residual_sigma_s(inp.pair_residual_s)),
             ("Time of each mark minus the photo's EXIF time corrected by the camera clock offset. "
             "Whole-second EXIF times spread over ±500 ms; sub-second times sit near zero."),
         ))
@@ -821,39 +494,6 @@ def render_html(inp: ReportInput) -> str:
     )
 
 
-# -- PDF --------------------------------------------------------------------------------------
-
-
-def find_chromium() -> str | None:
-    """Path of a Chromium (or Chrome) executable, None when none is installed."""
-    for name in CHROMIUM_NAMES:
-        path = shutil.which(name)
-        if path:
-            return path
-    return None
-
-
-def print_pdf(html_path: Path, pdf_path: Path, chromium: str) -> None:
-    """Print a page to PDF with headless Chromium (A4 from the page's ``@page`` rule).
-
-    Raises:
-        RuntimeError: Chromium failed or wrote nothing (message names why).
-    """
-    with tempfile.TemporaryDirectory(prefix="gs-report-") as profile:
-        cmd = [chromium, "--headless", "--no-sandbox", "--disable-gpu", "--no-first-run",
-               "--disable-background-networking", "--disable-component-update",
-               "--disable-sync", f"--user-data-dir={profile}", "--no-pdf-header-footer",
-               f"--print-to-pdf={pdf_path}", html_path.resolve().as_uri()]
-        try:
-            proc = subprocess.run(cmd, capture_output=True, text=True, timeout=PDF_TIMEOUT_S,
-                                  check=False)
-        except subprocess.TimeoutExpired as err:
-            raise RuntimeError(f"Chromium did not finish within {PDF_TIMEOUT_S:g} s") from err
-    if proc.returncode != 0 or not pdf_path.is_file() or pdf_path.stat().st_size == 0:
-        tail = (proc.stderr or "").strip().splitlines()[-1:] or ["no output"]
-        raise RuntimeError(f"Chromium exit {proc.returncode}: {tail[0]}")
-
-
 def write_report(inp: ReportInput, out_dir: Path) -> tuple[list[Path], list[str]]:
     """Write ``report.html`` and (with Chromium) ``report.pdf``; returns (paths, notes).
 
@@ -876,231 +516,3 @@ def write_report(inp: ReportInput, out_dir: Path) -> tuple[list[Path], list[str]
         return paths, notes
     paths.append(pp)
     return paths, notes
-
-
-# -- inputs the pipeline does not otherwise read ----------------------------------------------
-
-
-def satellites_from_recording(path: Path) -> SatelliteObs | None:
-    """The rover's raw measurements (RXM-RAWX, else RXM-RAW), first band, as RINEX sees them."""
-    from groundstation.offline import rinex
-    from groundstation.ubx import fastraw
-
-    data, index = rinex.read_frames(path)  # streaming: the frames only, not the whole input
-    obs = rinex.obs_from_rawx(fastraw.decode_rawx(data, index))
-    if obs.epoch.size == 0:
-        obs = rinex.obs_from_raw(fastraw.decode_raw(data, index))
-    if obs.epoch.size == 0:
-        return None
-    first = np.char.startswith(obs.code.astype(str), "1")
-    sat = np.char.add(obs.sys.astype(str), np.char.zfill(obs.prn.astype(str), 2))[first]
-    return SatelliteObs(
-        sat=tuple(sat.tolist()),
-        t_gps_ns=obs.t_gps_ns[obs.epoch[first]],
-        cno_dbhz=obs.cno_dbhz[first],
-        slip=(obs.lli[first] & 1) != 0,
-        half=(obs.lli[first] & 2) != 0,
-    )
-
-
-def station_events(path: Path) -> tuple[tuple[Span, ...], tuple[Span, ...], bool]:
-    """Radio dropouts and source outages a ground-station session recorded (MCAP only).
-
-    Returns (dropouts, outages, recorded): ``recorded`` is False for a plain UBX file, which
-    cannot tell.
-
-    Outages carry host times; they are put on GPS time with the least-delayed offset between
-    host clock and the receiver's fixes, as the dashboard does.
-    """
-    from groundstation.storage.mcapio import iter_messages
-    from groundstation.storage.reading import detect_format, session_parts
-
-    if detect_format(path) != "mcap":
-        return (), (), False
-    gaps: list[Span] = []
-    host_outages: list[tuple[int, int]] = []
-    offsets: list[int] = []
-    for part in session_parts(path):
-        for m in iter_messages(part, topics=["/groundstation/event", "/gnss/nav"]):
-            try:
-                d = json.loads(m.data)
-            except ValueError:
-                continue
-            if m.topic == "/gnss/nav":
-                th, wk, tow = d.get("t_host_ns"), d.get("gps_week"), d.get("tow_ns")
-                if isinstance(th, int) and isinstance(wk, int) and isinstance(tow, int):
-                    offsets.append(th - gpstime.gps_ns(wk, tow))
-                continue
-            data = d.get("data") or {}
-            if d.get("kind") == "link.dropout":
-                a, b = data.get("start_t_gps_ns"), data.get("end_t_gps_ns")
-                if isinstance(a, int) and isinstance(b, int):
-                    gaps.append(Span(a, b))
-            elif d.get("kind") == "source.outage":
-                a, b = data.get("start_ns"), data.get("end_ns")
-                if isinstance(a, int) and isinstance(b, int):
-                    host_outages.append((a, b))
-    outages: tuple[Span, ...] = ()
-    if offsets and host_outages:
-        off = min(offsets)
-        outages = tuple(Span(a - off, b - off) for a, b in host_outages)
-    return tuple(gaps), outages, True
-
-
-@dataclass(frozen=True, slots=True)
-class PosHeader:
-    """What an imported RTKLIB ``.pos`` file says about itself."""
-
-    program: str = ""
-    ref_ecef_m: tuple[float, float, float] | None = None
-    lines: tuple[str, ...] = ()
-
-
-def pos_header(path: Path | None) -> PosHeader:
-    """The ``%`` header of a ``.pos`` file (plain or gzip); empty when none or unreadable."""
-    import gzip
-
-    from groundstation.solve.positions import _layout_from_header
-
-    if path is None:
-        return PosHeader()
-    lines: list[str] = []
-    try:
-        opener = gzip.open if path.suffix == ".gz" else open
-        with opener(path, "rt", encoding="ascii", errors="replace") as f:
-            for line in f:
-                if not line.startswith("%"):
-                    break
-                lines.append(line.rstrip("\n"))
-    except OSError:
-        return PosHeader()
-    program = ""
-    for line in lines:
-        body = line.lstrip("%").strip()
-        if body.startswith("program"):
-            program = body.split(":", 1)[-1].strip()
-    return PosHeader(program, _layout_from_header(lines, None).ref_ecef_m, tuple(lines))
-
-
-_ENGINE_INFO_NOTE = "engine options in "
-"""How the engine names its info file (engine, version, full option set) in the notes."""
-
-
-def engine_info(traj: Trajectory) -> dict[str, Any] | None:
-    """The ``engine.json`` of the engine run that made the trajectory, if any."""
-    info_path = next((Path(n.removeprefix(_ENGINE_INFO_NOTE)) for n in traj.notes
-                      if n.startswith(_ENGINE_INFO_NOTE)), None)
-    if info_path is None:
-        return None
-    try:
-        info = jsonio.loads(info_path.read_bytes())
-    except (OSError, ValueError):
-        return None
-    return info if isinstance(info, dict) else None
-
-
-def conditioning_of(traj: Trajectory) -> tuple[int, int, int] | None:
-    """(slips found, repaired, flagged) by the phase conditioning before the engine; None when
-    it did not run (an imported solution, a RINEX or RXM-RAWX rover)."""
-    info = engine_info(traj)
-    cond = info.get("conditioning") if info else None
-    if not isinstance(cond, dict) or not cond.get("applied"):
-        return None
-    tot = cond.get("totals") or {}
-    found = int(tot.get("receiver_slips", 0)) + int(tot.get("hidden_found", 0))
-    return found, int(tot.get("repaired", 0)), int(tot.get("flagged", 0))
-
-
-def engine_of(
-    traj: Trajectory, rtklib_overrides: dict[str, str], positions_file: Path | None
-) -> tuple[str, str, dict[str, str]]:
-    """Name, version and options of the engine that made the trajectory.
-
-    A solution our engine made carries its ``engine.json`` (engine, version, every option); an
-    imported ``.pos`` states its program in its header; ``rtklib_overrides`` is kept for callers
-    that imported a solution made with known options.
-    """
-    info = engine_info(traj)
-    if info is not None:
-        opts = {str(k): str(v) for k, v in dict(info.get("options") or {}).items()}
-        return str(info.get("engine", traj.source)), str(info.get("version", "")), opts
-    if traj.metre_level:
-        return "receiver's own fix", "", {}
-    head = pos_header(positions_file)
-    if head.program:
-        name, _, version = head.program.partition(" ")
-        return name, f"{version} (from the header of {traj.source})".strip(), dict(rtklib_overrides)
-    return f"imported solution file ({traj.source})", "", dict(rtklib_overrides)
-
-
-def check_base(
-    base: Path | None,
-    base_ecef_m: tuple[float, float, float] | None,
-    traj: Trajectory | None,
-    positions_file: Path | None,
-    how: str = "given with --base-xyz",
-) -> tuple[str, bool]:
-    """How the base coordinates were checked: (text, doubtful); ``how`` says how they were
-    given.
-
-    Given coordinates are compared with the mean of the base receiver's own fixes in a u-blox
-    base recording (before the engine runs: ``traj`` is not needed then); an imported
-    solution's reference position is taken from its header.
-
-    Raises:
-        ConfigError: naming ``--base-xyz``: far from the base receiver's fixes
-            (:func:`compare_base`).
-    """
-    if base_ecef_m is None:
-        if traj is not None and traj.metre_level:
-            return "no base (receiver's own fix)", False
-        ref = pos_header(positions_file).ref_ecef_m
-        if ref is not None:
-            return ("reference position from the header of the imported solution; not checked "
-                    "against a base recording"), False
-        return "unknown (the imported solution does not state its base)", True
-    if base is None or detect_recording(base) is None:
-        return f"{how}; not checked (no u-blox base recording)", False
-    from groundstation.solve.pipeline import read_flight
-
-    try:
-        fixes = [n.ecef_m for n in read_flight(base).nav if n.fix_ok and n.ecef_m]
-    except GroundstationError as err:
-        return f"{how}; not checked ({err})", True
-    return compare_base(fixes, base_ecef_m, how)
-
-
-def detect_recording(path: Path) -> str | None:
-    """The recording format of a base file (``mcap``, ``gzip``, ``raw``); None for RINEX."""
-    from groundstation.storage.reading import detect_format
-
-    if path.suffix.lower() in (".obs", ".rnx") or re.search(r"\.\d\d[oO]$", path.name):
-        return None
-    try:
-        return detect_format(path)
-    except GroundstationError:
-        return None
-
-
-def compare_base(
-    base_fixes_ecef_m: Sequence[tuple[float, float, float]],
-    base_ecef_m: tuple[float, float, float],
-    how_given: str,
-) -> tuple[str, bool]:
-    """How the base coordinates compare with the base receiver's own fixes: (text, doubtful).
-
-    Raises:
-        ConfigError: naming ``--base-xyz``: more than :data:`BASE_REFUSED_M` away.
-    """
-    if not base_fixes_ecef_m:
-        return f"{how_given}; not checked (the base recording has no receiver fix)", False
-    mean = np.mean(np.asarray(base_fixes_ecef_m, dtype=np.float64), axis=0)
-    d = float(np.linalg.norm(mean - np.asarray(base_ecef_m)))
-    if d > BASE_REFUSED_M:
-        raise ConfigError("--base-xyz", (
-            f"{d / 1000:.2f} km from where the base receiver's own {len(base_fixes_ecef_m)} "
-            f"fixes put the base ({mean[0]:.1f},{mean[1]:.1f},{mean[2]:.1f}; stand-alone fixes "
-            f"are good to a few metres): not this base's coordinates (another day's or site's?)"))
-    text = (f"{how_given}; {d:.1f} m from the mean of the base receiver's own "
-            f"{len(base_fixes_ecef_m)} fixes (stand-alone, metre level)")
-    return text, d > BASE_DOUBTFUL_M

@@ -14,15 +14,15 @@ from collections.abc import Mapping, Sequence
 from typing import Any
 
 from groundstation.solve.engine.dynamics import EXCEEDED_S
-from groundstation.solve.positions import Trajectory
-from groundstation.solve.report import engine_info
+from groundstation.solve.positions import engine_info
+from groundstation.solve.trajectory import Trajectory
 
 ENGINE_NOTE_PREFIXES = ("phase conditioning", "acceleration noise", "combined: ",
                         "integrity stage: epochs")
 """How the engine's notes on its conditioning, dynamics and combination begin
 (``solve/engine/__init__.py``); the plain lines below stand for them on the terminal."""
 POS_FORMAT_PREFIX = "RTKLIB .pos ("
-"""How :func:`groundstation.solve.positions.read_pos` names the layout of a ``.pos`` file."""
+"""How :func:`groundstation.solve.posfile.read_pos` names the layout of a ``.pos`` file."""
 
 _COORDS = {"xyz": "ECEF X/Y/Z", "llh": "latitude/longitude/height", "enu": "east/north/up"}
 _TIME_SYSTEMS = {"GPST": "GPS time", "UTC": "UTC", "JST": "Japan time"}

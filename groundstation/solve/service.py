@@ -61,7 +61,7 @@ from groundstation.solve.base import BASE_KEYS, base_position
 from groundstation.solve.fetch import Remote, remote_for
 from groundstation.solve.pairing import BASE_WAIT_S, Pairing, base_station, span_of
 from groundstation.solve.pipeline import SolveResult, SolveSettings, solve
-from groundstation.solve.positions import Q_FIX
+from groundstation.solve.trajectory import Q_FIX
 
 if TYPE_CHECKING:
     from groundstation.solve.claims import Claims

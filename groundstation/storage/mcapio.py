@@ -29,7 +29,7 @@ import logging
 import os
 import struct
 import zlib
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, BinaryIO, Protocol
@@ -1300,14 +1300,20 @@ def read_head_metadata(path: Path | str) -> dict[str, dict[str, str]]:
 
 def iter_raw_chunks(
     path: Path | str | BinaryIO, report: ReadReport | None = None,
+    also: Mapping[str, Callable[[McapMessage], None]] | None = None,
 ) -> Iterator[tuple[bytes, int]]:
     """The ``/ubx/raw`` chunks of a recording as ``(data, log_time_ns)``, finished or not.
 
     Concatenating the data gives exactly the bytes the daemon received, in order (less any
-    damaged stretch read past: ``report.skipped``).
+    damaged stretch read past: ``report.skipped``). ``also`` reads other topics in the same
+    pass: each of their messages goes to its topic's callback, in file order.
     """
-    for msg in iter_messages(path, topics=(RAW_TOPIC,), report=report):
-        yield msg.data, msg.log_time_ns
+    handlers = dict(also or {})
+    for msg in iter_messages(path, topics=(RAW_TOPIC, *handlers), report=report):
+        if msg.topic == RAW_TOPIC:
+            yield msg.data, msg.log_time_ns
+        else:
+            handlers[msg.topic](msg)
 
 
 def read_metadata(path: Path | str) -> dict[str, dict[str, str]]:

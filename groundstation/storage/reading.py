@@ -46,13 +46,16 @@ import logging
 import os
 import stat
 import zlib
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import BinaryIO, Literal
+from typing import TYPE_CHECKING, BinaryIO, Literal
 
 from groundstation.errors import InputError
 from groundstation.storage.skipped import Skipped
+
+if TYPE_CHECKING:
+    from groundstation.storage.mcapio import McapMessage
 
 log = logging.getLogger("groundstation.reading")
 
@@ -304,12 +307,17 @@ class Recording:
         """Fraction of :attr:`size_bytes` read, 0 to 1."""
         return min(self.bytes_read / self.size_bytes, 1.0) if self.size_bytes else 1.0
 
-    def chunks(self, chunk_bytes: int = CHUNK_BYTES) -> Iterator[tuple[bytes, int]]:
+    def chunks(
+        self, chunk_bytes: int = CHUNK_BYTES, *,
+        also: Mapping[str, Callable[[McapMessage], None]] | None = None,
+    ) -> Iterator[tuple[bytes, int]]:
         """Yield ``(chunk, t_host_ns)`` from every part in order.
 
         For MCAP, ``t_host_ns`` is each ``/ubx/raw`` message's ``log_time`` (the host time of
         reception) and chunks are the recorded ones; for other files it is 0 (they hold no
-        reception times) and chunks are ``chunk_bytes`` long.
+        reception times) and chunks are ``chunk_bytes`` long. ``also`` hands an MCAP's messages
+        of other topics to their topic's callback in the same pass
+        (:func:`~groundstation.storage.mcapio.iter_raw_chunks`); other files have none.
 
         Raises:
             InputError: a part cannot be opened or read, or its compressed data is corrupt
@@ -320,10 +328,13 @@ class Recording:
         self.skipped = []
         self.orphan_messages = 0
         for part in self.parts:
-            yield from self._part_chunks(part, chunk_bytes)
+            yield from self._part_chunks(part, chunk_bytes, also)
             self._done_bytes += _size(part)
 
-    def _part_chunks(self, part: Path, chunk_bytes: int) -> Iterator[tuple[bytes, int]]:
+    def _part_chunks(
+        self, part: Path, chunk_bytes: int,
+        also: Mapping[str, Callable[[McapMessage], None]] | None = None,
+    ) -> Iterator[tuple[bytes, int]]:
         fmt = detect_format(part)
         try:
             with part.open("rb") as f:
@@ -334,7 +345,7 @@ class Recording:
 
                     report = ReadReport()
                     try:
-                        yield from iter_raw_chunks(f, report=report)
+                        yield from iter_raw_chunks(f, report=report, also=also)
                     finally:
                         self.skipped += report.skipped
                         self.orphan_messages += report.orphan_messages

@@ -22,7 +22,8 @@ from groundstation.offline.rinex.observations import ObsSet
 from groundstation.sim.profiles import sim_config
 from groundstation.sim.stream import SimResult, simulate
 from groundstation.solve import conditioning, engine
-from groundstation.solve.positions import Q_FIX, read_pos
+from groundstation.solve.posfile import read_pos
+from groundstation.solve.trajectory import Q_FIX
 
 # One worker runs this module's tests (pytest-xdist):
 # its module fixture simulates the seed flight (~6 s), made once.

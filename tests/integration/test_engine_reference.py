@@ -16,10 +16,11 @@ import pytest
 
 from groundstation import jsonio
 from groundstation.solve import engine
-from groundstation.solve.engine import EngineJob
 from groundstation.solve.engine import options as eo
 from groundstation.solve.engine.demo5 import Demo5Engine
-from groundstation.solve.positions import Trajectory, read_pos
+from groundstation.solve.engine.protocol import EngineJob, EngineRun
+from groundstation.solve.posfile import read_pos
+from groundstation.solve.trajectory import Trajectory
 
 pytestmark = [pytest.mark.shared_data, pytest.mark.slow]
 
@@ -92,7 +93,7 @@ def test_pyrtklib5_reproduces_rtklib_reference(
 
 def _solve_1009(
     shared_data: Path, tmp_path: Path, overrides: dict[str, str]
-) -> engine.EngineRun:
+) -> EngineRun:
     """Our default (+ overrides) on convbin's RINEX of 2018-10-09."""
     rover, base, _ = CASES["jd_20181009_kin_vs_M8Pbase_svin"]
     for f in (rover, base):
@@ -108,7 +109,7 @@ def _solve_1009(
 
 def _against_reference(
     shared_data: Path, tmp_path: Path, overrides: dict[str, str]
-) -> tuple[engine.EngineRun, int, int, float, str]:
+) -> tuple[EngineRun, int, int, float, str]:
     """Our default (+ overrides) on convbin's RINEX of 2018-10-09; fixed counts, p95, summary."""
     run = _solve_1009(shared_data, tmp_path, overrides)
     ours = read_pos(run.pos_path)

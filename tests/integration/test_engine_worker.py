@@ -7,7 +7,8 @@ from pathlib import Path
 
 import pytest
 
-from groundstation.solve.engine import EngineError, demo5
+from groundstation.solve.engine import demo5
+from groundstation.solve.engine.protocol import EngineError
 
 
 def test_a_segfault_in_the_worker_is_an_engine_error(

@@ -26,7 +26,8 @@ from groundstation.offline import rinex
 from groundstation.offline.inspect import inspect_path
 from groundstation.sim.faults import FaultConfig
 from groundstation.sim.stream import SimConfig, simulate
-from groundstation.solve.pipeline import SolveSettings, read_flight, solve
+from groundstation.solve.flight import read_flight
+from groundstation.solve.pipeline import SolveSettings, solve
 from groundstation.storage import iter_messages, iter_raw_chunks
 
 # One worker runs this module's tests (pytest-xdist):

@@ -15,7 +15,7 @@ import pytest
 from peers import REPO
 from poison import looping_exif_jpeg
 
-from groundstation.solve import photos
+from groundstation.solve import exif
 
 JD = "real/jdesbonnet__GNSS_RTK_data/20181009"
 POS = "reference/rnx2rtkp_pos/jd_20181009_kin_vs_M8Pbase_svin.pos.gz"
@@ -37,7 +37,7 @@ def test_solve_finishes_with_the_looping_exif_photo_skipped(
     (pics / "IMG_0000.JPG").write_bytes(looping_exif_jpeg())
     for i in range(1, 4):
         (pics / f"IMG_{i:04d}.JPG").write_bytes(
-            photos.make_jpeg(dt.datetime(2018, 10, 9, 12, 30, i)))
+            exif.make_jpeg(dt.datetime(2018, 10, 9, 12, 30, i)))
     before = {p.name: p.read_bytes() for p in pics.iterdir()}
     proc = _cli("solve", str(shared_data / JD / "rover-20181009-1221.ubx.gz"), "--positions",
                 str(shared_data / POS), "--photos", str(pics), "--out", str(tmp_path / "out"),

@@ -29,7 +29,7 @@ from peers import cli_env
 from streams import flight_stream, tim_tm2
 
 from groundstation.offline.inspect import inspect_path
-from groundstation.solve.pipeline import read_flight
+from groundstation.solve.flight import read_flight
 from groundstation.storage.mcapio import McapFileWriter, ReadReport, iter_messages
 from groundstation.storage.reading import Recording, iter_chunks
 from groundstation.storage.session import SessionRecorder

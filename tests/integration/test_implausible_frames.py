@@ -298,7 +298,7 @@ def test_the_solver_reads_the_same_marks_as_rinex(tmp_path: Path) -> None:
     """The solver's reading of the marks judges them by the session's clock too (it reads only
     marks and fixes: the epochs still set the clock), so a mark an hour off is left out by both."""
     from groundstation.offline.rinex.convert import observations_of, read_frames, time_marks_of
-    from groundstation.solve.pipeline import read_flight
+    from groundstation.solve.flight import read_flight
 
     week, itow = sim_week_tow()
     flags = L.TIM_TM2_FLAGS.compose(mode=1, run=1, timeBase=1, time=1, newFallingEdge=1)

@@ -20,7 +20,7 @@ from groundstation.offline.merge import merge
 from groundstation.sim.faults import FaultConfig
 from groundstation.sim.profiles import DEFAULT_FAULTS, sim_config
 from groundstation.sim.stream import simulate
-from groundstation.solve.pipeline import read_flight
+from groundstation.solve.flight import read_flight
 
 pytestmark = pytest.mark.xdist_group("test_merge_onboard")
 

@@ -30,7 +30,7 @@ from test_solve_demo import _cli
 from test_solve_jd import JD, REF, _photos_for_marks
 
 from groundstation.rules.marks import build_marks
-from groundstation.solve import pipeline
+from groundstation.solve.flight import read_flight
 from groundstation.solve.photosim import photos_at_times, write_photo_set
 from groundstation.solve.report import MARK_COLUMNS
 
@@ -75,7 +75,7 @@ def real(tmp_path_factory: pytest.TempPathFactory, shared_data: Path) -> dict[st
     d = tmp_path_factory.mktemp("report_real")
     rover = shared_data / JD / "rover-20181009-1221.ubx.gz"
     pos = shared_data / REF / "jd_20181009_kin_vs_M8Pbase_svin.pos.gz"
-    marks = build_marks(pipeline.read_flight(rover).timemarks)
+    marks = build_marks(read_flight(rover).timemarks)
     times = [m.falling_t_gps_ns for m in marks]
     _photos_for_marks([t for t in times if t is not None], d / "photos", -(47 * 60 + 12.34),
                       {5, 77, 300})
@@ -392,7 +392,8 @@ def test_without_chromium_the_html_is_written_and_the_missing_pdf_named(
     import numpy as np
 
     from groundstation.solve.outputs import CameraRow
-    from groundstation.solve.report import ReportInput, write_report
+    from groundstation.solve.report import write_report
+    from groundstation.solve.report_data import ReportInput
 
     t0 = 2022 * 604_800 * 10**9 + 217_373 * 10**9
     inp = ReportInput(

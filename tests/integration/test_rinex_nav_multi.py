@@ -14,7 +14,8 @@ import pytest
 from groundstation.errors import InputError
 from groundstation.offline import rinex
 from groundstation.solve import engine
-from groundstation.solve.positions import Trajectory, read_pos
+from groundstation.solve.posfile import read_pos
+from groundstation.solve.trajectory import Trajectory
 from groundstation.ubx.fastraw import index_frames
 
 # One worker runs this module's tests (pytest-xdist): its module fixture converts the real

@@ -13,10 +13,11 @@ import pytest
 
 from groundstation import gpstime
 from groundstation.cli import main
+from groundstation.solve import exif
 from groundstation.solve import interpolate as ip
-from groundstation.solve import photos, pipeline
 from groundstation.solve.engine import run_engine
-from groundstation.solve.positions import read_pos
+from groundstation.solve.flight import read_flight
+from groundstation.solve.posfile import read_pos
 
 pytestmark = pytest.mark.shared_data
 
@@ -36,7 +37,7 @@ def jd(shared_data: Path) -> dict[str, Path]:
 
 
 def test_linear_marks_equal_rtklib_events_within_a_millimetre(jd: dict[str, Path]) -> None:
-    rec = pipeline.read_flight(jd["rover"])
+    rec = read_flight(jd["rover"])
     from groundstation.rules.marks import build_marks
 
     marks = build_marks(rec.timemarks)
@@ -76,14 +77,14 @@ def _photos_for_marks(
         sec, frac = divmod(cam_ns, 10**9)
         when = dt.datetime.fromtimestamp(sec, tz=dt.UTC).replace(tzinfo=None)
         name = f"IMG_{k:04d}.JPG"
-        (d / name).write_bytes(photos.make_jpeg(when, subsec=f"{frac // 10**7:02d}"))
+        (d / name).write_bytes(exif.make_jpeg(when, subsec=f"{frac // 10**7:02d}"))
         names[i] = name
     return names
 
 
 def test_solve_command_end_to_end(jd: dict[str, Path], tmp_path: Path,
                                   capsys: pytest.CaptureFixture[str]) -> None:
-    rec = pipeline.read_flight(jd["rover"])
+    rec = read_flight(jd["rover"])
     from groundstation.rules.marks import build_marks
 
     marks = build_marks(rec.timemarks)
@@ -194,7 +195,7 @@ def test_photo_subset_in_utc_is_not_shifted_by_whole_marks(
     # clock set to UTC names the right one and the solve says so.
     from groundstation.rules.marks import build_marks
 
-    marks = build_marks(pipeline.read_flight(jd["rover"]).timemarks)
+    marks = build_marks(read_flight(jd["rover"]).timemarks)
     d = tmp_path / "photos"
     d.mkdir()
     for i in range(first, first + count):
@@ -202,7 +203,7 @@ def test_photo_subset_in_utc_is_not_shifted_by_whole_marks(
         assert t is not None
         sec = gpstime.gps_to_unix_ns(t) // 10**9
         when = dt.datetime.fromtimestamp(sec, tz=dt.UTC).replace(tzinfo=None)
-        (d / f"IMG_{i + 1:04d}.JPG").write_bytes(photos.make_jpeg(when))
+        (d / f"IMG_{i + 1:04d}.JPG").write_bytes(exif.make_jpeg(when))
     out = tmp_path / "out"
     rc = main(["solve", str(jd["rover"]), "--positions", str(jd["pos"]), "--photos", str(d),
                "--out-dir", str(out), "--no-progress"])

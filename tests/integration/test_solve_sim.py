@@ -25,7 +25,7 @@ from groundstation.solve import interpolate as mi
 from groundstation.solve import leverarm
 from groundstation.solve.photosim import photos_at_times, write_photo_set
 from groundstation.solve.pipeline import SolveResult, SolveSettings, solve
-from groundstation.solve.positions import Q_FIX
+from groundstation.solve.trajectory import Q_FIX
 
 # One worker runs this module's tests (pytest-xdist):
 # its module fixture simulates and solves two flights (~6 s each), made once.

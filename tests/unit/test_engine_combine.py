@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from groundstation.solve.engine import combine as cb
-from groundstation.solve.positions import parse_pos
+from groundstation.solve.posfile import parse_pos
 
 HEAD = [
     "% program   : groundstation demo5",

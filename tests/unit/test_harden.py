@@ -23,7 +23,7 @@ from groundstation import jsonio, messages, outpaths
 from groundstation.bus import encode
 from groundstation.config import ZenohSettings, check_station
 from groundstation.errors import ConfigError, GroundstationError
-from groundstation.solve import outputs, photos
+from groundstation.solve import clockoffset, exif, outputs, photos
 from groundstation.solve import service as sv
 from groundstation.solve.pipeline import SolveResult, SolveSettings
 from groundstation.view.dashboard.server import Dashboard, DashboardSettings, host_ok
@@ -215,12 +215,12 @@ def test_looping_exif_photo_is_skipped_and_counted(tmp_path: Path) -> None:
     data = looping_exif_jpeg()
     assert len(data) == 215
     (tmp_path / "loop.jpg").write_bytes(data)
-    (tmp_path / "ok.jpg").write_bytes(photos.make_jpeg(dt.datetime(2024, 1, 2, 3, 4, 5)))
-    found = photos.scan_photos(tmp_path)
+    (tmp_path / "ok.jpg").write_bytes(exif.make_jpeg(dt.datetime(2024, 1, 2, 3, 4, 5)))
+    found = exif.scan_photos(tmp_path)
     by_name = {p.name: p for p in found}
     assert "looping EXIF IFD" in by_name["loop.jpg"].error
     assert by_name["ok.jpg"].usable
-    match = photos.match(photos.photo_times(found), [])
+    match = photos.match(clockoffset.photo_times(found), [])
     assert any("1 photos skipped (no usable EXIF time)" in ln
                for ln in photos.reconciliation_lines(match, found, []))
 

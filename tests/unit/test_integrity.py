@@ -11,7 +11,7 @@ from groundstation.solve.integrity import grade as gr
 from groundstation.solve.integrity.lattice import FIX_SIGMA, decorrelate, ldl, resolve_lattice
 from groundstation.solve.integrity.normal import time_correlation
 from groundstation.solve.integrity.smooth import smooth
-from groundstation.solve.positions import make_trajectory
+from groundstation.solve.trajectory import make_trajectory
 
 
 def _float_constants(

@@ -9,7 +9,7 @@ import pytest
 from groundstation.errors import ConfigError
 from groundstation.geodesy import enu_rotation, llh_to_ecef
 from groundstation.solve import interpolate as ip
-from groundstation.solve.positions import Trajectory, make_trajectory
+from groundstation.solve.trajectory import Trajectory, make_trajectory
 
 T0 = 2022 * 604_800 * 10**9 + 217_000 * 10**9
 LAT, LON = 53.28, -9.06

@@ -13,7 +13,7 @@ import pytest
 
 from groundstation.cli import main
 from groundstation.errors import ConfigError
-from groundstation.solve import outputs, report
+from groundstation.solve import outputs, report, report_data
 from groundstation.solve.interpolate import FLAG_GAP, FLAG_NOT_FIXED
 
 T = 2022 * 604_800 * 10**9 + 217_373_138_511_198
@@ -85,7 +85,7 @@ def test_cameras_csv_and_the_report_say_what_mark_and_mark_count_are(
                   "mark_count is the receiver's own number of the pulse", "TIM-TM2",
                   "mark_NNNN", "They differ after a mark that never arrived"):
         assert words in said, said
-    inp = report.ReportInput(
+    inp = report_data.ReportInput(
         flight="f.ubx", engine_name="E", engine_version="", engine_options={},
         position_source="p", base_name=None, base_ecef_m=None, base_check="none",
         base_doubtful=False, epsg=out.epsg, crs_name=out.crs_name, projected=True,
@@ -148,7 +148,7 @@ def test_write_all_and_report(out: outputs.SolveOutput, tmp_path: Path) -> None:
     paths = outputs.write_all(out, tmp_path / "o")
     assert sorted(p.name for p in paths) == sorted(outputs.WRITERS)
     t = out.trajectory_t_gps_ns
-    inp = report.ReportInput(
+    inp = report_data.ReportInput(
         flight="f.ubx", engine_name="E", engine_version="", engine_options={"a": "<b>"},
         position_source="p", base_name=None, base_ecef_m=None, base_check="none",
         base_doubtful=False, epsg=out.epsg, crs_name=out.crs_name, projected=True,
@@ -162,7 +162,7 @@ def test_write_all_and_report(out: outputs.SolveOutput, tmp_path: Path) -> None:
         lever_residual_m=np.array([0.001, 0.2]), lever_outlier=np.array([False, True]),
         notes=("<n>",),
     )
-    c = report.counts(inp)
+    c = report_data.counts(inp)
     assert (c["fixed"], c["float"], c["not_positioned"], c["photos_matched"],
             c["photos_unmatched"], c["orphan_marks"], c["marks_bridging_gap"]) == (2, 1, 1, 2,
                                                                                  1, 1, 1)
@@ -172,13 +172,13 @@ def test_write_all_and_report(out: outputs.SolveOutput, tmp_path: Path) -> None:
     assert "<script" not in html and "http" not in html
     assert "1 photo(s) without a time mark: IMG_0003.JPG" in html
     assert "No lever arm applied" in html
-    assert report.utc_text(T) == "2018-10-09 12:22:35.138"
-    assert report.gps_text(T) == "2022 217373.138"
+    assert report_data.utc_text(T) == "2018-10-09 12:22:35.138"
+    assert report_data.gps_text(T) == "2022 217373.138"
     # Photo pairing: the clock offset as GPS - camera with its parts; an ambiguous pairing
     # is a warning the reviewer reads first after the base.
     amb = "photo pairing ambiguous: 3 camera clock offsets pair the photos about equally well"
     inp = replace(inp, clock_offset_s=17.63, clock_leap_s=18, pairing_warnings=(amb,))
-    assert report.warnings(inp)[0] == "P" + amb[1:]
+    assert report_data.warnings(inp)[0] == "P" + amb[1:]
     html = report.render_html(inp)
     assert "GPS − camera +17.630 s = 18 s leap seconds (GPS − UTC) -0.370 s (UTC − camera)" in html
 

@@ -13,9 +13,11 @@ from groundstation import gpstime
 from groundstation.errors import ConfigError, InputError
 from groundstation.geodesy import ecef_to_llh, llh_to_ecef
 from groundstation.records import NavSolution
-from groundstation.solve import engine
+from groundstation.solve import engine, posfile
 from groundstation.solve import positions as pos
+from groundstation.solve.engine.protocol import EngineError, ToolMissingError
 from groundstation.solve.engine.rnx2rtkp import Rnx2rtkpEngine, find_rnx2rtkp, rnx2rtkp_command
+from groundstation.solve.trajectory import Q_SINGLE
 
 XYZ = (3774698.5996, -596649.3002, 5089487.3800)
 LAT, LON, H = ecef_to_llh(*XYZ)
@@ -32,7 +34,7 @@ XYZ_TEXT = """\
 
 
 def test_xyz_with_header() -> None:
-    t = pos.parse_pos(XYZ_TEXT, source="x")
+    t = posfile.parse_pos(XYZ_TEXT, source="x")
     assert len(t) == 2 and t.t_gps_ns[0] == T_GPS
     assert t.ecef_m[0] == pytest.approx(XYZ)
     assert t.quality.tolist() == [2, 1] and t.ns.tolist() == [14, 14]
@@ -48,7 +50,7 @@ def test_llh_degrees_and_dms_and_tow_and_utc() -> None:
         "sde(m)   sdu(m)  sdne(m)  sdeu(m)  sdun(m) age(s)  ratio\n"
         f"2018/10/09 12:22:10.999659 {LAT:.9f} {LON:.9f} {H:.4f} 1 9 0.01 0.02 0.03 0 0 0 0 9.9\n"
     )
-    t = pos.parse_pos(deg)
+    t = posfile.parse_pos(deg)
     assert t.ecef_m[0] == pytest.approx(XYZ, abs=1e-3)
     assert t.sd_enu_m[0] == pytest.approx([0.02, 0.01, 0.03])
 
@@ -63,7 +65,7 @@ def test_llh_degrees_and_dms_and_tow_and_utc() -> None:
         "sde(m)   sdu(m)  sdne(m)  sdeu(m)  sdun(m) age(s)  ratio\n"
         f"2018/10/09 12:21:52.999659 {dms(LAT)} {dms(LON)} {H:.4f} 1 9 0.01 0.02 0.03 0 0 0 0 9.9\n"
     )
-    t2 = pos.parse_pos(dms_text)
+    t2 = posfile.parse_pos(dms_text)
     assert t2.t_gps_ns[0] == T_GPS  # UTC + 18 s leap seconds
     assert t2.ecef_m[0] == pytest.approx(XYZ, abs=2e-3)
 
@@ -71,7 +73,7 @@ def test_llh_degrees_and_dms_and_tow_and_utc() -> None:
         "%  GPST          x-ecef(m)      y-ecef(m)      z-ecef(m)   Q  ns\n"
         f"2022 217330.999659 {XYZ[0]} {XYZ[1]} {XYZ[2]} 5 6\n"
     )
-    t3 = pos.parse_pos(tow)
+    t3 = posfile.parse_pos(tow)
     assert t3.t_gps_ns[0] == T_GPS and t3.quality[0] == 5
     assert np.isnan(t3.sd_enu_m[0]).all()
 
@@ -85,12 +87,12 @@ def test_enu_baseline_uses_the_reference_position() -> None:
         "2018/10/09 12:22:10.999659   10.0000   20.0000   -1.0000   1  14   0.0050   0.0060"
         "   0.0100   0.0000   0.0000   0.0000   0.00    3.2\n"
     )
-    t = pos.parse_pos(text)
+    t = posfile.parse_pos(text)
     back = ecef_to_llh(*t.ecef_m[0])
     assert back[2] == pytest.approx(ref_llh[2] - 1.0, abs=1e-3)
     assert t.sd_enu_m[0] == pytest.approx([0.005, 0.006, 0.01])
     with pytest.raises(InputError):
-        pos.parse_pos(text.splitlines()[1:])
+        posfile.parse_pos(text.splitlines()[1:])
 
 
 def test_headerless_rows_and_float_columns() -> None:
@@ -100,15 +102,15 @@ def test_headerless_rows_and_float_columns() -> None:
         "0.0099 0.0099 0.0100 0 0 0 0 0 0.001 -0.002 0.027\n"
         f"2018/10/09 12:22:10.999659 {XYZ[0]} {XYZ[1]} {XYZ[2]} 2 9\n"
     )
-    t = pos.parse_pos(rows.splitlines()[:1])
+    t = posfile.parse_pos(rows.splitlines()[:1])
     assert t.quality[0] == 1 and t.ns[0] == 25
     assert t.ecef_m[0] == pytest.approx(XYZ, abs=0.02)
-    t2 = pos.parse_pos(rows.splitlines()[1:])
+    t2 = posfile.parse_pos(rows.splitlines()[1:])
     assert t2.ecef_m[0] == pytest.approx(XYZ)
     with pytest.raises(InputError):
-        pos.parse_pos("% only a header\n")
+        posfile.parse_pos("% only a header\n")
     with pytest.raises(InputError):
-        pos.parse_pos("2018/10/09 12:22:10 abc def ghi 1 2\n")
+        posfile.parse_pos("2018/10/09 12:22:10 abc def ghi 1 2\n")
 
 
 def test_read_pos_gz_and_sorting(tmp_path: Path) -> None:
@@ -116,10 +118,10 @@ def test_read_pos_gz_and_sorting(tmp_path: Path) -> None:
     shuffled = "\n".join([*lines[:4], lines[5], lines[4], lines[4]]) + "\n"
     p = tmp_path / "x.pos.gz"
     p.write_bytes(gzip.compress(shuffled.encode()))
-    t = pos.read_pos(p)
+    t = posfile.read_pos(p)
     assert len(t) == 2 and np.all(np.diff(t.t_gps_ns) > 0)
     with pytest.raises(InputError):
-        pos.read_pos(tmp_path / "missing.pos")
+        posfile.read_pos(tmp_path / "missing.pos")
 
 
 def test_rnx2rtkp_options_and_command() -> None:
@@ -135,7 +137,7 @@ def test_rnx2rtkp_options_and_command() -> None:
 
 
 def test_missing_rnx2rtkp_is_a_clear_error(tmp_path: Path) -> None:
-    with pytest.raises(pos.ToolMissingError, match="install RTKLIB"):
+    with pytest.raises(ToolMissingError, match="install RTKLIB"):
         find_rnx2rtkp("rnx2rtkp-that-does-not-exist")
 
 
@@ -158,7 +160,7 @@ def test_receiver_fix_is_flagged_metre_level() -> None:
     sols.append(NavSolution("NAV-POSLLH", 217_332_000_000_000, None, -1, True, None,
                             XYZ, LAT, LON, H, 1.0, 2.0, 2.2))
     t = pos.get_source("receiver").trajectory(pos.SourceOptions(nav_solutions=tuple(sols)))
-    assert t.metre_level and len(t) == 6 and set(t.quality.tolist()) == {pos.Q_SINGLE}
+    assert t.metre_level and len(t) == 6 and set(t.quality.tolist()) == {Q_SINGLE}
     assert t.t_gps_ns[-1] == gpstime.gps_ns(2022, 217_332_000_000_000)
     assert t.sd_enu_m[-1, 2] == pytest.approx(2.0)
     with pytest.raises(InputError):
@@ -172,7 +174,7 @@ def test_rnx2rtkp_failure_is_reported(tmp_path: Path) -> None:
     bad.write_text("not rinex\n")
     nav = tmp_path / "r.nav"
     nav.write_text("not rinex either\n")
-    with pytest.raises(pos.EngineError):
+    with pytest.raises(EngineError):
         engine.run_engine("rnx2rtkp", bad, bad, (1.0, 2.0, 3.0), tmp_path / "w")
 
 
@@ -180,5 +182,5 @@ def test_demo5_failure_is_reported(tmp_path: Path) -> None:
     bad = tmp_path / "r.obs"
     bad.write_text("not rinex\n")
     (tmp_path / "r.nav").write_text("not rinex either\n")
-    with pytest.raises(pos.EngineError, match="demo5"):
+    with pytest.raises(EngineError, match="demo5"):
         engine.run_engine("demo5", bad, bad, (1.0, 2.0, 3.0), tmp_path / "w")

@@ -16,11 +16,10 @@ from __future__ import annotations
 import logging
 import re
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, ClassVar, Protocol
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import numpy.typing as npt
@@ -29,10 +28,12 @@ from groundstation import jsonio
 from groundstation.errors import ConfigError, GroundstationError
 from groundstation.gnss.ephemeris import BroadcastEphemeris
 from groundstation.solve.engine import options as eo
+from groundstation.solve.engine.demo5 import Demo5Engine
+from groundstation.solve.engine.protocol import Engine, EngineError, EngineJob, EngineRun, Progress
+from groundstation.solve.engine.rnx2rtkp import Rnx2rtkpEngine
 
 log = logging.getLogger("groundstation.solve")
 
-Progress = Callable[[str, float], None]
 DEFAULT_ENGINE = "demo5"
 
 
@@ -42,77 +43,8 @@ if TYPE_CHECKING:
     from groundstation.solve.integrity.assess import Arcs, EngineSolution, IntegrityResult
 
 
-class ToolMissingError(GroundstationError):
-    """The chosen engine is not installed (no ``rnx2rtkp`` on PATH, no ``pyrtklib5``)."""
-
-
-class EngineError(GroundstationError):
-    """A positioning engine ran but failed or produced nothing."""
-
-
-@dataclass(frozen=True, slots=True)
-class EngineJob:
-    """RINEX inputs and resolved options of one engine run."""
-
-    rover_obs: Path
-    base_obs: Path
-    nav: tuple[Path, ...]
-    options: dict[str, str]
-    work_dir: Path
-    timeout_s: float = 3600.0
-
-
-@dataclass(frozen=True, slots=True)
-class EngineRun:
-    """What an engine produced: the solution and how it was made."""
-
-    engine: str
-    version: str
-    pos_path: Path
-    info_path: Path
-    options: dict[str, str]
-    wall_s: float
-    notes: tuple[str, ...] = field(default_factory=tuple)
-    conditioning: dict[str, object] | None = None
-    """What the phase conditioning did to the rover (None when it did not run)."""
-    dynamics: dict[str, object] | None = None
-    """The rover's measured dynamics and the acceleration noise chosen (None: not derived)."""
-    combination: dict[str, object] | None = None
-    """How forward and backward were combined here (None: the engine's own solution type)."""
-    integrity: IntegrityResult | None = None
-    """The graded trajectory of the integrity stage (None: it could not run)."""
-
-
-class Engine(Protocol):
-    """A PPK engine: an option table and a way to run on RINEX files."""
-
-    name: ClassVar[str]
-    defaults: ClassVar[dict[str, str]]
-    combines_in_house: ClassVar[bool]
-    """Whether a "combined" solution is made of this engine's forward and backward runs by
-    :func:`solve` (with :mod:`.combine`'s stricter fix check) rather than by the engine."""
-
-    def option_table(self) -> eo.OptionTable:
-        """The engine's own ``sysopts[]`` (raises ToolMissingError when not installed)."""
-        ...
-
-    def version(self) -> str:
-        """Engine version text for outputs."""
-        ...
-
-    def run(self, job: EngineJob, progress: Progress | None = None) -> EngineRun:
-        """Solve; returns the ``.pos`` (its header and engine.json still to be completed)."""
-        ...
-
-
-def _engines() -> dict[str, type[Engine]]:
-    from groundstation.solve.engine.demo5 import Demo5Engine
-    from groundstation.solve.engine.rnx2rtkp import Rnx2rtkpEngine
-
-    return {Demo5Engine.name: Demo5Engine, Rnx2rtkpEngine.name: Rnx2rtkpEngine}
-
-
-ENGINES: dict[str, type[Engine]] = _engines()
+ENGINES: dict[str, type[Engine]] = {Demo5Engine.name: Demo5Engine,
+                                    Rnx2rtkpEngine.name: Rnx2rtkpEngine}
 """Engine name -> class."""
 
 
@@ -226,7 +158,8 @@ def derive_dynamics(
         (the options to solve with, what was measured and chosen or None, notes).
     """
     from groundstation.solve.engine import dynamics as dy
-    from groundstation.solve.positions import Q_FIX, read_pos  # positions imports this module
+    from groundstation.solve.posfile import read_pos
+    from groundstation.solve.trajectory import Q_FIX
 
     opts = dict(job.options)
     if (
@@ -558,11 +491,6 @@ __all__ = [
     "ACCEL_KEYS",
     "DEFAULT_ENGINE",
     "ENGINES",
-    "Engine",
-    "EngineError",
-    "EngineJob",
-    "EngineRun",
-    "ToolMissingError",
     "derive_dynamics",
     "get_engine",
     "resolve_options",

@@ -17,8 +17,14 @@ from pathlib import Path
 from typing import Any, ClassVar
 
 from groundstation import jsonio
-from groundstation.solve.engine import EngineError, EngineJob, EngineRun, Progress, ToolMissingError
 from groundstation.solve.engine import options as eo
+from groundstation.solve.engine.protocol import (
+    EngineError,
+    EngineJob,
+    EngineRun,
+    Progress,
+    ToolMissingError,
+)
 
 WORKER_MODULE = "groundstation.solve.engine.worker"
 

@@ -9,9 +9,15 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import ClassVar
 
-from groundstation.solve.engine import EngineError, EngineJob, EngineRun, Progress, ToolMissingError
 from groundstation.solve.engine import options as eo
 from groundstation.solve.engine.b34_table import SYSOPTS_B34
+from groundstation.solve.engine.protocol import (
+    EngineError,
+    EngineJob,
+    EngineRun,
+    Progress,
+    ToolMissingError,
+)
 
 log = logging.getLogger("groundstation.solve")
 

@@ -35,7 +35,7 @@ the engine's solutions are combined with)."""
 
 @dataclass(frozen=True, slots=True)
 class EngineSolution:
-    """An engine's solution, as columns (a ``positions.Trajectory`` has these)."""
+    """An engine's solution, as columns (a ``trajectory.Trajectory`` has these)."""
 
     t_gps_ns: IntArray
     ecef_m: FloatArray
