@@ -66,8 +66,9 @@ def other_direction_by_arcs(
     partners = np.flatnonzero(other_fixed & np.all(np.isfinite(other_x), axis=1))
     if rows.size == 0 or partners.size == 0:
         return out
-    v_one, los = tab.residuals(np.where(np.isfinite(one_x), one_x, 0.0))
-    v_other, _ = tab.residuals(np.where(np.isfinite(other_x), other_x, 0.0))
+    # rows without a position take any finite one: their residuals are not used
+    v_one, los = tab.residuals(np.where(np.isfinite(one_x), one_x, one_x[rows[0]]))
+    v_other, _ = tab.residuals(np.where(np.isfinite(other_x), other_x, one_x[rows[0]]))
     for k in rows.tolist():
         arcs_k = tab.arc[k]
         have = (arcs_k >= 0) & np.isfinite(v_one[k])
