@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 import pytest
+from sky import Sky
 
 from groundstation.gnss.orbit import L1_WAVELENGTH_M
 from groundstation.solve import integrity
@@ -20,30 +21,6 @@ from groundstation.solve.integrity.table import PhaseTable
 FloatArray = npt.NDArray[np.float64]
 BASE = np.array([4146349.2471, 612312.5498, 4791750.8505])
 GAP_AT_S, GAP_S = 300.0, 2.4
-
-
-class _Sky:
-    """Satellites 20 000 km from the site along directions that turn slowly, as GPS does."""
-
-    def __init__(self, t_s: FloatArray, n_sv: int, rng: np.random.Generator) -> None:
-        up = BASE / np.linalg.norm(BASE)
-        east = np.cross([0.0, 0.0, 1.0], up)
-        east /= np.linalg.norm(east)
-        north = np.cross(up, east)
-        az = rng.uniform(0, 2 * np.pi, n_sv)[None] + rng.uniform(-1, 1, n_sv)[None] * 1e-4 * (
-            t_s[:, None])
-        el = rng.uniform(np.radians(25), np.radians(80), n_sv)[None] + 0.3e-4 * t_s[:, None]
-        d = (np.cos(el)[..., None] * (np.sin(az)[..., None] * east
-                                      + np.cos(az)[..., None] * north)
-             + np.sin(el)[..., None] * up)
-        self.pos = BASE + 2.0e7 * d
-        self.clk_m = np.zeros(self.pos.shape[:2])
-
-    def ranges_all(self, x: FloatArray) -> tuple[FloatArray, FloatArray]:
-        xx = np.broadcast_to(np.asarray(x, dtype=np.float64), (self.pos.shape[0], 3))
-        d = self.pos - xx[:, None, :]
-        rho = np.linalg.norm(d, axis=2)
-        return rho - self.clk_m, d / rho[..., None]
 
 
 def _flight(seed: int, stepped: tuple[int, ...], post_s: float | None = None
@@ -69,7 +46,7 @@ def _flight(seed: int, stepped: tuple[int, ...], post_s: float | None = None
         sd_cyc=np.zeros((n, n_sv)), sd_code_m=np.zeros((n, n_sv)),
         sigma_cyc=np.full((n, n_sv), 0.01), sigma_code_m=np.full((n, n_sv), 0.5), arc=arc,
         n_arcs=na, arc_sv=np.array([*range(n_sv), *new]), base_age_s=np.zeros(n),
-        geo=_Sky(t_s, n_sv, rng),  # type: ignore[arg-type]
+        geo=Sky(BASE, t_s, n_sv, rng),  # type: ignore[arg-type]
         lattice_cyc=0.5)
     rng_m, _ = tab.geometry(x)
     clock_cyc = rng.normal(0.0, 30.0, n)

@@ -24,7 +24,9 @@ The rule, per epoch:
    position, precise enough to tell a wrong integer set (calibrated sigma under
    :data:`FIXED_MAX_SIGMA_M` on every axis), agrees with that fix within its calibrated
    covariance (chi-square, 3 degrees of freedom, 0.1 %): **fixed**, checked by
-   ``other-direction-float``.
+   ``other-direction-float``; or a fix of the other direction at another epoch, on the same
+   unbroken arcs, gives the same position through their phase (:mod:`.carry`): **fixed**,
+   checked by ``other-direction-by-arcs``.
 4. An engine that combined its two directions itself (``--engine rnx2rtkp``) cannot be
    checked this way: its remaining fixes are **fixed-unchecked** (its own sigma, Q 1).
 5. Otherwise a fix of the engine is **demoted** to float (its check names why), and the epoch
@@ -82,6 +84,8 @@ CHECK_NAMES: tuple[str, ...] = (
     "arcs-and-engine",          # 11: our fix and an engine fix in one direction agree
     "demoted:camera-clock",     # 12: fixed epochs, but the photo's time comes from the
                                 #     camera clock, too loose for a centimetre position
+    "other-direction-by-arcs",  # 13: one direction fixed, a fix of the other direction at
+                                #     another epoch on the same arcs gives the same position
 )
 """Check code -> name: which check decided an epoch's grade."""
 C_ARCS, C_BOTH, C_OTHER_FLOAT = 1, 2, 3
@@ -89,6 +93,7 @@ C_DEM_DIRECTIONS, C_DEM_FLOAT, C_DEM_ARCS, C_DEM_ONE, C_FLOAT, C_UNCHECKED = 4, 
 C_DEM_INTERP = 10
 C_ARCS_ENGINE = 11
 C_DEM_CLOCK = 12
+C_BY_ARCS = 13
 TAINT_EPOCHS = 5
 """Contradicted epochs that take away an arc's standing (one is an accident of the engine)."""
 PHASE_MODEL_FACTOR = 2.0
@@ -214,7 +219,7 @@ def _scale_cov(cov: FloatArray, rot: FloatArray, fh: float, fv: float) -> FloatA
 
 def grade(ours_fixed: BoolArray, ours: Candidate, forward: Candidate | None,
           backward: Candidate | None, merged: Candidate, ours_alone: bool = True,
-          ours_arcs: IntArray | None = None) -> Graded:
+          ours_arcs: IntArray | None = None, by_arcs: BoolArray | None = None) -> Graded:
     """The rule of the module doc.
 
     Args:
@@ -227,6 +232,8 @@ def grade(ours_fixed: BoolArray, ours: Candidate, forward: Candidate | None,
         ours_arcs: (n, n_sv) the arcs each of our fixed epochs rests on (-1: none): an arc
             the engine's checked fixes contradicted at :data:`TAINT_EPOCHS` epochs or more
             takes away our standing at every epoch that rests on it.
+        by_arcs: (n,) epochs whose fix of one direction a fix of the other direction
+            confirms along their shared arcs (:func:`.carry.other_direction_by_arcs`).
     """
     n = merged.q.size
     rot = _enu_rot(np.where(np.isfinite(ours.x), ours.x, merged.x))
@@ -313,13 +320,14 @@ def grade(ours_fixed: BoolArray, ours: Candidate, forward: Candidate | None,
             "ij,ejk,lk->eil", rot, np.nan_to_num(other_c), rot)), 0.0, None))
         precise = np.all(other_sd <= FIXED_MAX_SIGMA_M, axis=1)
         agrees = agree(fixed_x, fixed_c, other, other_c) & (other_q == 2) & precise
-        ok1 = one & agrees
+        carried = by_arcs if by_arcs is not None else np.zeros(n, dtype=bool)
+        ok1 = one & (agrees | carried)
         x[ok1] = fixed_x[ok1]
         cov[ok1] = fixed_c[ok1]
         gradec[ok1] = FIXED
-        check[ok1] = C_OTHER_FLOAT
-        dem_float = one & ~agrees & (other_q == 2) & precise
-        dem_one = one & ~agrees & ~((other_q == 2) & precise)
+        check[ok1] = np.where(agrees[ok1], C_OTHER_FLOAT, C_BY_ARCS)
+        dem_float = one & ~ok1 & (other_q == 2) & precise
+        dem_one = one & ~ok1 & ~((other_q == 2) & precise)
     else:
         dem_float = np.zeros(n, dtype=bool)
         dem_one = one

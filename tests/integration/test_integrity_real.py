@@ -1,0 +1,50 @@
+"""The integrity stage on a real flight as a LEA-6T would have sent it (GPS L1 RXM-RAW, no
+lock times), judged against the untouched u-blox 8 recording's own fixed solution: the check
+that carries the other direction's fix along the arcs confirms what it can, and nothing it
+confirms is wrong."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from groundstation.sim.rewrite import RewriteConfig, rewrite
+from groundstation.solve import interpolate as mi
+from groundstation.solve.integrity.grade import C_BY_ARCS
+from groundstation.solve.pipeline import SolveSettings, solve
+from groundstation.solve.posfile import read_pos
+from groundstation.solve.trajectory import Q_FIX
+
+pytestmark = [pytest.mark.shared_data, pytest.mark.slow,
+              pytest.mark.xdist_group("test_integrity_real")]
+
+DAY = "real/jdesbonnet__GNSS_RTK_data/20181009"
+BASE_XYZ = (3774696.5547, -596647.9083, 5089485.6511)
+
+
+def test_fixes_confirmed_along_the_arcs_are_right(shared_data: Path, tmp_path: Path) -> None:
+    rover = shared_data / DAY / "rover-20181009-1221.ubx.gz"
+    base = shared_data / DAY / "base-20181009-1220.ubx.gz"
+    ref = solve(SolveSettings(flight=rover, out_dir=tmp_path / "ref", base=base,
+                              base_ecef_m=BASE_XYZ))
+    engine = read_pos(tmp_path / "ref" / "rtklib" / "rover.pos")
+    times = [mi.mark_time_ns(m.falling_t_gps_ns, m.rising_t_gps_ns, "falling")
+             for m in ref.marks]
+    at = mi.interpolate(engine, times, "linear")
+    truth = {m.number: x for m, x, q in zip(ref.marks, at.ecef_m, at.quality, strict=True)
+             if q == Q_FIX}
+    (tmp_path / "rover.ubx").write_bytes(rewrite(rover, RewriteConfig()).data)
+    (tmp_path / "base.ubx").write_bytes(rewrite(base, RewriteConfig()).data)
+    res = solve(SolveSettings(flight=tmp_path / "rover.ubx", out_dir=tmp_path / "lea6t",
+                              base=tmp_path / "base.ubx", base_ecef_m=BASE_XYZ))
+    mp = res.mark_positions
+    fixed = [(k, m.number) for k, m in enumerate(res.marks)
+             if mp.quality[k] == Q_FIX and m.number in truth]
+    err = np.array([np.linalg.norm(mp.ecef_m[k] - truth[n]) for k, n in fixed])
+    by_arcs = np.array([mp.check[k] == C_BY_ARCS for k, _ in fixed])
+    assert len(fixed) >= 300, len(fixed)
+    assert by_arcs.sum() >= 50, by_arcs.sum()  # 85 on this flight
+    assert err.max() <= 0.10, f"a fixed camera position {err.max():.3f} m off"
+    assert err[by_arcs].max() <= 0.10
