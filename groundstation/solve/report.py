@@ -156,7 +156,7 @@ def _summary(inp: ReportInput) -> str:
         ("Engine", f"{_e(inp.engine_name)} {_e(inp.engine_version or '(version not recorded)')}"
          + opts),
         ("Base station", base),
-        ("Output CRS", f"EPSG:{inp.epsg} {_e(inp.crs_name)}"),
+        ("Output CRS", f"EPSG:{inp.epsg} {_e(inp.crs_name)}" + _coordinate_epoch(inp)),
         ("Heights", _e(inp.height_datum)),
         ("Lever arm", _e(lever) + f'<br><span class="muted">{_e(LEVER_ARM_CONVENTION)}</span>'),
         ("Shutter", (f"{inp.shutter_delay_ms:g} ms after the {_e(inp.edge)} edge of the camera "
@@ -170,6 +170,18 @@ def _summary(inp: ReportInput) -> str:
         rows.append(("Camera clock", (f"{clock}; pairing window "
                      f"±{(inp.pair_window_s or 0) * 1e3:.0f} ms; timing residual σ {sigma}")))
     return _kv(rows)
+
+
+def _coordinate_epoch(inp: ReportInput) -> str:
+    """The epoch the coordinates hold at: the flight's, as a decimal year (plates move
+    centimetres a year, so a frame's coordinates name their epoch)."""
+    if inp.track_t_gps_ns.size == 0:
+        return ""
+    when = gpstime.gps_to_datetime(int(np.median(inp.track_t_gps_ns)))
+    start = when.replace(month=1, day=1, hour=0, minute=0, second=0, microsecond=0)
+    year = when.year + (when - start) / (start.replace(year=when.year + 1) - start)
+    return (f'<br><span class="muted">coordinate epoch {year:.2f} (the flight\'s): the '
+            "cameras are in the frame of the base's coordinates at that epoch</span>")
 
 
 def _result(inp: ReportInput) -> str:

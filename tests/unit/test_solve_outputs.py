@@ -99,6 +99,7 @@ def test_cameras_csv_and_the_report_say_what_mark_and_mark_count_are(
         lever_outlier=np.array([False, True]), notes=(),
     )
     html = report.render_html(inp)
+    assert "coordinate epoch 20" in html  # the flight's, as a decimal year
     legend = html[html.index('<section class="positions">'):html.index('id="marks"')]
     # the report's column is "count" (cameras.csv's mark_count)
     assert "count (mark_count in cameras.csv) is the receiver&#x27;s own number" in legend
