@@ -234,6 +234,12 @@ CASES: list[Case] = [
     c("solve-base-without-xyz", "solve good.ubx --base good.ubx --out o", 2, "--base-xyz"),
     c("solve-base-xyz-two", "solve good.ubx --base good.ubx --base-xyz 1,2 --out o", 2,
       "--base-xyz"),
+    c("solve-base-en-no-crs", "solve good.ubx --base good.ubx --base-en 501190,5903719,30 "
+      "--out o", 2, "--base-crs"),
+    c("solve-base-crs-geographic", "solve good.ubx --base good.ubx --base-en 501190,5903719,30 "
+      "--base-crs 4326 --out o", 2, "not a projected CRS"),
+    c("solve-base-crs-typo", "solve good.ubx --base good.ubx --base-en 501190,5903719,30 "
+      "--base-crs 3262x --out o", 2, "--base-crs"),
     c("solve-lever-arm-nan", "solve good.ubx --positions x.pos --lever-arm nan,0,0 --out o", 2,
       "--lever-arm"),
     c("solve-epsg-text", "solve good.ubx --positions x.pos --epsg abc --out o", 2, "--epsg"),
