@@ -1,7 +1,7 @@
 """The integrity stage on a real flight as a LEA-6T would have sent it (GPS L1 RXM-RAW, no
 lock times), judged against the untouched u-blox 8 recording's own fixed solution: the check
-that carries the other direction's fix along the arcs confirms what it can, and nothing it
-confirms is wrong."""
+that carries checked fixes along the arcs confirms what it can, and nothing it confirms is
+wrong."""
 
 from __future__ import annotations
 
@@ -44,7 +44,7 @@ def test_fixes_confirmed_along_the_arcs_are_right(shared_data: Path, tmp_path: P
              if mp.quality[k] == Q_FIX and m.number in truth]
     err = np.array([np.linalg.norm(mp.ecef_m[k] - truth[n]) for k, n in fixed])
     by_arcs = np.array([mp.check[k] == C_BY_ARCS for k, _ in fixed])
-    assert len(fixed) >= 300, len(fixed)
-    assert by_arcs.sum() >= 50, by_arcs.sum()  # 85 on this flight
+    assert len(fixed) >= 260, len(fixed)  # 277; 248 without the check
+    assert by_arcs.sum() >= 15, by_arcs.sum()  # 27 on this flight
     assert err.max() <= 0.10, f"a fixed camera position {err.max():.3f} m off"
     assert err[by_arcs].max() <= 0.10

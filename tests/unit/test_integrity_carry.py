@@ -1,5 +1,5 @@
-"""A fix of one direction checked by the other direction's fix at another epoch, through the
-phase of the arcs both rest on (``other-direction-by-arcs``)."""
+"""A fix of one direction confirmed by a checked fix at another epoch, through the phase of
+the arcs both rest on (``carried-along-arcs``)."""
 
 from __future__ import annotations
 
@@ -11,13 +11,13 @@ from sky import Sky
 
 from groundstation.gnss.orbit import L1_WAVELENGTH_M
 from groundstation.solve.integrity import grade as gr
-from groundstation.solve.integrity.carry import MIN_SHARED_ARCS, other_direction_by_arcs
+from groundstation.solve.integrity.carry import MIN_SHARED_ARCS, confirmed_along_arcs
 from groundstation.solve.integrity.table import PhaseTable
 
 FloatArray = npt.NDArray[np.float64]
 SITE = np.array([4146349.2471, 612312.5498, 4791750.8505])
 N_SV = 7
-COV = np.diag([0.01, 0.01, 0.02]) ** 2  # an engine's fixed position: a centimetre or two
+COV = np.diag([0.006, 0.007, 0.015]) ** 2  # an engine's fixed position: millimetres, 1.5 cm up
 
 
 def _flight(seed: int = 3, restart_at_s: float | None = None
@@ -48,8 +48,8 @@ def _flight(seed: int = 3, restart_at_s: float | None = None
 
 def _one_each(x: FloatArray, k: int, k2: int, x_k: FloatArray
               ) -> tuple[FloatArray, FloatArray, npt.NDArray[np.bool_], npt.NDArray[np.bool_]]:
-    """Forward fixed at ``k`` only (at ``x_k``), backward fixed at ``k2`` only (at the truth
-    plus a few millimetres)."""
+    """Forward fixed at ``k`` only (at ``x_k``), a checked fix at ``k2`` (at the truth plus a
+    few millimetres)."""
     n = x.shape[0]
     fx, bx = np.full((n, 3), np.nan), np.full((n, 3), np.nan)
     fx[k], bx[k2] = x_k, x[k2] + 0.004
@@ -58,11 +58,11 @@ def _one_each(x: FloatArray, k: int, k2: int, x_k: FloatArray
     return fx, bx, f, b
 
 
-def test_a_right_fix_is_confirmed_by_the_other_directions_fix_minutes_away() -> None:
+def test_a_right_fix_is_confirmed_by_a_checked_fix_minutes_away() -> None:
     tab, x = _flight()
     fx, bx, f, b = _one_each(x, 100, 1200, x[100] + np.array([0.005, -0.004, 0.01]))
     cov = np.broadcast_to(COV, (x.shape[0], 3, 3))
-    got = other_direction_by_arcs(tab, fx, cov, f, bx, cov, b)
+    got = confirmed_along_arcs(tab, fx, cov, f, bx, cov, b)
     assert got[100] and got.sum() == 1
 
 
@@ -71,19 +71,30 @@ def test_a_fix_a_decimetre_off_is_not() -> None:
     cov = np.broadcast_to(COV, (x.shape[0], 3, 3))
     for off in ([0.10, 0.0, 0.0], [0.0, 0.0, 0.12], [0.06, -0.06, 0.05]):
         fx, bx, f, b = _one_each(x, 100, 1200, x[100] + np.array(off))
-        assert not other_direction_by_arcs(tab, fx, cov, f, bx, cov, b)[100], off
+        assert not confirmed_along_arcs(tab, fx, cov, f, bx, cov, b)[100], off
+
+
+def test_positions_too_loose_to_see_a_decimetre_confirm_nothing() -> None:
+    """Two positions whose summed sigma is 3 cm up cannot tell a fix 10 cm off from a right
+    one with the power the check needs (seed 523 of the sweep): a right fix is not confirmed
+    either."""
+    tab, x = _flight()
+    fx, bx, f, b = _one_each(x, 100, 1200, x[100])
+    loose = np.broadcast_to(np.diag([0.006, 0.007, 0.022]) ** 2, (x.shape[0], 3, 3))
+    assert not confirmed_along_arcs(tab, fx, loose, f, bx, loose, b)[100]
+    assert confirmed_along_arcs(tab, fx, loose * 0.5, f, bx, loose * 0.5, b)[100]
 
 
 def test_an_arc_whose_phase_stepped_between_the_two_epochs_breaks_the_check() -> None:
-    """A repair half a cycle wrong between the two fixes: the other direction's integers do
-    not carry over on that arc, and the check must fail rather than pass either fix."""
+    """A repair half a cycle wrong between the two fixes: the checked integers do not carry
+    over on that arc, and the check must fail rather than pass the fix."""
     tab, x = _flight()
     sd = tab.sd_cyc.copy()
     sd[600:, 2] += 0.5
     tab = replace(tab, sd_cyc=sd)
     cov = np.broadcast_to(COV, (x.shape[0], 3, 3))
     fx, bx, f, b = _one_each(x, 100, 1200, x[100])
-    assert not other_direction_by_arcs(tab, fx, cov, f, bx, cov, b)[100]
+    assert not confirmed_along_arcs(tab, fx, cov, f, bx, cov, b)[100]
 
 
 def test_too_few_shared_arcs_check_nothing() -> None:
@@ -91,7 +102,7 @@ def test_too_few_shared_arcs_check_nothing() -> None:
     assert N_SV - 4 < MIN_SHARED_ARCS
     cov = np.broadcast_to(COV, (x.shape[0], 3, 3))
     fx, bx, f, b = _one_each(x, 100, 1200, x[100])
-    assert not other_direction_by_arcs(tab, fx, cov, f, bx, cov, b).any()
+    assert not confirmed_along_arcs(tab, fx, cov, f, bx, cov, b).any()
 
 
 def test_the_grade_names_the_check() -> None:
@@ -105,5 +116,5 @@ def test_the_grade_names_the_check() -> None:
     g = gr.grade(np.zeros(n, dtype=bool), none, fwd, bwd, merged, ours_alone=False,
                  by_arcs=np.array([True, False, False]))
     assert [gr.CHECK_NAMES[c] for c in g.check] == [
-        "other-direction-by-arcs", "demoted:one-direction", "float"]
+        "carried-along-arcs", "demoted:one-direction", "float"]
     assert g.grade.tolist() == [gr.FIXED, gr.FLOAT, gr.FLOAT]

@@ -21,7 +21,7 @@ from groundstation.offline.rinex.observations import ObsSet
 from groundstation.solve.engine.combine import DTTOL_S
 from groundstation.solve.integrity import Resolution, resolve, without
 from groundstation.solve.integrity import grade as gr
-from groundstation.solve.integrity.carry import other_direction_by_arcs
+from groundstation.solve.integrity.carry import confirmed_along_arcs
 from groundstation.solve.integrity.normal import code_positions
 from groundstation.solve.integrity.smooth import smooth
 from groundstation.solve.integrity.table import build_table
@@ -267,16 +267,18 @@ def grade_stage(
         ours = gr.Candidate(np.full((n, 3), np.nan), np.full((n, 3, 3), np.nan),
                             np.zeros(n, dtype=np.int64))
         ours_fixed, alone = np.zeros(n, dtype=bool), False
-    by_arcs = None
+    g = gr.grade(ours_fixed, ours, fwd, bwd, m, ours_alone=alone, ours_arcs=ours_arcs)
     if arcs is not None and fwd is not None and bwd is not None:
+        # one direction's fixes the checked fixes of other epochs confirm along their arcs
         tab = arcs.resolution.tab
         f_fix, b_fix = fwd.q == 1, bwd.q == 1
+        checked = g.grade == gr.FIXED
         by_arcs = (
-            other_direction_by_arcs(tab, fwd.x, fwd.cov, f_fix & ~b_fix, bwd.x, bwd.cov, b_fix)
-            | other_direction_by_arcs(tab, bwd.x, bwd.cov, b_fix & ~f_fix, fwd.x, fwd.cov,
-                                      f_fix))
-    g = gr.grade(ours_fixed, ours, fwd, bwd, m, ours_alone=alone, ours_arcs=ours_arcs,
-                 by_arcs=by_arcs)
+            confirmed_along_arcs(tab, fwd.x, fwd.cov, f_fix & ~b_fix, g.x, g.cov, checked)
+            | confirmed_along_arcs(tab, bwd.x, bwd.cov, b_fix & ~f_fix, g.x, g.cov, checked))
+        if by_arcs.any():
+            g = gr.grade(ours_fixed, ours, fwd, bwd, m, ours_alone=alone, ours_arcs=ours_arcs,
+                         by_arcs=by_arcs)
     # the epochs' times: the engine's (receiver clock removed) where it has the epoch
     t_out = t_ns.copy()
     if merged.t_gps_ns.size:

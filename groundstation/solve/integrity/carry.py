@@ -1,33 +1,35 @@
-"""A fix of one direction checked by a fix of the other direction at another epoch, carried
-along the arcs both rest on.
+"""A fix of one direction confirmed by a checked fix at another epoch, carried along the arcs
+both rest on.
 
-What this module owns: the check ``other-direction-by-arcs`` of :mod:`.grade`. The engine's
-forward and backward runs are two independent filters. Where both fixed the same epoch and
-agree, each checks the other (``both-directions``). On a flight whose satellites keep losing
-lock (a walking antenna, a banking copter), the two directions often fix different stretches:
-the forward run some time after each loss, the backward run before it. An integer ambiguity is
-one constant over an arc (a stretch of unbroken lock, :mod:`.table`), so a fix at epoch ``k``
-and a fix of the other direction at epoch ``k'`` that rest on the same arcs must carry the same
-integers on them, and then the same position at ``k`` follows from either.
+What this module owns: the check ``carried-along-arcs`` of :mod:`.grade`. On a flight whose
+satellites keep losing lock (a walking antenna, a banking copter), the engine's forward and
+backward runs often fix different stretches, and a fix of one direction alone has nothing at
+its own epoch to be checked against. But an integer ambiguity is one constant over an arc (a
+stretch of unbroken lock of both receivers, :mod:`.table`): a fix at epoch ``k`` and a checked
+fix at epoch ``k'`` (both directions agreeing, or our whole-arc solution with an engine fix, or
+the other direction's precise float: the grade's own checks) that rest on the same arcs must
+carry the same integers, and then the same position at ``k`` follows from either.
 
-How, for a fix ``x_k`` of one direction only and the nearest fix ``x_k'`` of the other
-direction (any epoch) sharing at least :data:`MIN_SHARED_ARCS` arcs with it:
+How, for a fix ``x_k`` of one direction only and the nearest checked fix ``x_k'`` sharing at
+least :data:`MIN_SHARED_ARCS` arcs with it:
 
 1. each shared arc's phase residual at ``k'`` with ``x_k'`` is its constant plus the epoch's
-   clock (:meth:`~.table.PhaseTable.residuals`): the other direction's integers, as phase;
+   clock (:meth:`~.table.PhaseTable.residuals`): the checked integers, as phase;
 2. at ``k``, the same arcs' residuals with ``x_k`` minus those constants leave a clock and
    the geometry of the two positions' difference: least squares for the displacement ``d``
-   of the position the other direction's integers give at ``k`` from ``x_k``, and a clock;
-3. the fix is checked where ``d`` is within the two fixes' summed covariance (chi-square,
-   3 degrees of freedom, 0.1 %, as ``both-directions``) and no arc's residual after the fit
-   is :data:`MAX_ARC_MISFIT_CYC` or more (a whole or half cycle on one arc that the geometry
-   could partly absorb).
+   of the position the checked integers give at ``k`` from ``x_k``, and a clock;
+3. the fix is confirmed where ``d`` is within the two positions' summed covariance
+   (chi-square, 3 degrees of freedom, :data:`CHI2_3_CONFIRM`), that covariance is tight enough
+   for the test to see a fix 10 cm off (:data:`RELIABLE_SIGMA_M`), and no arc's residual after
+   the fit is :data:`MAX_ARC_MISFIT_CYC` or more (a whole or half cycle on one arc that the
+   geometry could partly absorb).
 
-A wrong integer set puts a position a decimetre or more off; the other direction's integers,
-found from the other side of the flight, do not share the error (the engine's two runs see
-disjoint data where they fix apart). The arcs are our table's: both receivers kept lock,
-repairs of the conditioning included (a repair that was wrong shows as a misfit here: the
-check then fails, it cannot pass a wrong fix).
+Only a checked fix may confirm: two fixes of the engine's two directions at different epochs
+can share a wrong integer set (the seed profile's seed 523 at severity 1: a stretch where both
+runs held the same set 8-16 cm off, which our whole-arc solution contradicted; confirmed by each
+other along the arcs, 16 camera positions came out fixed and wrong). The arcs are our table's,
+repairs of the conditioning included: a repair that was wrong shows as a misfit, and the check
+then fails; it cannot pass a wrong fix.
 """
 
 from __future__ import annotations
@@ -36,7 +38,6 @@ import numpy as np
 import numpy.typing as npt
 
 from groundstation.gnss.orbit import L1_WAVELENGTH_M
-from groundstation.solve.integrity.grade import CHI2_3_AGREE
 from groundstation.solve.integrity.table import PhaseTable
 
 FloatArray = npt.NDArray[np.float64]
@@ -49,17 +50,27 @@ MAX_ARC_MISFIT_CYC = 0.25
 """An arc's residual after the fit at or beyond this (half the spacing of a half-cycle
 lattice) is a different integer on it, not noise (a fixed position's phase residuals are
 millimetres; a real antenna's multipath a few centimetres, a fifth of a cycle at most)."""
+CHI2_3_CONFIRM = 7.81
+"""Chi-square, 3 degrees of freedom, 5 %: the two positions agree below this. Stricter than
+``both-directions``' 0.1 %: here a false alarm only leaves a fix demoted, as it was, while a
+missed one confirms a wrong fix, so the test is sized for power."""
+RELIABLE_SIGMA_M = 0.10 / (2.80 + 0.84)
+"""The two positions' summed covariance must be this tight on its loosest axis, so that a fix
+10 cm off (a wrong fix by the issue's bar) fails the test (2.80 sigma at 5 %) with 80 %
+probability (0.84 sigma more): a test too loose to see the error it guards against confirms
+nothing (seed 523 of the sweep: one-direction fixes 8-16 cm off, with sigmas of several
+centimetres on themselves and their partners, passed the 0.1 % test)."""
 NEAREST = 64
-"""Fixes of the other direction tried per epoch, nearest in time first."""
+"""Checked fixes tried per epoch, nearest in time first."""
 
 
-def other_direction_by_arcs(
+def confirmed_along_arcs(
     tab: PhaseTable, one_x: FloatArray, one_cov: FloatArray, one: BoolArray,
     other_x: FloatArray, other_cov: FloatArray, other_fixed: BoolArray,
 ) -> BoolArray:
     """Per table row: the fix of ``one`` (positions ``one_x``, covariances ``one_cov``) is
-    confirmed by a fix of the other direction (``other_fixed`` rows of ``other_x``) on the
-    arcs both rest on (see the module doc)."""
+    confirmed by a checked fix (``other_fixed`` rows of ``other_x``, covariances
+    ``other_cov``) on the arcs both rest on (see the module doc)."""
     n = tab.n_epochs
     out = np.zeros(n, dtype=bool)
     rows = np.flatnonzero(one & np.all(np.isfinite(one_x), axis=1))
@@ -99,8 +110,10 @@ def _agree(r: FloatArray, los: FloatArray, cov: FloatArray) -> bool:
     if float(np.max(np.abs(misfit))) >= MAX_ARC_MISFIT_CYC:
         return False
     d = sol[:3]
+    if float(np.linalg.eigvalsh(cov)[-1]) > RELIABLE_SIGMA_M ** 2:
+        return False
     try:
         chi2 = float(d @ np.linalg.solve(cov + np.eye(3) * 1e-10, d))
     except np.linalg.LinAlgError:
         return False
-    return chi2 <= CHI2_3_AGREE
+    return chi2 <= CHI2_3_CONFIRM

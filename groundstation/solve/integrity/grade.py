@@ -24,9 +24,9 @@ The rule, per epoch:
    position, precise enough to tell a wrong integer set (calibrated sigma under
    :data:`FIXED_MAX_SIGMA_M` on every axis), agrees with that fix within its calibrated
    covariance (chi-square, 3 degrees of freedom, 0.1 %): **fixed**, checked by
-   ``other-direction-float``; or a fix of the other direction at another epoch, on the same
-   unbroken arcs, gives the same position through their phase (:mod:`.carry`): **fixed**,
-   checked by ``other-direction-by-arcs``.
+   ``other-direction-float``; or a checked fix at another epoch, on the same unbroken arcs,
+   gives the same position through their phase (:mod:`.carry`, the rule run a second time
+   with the first run's checked fixes): **fixed**, checked by ``carried-along-arcs``.
 4. An engine that combined its two directions itself (``--engine rnx2rtkp``) cannot be
    checked this way: its remaining fixes are **fixed-unchecked** (its own sigma, Q 1).
 5. Otherwise a fix of the engine is **demoted** to float (its check names why), and the epoch
@@ -84,8 +84,8 @@ CHECK_NAMES: tuple[str, ...] = (
     "arcs-and-engine",          # 11: our fix and an engine fix in one direction agree
     "demoted:camera-clock",     # 12: fixed epochs, but the photo's time comes from the
                                 #     camera clock, too loose for a centimetre position
-    "other-direction-by-arcs",  # 13: one direction fixed, a fix of the other direction at
-                                #     another epoch on the same arcs gives the same position
+    "carried-along-arcs",       # 13: one direction fixed, a checked fix at another epoch
+                                #     on the same arcs gives the same position
 )
 """Check code -> name: which check decided an epoch's grade."""
 C_ARCS, C_BOTH, C_OTHER_FLOAT = 1, 2, 3
@@ -232,8 +232,9 @@ def grade(ours_fixed: BoolArray, ours: Candidate, forward: Candidate | None,
         ours_arcs: (n, n_sv) the arcs each of our fixed epochs rests on (-1: none): an arc
             the engine's checked fixes contradicted at :data:`TAINT_EPOCHS` epochs or more
             takes away our standing at every epoch that rests on it.
-        by_arcs: (n,) epochs whose fix of one direction a fix of the other direction
-            confirms along their shared arcs (:func:`.carry.other_direction_by_arcs`).
+        by_arcs: (n,) epochs whose fix of one direction a checked fix of another epoch
+            confirms along their shared arcs
+            (:func:`.carry.confirmed_along_arcs`).
     """
     n = merged.q.size
     rot = _enu_rot(np.where(np.isfinite(ours.x), ours.x, merged.x))
