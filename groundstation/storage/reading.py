@@ -316,7 +316,7 @@ class Recording:
         For MCAP, ``t_host_ns`` is each ``/ubx/raw`` message's ``log_time`` (the host time of
         reception) and chunks are the recorded ones; for other files it is 0 (they hold no
         reception times) and chunks are ``chunk_bytes`` long. ``also`` hands an MCAP's messages
-        of other topics to their topic's callback in the same pass
+        of other topics, read in the same pass, to their topic's callback
         (:func:`~groundstation.storage.mcapio.iter_raw_chunks`); other files have none.
 
         Raises:
