@@ -110,7 +110,7 @@ def _agree(r: FloatArray, los: FloatArray, cov: FloatArray) -> bool:
     if float(np.max(np.abs(misfit))) >= MAX_ARC_MISFIT_CYC:
         return False
     d = sol[:3]
-    if float(np.linalg.eigvalsh(cov)[-1]) > RELIABLE_SIGMA_M ** 2:
+    if not np.all(np.isfinite(cov)) or float(np.linalg.eigvalsh(cov)[-1]) > RELIABLE_SIGMA_M ** 2:
         return False
     try:
         chi2 = float(d @ np.linalg.solve(cov + np.eye(3) * 1e-10, d))
