@@ -572,7 +572,7 @@ def _parse(spec: Key, value: Any, *, from_text: bool) -> Any:
             value = [v for v in value.replace(" ", "").split(",") if v]
         if (not isinstance(value, (list, tuple)) or len(value) != 3
                 or any(isinstance(v, bool) for v in value)):
-            raise ValueError(f"expected three numbers X,Y,Z, got {value!r}")
+            raise ValueError(f"expected three numbers separated by commas, got {value!r}")
         out = tuple(float(v) for v in value)
         if not all(math.isfinite(v) for v in out):
             raise ValueError(f"expected finite numbers, got {value!r}")
