@@ -164,9 +164,9 @@ def _from_crs(en: tuple[float, float, float], crs: int | str, names: dict[str, s
                 f"in one, or latitude and longitude with {names['llh']}"))
         llh = proj.to_wgs84(*en)
     except ConfigError as err:  # named as the base's option
-        msg = err.message.split(", or give --geoid")[0]
+        msg = err.message.split("; or give --geoid")[0]
         if msg != err.message:
-            msg += ", or give an ellipsoidal height with the projected CRS alone"
+            msg += "; or give an ellipsoidal height with the projected CRS alone"
         raise ConfigError(names["crs"], msg) from err
     return llh, f"{proj.name}; heights: {proj.height_datum}"
 

@@ -95,11 +95,15 @@ class Projector:
             if not group.best_available or not ok:
                 missing = sorted({g.short_name for op in group.unavailable_operations
                                   for g in op.grids if not g.available})
+                # PROJ's CDN holds GeoTIFF grids
+                cdn = next((g for g in missing if g.endswith(".tif")), "NAME")
                 raise ConfigError("--epsg", (
                     f"EPSG:{epsg} has heights above {vertical.name}, but the geoid grid PROJ "
                     f"needs for them ({', '.join(missing) or 'none found'}) is not installed: "
-                    "install Debian's proj-data (EGM96), or copy the grid into "
-                    f"{_user_grid_dir()}, or give --geoid FILE with a horizontal CRS "
+                    "Debian's proj-data has EGM96; PROJ's own tool fetches the others "
+                    f"(apt install proj-bin; projsync --file {cdn}"
+                    f"); or copy the grid into {_user_grid_dir()}; or give --geoid FILE with "
+                    "a horizontal CRS "
                     "(ellipsoidal heights are never written under a vertical CRS's label)"))
             self._fwd = ok[0]
             grids = sorted({g.short_name for op in self._fwd.operations or () for g in op.grids})
