@@ -81,13 +81,44 @@ def _blocks(path: Path) -> dict[int, list[bytes]]:
     return blocks
 
 
+SAME_SHARE = 0.9
+"""The share of the epochs two copies both hold whose measurement frame must be the same bytes
+(a copy damaged in places still qualifies: a damaged frame is no frame, so an epoch either
+arrived intact or is missing)."""
+
+
+def _same_receiver(a: tuple[str, dict[int, list[bytes]]],
+                   b: tuple[str, dict[int, list[bytes]]]) -> None:
+    """Refuse to merge two recordings that are not copies of one receiver's stream: their
+    shared epochs' measurement frames must be the same bytes (two receivers never report the
+    same pseudoranges to the bit: their clocks alone differ by hundreds of metres).
+
+    Raises:
+        InputError: no epoch in common, or different measurements at the shared epochs.
+    """
+    (na, ba), (nb, bb) = a, b
+    shared = [t for t in ba.keys() & bb.keys() if t != _BEFORE]
+    if not shared:
+        raise InputError(f"{nb}: no epoch in common with {na}: not a copy of the same "
+                         "receiver's recording (several recordings are merged as copies of "
+                         "one receiver's stream: the radio's and an on-board log)")
+    same = sum(ba[t][0] == bb[t][0] for t in shared)
+    if same < SAME_SHARE * len(shared):
+        raise InputError(f"{nb}: its measurements differ from {na}'s at {len(shared) - same} "
+                         f"of the {len(shared)} epochs both hold: another receiver's recording, "
+                         "not a copy of the same one (a base goes with --base)")
+
+
 def merge(paths: Sequence[Path], out: Path) -> MergeReport:
     """Merge the recordings into ``out`` (a ``.ubx`` of valid frames).
 
     Raises:
-        InputError: a copy is unreadable, or none has an epoch.
+        InputError: a copy is unreadable, none has an epoch, or one is not a copy of the
+            first (:func:`_same_receiver`).
     """
     copies = [(p.name, _blocks(p)) for p in paths]
+    for name, blocks in copies[1:]:
+        _same_receiver(copies[0], (name, blocks))
     report = MergeReport([CopyShare(name) for name, _ in copies])
     times = sorted({t for _, b in copies for t in b})
     if not any(t != _BEFORE for t in times):
@@ -135,8 +166,12 @@ def one_recording(paths: Sequence[Path]) -> Iterator[tuple[Path, MergeReport | N
     if len(paths) == 1:
         yield paths[0], None
         return
+    seen: dict[Path, Path] = {}
     for p in paths:
         require_ubx_frames(p)
+        first = seen.setdefault(p.resolve(), p)
+        if first is not p:
+            raise InputError(f"{p}: given twice (as {first} too): nothing to merge it with")
     with tempfile.TemporaryDirectory(prefix="groundstation-merge-") as tmp:
         out = Path(tmp) / f"{paths[0].name.split('.')[0]}_merged.ubx"
         yield out, merge(paths, out)

@@ -103,3 +103,12 @@ def test_inspect_and_rinex_take_the_copies_merged(flight: dict[str, Any]) -> Non
               for ln in run.splitlines() if ".obs: " in ln]
     assert epochs[0] == epochs[1], epochs
     assert (d / "rinex-merged" / "radio_merged.obs").is_file()
+    # another receiver's recording (the base) or the same file twice is not a copy: refused,
+    # one line, nothing written
+    for flights, says in ((["radio.ubx", "b.ubx"], "another receiver's recording"),
+                          (["radio.ubx", "radio.ubx"], "given twice")):
+        for cmd in (["inspect"], ["rinex", "--out-dir", "rinex-wrong"]):
+            proc = cli_without_rtklib(*cmd[:1], *flights, *cmd[1:], cwd=d)
+            assert proc.returncode == 2 and says in proc.stderr, proc.stderr
+            assert len(proc.stderr.strip().splitlines()) == 1
+    assert not (d / "rinex-wrong").exists()
