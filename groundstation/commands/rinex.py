@@ -44,7 +44,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="MS",
         help="added to every event time (camera shutter lag after the hot-shoe edge)",
     )
-    parser.add_argument("--marker", default=None, help="MARKER NAME (default: input stem)")
+    parser.add_argument("--marker", default=None,
+                        help="MARKER NAME, 1 to 60 characters, written in ASCII (accents taken "
+                        "off; default: input stem)")
     parser.add_argument(
         "--progress",
         choices=("auto", "always", "never"),
@@ -75,6 +77,9 @@ class _Progress:
 def run(args: argparse.Namespace) -> int:
     if not -10_000.0 <= args.shutter_delay_ms <= 10_000.0:
         raise ConfigError("shutter-delay-ms", "must be between -10000 and 10000 ms")
+    if args.marker is not None and not 0 < len(args.marker.strip()) <= 60:
+        raise ConfigError("--marker", f"{args.marker!r}: a RINEX MARKER NAME has 1 to 60 "
+                          "characters")
     opts = rinex.RinexOptions(
         version=args.rinex,
         marks=args.marks,

@@ -73,6 +73,8 @@ CASES: list[Case] = [
     c("rinex-fifo", "rinex fifo -o out", 2, "is a FIFO"),
     c("rinex-dev-zero", "rinex /dev/zero -o out", 2, "is a device"),
     c("rinex-dir", "rinex adir -o out", 2, "is a directory"),
+    c("rinex-marker-long", "rinex good.ubx -o out --marker " + "M" * 61, 2, "--marker"),
+    c("rinex-marker-empty", "rinex good.ubx -o out --marker=", 2, "--marker"),
     c("rinex-missing", "rinex nope.ubx -o out", 2, "no such file"),
     c("rinex-corrupt-gzip", "rinex corrupt.ubx.gz -o out", 2, "corrupt gzip"),
     c("rinex-out-is-a-file", "rinex good.ubx -o good.ubx", 2, "not a directory"),

@@ -5,6 +5,7 @@ from __future__ import annotations
 import datetime as dt
 import functools
 import textwrap
+import unicodedata
 
 import numpy as np
 import numpy.typing as npt
@@ -13,8 +14,17 @@ from groundstation import gpstime
 from groundstation.offline.rinex.observations import ObsSet
 
 
+def ascii_text(text: str) -> str:
+    """Text as a RINEX header may hold it (ASCII, RINEX 2.11 and 3.04 section 5): accents
+    taken off (``Görlitz`` -> ``Gorlitz``), anything else not ASCII or not printable (a tab, a
+    CJK name) as ``?``."""
+    folded = unicodedata.normalize("NFKD", text)
+    folded = "".join(c for c in folded if not unicodedata.combining(c))
+    return "".join(c if " " <= c <= "~" else "?" for c in folded)
+
+
 def hl(content: str, label: str) -> str:
-    return f"{content:<60.60s}{label:<20s}\n"
+    return f"{ascii_text(content):<60.60s}{label:<20s}\n"
 
 
 def wrap_comment(text: str) -> list[str]:
