@@ -17,7 +17,7 @@ import os
 import re
 import sys
 from collections.abc import Sequence
-from typing import NoReturn
+from typing import Any, NoReturn
 
 from groundstation import __version__
 from groundstation.commands import COMMANDS, EXAMPLES, HELP
@@ -28,6 +28,9 @@ EXIT_OK = 0
 EXIT_FAILURE = 1
 EXIT_CONFIG = 2
 EXIT_INTERRUPTED = 130
+FINISH_UNREAD = frozenset({"solve", "rinex", "locate-base", "simulate"})
+"""Commands whose work is files: they finish it when nobody reads what they print any more
+(``| head``, a pager quit early), instead of stopping half-way with nothing written."""
 """Ctrl-C or SIGTERM ended a command that ends by itself (``demo``, ``replay``, the offline
 commands). For the commands that run until stopped (``run``, ``watch``, ``dashboard``,
 ``solver``, ``router``) Ctrl-C is the normal end: status 0."""
@@ -126,6 +129,37 @@ def build_parser(argv: Sequence[str]) -> argparse.ArgumentParser:
     return parser
 
 
+class _Unread:
+    """A text stream that goes on working after its reader went away: the first write or
+    flush that meets a closed pipe points the descriptor at /dev/null and carries on."""
+
+    def __init__(self, stream: Any) -> None:
+        self._stream = stream
+
+    def write(self, text: str) -> int:
+        try:
+            return int(self._stream.write(text))
+        except BrokenPipeError:
+            self._drop()
+            return len(text)
+
+    def flush(self) -> None:
+        try:
+            self._stream.flush()
+        except BrokenPipeError:
+            self._drop()
+
+    def _drop(self) -> None:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        try:
+            os.dup2(devnull, self._stream.fileno())
+        finally:
+            os.close(devnull)
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._stream, name)
+
+
 def setup_logging(verbose: int, quiet: bool) -> None:
     level = logging.WARNING if quiet else (logging.DEBUG if verbose > 1 else logging.INFO)
     logging.basicConfig(
@@ -147,6 +181,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not args.command:
         parser.print_help()
         return EXIT_CONFIG
+    if args.command in FINISH_UNREAD and argv is None:
+        sys.stdout = _Unread(sys.stdout)
+        sys.stderr = _Unread(sys.stderr)
     setup_logging(args.verbose, args.quiet)
     module = importlib.import_module(COMMANDS[args.command])
     try:
