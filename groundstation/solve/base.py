@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import datetime as dt
 import gzip
+import math
 import re
 import zlib
 from collections.abc import Iterable, Sequence
@@ -416,11 +417,23 @@ def compare_base(
         return f"{how_given}; not checked (the base recording has no receiver fix)", False
     mean = np.mean(np.asarray(base_fixes_ecef_m, dtype=np.float64), axis=0)
     d = float(np.linalg.norm(mean - np.asarray(base_ecef_m)))
+    given = re.search(r"given with (\S+)", how_given)
+    key = given.group(1) if given else "--base-xyz"  # the option (or key) the user gave
     if d > BASE_REFUSED_M:
-        raise ConfigError("--base-xyz", (
+        hint = {"en": " Easting and northing swapped, or another zone's CRS?",
+                "llh": " Latitude and longitude swapped?"}.get(key.rsplit("-", 1)[-1]
+                                                              .removeprefix("base_"), "")
+        raise ConfigError(key, (
             f"{d / 1000:.2f} km from where the base receiver's own {len(base_fixes_ecef_m)} "
             f"fixes put the base ({mean[0]:.1f},{mean[1]:.1f},{mean[2]:.1f}; stand-alone fixes "
-            f"are good to a few metres): not this base's coordinates (another day's or site's?)"))
+            f"are good to a few metres): not this base's coordinates (another day's or "
+            f"site's?).{hint}"))
     text = (f"{how_given}; {d:.1f} m from the mean of the base receiver's own "
             f"{len(base_fixes_ecef_m)} fixes (stand-alone, metre level)")
+    lat, lon, _h = ecef_to_llh(*(float(v) for v in mean))
+    e, n, u = np.asarray(enu_rotation(lat, lon)) @ (np.asarray(base_ecef_m) - mean)
+    if d > BASE_DOUBTFUL_M and abs(u) > 10.0 and math.hypot(e, n) < 10.0:
+        text += (f", {u:+.1f} m of it in height: a height above the geoid given as an "
+                 "ellipsoidal one? (a compound CRS such as --base-crs 32629+5773 takes a "
+                 "height above the geoid)")
     return text, d > BASE_DOUBTFUL_M

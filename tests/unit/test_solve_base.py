@@ -31,6 +31,7 @@ from groundstation.solve.base import (
     base_position,
     check_distance,
     check_pairing,
+    compare_base,
     observation_times,
 )
 from groundstation.solve.outputs import absolute_sd
@@ -222,3 +223,22 @@ def test_without_coordinates_the_bases_own_fixes_give_it_to_metres() -> None:
     with pytest.raises(ConfigError) as err:
         base_from_own_fixes(fixes[:1])
     assert err.value.key == "--base-xyz" and "no receiver fixes" in err.value.message
+
+
+def test_the_base_check_names_the_form_given_and_what_the_difference_looks_like() -> None:
+    """A height above the geoid given as ellipsoidal is 50-odd metres off in height only: the
+    check says so; a base thousands of kilometres off is refused naming the option the user
+    gave, with the likely swap."""
+    lat, lon, h = ecef_to_llh(*XYZ)
+    fixes = [XYZ, XYZ]
+    low = llh_to_ecef(lat, lon, h - 57.5)
+    text, doubtful = compare_base(fixes, low, "given with --base-en 1,2,3 in EPSG:32629")
+    assert doubtful and "-57.5 m of it in height" in text and "32629+5773" in text
+    swapped = llh_to_ecef(lon, lat, h)
+    with pytest.raises(ConfigError) as err:
+        compare_base(fixes, swapped, f"given with --base-llh {lon},{lat},{h}")
+    assert err.value.key == "--base-llh" and "Latitude and longitude swapped?" in err.value.message
+    with pytest.raises(ConfigError) as err:
+        compare_base(fixes, swapped, "given with --base-xyz")
+    assert err.value.key == "--base-xyz" and "swapped" not in err.value.message
+
