@@ -197,7 +197,11 @@ def test_a_killed_worker_is_replaced_and_every_session_is_solved_once(
                "the killed worker's job taken up")
     by = _solved_once(sols, sids)
     assert by[victim_sid] != victim_id
-    assert "vanished; taking it up" in survivor.stderr()
+    # The survivor took the job up either when the victim's claim vanished (it had set the job
+    # aside: "vanished; taking it up" in its log) or when its own queue reached the job and
+    # found it unclaimed (on a loaded machine the victim can claim a job before the survivor
+    # has looked at it: its log then has no such line, a fresh-clone run of 2026-11-27).
+    # Either way it solved it after the kill, and once: asserted above.
     assert survivor.proc.poll() is None
 
 
