@@ -371,7 +371,8 @@ def _judge(res: Any, ref_xyz: FloatArray, ref_fixed: npt.NDArray[np.bool_],
 
 def _solve(rover: Path, base: Path, base_xyz: tuple[float, float, float], out: Path,
            rtk_options: tuple[tuple[str, str], ...] = ()) -> Any:
-    from groundstation.solve.pipeline import SolveSettings, solve
+    from groundstation.solve.pipeline import solve
+    from groundstation.solve.settings import SolveSettings
 
     return solve(SolveSettings(flight=rover, out_dir=out, base=base, base_ecef_m=base_xyz,
                                rtk_options=rtk_options))

@@ -15,22 +15,29 @@ from groundstation.solve import interpolate as interp
 from groundstation.solve.base import base_position
 from groundstation.solve.exif import JPEG_SUFFIXES
 from groundstation.solve.locate import read_base_position
-from groundstation.solve.pipeline import SolveResult, SolveSettings, solve
+from groundstation.solve.pipeline import SolveResult, solve
+from groundstation.solve.record import rebase_settings
 from groundstation.solve.report_data import grades_text
 from groundstation.solve.report_notes import printed_notes
+from groundstation.solve.settings import SolveSettings
 
 NAME = "solve"
 HELP = "post-flight: positions -> marks -> photos -> lever arm -> outputs"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("flight", nargs="+",
+    parser.add_argument("flight", nargs="*",
                         help="rover recording: .mcap, .ubx or .ubx.gz; several recordings of "
                         "the same receiver (the radio's and an on-board log) are merged frame "
                         "by frame")
-    parser.add_argument("--out-dir", "--out", dest="out", required=True, metavar="DIR",
+    parser.add_argument("--out-dir", "--out", dest="out", metavar="DIR",
                         help="output directory (created; an earlier result in it is replaced when "
                         "the run completes, other files are left alone)")
+    parser.add_argument("--rebase", metavar="RESULT_DIR",
+                        help="move a finished result to new base coordinates (--base-xyz, "
+                        "--base-llh, --base-en or --base-position) without solving again: its "
+                        "exports and report are rewritten (in RESULT_DIR, or --out-dir); the "
+                        "recordings it was made from must still be where they were")
     parser.add_argument("--positions", metavar="FILE",
                         help="RTKLIB solution (.pos, .pos.gz); no base needed")
     parser.add_argument("--base", metavar="FILE",
@@ -133,6 +140,13 @@ def _base_sigma(
 
 def settings_from_args(args: argparse.Namespace) -> SolveSettings:
     """Resolve and check the command line (every problem is a ConfigError naming the option)."""
+    if args.rebase is not None:
+        return _rebase_settings(args)
+    if not args.flight:
+        raise ConfigError("flight", "give the rover's recording (.mcap, .ubx or .ubx.gz), or "
+                          "--rebase RESULT_DIR with new base coordinates")
+    if args.out is None:
+        raise ConfigError("--out-dir", "give the output directory (--out-dir DIR)")
     if args.positions is None and args.base is None and args.source != "receiver":
         raise ConfigError(
             "--positions", "give --positions FILE.pos or --base BASE --base-xyz X,Y,Z"
@@ -157,22 +171,7 @@ def settings_from_args(args: argparse.Namespace) -> SolveSettings:
     if args.rtk_conf is not None and not Path(args.rtk_conf).is_file():
         raise ConfigError("--rtk-conf", f"{args.rtk_conf}: no such file")
     rtk_opts = ppk.options.parse_assignments(args.rtk_opt)
-    base_xyz, base_given = base_position(
-        _option("--base-xyz", "base_xyz", args.base_xyz),
-        _option("--base-llh", "base_llh", args.base_llh),
-        _option("--base-antenna-height", "base_antenna_height_m", args.base_antenna_height),
-        en=_option("--base-en", "base_en", args.base_en),
-        crs=_option("--base-crs", "base_crs", args.base_crs))
-    file_sd = None
-    if args.base_position is not None:
-        if base_xyz is not None or args.base_antenna_height is not None:
-            raise ConfigError("--base-position", "give the base as one of --base-position, "
-                              "--base-xyz, --base-llh or --base-en (the file is the antenna's "
-                              "position)")
-        if not Path(args.base_position).is_file():
-            raise ConfigError("--base-position", f"{args.base_position}: no such file")
-        base_xyz, file_sd, base_given = read_base_position(Path(args.base_position))
-    base_sd = _base_sigma(args.base_sigma, base_xyz) or file_sd
+    base_xyz, base_given, base_sd = _base(args)
     if args.base is not None:  # the engine runs: check its options now, before any work
         ppk.resolve_options(
             ppk.get_engine(args.engine), base_xyz,
@@ -202,6 +201,57 @@ def settings_from_args(args: argparse.Namespace) -> SolveSettings:
         rtk_conf=Path(args.rtk_conf) if args.rtk_conf else None,
         rtk_options=tuple(rtk_opts.items()),
     )
+
+
+def _base(args: argparse.Namespace) -> tuple[
+        tuple[float, float, float] | None, str, tuple[float, float, float] | None]:
+    """The base position from whichever form it was given in, how, and its sigma."""
+    base_xyz, base_given = base_position(
+        _option("--base-xyz", "base_xyz", args.base_xyz),
+        _option("--base-llh", "base_llh", args.base_llh),
+        _option("--base-antenna-height", "base_antenna_height_m", args.base_antenna_height),
+        en=_option("--base-en", "base_en", args.base_en),
+        crs=_option("--base-crs", "base_crs", args.base_crs))
+    file_sd = None
+    if args.base_position is not None:
+        if base_xyz is not None or args.base_antenna_height is not None:
+            raise ConfigError("--base-position", "give the base as one of --base-position, "
+                              "--base-xyz, --base-llh or --base-en (the file is the antenna's "
+                              "position)")
+        if not Path(args.base_position).is_file():
+            raise ConfigError("--base-position", f"{args.base_position}: no such file")
+        base_xyz, file_sd, base_given = read_base_position(Path(args.base_position))
+    return base_xyz, base_given, _base_sigma(args.base_sigma, base_xyz) or file_sd
+
+
+_SOLVE_ONLY: dict[str, object] = {"flight": [], "positions": None, "base": None, "source": None,
+               "engine": ppk.DEFAULT_ENGINE, "rtk_opt": [], "rtk_conf": None, "photos": None,
+               "lever_arm": None, "eo": None, "epsg": None, "geoid": None, "interp": "linear",
+               "edge": "falling", "shutter_delay_ms": "0",
+               "max_gap": str(interp.DEFAULT_MAX_GAP_S), "exif": False}
+"""The options of a solve (and their defaults) that a re-base takes from the result's record."""
+
+
+def _rebase_settings(args: argparse.Namespace) -> SolveSettings:
+    """``--rebase RESULT_DIR`` with new base coordinates: the result's own settings.
+
+    Raises:
+        ConfigError: naming the option: a solve's option given too (the result's record has
+            them), no new base position, or a result that cannot be re-based.
+    """
+    for dest, default in _SOLVE_ONLY.items():
+        if getattr(args, dest) != default:
+            name = "the flight" if dest == "flight" else "--" + dest.replace("_", "-")
+            raise ConfigError("--rebase", f"takes only the new base position (and --out-dir); "
+                              f"{name} was given: the result keeps the options it was solved "
+                              "with (solve again to change them)")
+    base_xyz, base_given, base_sd = _base(args)
+    if base_xyz is None:
+        raise ConfigError("--rebase", "give the new base position: --base-xyz X,Y,Z, --base-llh "
+                          "LAT,LON,H, --base-en E,N,H with --base-crs, or --base-position FILE")
+    result = Path(args.rebase)
+    return rebase_settings(result, Path(args.out) if args.out else result, base_xyz,
+                           base_given, base_sd)
 
 
 class _Progress:

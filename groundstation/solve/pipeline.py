@@ -39,6 +39,7 @@ from groundstation.solve import (
     photos,
     posfile,
     positions,
+    record,
     report,
 )
 from groundstation.solve import interpolate as mi
@@ -48,10 +49,11 @@ from groundstation.solve.base import (
     check_distance,
     check_pairing,
 )
-from groundstation.solve.engine import DEFAULT_ENGINE, is_rinex_obs_name
+from groundstation.solve.engine import is_rinex_obs_name
 from groundstation.solve.flight import FlightObservations, FlightRecords, read_flight
 from groundstation.solve.integrity import grade as gr
 from groundstation.solve.report_data import LostMarks, ReportInput, lost_marks_text
+from groundstation.solve.settings import SolveSettings
 from groundstation.solve.trajectory import Q_FIX, Trajectory
 from groundstation.storage.reading import check_regular
 
@@ -64,53 +66,6 @@ BaseCheck = tuple[str, bool]
 
 class NothingPositionedError(GroundstationError):
     """The solve positioned no camera mark (exit status 1: a run that gave no result)."""
-
-
-@dataclass(frozen=True, slots=True)
-class SolveSettings:
-    """Resolved options of one solve (see ``groundstation solve --help``)."""
-
-    flight: Path
-    out_dir: Path
-    positions: Path | None = None
-    base: Path | None = None
-    base_ecef_m: tuple[float, float, float] | None = None
-    base_given: str = "given with --base-xyz"
-    base_sd_enu_m: tuple[float, float, float] | None = None
-    """The base position's own sigma (east, north, up), None when taken as exact."""
-    flight_copies: tuple[Path, ...] = ()
-    """More recordings of the same receiver (an on-board log): merged with ``flight``."""
-    merged_from: str = ""
-    """What the merge of several recordings took from each (for the notes)."""
-    base_estimated: bool = False
-    """No base position was given: it is the mean of the base receiver's own fixes."""
-    source: str | None = None
-    photos: Path | None = None
-    lever_arm_m: tuple[float, float, float] | None = None
-    eo: Path | None = None
-    epsg: int | str | None = None
-    geoid: Path | None = None
-    interp: str = "linear"
-    edge: mi.Edge = "falling"
-    shutter_delay_ms: float = 0.0
-    max_gap_s: float = mi.DEFAULT_MAX_GAP_S
-    exif_copies: bool = False
-    kappa_offset_deg: float = 0.0
-    engine: str = DEFAULT_ENGINE
-    rtk_conf: Path | None = None
-    rtk_options: tuple[tuple[str, str], ...] = ()
-
-    def source_name(self) -> str:
-        """The position source: explicit, else ``pos`` with --positions, ``rtklib`` with --base."""
-        if self.source:
-            return self.source
-        if self.positions is not None:
-            return "pos"
-        if self.base is not None:
-            return "rtklib"
-        raise ConfigError(
-            "--positions", "give --positions FILE.pos or --base BASE --base-xyz X,Y,Z"
-        )
 
 
 @dataclass(frozen=True, slots=True)
@@ -211,7 +166,7 @@ def _validate(s: SolveSettings) -> tuple[SolveSettings, BaseCheck | None, Flight
     # of engine work before saying so (base.BASE_REFUSED_M).
     text, doubtful = (s.base_given, False) if own else check_base(
         s.base, s.base_ecef_m, None, s.positions, s.base_given)
-    if s.positions is None:
+    if s.positions is None and s.rebase is None:  # (a re-based result was checked so)
         # The same for a base of another day, the flight's own recording, or a base hundreds
         # of kilometres away.
         covered = check_pairing(s.flight, s.base)
@@ -275,7 +230,10 @@ def solve(settings: SolveSettings, progress: Progress | None = None) -> SolveRes
         return _solve_merged(settings, progress)
     s, base_check, rec = _validate(settings)
     with outpaths.staged_output(s.out_dir, "--out-dir") as stage:
+        if s.rebase is not None:
+            record.carry_engine_files(s.rebase, stage)
         result = _solve(replace(s, out_dir=stage), progress, base_check, rec)
+        record.write(s, result.trajectory, stage, s.out_dir)
     return _relocated(result, stage, s.out_dir)
 
 
@@ -289,7 +247,7 @@ def _solve_merged(settings: SolveSettings, progress: Progress | None) -> SolveRe
     with one_recording(copies) as (merged, report):
         assert report is not None
         log.info("%s", report.text())
-        return solve(replace(settings, flight=merged, flight_copies=(),
+        return solve(replace(settings, flight=merged, flight_copies=(), recordings=copies,
                              merged_from=report.text()), progress)
 
 
@@ -434,6 +392,11 @@ def _positions(
     against the base, or the receiver's own fix). An engine run has stages of its own
     (``engine.run_engine``): RINEX and phase conditioning, "dynamics" (a forward pass measures
     the rover's accelerations and sets the filter's acceleration noise), the solve."""
+    if s.rebase is not None:  # the finished result's trajectory, moved with the base
+        traj, moved = record.shifted_trajectory(s, s.out_dir)
+        notes.append(moved)
+        notes.extend(outpaths.unstaged(n, s.out_dir) for n in traj.notes)
+        return traj
     src = positions.get_source(s.source_name())
     opts = positions.SourceOptions(
         flight=s.flight, positions=s.positions, base=s.base, base_ecef_m=s.base_ecef_m,
@@ -709,6 +672,8 @@ def _report(
         base_name=s.base.name if s.base else None,
         base_ecef_m=s.base_ecef_m or posfile.pos_header(s.positions).ref_ecef_m,
         base_check=base_check, base_doubtful=base_doubtful, base_sd_enu_m=s.base_sd_enu_m,
+        base_before=tuple(f"ECEF {x:.4f}, {y:.4f}, {z:.4f} m ({given})"
+                          for (x, y, z), given in s.previous_bases),
         epsg=epsg, crs_name=proj.name,
         projected=proj.projected, height_datum=proj.height_datum, lever_arm_m=s.lever_arm_m,
         shutter_delay_ms=s.shutter_delay_ms, edge=s.edge, interp=s.interp, max_gap_s=s.max_gap_s,

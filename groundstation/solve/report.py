@@ -141,6 +141,7 @@ def _summary(inp: ReportInput) -> str:
                     "(the base's error shifts the whole block alike)"
                     if inp.base_sd_enu_m is not None else
                     "not given: the base is taken as exact (--base-sigma gives it)"))
+        base += "".join(f"<br>re-based from {_e(b)}" for b in reversed(inp.base_before))
     else:
         base = _e(inp.base_check or "none")
     opts = ""

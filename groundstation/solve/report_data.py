@@ -110,6 +110,8 @@ class ReportInput:
     track_quality: IntArray
     height_datum: str = "WGS84 ellipsoidal height"
     base_sd_enu_m: tuple[float, float, float] | None = None
+    base_before: tuple[str, ...] = ()
+    """Re-based (``solve --rebase``): the base positions the result had before, oldest first."""
     photos_total: int = 0
     photos_given: bool = True
     lost_marks: LostMarks = field(default_factory=dict)

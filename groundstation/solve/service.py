@@ -60,7 +60,8 @@ from groundstation.solve import interpolate as mi
 from groundstation.solve.base import BASE_KEYS, base_position
 from groundstation.solve.fetch import Remote, remote_for
 from groundstation.solve.pairing import BASE_WAIT_S, Pairing, base_station, span_of
-from groundstation.solve.pipeline import SolveResult, SolveSettings, solve
+from groundstation.solve.pipeline import SolveResult, solve
+from groundstation.solve.settings import SolveSettings
 from groundstation.solve.trajectory import Q_FIX
 
 if TYPE_CHECKING:

@@ -7,12 +7,16 @@ dynamics pass and everything after them; it imports none of them.
 
 from __future__ import annotations
 
+import zipfile
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
+from groundstation.errors import InputError
 from groundstation.solve.integrity import grade as gr
 
 Q_FIX, Q_FLOAT, Q_SBAS, Q_DGPS, Q_SINGLE, Q_PPP = 1, 2, 3, 4, 5, 6
@@ -118,3 +122,39 @@ def make_trajectory(
     )
 
 
+
+
+def save_npz(traj: Trajectory, path: Path) -> None:
+    """Write ``traj`` as a NumPy ``.npz`` (plain arrays, no pickled objects: :func:`load_npz`)."""
+    arrays: dict[str, Any] = {
+        "t_gps_ns": traj.t_gps_ns, "ecef_m": traj.ecef_m, "quality": traj.quality,
+        "sd_enu_m": traj.sd_enu_m, "ns": traj.ns, "ratio": traj.ratio,
+        "source": np.array(traj.source), "metre_level": np.array(traj.metre_level),
+        "notes": np.array(traj.notes, dtype=np.str_),
+    }
+    if traj.grade is not None:
+        arrays["grade"] = traj.grade
+    if traj.check is not None:
+        arrays["check"] = traj.check
+    with path.open("wb") as f:
+        np.savez_compressed(f, **arrays)
+
+
+def load_npz(path: Path) -> Trajectory:
+    """A trajectory :func:`save_npz` wrote.
+
+    Raises:
+        InputError: unreadable, or not a trajectory (a key missing or of the wrong shape).
+    """
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            a = {k: z[k] for k in z.files}
+        n = int(a["t_gps_ns"].size)
+        return make_trajectory(
+            a["t_gps_ns"], a["ecef_m"], a["quality"], sd_enu_m=a["sd_enu_m"], ns=a["ns"],
+            ratio=a["ratio"], source=str(a["source"]), metre_level=bool(a["metre_level"]),
+            notes=[str(v) for v in a["notes"].reshape(-1)],
+            grade=a["grade"].reshape(n) if "grade" in a else None,
+            check=a["check"].reshape(n) if "check" in a else None)
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as err:
+        raise InputError(f"{path}: not a trajectory this program wrote ({err})") from err

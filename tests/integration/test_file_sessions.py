@@ -27,7 +27,8 @@ from groundstation.offline.inspect import inspect_path
 from groundstation.sim.faults import FaultConfig
 from groundstation.sim.stream import SimConfig, simulate
 from groundstation.solve.flight import read_flight
-from groundstation.solve.pipeline import SolveSettings, solve
+from groundstation.solve.pipeline import solve
+from groundstation.solve.settings import SolveSettings
 from groundstation.storage import iter_messages, iter_raw_chunks
 
 # One worker runs this module's tests (pytest-xdist):

@@ -13,8 +13,9 @@ import pytest
 from groundstation.sim.rewrite import RewriteConfig, rewrite
 from groundstation.solve import interpolate as mi
 from groundstation.solve.integrity.grade import C_BY_ARCS
-from groundstation.solve.pipeline import SolveSettings, solve
+from groundstation.solve.pipeline import solve
 from groundstation.solve.posfile import read_pos
+from groundstation.solve.settings import SolveSettings
 from groundstation.solve.trajectory import Q_FIX
 
 pytestmark = [pytest.mark.shared_data, pytest.mark.slow,

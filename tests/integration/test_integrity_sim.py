@@ -17,7 +17,8 @@ from groundstation.offline import rinex
 from groundstation.sim.profiles import sim_config
 from groundstation.sim.stream import simulate
 from groundstation.solve import conditioning
-from groundstation.solve.pipeline import SolveResult, SolveSettings, solve
+from groundstation.solve.pipeline import SolveResult, solve
+from groundstation.solve.settings import SolveSettings
 
 pytestmark = pytest.mark.slow
 

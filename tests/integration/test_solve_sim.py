@@ -10,6 +10,9 @@ then y, then z axis (active right-handed rotations) is ``Mᵀ`` of DOMAIN.md §7
 
 from __future__ import annotations
 
+import csv
+import subprocess
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -17,14 +20,17 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 import pytest
+from peers import cli_env
 from pyproj import Transformer
 
+from groundstation.geodesy import ecef_to_llh, enu_rotation, llh_to_ecef
 from groundstation.sim.faults import FaultConfig
 from groundstation.sim.stream import SimConfig, SimResult, simulate
 from groundstation.solve import interpolate as mi
 from groundstation.solve import leverarm
 from groundstation.solve.photosim import photos_at_times, write_photo_set
-from groundstation.solve.pipeline import SolveResult, SolveSettings, solve
+from groundstation.solve.pipeline import SolveResult, solve
+from groundstation.solve.settings import SolveSettings
 from groundstation.solve.trajectory import Q_FIX
 
 # One worker runs this module's tests (pytest-xdist):
@@ -280,3 +286,45 @@ def test_opposite_flight_directions_agree_with_truth(flight: Flight) -> None:
           f"{unrotated[0] * 100:.1f} cm, M instead of M^T by {m_not_mt[0] * 100:.1f} cm")
     assert ours[0] < 0.01 and ours[1] < 0.02 and ours[2] < 0.02
     assert unrotated[0] > 0.25 and m_not_mt[0] > 0.1
+
+
+def _cameras_csv(out: Path) -> list[dict[str, str]]:
+    lines = [ln for ln in (out / "cameras.csv").read_text().splitlines()
+             if not ln.startswith("#")]
+    return list(csv.DictReader(lines))
+
+
+def test_rebase_moves_every_camera_with_the_base_without_solving_again(
+        flight: Flight, tmp_path: Path) -> None:
+    """``solve --rebase`` with the base moved 0.5 m east, 0.3 m south and 0.2 m up: every
+    camera (photos, lever arm, smoother, EO attitude as solved) moves by exactly that, the
+    grades stay, the report says it, the earlier result is left alone and no engine runs."""
+    done = flight.result.files[0].parent
+    before = _cameras_csv(done)
+    old = np.array(flight.sim.truth["base"]["ecef_m"])
+    lat, lon, _ = ecef_to_llh(*old.tolist())
+    move = np.array(enu_rotation(lat, lon)).T @ np.array([0.5, -0.3, 0.2])
+    new = old + move
+    proc = subprocess.run(
+        [sys.executable, "-m", "groundstation.cli", "solve", "--rebase", str(done),
+         "--base-xyz", ",".join(f"{v:.4f}" for v in new.tolist()), "--out-dir", "moved"],
+        cwd=tmp_path, env=cli_env(), capture_output=True, text=True, timeout=300, check=False)
+    assert proc.returncode == 0, proc.stderr
+    assert "re-based without solving again" in proc.stdout
+    assert "dynamics" not in proc.stderr  # the engine did not run
+    after = _cameras_csv(tmp_path / "moved")
+    assert _cameras_csv(done) == before  # the earlier result is as it was
+    assert [r["photo"] for r in after] == [r["photo"] for r in before]
+    moved = 0
+    for a, b in zip(before, after, strict=True):
+        assert (a["grade"], a["sd_e_m"], a["sd_u_m"]) == (b["grade"], b["sd_e_m"], b["sd_u_m"])
+        if not a["lat_deg"]:
+            continue
+        xyz = [np.array(llh_to_ecef(float(r["lat_deg"]), float(r["lon_deg"]),
+                                    float(r["ellipsoidal_h_m"]))) for r in (a, b)]
+        # cameras.csv writes heights to the millimetre: the move within that rounding
+        assert np.linalg.norm(xyz[1] - xyz[0] - move) < 0.0011, (a, b)
+        moved += 1
+    assert moved >= 0.9 * len(before)
+    report = (tmp_path / "moved" / "report.html").read_text()
+    assert "re-based from ECEF" in report and "(given with --base-xyz)" in report

@@ -25,7 +25,8 @@ from groundstation.config import ZenohSettings, check_station
 from groundstation.errors import ConfigError, GroundstationError
 from groundstation.solve import clockoffset, exif, outputs, photos
 from groundstation.solve import service as sv
-from groundstation.solve.pipeline import SolveResult, SolveSettings
+from groundstation.solve.pipeline import SolveResult
+from groundstation.solve.settings import SolveSettings
 from groundstation.view.dashboard.server import Dashboard, DashboardSettings, host_ok
 from groundstation.view.dashboard.state import StationView
 from groundstation.view.watch import WatchState, _draw, render

@@ -11,7 +11,8 @@ import pytest
 from groundstation.errors import ConfigError, InputError
 from groundstation.geodesy import ecef_to_llh
 from groundstation.solve import service as sv
-from groundstation.solve.pipeline import SolveResult, SolveSettings
+from groundstation.solve.pipeline import SolveResult
+from groundstation.solve.settings import SolveSettings
 
 XYZ = (4146349.2471, 612312.5498, 4791750.8505)
 

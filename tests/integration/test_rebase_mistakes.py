@@ -1,0 +1,81 @@
+"""``solve --rebase`` refuses what cannot be re-based with one line naming the option (exit 2)
+and writes nothing: no such result, a folder without a solve's record, a solve's other options
+given too, no new base, a result solved without a base, a recording that has gone."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from peers import cli_env
+
+from groundstation.solve import record
+from groundstation.solve.settings import SolveSettings
+from groundstation.solve.trajectory import make_trajectory
+
+XYZ = "3774696.5547,-596647.9083,5089485.6511"
+
+
+def _result(d: Path, **settings: object) -> Path:
+    """A finished result's record (as a solve leaves it) in ``d/done``."""
+    (d / "rover.ubx").write_bytes(b"\xb5\x62")
+    (d / "base.ubx").write_bytes(b"\xb5\x62")
+    done = d / "done"
+    done.mkdir()
+    s = SolveSettings(**{"flight": d / "rover.ubx", "out_dir": done, "base": d / "base.ubx",
+                         "base_ecef_m": (3774696.5547, -596647.9083, 5089485.6511),
+                         **settings})  # type: ignore[arg-type]
+    traj = make_trajectory([0, 200_000_000], np.zeros((2, 3)), [1, 1], source="rover.pos")
+    record.write(s, traj, done, done)
+    return done
+
+
+def _rebase(cwd: Path, *args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "groundstation.cli", "solve", *args],
+                          cwd=cwd, env=cli_env(), capture_output=True, text=True, timeout=120,
+                          check=False)
+
+
+@pytest.mark.parametrize(("args", "said"), [
+    (["--rebase", "nowhere", "--base-xyz", XYZ, "--out-dir", "out"],
+     "--rebase: nowhere: no such directory"),
+    (["--rebase", "empty", "--base-xyz", XYZ, "--out-dir", "out"],
+     "--rebase: empty: no solve.json in it"),
+    (["--rebase", "done", "--base-xyz", XYZ, "--photos", "empty", "--out-dir", "out"],
+     "--rebase: takes only the new base position (and --out-dir); --photos was given"),
+    (["--rebase", "done", "rover.ubx", "--base-xyz", XYZ, "--out-dir", "out"],
+     "--rebase: takes only the new base position (and --out-dir); the flight was given"),
+    (["--rebase", "done", "--out-dir", "out"],
+     "--rebase: give the new base position: --base-xyz X,Y,Z"),
+    (["--out-dir", "out"], "flight: give the rover's recording"),
+    (["rover.ubx", "--base", "base.ubx", "--base-xyz", XYZ], "--out-dir: give the output"),
+])
+def test_what_cannot_be_rebased_is_one_line_and_exit_2(
+        tmp_path: Path, args: list[str], said: str) -> None:
+    _result(tmp_path)
+    (tmp_path / "empty").mkdir()
+    listing = sorted(p.relative_to(tmp_path) for p in tmp_path.rglob("*"))
+    proc = _rebase(tmp_path, *args)
+    assert proc.returncode == 2, proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and said in lines[0], proc.stderr
+    assert sorted(p.relative_to(tmp_path) for p in tmp_path.rglob("*")) == listing
+
+
+def test_a_result_without_a_base_or_whose_recording_has_gone_is_refused(
+        tmp_path: Path) -> None:
+    (tmp_path / "a").mkdir()
+    (tmp_path / "b").mkdir()
+    _result(tmp_path / "a", base=None, base_ecef_m=None, positions=tmp_path / "a" / "x.pos")
+    gone = _result(tmp_path / "b")
+    (tmp_path / "b" / "rover.ubx").unlink()
+    proc = _rebase(tmp_path, "--rebase", "a/done", "--base-xyz", XYZ)
+    assert proc.returncode == 2, proc.stderr
+    assert "was solved without a base position" in proc.stderr
+    proc = _rebase(tmp_path, "--rebase", str(gone), "--base-xyz", XYZ)
+    assert proc.returncode == 2, proc.stderr
+    assert f"{tmp_path.resolve()}/b/rover.ubx: no longer there" in proc.stderr
+    assert len(proc.stderr.strip().splitlines()) == 1
