@@ -60,7 +60,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         "the geoid grid")
     parser.add_argument("--base-position", metavar="FILE",
                         help="the base position (and its sigma) from groundstation locate-base "
-                        "--out")
+                        "--out, or an NRCan CSRS-PPP summary (.sum: its ITRF/IGS position)")
     parser.add_argument("--base-sigma", metavar="S|E,N,U",
                         help="the base position's own uncertainty, metres (one value or east,"
                         "north,up): added to the cameras' absolute sigmas")

@@ -30,6 +30,7 @@ from groundstation import jsonio
 from groundstation.errors import ConfigError, InputError
 from groundstation.geodesy import ecef_to_llh
 from groundstation.gpstime import utc_span
+from groundstation.solve import csrs
 from groundstation.solve.base import BASE_FAR_REFUSED_M, check_pairing
 from groundstation.solve.engine import is_rinex_obs_name
 
@@ -267,20 +268,24 @@ def _reference_position(
 
 def read_base_position(path: Path) -> tuple[tuple[float, float, float],
                                               tuple[float, float, float] | None, str]:
-    """A base position file: ``locate-base --out``'s JSON. Returns (ECEF, sigma east/north/up
-    or None, how it was given).
+    """A base position file: ``locate-base --out``'s JSON, or an NRCan CSRS-PPP summary
+    (:mod:`.csrs`). Returns (ECEF, sigma east/north/up or None, how it was given).
 
     Raises:
         ConfigError: naming ``--base-position``: not such a file.
     """
     try:
-        doc = jsonio.loads(path.read_bytes())
+        data = path.read_bytes()
     except OSError as err:
         raise ConfigError("--base-position", f"{path}: cannot read: {err}") from err
+    if csrs.looks_like_sum(data[:65536]):
+        return csrs.read_sum(path, data.decode("latin-1"))
+    try:
+        doc = jsonio.loads(data)
     except ValueError as err:
         raise ConfigError("--base-position", (
-            f"{path}: not a base position file (JSON from groundstation locate-base --out): "
-            f"{err}")) from err
+            f"{path}: not a base position file (JSON from groundstation locate-base --out, or "
+            f"a CSRS-PPP .sum): {err}")) from err
     try:
         xyz = tuple(float(v) for v in doc["ecef_m"])
         sd_raw = doc.get("sigma_enu_m")
