@@ -367,6 +367,8 @@ SOLVER_STATION_KEYS: dict[str, Key] = {
     "base_en": TRIPLE,
     "base_crs": EPSG,
     "base_antenna_height_m": _num("float", 0.0, 100.0),
+    "base_antenna": STR,
+    "antex": PATH,
     "photos": STR,
     "out_root": PATH,
     "lever_arm": TRIPLE,

@@ -12,6 +12,7 @@ from groundstation.config import SOLVER_STATION_KEYS, convert
 from groundstation.errors import ConfigError
 from groundstation.solve import engine as ppk
 from groundstation.solve import interpolate as interp
+from groundstation.solve.antex import rinex_antenna
 from groundstation.solve.base import base_position
 from groundstation.solve.exif import JPEG_SUFFIXES
 from groundstation.solve.locate import read_base_position
@@ -64,6 +65,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--base-sigma", metavar="S|E,N,U",
                         help="the base position's own uncertainty, metres (one value or east,"
                         "north,up): added to the cameras' absolute sigmas")
+    parser.add_argument("--base-antenna", metavar="TYPE",
+                        help="the base antenna's type as ANTEX spells it, radome after a space "
+                        "(e.g. 'TRM55971.00 NONE'; default: a RINEX base's header): with --antex "
+                        "its L1 phase-centre offset is added to the base position")
+    parser.add_argument("--antex", metavar="FILE",
+                        help="ANTEX file with the base antenna's calibration (igs20.atx, .gz "
+                        "too); without it the base position is taken as the antenna's phase "
+                        "centre")
     parser.add_argument("--base-antenna-height", metavar="M",
                         help="the base position given is the ground mark; the antenna reference "
                         "point is M metres vertically above it")
@@ -211,10 +220,12 @@ def _base(args: argparse.Namespace) -> tuple[
         _option("--base-llh", "base_llh", args.base_llh),
         _option("--base-antenna-height", "base_antenna_height_m", args.base_antenna_height),
         en=_option("--base-en", "base_en", args.base_en),
-        crs=_option("--base-crs", "base_crs", args.base_crs))
+        crs=_option("--base-crs", "base_crs", args.base_crs),
+        antenna=args.base_antenna or _rinex_antenna(args),
+        antex_file=_option("--antex", "antex", args.antex))
     file_sd = None
     if args.base_position is not None:
-        if base_xyz is not None or args.base_antenna_height is not None:
+        if base_xyz is not None or args.base_antenna_height is not None or args.antex:
             raise ConfigError("--base-position", "give the base as one of --base-position, "
                               "--base-xyz, --base-llh or --base-en (the file is the antenna's "
                               "position)")
@@ -222,6 +233,13 @@ def _base(args: argparse.Namespace) -> tuple[
             raise ConfigError("--base-position", f"{args.base_position}: no such file")
         base_xyz, file_sd, base_given = read_base_position(Path(args.base_position))
     return base_xyz, base_given, _base_sigma(args.base_sigma, base_xyz) or file_sd
+
+
+def _rinex_antenna(args: argparse.Namespace) -> str | None:
+    """With ``--antex`` and a RINEX base: the antenna type its header names."""
+    if args.antex is None or args.base is None or not ppk.is_rinex_obs_name(Path(args.base)):
+        return None
+    return rinex_antenna(Path(args.base))
 
 
 _SOLVE_ONLY: dict[str, object] = {"flight": [], "positions": None, "base": None, "source": None,

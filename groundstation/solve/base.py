@@ -44,6 +44,7 @@ from groundstation.geodesy import ecef_to_llh, enu_rotation, enu_to_ecef, llh_to
 from groundstation.gpstime import gps_calendar_ns, utc_span
 from groundstation.offline.rinex.convert import observations_of, read_frames
 from groundstation.rules.plausible import span_text
+from groundstation.solve.antex import antenna_name, l1_offset
 from groundstation.solve.engine import is_rinex_obs_name
 from groundstation.solve.flight import read_flight
 from groundstation.solve.posfile import pos_header
@@ -77,10 +78,11 @@ class ObservationTimes:
 
 
 BASE_OPTIONS = {"xyz": "--base-xyz", "llh": "--base-llh", "en": "--base-en",
-                "crs": "--base-crs", "antenna": "--base-antenna-height"}
+                "crs": "--base-crs", "antenna": "--base-antenna-height",
+                "type": "--base-antenna", "antex": "--antex"}
 """The command line's names of the base position's forms."""
 BASE_KEYS = {"xyz": "base_xyz", "llh": "base_llh", "en": "base_en", "crs": "base_crs",
-             "antenna": "base_antenna_height_m"}
+             "antenna": "base_antenna_height_m", "type": "base_antenna", "antex": "antex"}
 """The solver configuration's names of the same."""
 
 
@@ -91,6 +93,8 @@ def base_position(
     names: dict[str, str] = BASE_OPTIONS,
     en: tuple[float, float, float] | None = None,
     crs: int | str | None = None,
+    antenna: str | None = None,
+    antex_file: Path | None = None,
 ) -> tuple[tuple[float, float, float] | None, str]:
     """The base antenna reference point, ECEF metres, from the form given (None if none), and
     how it was given (for the report).
@@ -104,6 +108,8 @@ def base_position(
             vertical CRS's geoid grid (refused when the grid is not installed).
         antenna_height_m: when given, ``xyz``/``llh`` is the ground mark and the antenna reference
             point is this far above it along the ellipsoid normal (a vertical tape measure).
+        antenna, antex_file: the base antenna's type and an ANTEX file with its calibration:
+            the position returned is then the L1 phase centre (:mod:`.antex`).
         names: what the forms are called where they were given (:data:`BASE_OPTIONS`,
             :data:`BASE_KEYS`), for the messages.
 
@@ -137,18 +143,47 @@ def base_position(
         how = f"given with {names['llh']} {lat:.9f},{lon:.9f},{h:.4f}"
     else:
         how = f"given with {names['xyz']}"
-    if antenna_height_m is None:
+    if antenna_height_m is not None:
+        if xyz is None:
+            raise ConfigError(names["antenna"],
+                              f"needs the mark's position ({names['xyz']} or {names['llh']})")
+        if not 0.0 <= antenna_height_m <= 100.0:
+            raise ConfigError(names["antenna"], (
+                f"{antenna_height_m:g} m: expected the vertical height from the ground mark up "
+                "to the antenna reference point, metres (0 to 100)"))
+        xyz = enu_to_ecef((0.0, 0.0, antenna_height_m), xyz)
+        how = (f"{how} for the ground mark, antenna reference point {antenna_height_m:.4f} m "
+               f"above it ({names['antenna']})")
+    return _phase_centre(xyz, how, antenna, antex_file, names)
+
+
+PCO_APPLIED = "L1 phase-centre offset of"
+"""Words of a base position's description when the antenna's offset was applied; without
+them the report says the position given was taken as the phase centre."""
+
+
+def _phase_centre(
+    xyz: tuple[float, float, float] | None, how: str, antenna: str | None,
+    antex_file: Path | None, names: dict[str, str],
+) -> tuple[tuple[float, float, float] | None, str]:
+    """The antenna's L1 phase centre: the reference point plus the ANTEX offset."""
+    if antenna is None and antex_file is None:
         return xyz, how
     if xyz is None:
-        raise ConfigError(names["antenna"],
-                          f"needs the mark's position ({names['xyz']} or {names['llh']})")
-    if not 0.0 <= antenna_height_m <= 100.0:
-        raise ConfigError(names["antenna"], (
-            f"{antenna_height_m:g} m: expected the vertical height from the ground mark up to "
-            "the antenna reference point, metres (0 to 100)"))
-    return enu_to_ecef((0.0, 0.0, antenna_height_m), xyz), (
-        f"{how} for the ground mark, antenna reference point {antenna_height_m:.4f} m above it "
-        f"({names['antenna']})")
+        raise ConfigError(names["antex"] if antex_file else names["type"],
+                          "goes with the base's position (the antenna reference point)")
+    if antex_file is None:
+        raise ConfigError(names["type"], f"goes with {names['antex']} FILE (the ANTEX file "
+                          "with that antenna's phase-centre offsets)")
+    if antenna is None:
+        raise ConfigError(names["antex"], f"needs the base antenna's type: {names['type']} "
+                          "TYPE (as the ANTEX file spells it, radome after a space)")
+    east, north, up = l1_offset(antex_file, antenna, names["antex"], names["type"])
+    kind, radome = antenna_name(antenna)
+    return enu_to_ecef((east, north, up), xyz), (
+        f"{how}; + the {PCO_APPLIED} {kind} {radome} in {antex_file.name}: north/east/up "
+        f"{north * 1e3:.1f}/{east * 1e3:.1f}/{up * 1e3:.1f} mm (its variations with elevation "
+        "not applied: millimetres)")
 
 
 def _from_crs(en: tuple[float, float, float], crs: int | str, names: dict[str, str],

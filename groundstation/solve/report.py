@@ -24,6 +24,7 @@ import numpy as np
 
 from groundstation import gpstime
 from groundstation.solve import clockoffset, figures
+from groundstation.solve.base import PCO_APPLIED
 from groundstation.solve.figures import QUALITY_COLOURS
 from groundstation.solve.integrity.grade import GRADE_MEANING
 from groundstation.solve.interpolate import flag_names
@@ -141,6 +142,9 @@ def _summary(inp: ReportInput) -> str:
                     "(the base's error shifts the whole block alike)"
                     if inp.base_sd_enu_m is not None else
                     "not given: the base is taken as exact (--base-sigma gives it)"))
+        if PCO_APPLIED not in inp.base_check:
+            base += ("<br>antenna: no phase-centre offset applied (no --antex): the position "
+                     "given is taken as the antenna's L1 phase centre")
         base += "".join(f"<br>re-based from {_e(b)}" for b in reversed(inp.base_before))
     else:
         base = _e(inp.base_check or "none")

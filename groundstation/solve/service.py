@@ -98,6 +98,8 @@ class StationSolve:
     base_en: tuple[float, float, float] | None = None
     base_crs: int | str | None = None
     base_antenna_height_m: float | None = None
+    base_antenna: str | None = None
+    antex: Path | None = None
     base_given: str = "given with base_xyz"
     photos: str | None = None
     out_root: Path = Path("solutions")
@@ -165,13 +167,14 @@ def _station_solve(base: StationSolve, values: Mapping[str, Any], prefix: str,
     base_station(out.base, f"{prefix}base", station)
     xyz, how = base_position(out.base_ecef_m, out.base_llh, out.base_antenna_height_m,
                              {k: f"{prefix}{v}" for k, v in BASE_KEYS.items()},
-                             en=out.base_en, crs=out.base_crs)
+                             en=out.base_en, crs=out.base_crs, antenna=out.base_antenna,
+                             antex_file=out.antex)
     if (out.base is None) != (xyz is None):
         missing = "base_xyz" if xyz is None else "base"
         raise ConfigError(f"{prefix}{missing}", "base and base_xyz (or base_llh) go together")
     # the antenna reference point from now on
     return replace(out, base_ecef_m=xyz, base_llh=None, base_en=None, base_crs=None,
-                   base_antenna_height_m=None,
+                   base_antenna_height_m=None, base_antenna=None, antex=None,
                    base_given=how)
 
 

@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 import pytest
+from antex_file import antenna_block, write_antex
 from peers import cli_env
 from pyproj import Transformer
 
@@ -328,3 +329,32 @@ def test_rebase_moves_every_camera_with_the_base_without_solving_again(
     assert moved >= 0.9 * len(before)
     report = (tmp_path / "moved" / "report.html").read_text()
     assert "re-based from ECEF" in report and "(given with --base-xyz)" in report
+
+
+def test_the_base_antennas_phase_centre_offset_moves_every_camera(
+        flight: Flight, tmp_path: Path) -> None:
+    """The same base coordinates with ``--antex`` and ``--base-antenna`` (re-based, so without
+    solving again): the cameras move by the antenna's L1 offset, and the report says which
+    offset; without them the report says that none was applied."""
+    done = flight.result.files[0].parent
+    assert "no phase-centre offset applied (no --antex)" in (done / "report.html").read_text()
+    atx = write_antex(tmp_path / "cal.atx", antenna_block("TESTANT", "NONE",
+                                                          {"G01": (2.0, -1.0, 85.0)}))
+    xyz = flight.sim.truth["base"]["ecef_m"]
+    proc = subprocess.run(
+        [sys.executable, "-m", "groundstation.cli", "solve", "--rebase", str(done),
+         "--base-xyz", ",".join(f"{v:.4f}" for v in xyz), "--antex", str(atx),
+         "--base-antenna", "TESTANT", "--out-dir", "pco"],
+        cwd=tmp_path, env=cli_env(), capture_output=True, text=True, timeout=300, check=False)
+    assert proc.returncode == 0, proc.stderr
+    assert "north +0.0020, up +0.0850 m" in proc.stdout  # (east -0.0010: rounded xyz)
+    lat, lon, _ = ecef_to_llh(*xyz)
+    rot = np.array(enu_rotation(lat, lon))
+    for a, b in zip(_cameras_csv(done), _cameras_csv(tmp_path / "pco"), strict=True):
+        if a["lat_deg"]:
+            d = [np.array(llh_to_ecef(float(r["lat_deg"]), float(r["lon_deg"]),
+                                      float(r["ellipsoidal_h_m"]))) for r in (a, b)]
+            assert rot @ (d[1] - d[0]) == pytest.approx((-0.001, 0.002, 0.085), abs=0.0011)
+    report = (tmp_path / "pco" / "report.html").read_text()
+    assert "L1 phase-centre offset of TESTANT NONE in cal.atx: north/east/up 2.0/-1.0/85.0" \
+        in report and "no phase-centre offset applied" not in report
