@@ -156,6 +156,8 @@ class ZenohSettings:
         connect: endpoints to connect to (a router, the daemon).
         scouting: multicast scouting.
         publish_epochs: the daemon also puts every raw epoch on ``.../epoch``.
+        publish_obs: the daemon puts every epoch's measurements and every navigation subframe
+            on ``.../obs``, compactly (:mod:`groundstation.live.obswire`), for a live engine.
         publish_raw: the daemon also puts every raw chunk on ``.../ubx``.
         tls_ca: the CA certificate (PEM) that ``tls/`` endpoints are checked against.
         tls_certificate: this process's certificate (PEM, X.509 v3) for mutual TLS: presented
@@ -175,6 +177,7 @@ class ZenohSettings:
     connect: tuple[str, ...] = ()
     scouting: bool = False
     publish_epochs: bool = False
+    publish_obs: bool = True
     publish_raw: bool = False
     tls_ca: Path | None = None
     tls_certificate: Path | None = None
@@ -341,6 +344,7 @@ DAEMON_SCHEMA: Schema = {
         "enabled": BOOL,
         **ZENOH_KEYS,
         "publish_epochs": BOOL,
+        "publish_obs": BOOL,
         "publish_raw": BOOL,
         "serve_recordings": BOOL,
         "serve_after_s": _num("float", 0.0, 86_400.0),
@@ -396,6 +400,12 @@ WATCH_SCHEMA: Schema = {
     "zenoh": ZENOH_KEYS,
 }
 
+RTK_SCHEMA: Schema = {
+    "": {"rover": STATION, "base": STATION, "base_xyz": ECEF, "base_llh": TRIPLE,
+         "duration_s": _num("float", 0.0, 10 * 365 * 86_400.0)},
+    "zenoh": ZENOH_KEYS,
+}
+
 DASHBOARD_SCHEMA: Schema = {
     "": {
         "stations": STATIONS,
@@ -444,6 +454,7 @@ SOLVER = Scope("solver", SOLVER_SCHEMA, ENV_PREFIX + "SOLVER_",
                tables={"stations": SOLVER_STATION_KEYS})
 WATCH = Scope("watch", WATCH_SCHEMA, ENV_PREFIX + "WATCH_")
 DASHBOARD = Scope("dashboard", DASHBOARD_SCHEMA, ENV_PREFIX + "DASHBOARD_")
+RTK = Scope("rtk", RTK_SCHEMA, ENV_PREFIX + "RTK_")
 
 ROUTER_STATION_KEYS: dict[str, Key] = {"cert_common_names": STRLIST}
 """A ``[stations.<name>]`` table of the router: the certificate common names that speak for

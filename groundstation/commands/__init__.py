@@ -14,6 +14,7 @@ COMMANDS: dict[str, str] = {
     "rinex": "groundstation.commands.rinex",
     "configure": "groundstation.commands.configure",
     "watch": "groundstation.commands.watch",
+    "rtk": "groundstation.commands.rtk",
     "dashboard": "groundstation.commands.dashboard",
     "demo": "groundstation.commands.demo",
     "replay": "groundstation.commands.replay",
@@ -31,6 +32,7 @@ HELP: dict[str, str] = {
     "rinex": "MCAP/.ubx -> RINEX 2.11/3.04 obs + nav + time-mark table",
     "configure": "send receiver configuration (CFG-*) and check ACKs",
     "watch": "live terminal view of a station over Zenoh",
+    "rtk": "live carrier-phase positions of a rover against a base, from Zenoh",
     "dashboard": "local web dashboard of the stations on Zenoh",
     "demo": "simulator + daemon + live view, the embedded default",
     "replay": "MCAP/.ubx through the live pipeline (to Zenoh), at xN or max speed",
@@ -54,6 +56,8 @@ EXAMPLES: dict[str, str] = {
     "configure": "groundstation configure --port /dev/wi232 --profile lea6t-5hz --dry-run",
     "watch": "groundstation watch --station rover\n"
              "groundstation watch --station rover --connect tcp/192.168.1.10:7447",
+    "rtk": "groundstation rtk --rover rover --base base --base-xyz 4146349.25,612312.55,"
+           "4791750.85",
     "dashboard": "groundstation dashboard --station rover   # then open http://127.0.0.1:8080",
     "demo": "groundstation demo\n"
             "groundstation demo --flight 300 --speed max --photos photos/ --no-view",

@@ -42,9 +42,10 @@ from groundstation import events as kinds
 from groundstation.bus import Bus, decode, encode, key, open_bus
 from groundstation.config import ZenohSettings
 from groundstation.errors import GroundstationError
+from groundstation.live import obswire
 from groundstation.live.fanout import Inbox, InboxClosed, Item, RawChunk
 from groundstation.live.serve import RecordingServer
-from groundstation.records import Event, RawEpoch, Status, TimeMark
+from groundstation.records import Event, RawEpoch, Status, Subframe, TimeMark
 
 log = logging.getLogger("groundstation.publisher")
 
@@ -111,6 +112,7 @@ class ZenohPublisherSink:
         self.station = station
         self.settings = settings
         self.publish_epochs = settings.publish_epochs
+        self.publish_obs = settings.publish_obs
         self.publish_raw = settings.publish_raw
         self._clock = clock
         self.bus: Bus | None = None
@@ -168,8 +170,8 @@ class ZenohPublisherSink:
     @property
     def accepts(self) -> frozenset[type]:
         """Marks, status and events; epochs and raw chunks when configured."""
-        extra = ((RawEpoch,) if self.publish_epochs else ()) + (
-            (RawChunk,) if self.publish_raw else ())
+        extra = ((RawEpoch,) if self.publish_epochs or self.publish_obs else ()) + (
+            (Subframe,) if self.publish_obs else ()) + ((RawChunk,) if self.publish_raw else ())
         return frozenset((TimeMark, Status, Event, *extra))
 
     # -- the bus, opened lazily and re-opened after failures ---------------------------------
@@ -400,8 +402,12 @@ class ZenohPublisherSink:
                 gone = {str(Path(str(p)).absolute()) for p in item.data.get("lost") or ()}
                 self.session["files"] = [f for f in self.session["files"] if f not in gone]
         elif isinstance(item, RawEpoch):
+            if self.publish_obs:
+                self._put("obs", obswire.encode_epoch(item))
             if self.publish_epochs:
                 self._put("epoch", encode("epoch", item, station=st))
+        elif isinstance(item, Subframe) and self.publish_obs:
+            self._put("obs", obswire.encode_subframe(item))
         elif isinstance(item, RawChunk) and self.publish_raw:
             self._put("ubx", item.data)
 

@@ -1,0 +1,54 @@
+"""``groundstation rtk``: carrier-phase positions of a rover during the flight, from its and a
+base station's measurements on the bus (``.../obs``), published on ``.../rtk``."""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+
+from groundstation.commands.options import add_config, add_zenoh_client, layer
+from groundstation.config import RTK, resolve, zenoh_settings
+from groundstation.errors import ConfigError
+
+NAME = "rtk"
+HELP = "live carrier-phase positions of a rover against a base, from Zenoh"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    add_config(parser, RTK, "rover, base, base_xyz and [zenoh]")
+    parser.add_argument("--rover", help="the rover's station name")
+    parser.add_argument("--base", help="the base's station name")
+    parser.add_argument("--base-xyz", metavar="X,Y,Z",
+                        help="the base antenna's position, ECEF metres (as solve takes it)")
+    parser.add_argument("--base-llh", metavar="LAT,LON,H",
+                        help="or as WGS84 latitude, longitude (degrees), ellipsoidal height (m)")
+    add_zenoh_client(parser)
+    parser.add_argument("--duration", type=float, metavar="S",
+                        help="stop after S seconds (default: Ctrl-C)")
+
+
+def run(args: argparse.Namespace) -> int:
+    from groundstation.live.rtk import run_rtk
+    from groundstation.solve.base import base_position
+
+    values = resolve(RTK, args.config, overrides=layer(args, {
+        "rover": "rover", "base": "base", "base_xyz": "base_xyz", "base_llh": "base_llh",
+        "duration": "duration_s"})).values
+    top = values[""]
+    for name in ("rover", "base"):
+        if not top.get(name):
+            raise ConfigError(f"--{name}", f"give the {name}'s station name (--{name} NAME)")
+    if top["rover"] == top["base"]:
+        raise ConfigError("--base", f"the base must be another station than the rover "
+                          f"({top['rover']!r})")
+    xyz, _ = base_position(top.get("base_xyz"), top.get("base_llh"))
+    if xyz is None:
+        raise ConfigError("--base-xyz", "give the base's position (--base-xyz X,Y,Z or "
+                          "--base-llh LAT,LON,H)")
+    with contextlib.suppress(KeyboardInterrupt):
+        done = run_rtk(top["rover"], top["base"], xyz, zenoh_settings(values["zenoh"]),
+                       duration_s=float(top.get("duration_s", 0.0)))
+        print(f"rtk: {done.rover_epochs} rover epochs solved, {done.base_epochs} base epochs, "
+              f"{done.subframes} subframes, {done.bad_messages} unreadable messages; "
+              + ", ".join(f"{k} {v}" for k, v in sorted((done.by_quality or {}).items())))
+    return 0

@@ -1,0 +1,347 @@
+"""Carrier-phase positions during the flight: RTKLIB demo5's real-time filter (``rtkpos``,
+through pyrtklib5) fed epoch by epoch with the rover's and the base's measurements.
+
+The filter takes the same option set as the post-flight engine (``solve``'s demo5 defaults and
+the base position, :func:`groundstation.solve.engine.resolve_options`, loaded through RTKLIB's
+own option table), so that a live fix and a post-flight fix mean the same thing. Broadcast
+ephemerides come from the subframes the receivers forward (RXM-SFRB / RXM-SFRBX), decoded by
+our LNAV decoder (:class:`groundstation.gnss.lnav.EphemerisAssembler`) and handed to RTKLIB.
+
+Each rover epoch is solved with the latest base epoch not after it (the base is static: an
+older one serves, its age is reported as ``age_s``); a rover epoch before any base epoch, or
+before four ephemerides are known, is reported with quality ``none``. Measurements carry the
+phase rule's loss-of-lock bits (:mod:`groundstation.rules.phase`): a slip resets the
+satellite's ambiguity in the filter, as in post-processing.
+"""
+
+from __future__ import annotations
+
+import math
+import tempfile
+from collections import deque
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from groundstation import gpstime
+from groundstation.gnss import lnav
+from groundstation.gnss.ephemeris import BroadcastEphemeris
+from groundstation.records import RawEpoch, SatObs, Subframe
+
+GNSS_GPS = 0
+"""u-blox gnssId of GPS (the LEA-6T tracks GPS only)."""
+SNR_UNIT = 0.001
+"""RTKLIB-EX's SNR unit (dBHz per count)."""
+QUALITY = {1: "fix", 2: "float", 3: "dgps", 4: "dgps", 5: "single", 6: "single"}
+"""RTKLIB solution status -> the live quality (SBAS and PPP do not occur here)."""
+MIN_EPHEMERIDES = 4
+MAX_BASE_AGE_S = 30.0
+"""A base epoch older than this is not used (``pos2-maxage``'s default)."""
+BASE_BUFFER = 150
+"""Base epochs kept (30 s at 5 Hz): the base's stream usually arrives before the rover's."""
+
+
+class EngineUnavailable(RuntimeError):
+    """pyrtklib5 cannot be imported (the live engine needs it)."""
+
+
+@dataclass(frozen=True, slots=True)
+class LiveSolution:
+    """One rover epoch's live position."""
+
+    t_gps_ns: int
+    quality: str
+    """``fix``, ``float``, ``dgps``, ``single`` or ``none``."""
+    ratio: float
+    sats: int
+    age_s: float | None
+    ecef_m: tuple[float, float, float] | None
+    sd_enu_m: tuple[float, float, float] | None
+    why: str = ""
+    """Why there is no position (quality ``none``)."""
+
+    def message(self) -> dict[str, Any]:
+        """The ``groundstation/<rover>/rtk`` message body (docs/zenoh.md)."""
+        return {"t_gps_ns": self.t_gps_ns, "quality": self.quality,
+                "ratio": round(self.ratio, 2), "sats": self.sats,
+                "age_s": None if self.age_s is None else round(self.age_s, 3),
+                "ecef_m": None if self.ecef_m is None else [round(v, 4) for v in self.ecef_m],
+                "sd_enu_m": (None if self.sd_enu_m is None else
+                             [round(v, 4) for v in self.sd_enu_m]),
+                **({"why": self.why} if self.why else {})}
+
+
+def _rtklib() -> Any:
+    try:
+        import pyrtklib5
+    except ImportError as err:
+        raise EngineUnavailable("the live engine needs pyrtklib5: pip install pyrtklib5"
+                                ) from err
+    return pyrtklib5
+
+
+class LiveRtk:
+    """The real-time filter of one rover against one base.
+
+    Args:
+        base_ecef_m: the base antenna's position (as ``solve`` takes it).
+        overrides: engine options over the defaults (RTKLIB keys, checked).
+    """
+
+    def __init__(self, base_ecef_m: tuple[float, float, float],
+                 overrides: dict[str, str] | None = None) -> None:
+        from groundstation.solve.engine import get_engine, resolve_options
+        from groundstation.solve.engine.options import conf_text
+
+        self._p = p = _rtklib()
+        opts, _ = resolve_options(get_engine("demo5"), base_ecef_m, None, overrides or {})
+        with tempfile.TemporaryDirectory(prefix="gs-rtk-") as tmp:
+            conf = Path(tmp) / "live.conf"
+            conf.write_text(conf_text(opts, ["groundstation: live demo5 options"]))
+            p.resetsysopts()
+            if not p.loadopts(str(conf), p.sysopts.ptr):
+                raise EngineUnavailable("the engine did not accept its own options")
+            self._popt, sopt, fopt = p.prcopt_t(), p.solopt_t(), p.filopt_t()
+            p.getsysopts(self._popt, sopt, fopt)
+        self._popt.mode = p.PMODE_KINEMA
+        self.rtk = p.rtk_t()
+        p.rtkinit(self.rtk, self._popt)
+        self.nav = p.nav_t()
+        self._eph_slots = p.Arr1Deph_t(2 * p.MAXSAT)
+        self.nav.eph = self._eph_slots
+        self.nav.n = self.nav.nmax = 2 * p.MAXSAT
+        self._known: set[int] = set()
+        self._asm: lnav.EphemerisAssembler | None = None
+        self._base: deque[RawEpoch] = deque(maxlen=BASE_BUFFER)
+        self._obs = p.Arr1Dobsd_t(2 * p.MAXOBS)
+        self.solved = 0
+
+    # -- inputs --------------------------------------------------------------------------------
+
+    def add_subframe(self, sf: Subframe, week_hint: int) -> bool:
+        """A GPS subframe from either receiver; True when it completed a new ephemeris."""
+        if sf.gnss != GNSS_GPS:
+            return False
+        if self._asm is None:
+            self._asm = lnav.EphemerisAssembler(week_hint)
+        eph = self._asm.add(sf.sv, sf.data_words())
+        if eph is None:
+            return False
+        self._set_eph(eph)
+        return True
+
+    def add_ephemeris(self, eph: BroadcastEphemeris) -> None:
+        """An ephemeris known otherwise (AID-EPH, a navigation file)."""
+        self._set_eph(eph)
+
+    def add_base(self, epoch: RawEpoch) -> None:
+        """A base epoch (kept a while: the rover's, delayed by its radio, may come later)."""
+        if self._base and epoch.t_gps_ns <= self._base[-1].t_gps_ns:
+            self._base.clear()  # the base restarted, or its clock stepped back
+        self._base.append(epoch)
+
+    def _base_for(self, t_gps_ns: int) -> RawEpoch | None:
+        """The latest base epoch not after ``t_gps_ns``."""
+        for b in reversed(self._base):
+            if b.t_gps_ns <= t_gps_ns:
+                return b
+        return None
+
+    def add_rover(self, epoch: RawEpoch) -> LiveSolution:
+        """Solve one rover epoch with the latest base epoch not after it."""
+        t = epoch.t_gps_ns
+        base = self._base_for(t)
+        age = None if base is None else (t - base.t_gps_ns) / 1e9
+        why = ("no base epoch yet" if not self._base else
+               "the base's epochs are all later than this one" if base is None else
+               f"the base's latest epoch is {age:.0f} s old" if age is not None
+               and age > MAX_BASE_AGE_S else
+               f"ephemerides of {len(self._known)} satellites (4 needed)"
+               if len(self._known) < MIN_EPHEMERIDES else "")
+        if why or base is None:
+            return LiveSolution(t, "none", 0.0, 0, age, None, None, why)
+        n = self._fill(epoch, 1, 0)
+        n = self._fill(base, 2, n)
+        p = self._p
+        p.rtkpos(self.rtk, self._obs[0], n, self.nav)
+        self.solved += 1
+        sol = self.rtk.sol
+        stat = int(sol.stat)
+        if stat == 0:
+            return LiveSolution(t, "none", 0.0, int(sol.ns), age, None, None,
+                                "no solution (too few satellites in common?)")
+        xyz = (float(sol.rr[0]), float(sol.rr[1]), float(sol.rr[2]))
+        return LiveSolution(t, QUALITY.get(stat, "single"), float(sol.ratio), int(sol.ns), age,
+                            xyz, _sd_enu(xyz, [float(sol.qr[i]) for i in range(6)]))
+
+    # -- RTKLIB's structures -------------------------------------------------------------------
+
+    def _fill(self, epoch: RawEpoch, rcv: int, start: int) -> int:
+        p = self._p
+        week, tow_ns = divmod(epoch.t_gps_ns, gpstime.NS_PER_WEEK)
+        when = p.gpst2time(int(week), tow_ns / 1e9)
+        k = start
+        for s in epoch.sats:
+            if s.gnss != GNSS_GPS or not s.pr_valid or k >= 2 * p.MAXOBS:
+                continue
+            o = self._obs[k]
+            o.time = when
+            o.sat = p.satno(p.SYS_GPS, s.sv)
+            o.rcv = rcv
+            o.code[0] = p.CODE_L1C
+            o.P[0] = s.pseudorange_m
+            o.L[0] = s.carrier_phase_cyc if s.cp_valid and _finite(s) else 0.0
+            o.D[0] = s.doppler_hz
+            o.SNR[0] = int(round(s.cno_dbhz / SNR_UNIT))
+            o.LLI[0] = s.lli & 3
+            k += 1
+        return k
+
+    def _set_eph(self, eph: BroadcastEphemeris) -> None:
+        p = self._p
+        sat = p.satno(p.SYS_GPS, eph.sv)
+        e = self._eph_slots[sat - 1]
+        e.sat = sat
+        e.iode, e.iodc, e.sva, e.svh = eph.iode, eph.iodc, eph.ura_index, eph.health
+        e.week, e.code, e.flag = eph.week, eph.code_on_l2, eph.l2p_data_flag
+        e.toe = p.gpst2time(eph.week, eph.toe_s)
+        e.toc = p.gpst2time(eph.week, eph.toc_s)
+        e.ttr = p.gpst2time(eph.week, eph.tow_s if eph.tow_s is not None else eph.toe_s)
+        e.A = eph.sqrt_a_sqrt_m ** 2
+        e.e, e.i0, e.OMG0 = eph.e, eph.i0_rad, eph.omega0_rad
+        e.omg, e.M0, e.deln = eph.omega_rad, eph.m0_rad, eph.delta_n_rad_s
+        e.OMGd, e.idot = eph.omega_dot_rad_s, eph.idot_rad_s
+        e.crc, e.crs, e.cuc, e.cus = eph.crc_m, eph.crs_m, eph.cuc_rad, eph.cus_rad
+        e.cic, e.cis = eph.cic_rad, eph.cis_rad
+        e.toes = eph.toe_s
+        e.fit = 4.0 if eph.fit_interval_flag == 0 else 6.0
+        e.f0, e.f1, e.f2 = eph.af0_s, eph.af1_s_s, eph.af2_s_s2
+        e.tgd[0] = eph.tgd_s
+        self._known.add(eph.sv)
+
+
+def _finite(s: SatObs) -> bool:
+    return math.isfinite(s.carrier_phase_cyc) and s.carrier_phase_cyc != 0.0
+
+
+def _sd_enu(xyz: tuple[float, float, float], q: list[float],
+            ) -> tuple[float, float, float] | None:
+    """East/north/up sigmas from RTKLIB's ECEF covariance (xx, yy, zz, xy, yz, zx)."""
+    import numpy as np
+
+    from groundstation.geodesy import ecef_to_llh, enu_rotation
+
+    if not any(q):
+        return None
+    c = np.array([[q[0], q[3], q[5]], [q[3], q[1], q[4]], [q[5], q[4], q[2]]])
+    lat, lon, _ = ecef_to_llh(*xyz)
+    r = np.array(enu_rotation(lat, lon))
+    d = np.diag(r @ c @ r.T)
+    e, n, u = (float(math.sqrt(max(v, 0.0))) for v in d)
+    return e, n, u
+
+
+# -- the ``rtk`` service: the bus in, the bus out ----------------------------------------------
+
+
+@dataclass
+class RtkRun:
+    """What a live run did (for its printout and the tests)."""
+
+    rover_epochs: int = 0
+    base_epochs: int = 0
+    subframes: int = 0
+    bad_messages: int = 0
+    published: int = 0
+    by_quality: dict[str, int] | None = None
+
+
+def run_rtk(
+    rover: str, base: str, base_ecef_m: tuple[float, float, float], settings: Any,
+    *, duration_s: float = 0.0, print_every_s: float = 1.0,
+    out: Any = None, stop: Any = None,
+) -> RtkRun:
+    """Subscribe to both stations' ``obs``, solve every rover epoch, publish
+    ``groundstation/<rover>/rtk`` (JSON, :meth:`LiveSolution.message`) and print a line a
+    second; until Ctrl-C, ``duration_s`` or ``stop()``.
+
+    Raises:
+        EngineUnavailable: pyrtklib5 is missing.
+        GroundstationError: the bus cannot be opened.
+    """
+    import queue
+    import sys
+    import time
+
+    from groundstation.bus import encode, key, open_bus
+    from groundstation.live import obswire
+
+    engine = LiveRtk(base_ecef_m)
+    inbox: queue.Queue[tuple[str, bytes]] = queue.Queue(maxsize=10_000)
+    run = RtkRun(by_quality={})
+    bus = open_bus(settings)
+    out = out or sys.stdout
+
+    def on(which: str) -> Any:
+        def handler(_key: str, payload: bytes) -> None:
+            try:
+                inbox.put_nowait((which, payload))
+            except queue.Full:
+                run.bad_messages += 1
+        return handler
+
+    bus.subscribe(key(rover, "obs"), on("rover"))
+    bus.subscribe(key(base, "obs"), on("base"))
+    publish = bus.publisher(key(rover, "rtk"))
+    t_end = time.monotonic() + duration_s if duration_s > 0 else None
+    next_print = 0.0
+    week_hint = gpstime.week_tow(gpstime.unix_to_gps_ns(time.time_ns()))[0]
+    try:
+        while not (stop and stop()) and (t_end is None or time.monotonic() < t_end):
+            try:
+                which, payload = inbox.get(timeout=0.2)
+            except queue.Empty:
+                continue
+            try:
+                rec = obswire.decode(payload)
+            except obswire.ObsWireError:
+                run.bad_messages += 1
+                continue
+            if isinstance(rec, Subframe):
+                run.subframes += 1
+                engine.add_subframe(rec, week_hint)
+                continue
+            week_hint = rec.gps_week
+            if which == "base":
+                run.base_epochs += 1
+                engine.add_base(rec)
+                continue
+            run.rover_epochs += 1
+            sol = engine.add_rover(rec)
+            publish(encode("rtk", sol.message(), station=rover))
+            run.published += 1
+            assert run.by_quality is not None
+            run.by_quality[sol.quality] = run.by_quality.get(sol.quality, 0) + 1
+            now = time.monotonic()
+            if now >= next_print:
+                next_print = now + print_every_s
+                out.write(_line(sol) + "\n")
+                out.flush()
+    finally:
+        bus.close()
+    return run
+
+
+def _line(s: LiveSolution) -> str:
+    """One printed line: time, quality, ratio, satellites, base age, position and sigma."""
+    when = gpstime.gps_as_datetime(s.t_gps_ns).strftime("%H:%M:%S.%f")[:-5]
+    age = "-" if s.age_s is None else f"{s.age_s:.1f} s"
+    head = f"{when} GPS  {s.quality:<6} ratio {s.ratio:5.1f}  sats {s.sats:2d}  base age {age}"
+    if s.ecef_m is None:
+        return f"{head}  ({s.why})" if s.why else head
+    from groundstation.geodesy import ecef_to_llh
+
+    lat, lon, h = ecef_to_llh(*s.ecef_m)
+    sd = "" if s.sd_enu_m is None else (
+        "  σ e/n/u " + "/".join(f"{v * 100:.1f}" for v in s.sd_enu_m) + " cm")
+    return f"{head}  {lat:.8f} {lon:.8f} {h:.3f} m{sd}"
