@@ -11,7 +11,9 @@ common name (Zenoh matches the CN of the client certificate of a ``tls/`` link w
 - a station: writes (put, delete, queryable, reply, liveliness token) only
   ``groundstation/<its name>/**``, and is asked (queries, subscriber interest) only there;
 - a solver: reads every station (subscribe, query, liveliness) and writes only
-  ``groundstation/*/solution`` (and answers ``groundstation/*/q/solution``), and claims jobs
+  ``groundstation/*/solution`` and ``groundstation/*/rtk`` (the live engine, ``groundstation
+  rtk``, runs with a solver's certificate) (and answers ``groundstation/*/q/solution``), and
+  claims jobs
   with liveliness tokens on ``groundstation/solvers/claim/**``;
 - a viewer: reads every station;
 - with ``access.local``, plain TCP over the loopback interface (the daemons and views on this
@@ -73,7 +75,8 @@ def access_control(settings: RouterSettings) -> dict[str, Any]:
             _rule(f"station-{name}-asked", "egress", ASKED, own),
         ])
     if access.solvers:
-        solution = [f"{KEY_ROOT}/*/solution"]
+        # the solver's results, and the live engine's positions (groundstation rtk)
+        solution = [f"{KEY_ROOT}/*/solution", f"{KEY_ROOT}/*/rtk"]
         claims = [f"{KEY_ROOT}/solvers/claim/**"]
         grant("solvers", {"cert_common_names": list(access.solvers)}, [
             _rule("solvers-read", "ingress", READ, [ALL]),
