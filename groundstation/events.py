@@ -56,6 +56,9 @@ ZENOH_UNAVAILABLE: Final = "zenoh.unavailable"
 # -- stations on the bus -------------------------------------------------------------------
 STATION_CONFLICT: Final = "station.conflict"
 STATION_CONFLICT_ENDED: Final = "station.conflict_ended"
+# -- the live engine (groundstation/live/rtk.py) --------------------------------------------
+RTK_FIX_LOST: Final = "rtk.fix_lost"
+RTK_FIX_REGAINED: Final = "rtk.fix_regained"
 # -- the pipeline's sinks -------------------------------------------------------------------
 FANOUT_DROPPED: Final = "fanout.dropped"
 # -- the decoder ----------------------------------------------------------------------------
@@ -113,6 +116,9 @@ CATALOGUE: Final[dict[str, Kind]] = {
         Kind(STATION_CONFLICT, "error", "another daemon publishes as the same station"),
         Kind(STATION_CONFLICT_ENDED, "info", "no other daemon publishes as this station any more"),
         Kind(FANOUT_DROPPED, "warning", "a slow sink lost items"),
+        Kind(RTK_FIX_LOST, "warning", "no fixed live position for FIX_LOST_ALERT_S while marks "
+             "come in (data: since_t_gps_ns, marks): photos taken now may not get one"),
+        Kind(RTK_FIX_REGAINED, "info", "the live position is fixed again (data: lost_s)"),
         Kind(DECODER_TIME_JUMP, "warning",
              "the receiver's time jumped and a second epoch confirmed it: the session's clock "
              "follows (rules/plausible)"),

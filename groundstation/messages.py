@@ -32,7 +32,7 @@ from typing import Any
 from groundstation import jsonio
 from groundstation.storage import transfer
 
-KINDS = frozenset({"status", "event", "timemark", "session", "solution", "epoch"})
+KINDS = frozenset({"status", "event", "timemark", "session", "solution", "epoch", "rtk"})
 MAX_PAYLOAD_BYTES = 1 << 20
 MAX_DEPTH = 8
 MAX_NODES = 50_000
@@ -49,6 +49,7 @@ COUNTERS = frozenset({
 TABLES = {"link", "recording", "data", "current_dropout"}
 LISTS = {"sats", "alerts", "files", "recent_dropouts", "notes", "recordings"}
 STRINGS = {"type", "station", "session_id", "kind", "message"}
+RTK_QUALITIES = frozenset({"fix", "float", "dgps", "single", "none"})
 
 
 class BadMessage(ValueError):
@@ -87,6 +88,9 @@ def check(msg: Any, expected: str | None = None) -> dict[str, Any]:
         raise BadMessage(f"unknown type {kind!r}")
     if expected is not None and kind != expected:
         raise BadMessage(f"a {kind!r} message where a {expected!r} was expected")
+    if kind == "rtk":  # flat, its own fields (``sats`` is a count here, not the status's list)
+        _check_rtk(msg)
+        return msg
     nodes = [0]
     _walk(msg, "", 0, nodes)
     if kind == "event" and not isinstance(msg.get("kind"), str):
@@ -104,6 +108,37 @@ def check(msg: Any, expected: str | None = None) -> dict[str, Any]:
         if first is not None and last is not None and first > last:
             raise BadMessage(f"session span: first epoch {first} after last {last}")
     return msg
+
+
+def _finite(v: Any) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def _check_rtk(msg: dict[str, Any]) -> None:
+    """A live position (``groundstation/<rover>/rtk``, docs/zenoh.md)."""
+    t = msg.get("t_gps_ns")
+    if not isinstance(t, int) or isinstance(t, bool) or not 0 <= t <= MAX_TIME_NS:
+        raise BadMessage(f"t_gps_ns: expected a GPS time in ns, got {t!r}")
+    if msg.get("quality") not in RTK_QUALITIES:
+        raise BadMessage(f"quality: expected one of {sorted(RTK_QUALITIES)}, "
+                         f"got {msg.get('quality')!r}")
+    sats = msg.get("sats")
+    if not isinstance(sats, int) or isinstance(sats, bool) or not 0 <= sats <= 255:
+        raise BadMessage(f"sats: expected a count, got {sats!r}")
+    if not _finite(msg.get("ratio")) or not abs(msg["ratio"]) <= MAX_SECONDS:
+        raise BadMessage(f"ratio: expected a number, got {msg.get('ratio')!r}")
+    age = msg.get("age_s")
+    if age is not None and not (_finite(age) and abs(age) <= MAX_SECONDS):
+        raise BadMessage(f"age_s: expected seconds, got {age!r}")
+    for name in ("ecef_m", "sd_enu_m"):
+        v = msg.get(name)
+        if v is not None and not (isinstance(v, list) and len(v) == 3 and all(
+                _finite(x) and abs(x) < 1e8 for x in v)):
+            raise BadMessage(f"{name}: expected three numbers in metres, got {v!r}")
+    for name in ("station", "why", "alert"):
+        v = msg.get(name)
+        if v is not None and not (isinstance(v, str) and len(v) <= MAX_STRING):
+            raise BadMessage(f"{name}: expected a string")
 
 
 def _walk(value: Any, name: str, depth: int, nodes: list[int]) -> None:

@@ -473,7 +473,33 @@ class DamagedData:
     t_host_ns: int
 
 
+@dataclass(frozen=True, slots=True)
+class LiveSolution:
+    """One rover epoch's live carrier-phase position (:mod:`groundstation.live.rtk`)."""
+
+    t_gps_ns: int
+    quality: str
+    """``fix``, ``float``, ``dgps``, ``single`` or ``none``."""
+    ratio: float
+    sats: int
+    age_s: float | None
+    ecef_m: tuple[float, float, float] | None
+    sd_enu_m: tuple[float, float, float] | None
+    why: str = ""
+    """Why there is no position (quality ``none``)."""
+
+    def message(self) -> dict[str, Any]:
+        """The ``groundstation/<rover>/rtk`` message body (docs/zenoh.md)."""
+        return {"t_gps_ns": self.t_gps_ns, "quality": self.quality,
+                "ratio": round(self.ratio, 2), "sats": self.sats,
+                "age_s": None if self.age_s is None else round(self.age_s, 3),
+                "ecef_m": None if self.ecef_m is None else [round(v, 4) for v in self.ecef_m],
+                "sd_enu_m": (None if self.sd_enu_m is None else
+                             [round(v, 4) for v in self.sd_enu_m]),
+                **({"why": self.why} if self.why else {})}
+
+
 Item = (RawChunk | RawEpoch | TimeMark | Subframe | Ephemeris | NavSolution | SvInfo | Event
-        | Status | PipelineStatus | DamagedData)
+        | Status | PipelineStatus | DamagedData | LiveSolution)
 """What travels through the live pipeline's fanout: the received bytes, the decoded records, and
 what the stages say about themselves (events, status snapshots, the pipeline's counters)."""

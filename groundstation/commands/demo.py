@@ -47,6 +47,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="after the flight, keep serving the recording to remote solvers "
                         "for up to S seconds (until fetched; [zenoh] serve_after_s, default 0)")
     parser.add_argument("--no-view", action="store_true", help="no live view, just the summary")
+    parser.add_argument("--no-base", action="store_true",
+                        help="no live carrier-phase positions against the simulated base")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -68,7 +70,7 @@ def run(args: argparse.Namespace) -> int:
         flight_s=args.flight, speed=parse_speed(args.speed, live=True), seed=args.seed,
         faults=args.faults or ("seed" if args.profile == "seed" else "default"),
         profile=args.profile, severity=args.severity, duration_s=args.duration,
-        settings=settings,
+        settings=settings, live_rtk=not args.no_base,
     )
     sim = simulate_flight(opts)
     # Every output is checked (and its directory made) before the flight: a refusal after it
@@ -221,6 +223,19 @@ def _log_through(console: Any) -> None:
     root.addHandler(RichHandler(console=console, show_path=False, level=level))
 
 
+def live_text(live: Any) -> str:
+    """The live engine's epochs by quality, and its fixed share over the last minute."""
+    from collections import Counter
+
+    n = Counter(s.quality for s in live)
+    last = live[-300:]
+    return (f"{len(live)} rover epochs solved during the flight: "
+            + ", ".join(f"{k} {n[k]}" for k in ("fix", "float", "dgps", "single", "none")
+                        if n[k])
+            + f"; fixed {sum(s.quality == 'fix' for s in last) / len(last):.0%} of the last "
+            f"{len(last) / 5:.0f} s")
+
+
 def _print_summary(result: Any, photos: Path | None = None) -> None:
     s = result.summary
     truth = result.sim.truth
@@ -246,6 +261,10 @@ def _print_summary(result: Any, photos: Path | None = None) -> None:
     for path in s.sidecars:
         print(f"  raw UBX:     {path}")
     print(f"  base UBX:    {result.base_path}")
+    if result.live:
+        print(f"  live RTK:    {live_text(result.live)} (groundstation/{result.station}/rtk)")
+    elif result.live_missing:
+        print(f"  live RTK:    not run: {result.live_missing}")
     print(f"  truth:       {result.truth_path}")
     if photos is not None:
         print(f"  photos:      {photos} ({len(sent.exposures)} JPEGs)")

@@ -26,11 +26,14 @@ from groundstation.config import (
 )
 from groundstation.live.daemon import Pipeline, RunSummary
 from groundstation.live.fanout import Inbox, InboxClosed, Item, Overflow
-from groundstation.records import Event, Status, TimeMark
+from groundstation.live.rtk import EngineUnavailable, LiveRtkSink
+from groundstation.records import Event, LiveSolution, RawEpoch, Status, Subframe, TimeMark
 from groundstation.sim.faults import FaultConfig
 from groundstation.sim.profiles import sim_config
 from groundstation.sim.ptylink import PtyLink
 from groundstation.sim.stream import SimResult, simulate
+from groundstation.ubx.decode import Decoder
+from groundstation.ubx.framer import UbxFramer
 
 log = logging.getLogger("groundstation.demo")
 
@@ -82,6 +85,8 @@ class DemoOptions:
     zenoh: bool = True
     serve_after_s: float = 0.0
     settings: Settings | None = None
+    live_rtk: bool = True
+    """Solve the rover's epochs live against the simulated base (``--no-base``: not)."""
 
 
 WEEK_NS = 604_800 * 1_000_000_000
@@ -119,6 +124,10 @@ class DemoResult:
     """GPS time of the last chunk written when the run stopped before the flight's end."""
     alerts_cleared: tuple[str, ...] = ()
     """The alerts raised during the run and cleared before its end (their messages)."""
+    live: tuple[LiveSolution, ...] = ()
+    """The live engine's position at every rover epoch (none without it)."""
+    live_missing: str = ""
+    """Why the live engine did not run, when it was asked for."""
 
     def sent(self) -> SentFigures:
         """The simulator's figures up to the stop (the whole flight's when it ran to its end),
@@ -156,7 +165,7 @@ class ViewSink:
     """Hands status, events and marks to a callback as bus payloads (the terminal view)."""
 
     name = "view"
-    accepts = frozenset((Status, Event, TimeMark))
+    accepts = frozenset((Status, Event, TimeMark, LiveSolution))
 
     def __init__(self, on_payload: Callable[[str, bytes], None], station: str) -> None:
         self._on_payload = on_payload
@@ -178,6 +187,8 @@ class ViewSink:
             elif isinstance(item, TimeMark):
                 self._on_payload("timemark", encode("timemark", item, index=self._marks))
                 self._marks += 1
+            elif isinstance(item, LiveSolution):
+                self._on_payload("rtk", encode("rtk", item.message(), station=self.station))
 
 
 class AlertLog:
@@ -211,6 +222,22 @@ class AlertLog:
     def cleared(self) -> tuple[str, ...]:
         """Messages of the alerts raised and cleared again before the end, in raising order."""
         return tuple(m for n, m in self.raised.items() if n not in self.standing)
+
+
+def _live_sink(sim: SimResult) -> tuple[LiveRtkSink | None, str]:
+    """The live engine on the rover's epochs against the simulated base (its stream decoded
+    as the base's daemon would); None and why when pyrtklib5 is missing."""
+    framer, decoder = UbxFramer(), Decoder()
+    base: list[RawEpoch | Subframe] = []
+    for frame in framer.feed(sim.base_bytes, 0) + framer.flush(0):
+        rec = decoder.decode(frame)
+        if isinstance(rec, (RawEpoch, Subframe)):
+            base.append(rec)
+    try:
+        return LiveRtkSink(tuple(sim.truth["base"]["ecef_m"]), base), ""
+    except EngineUnavailable as err:
+        log.warning("no live positions: %s", err)
+        return None, str(err)
 
 
 def simulate_flight(opts: DemoOptions) -> SimResult:
@@ -274,6 +301,9 @@ async def run_demo(
         pipeline.add_sink(view, 1000, Overflow.DROP_OLDEST)
     alert_log = AlertLog()
     pipeline.add_sink(alert_log, 1000, Overflow.NEVER_DROP)
+    live, live_missing = _live_sink(sim) if opts.live_rtk else (None, "")
+    if live is not None:
+        pipeline.add_sink(live, 1000, Overflow.NEVER_DROP)
     stop = asyncio.Event()
 
     async def drained() -> None:
@@ -333,6 +363,7 @@ async def run_demo(
         station=station,
         bytes_written=feeder.bytes_written,
         alerts_cleared=alert_log.cleared(),
+        live=tuple(live.solutions) if live is not None else (), live_missing=live_missing,
         sent_until_gps_ns=(None if feeder.chunks_written == len(sim.rover_chunks)
                            else feeder.last_t_ns if feeder.last_t_ns is not None
                            else int(sim.truth["start_gps_ns"])),

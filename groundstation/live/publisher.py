@@ -45,7 +45,7 @@ from groundstation.errors import GroundstationError
 from groundstation.live import obswire
 from groundstation.live.fanout import Inbox, InboxClosed, Item, RawChunk
 from groundstation.live.serve import RecordingServer
-from groundstation.records import Event, RawEpoch, Status, Subframe, TimeMark
+from groundstation.records import Event, LiveSolution, RawEpoch, Status, Subframe, TimeMark
 
 log = logging.getLogger("groundstation.publisher")
 
@@ -172,7 +172,7 @@ class ZenohPublisherSink:
         """Marks, status and events; epochs and raw chunks when configured."""
         extra = ((RawEpoch,) if self.publish_epochs or self.publish_obs else ()) + (
             (Subframe,) if self.publish_obs else ()) + ((RawChunk,) if self.publish_raw else ())
-        return frozenset((TimeMark, Status, Event, *extra))
+        return frozenset((TimeMark, Status, Event, LiveSolution, *extra))
 
     # -- the bus, opened lazily and re-opened after failures ---------------------------------
 
@@ -406,6 +406,8 @@ class ZenohPublisherSink:
                 self._put("obs", obswire.encode_epoch(item))
             if self.publish_epochs:
                 self._put("epoch", encode("epoch", item, station=st))
+        elif isinstance(item, LiveSolution):
+            self._put("rtk", encode("rtk", item.message(), station=st))
         elif isinstance(item, Subframe) and self.publish_obs:
             self._put("obs", obswire.encode_subframe(item))
         elif isinstance(item, RawChunk) and self.publish_raw:

@@ -26,7 +26,7 @@ from typing import Any
 from groundstation import gpstime
 from groundstation.gnss import lnav
 from groundstation.gnss.ephemeris import BroadcastEphemeris
-from groundstation.records import RawEpoch, SatObs, Subframe
+from groundstation.records import LiveSolution, RawEpoch, SatObs, Subframe, TimeMark
 
 GNSS_GPS = 0
 """u-blox gnssId of GPS (the LEA-6T tracks GPS only)."""
@@ -43,32 +43,6 @@ BASE_BUFFER = 150
 
 class EngineUnavailable(RuntimeError):
     """pyrtklib5 cannot be imported (the live engine needs it)."""
-
-
-@dataclass(frozen=True, slots=True)
-class LiveSolution:
-    """One rover epoch's live position."""
-
-    t_gps_ns: int
-    quality: str
-    """``fix``, ``float``, ``dgps``, ``single`` or ``none``."""
-    ratio: float
-    sats: int
-    age_s: float | None
-    ecef_m: tuple[float, float, float] | None
-    sd_enu_m: tuple[float, float, float] | None
-    why: str = ""
-    """Why there is no position (quality ``none``)."""
-
-    def message(self) -> dict[str, Any]:
-        """The ``groundstation/<rover>/rtk`` message body (docs/zenoh.md)."""
-        return {"t_gps_ns": self.t_gps_ns, "quality": self.quality,
-                "ratio": round(self.ratio, 2), "sats": self.sats,
-                "age_s": None if self.age_s is None else round(self.age_s, 3),
-                "ecef_m": None if self.ecef_m is None else [round(v, 4) for v in self.ecef_m],
-                "sd_enu_m": (None if self.sd_enu_m is None else
-                             [round(v, 4) for v in self.sd_enu_m]),
-                **({"why": self.why} if self.why else {})}
 
 
 def _rtklib() -> Any:
@@ -241,6 +215,125 @@ def _sd_enu(xyz: tuple[float, float, float], q: list[float],
     return e, n, u
 
 
+# -- the operator's alert -----------------------------------------------------------------------
+
+FIX_LOST_ALERT_S = 10.0
+"""No fixed live position for this long while marks come in: the operator is told (a photo
+taken then may have no fixed position after the flight either; at 5 Hz, 50 epochs)."""
+MARKS_RECENT_S = 10.0
+"""Marks "come in" when one arrived within this long."""
+
+
+class FixWatch:
+    """When to tell the operator that the live fix is lost while photos are being taken: after
+    :data:`FIX_LOST_ALERT_S` without a fix and with a mark in the last :data:`MARKS_RECENT_S`;
+    and when the fix is back. Times are the rover's epochs (GPS ns)."""
+
+    def __init__(self) -> None:
+        self.last_fix_ns: int | None = None
+        self.last_mark_ns: int | None = None
+        self.raised_since_ns: int | None = None
+        self.marks_since = 0
+
+    def mark(self, t_gps_ns: int) -> None:
+        self.last_mark_ns = t_gps_ns
+        if self.raised_since_ns is not None:
+            self.marks_since += 1
+
+    def update(self, sol: LiveSolution) -> tuple[str, dict[str, Any]] | None:
+        """``(event kind, data)`` to raise or clear, or None."""
+        from groundstation import events
+
+        t = sol.t_gps_ns
+        if sol.quality == "fix":
+            self.last_fix_ns = t
+            if self.raised_since_ns is not None:
+                lost = (t - self.raised_since_ns) / 1e9
+                self.raised_since_ns = None
+                return events.RTK_FIX_REGAINED, {"lost_s": round(lost, 1)}
+            return None
+        since = self.last_fix_ns
+        if self.raised_since_ns is not None or since is None or self.last_mark_ns is None:
+            return None
+        if (t - since) / 1e9 >= FIX_LOST_ALERT_S and (
+                t - self.last_mark_ns) / 1e9 <= MARKS_RECENT_S:
+            self.raised_since_ns, self.marks_since = since, 0
+            return events.RTK_FIX_LOST, {"since_t_gps_ns": since,
+                                         "lost_s": round((t - since) / 1e9, 1)}
+        return None
+
+
+class LiveRtkSink:
+    """A daemon's pipeline sink (the demo's): its rover epochs solved against a base stream
+    known in advance (the simulator's, each base item handed over once the rover's epochs
+    reach its time: the base's stream arrives first, as over a base on the laptop's serial
+    port); each solution published into the pipeline (the publisher puts it on ``.../rtk``),
+    the operator's alert as events."""
+
+    name = "rtk"
+    accepts = frozenset((RawEpoch, Subframe, TimeMark))
+
+    def __init__(self, base_ecef_m: tuple[float, float, float],
+                 base_items: list[RawEpoch | Subframe], clock: Any = None) -> None:
+        import time
+
+        self.engine = LiveRtk(base_ecef_m)
+        self._base = base_items
+        self._k = 0
+        self.watch = FixWatch()
+        self.solutions: list[LiveSolution] = []
+        self._clock = clock or time.time_ns
+
+    def _feed_base(self, t_gps_ns: int, week: int) -> None:
+        while self._k < len(self._base):
+            b = self._base[self._k]
+            if isinstance(b, RawEpoch):
+                if b.t_gps_ns > t_gps_ns:
+                    return
+                self.engine.add_base(b)
+            else:
+                self.engine.add_subframe(b, week)
+            self._k += 1
+
+    def handle(self, item: Any, publish: Any) -> None:
+        from groundstation.records import Event
+
+        if isinstance(item, TimeMark):
+            if item.falling_t_gps_ns is not None:
+                self.watch.mark(item.falling_t_gps_ns)
+            return
+        if isinstance(item, Subframe):
+            self.engine.add_subframe(item, gpstime.week_tow(gpstime.unix_to_gps_ns(
+                self._clock()))[0])
+            return
+        if not isinstance(item, RawEpoch):
+            return
+        self._feed_base(item.t_gps_ns, item.gps_week)
+        sol = self.engine.add_rover(item)
+        self.solutions.append(sol)
+        publish(sol)
+        raised = self.watch.update(sol)
+        if raised is not None:
+            from groundstation import events
+
+            kind, data = raised
+            text = (f"live fix lost {data['lost_s']:g} s ago while photos are being taken: "
+                    "they may get no fixed position (keep the drone in open sky, check the "
+                    "base)" if kind == events.RTK_FIX_LOST else
+                    f"live fix back after {data['lost_s']:g} s")
+            publish(Event(kind, self._clock(), text, events.CATALOGUE[kind].severity, data))
+
+    async def consume(self, inbox: Any, publish: Any) -> None:
+        from groundstation.live.fanout import InboxClosed
+
+        while True:
+            try:
+                item = await inbox.get()
+            except InboxClosed:
+                return
+            self.handle(item, publish)
+
+
 # -- the ``rtk`` service: the bus in, the bus out ----------------------------------------------
 
 
@@ -273,7 +366,8 @@ def run_rtk(
     import sys
     import time
 
-    from groundstation.bus import encode, key, open_bus
+    from groundstation import events
+    from groundstation.bus import decode, encode, key, open_bus
     from groundstation.live import obswire
 
     engine = LiveRtk(base_ecef_m)
@@ -291,6 +385,8 @@ def run_rtk(
         return handler
 
     bus.subscribe(key(rover, "obs"), on("rover"))
+    bus.subscribe(key(rover, "timemark"), on("mark"))
+    watch = FixWatch()
     bus.subscribe(key(base, "obs"), on("base"))
     publish = bus.publisher(key(rover, "rtk"))
     t_end = time.monotonic() + duration_s if duration_s > 0 else None
@@ -301,6 +397,15 @@ def run_rtk(
             try:
                 which, payload = inbox.get(timeout=0.2)
             except queue.Empty:
+                continue
+            if which == "mark":
+                try:
+                    t_mark = decode(payload).get("falling_t_gps_ns")
+                except ValueError:
+                    run.bad_messages += 1
+                    continue
+                if isinstance(t_mark, int):
+                    watch.mark(t_mark)
                 continue
             try:
                 rec = obswire.decode(payload)
@@ -318,7 +423,15 @@ def run_rtk(
                 continue
             run.rover_epochs += 1
             sol = engine.add_rover(rec)
-            publish(encode("rtk", sol.message(), station=rover))
+            raised = watch.update(sol)
+            body = sol.message()
+            if watch.raised_since_ns is not None:
+                body["alert"] = "fix_lost"
+            publish(encode("rtk", body, station=rover))
+            if raised is not None:
+                out.write(("ALERT live fix lost while photos are being taken"
+                           if raised[0] == events.RTK_FIX_LOST else "live fix back")
+                          + f" ({raised[1]['lost_s']:g} s)\n")
             run.published += 1
             assert run.by_quality is not None
             run.by_quality[sol.quality] = run.by_quality.get(sol.quality, 0) + 1

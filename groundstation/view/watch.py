@@ -47,8 +47,10 @@ STATE_STYLE = {
 
 
 SHOWN = {"status": "status", "q/status": "status", "timemark": "timemark",
-         "q/timemarks": "timemark", "event": "event", "session": "session"}
+         "q/timemarks": "timemark", "event": "event", "session": "session", "rtk": "rtk"}
 """Key leaf -> the message kind it carries, for what this view shows."""
+RTK_WINDOW = 300
+"""Live positions the fixed share is counted over (60 s at 5 Hz)."""
 SESSION_MARK_LEAD_NS = 10 * 1_000_000_000
 """A time mark arrives before the status that counts it: at most this far after its epochs."""
 
@@ -70,6 +72,9 @@ class WatchState:
     """Payloads dropped: not a valid message (:mod:`groundstation.messages`), or a status the
     screen cannot show."""
     last_rejection: str = ""
+    rtk: dict[str, Any] | None = None
+    """The latest live position (``groundstation rtk`` or the demo's engine)."""
+    rtk_qualities: deque[str] = field(default_factory=lambda: deque(maxlen=RTK_WINDOW))
     lock: threading.Lock = field(default_factory=threading.Lock)
 
     def _reject(self, key_expr: str, why: str) -> None:
@@ -108,6 +113,9 @@ class WatchState:
                 self.events.append(msg)
             elif kind == "session":
                 self.session = msg
+            elif kind == "rtk":
+                self.rtk = msg
+                self.rtk_qualities.append(str(msg.get("quality")))
 
     def _new_session(self, status: dict[str, Any]) -> None:
         """A status naming another session (a restarted daemon, the next ``replay``): the
@@ -219,6 +227,7 @@ def render(state: WatchState, now_s: float | None = None) -> RenderableType:
         alive = state.alive
         rejected, why = state.rejected, state.last_rejection
         daemons = len(state.instances)
+        rtk, rtk_q = state.rtk, list(state.rtk_qualities)
     title = Text(f"groundstation watch · {station_label(state.station)}", style="bold")
     if st is None:
         msg = "waiting for status on " + key(state.station, "status")
@@ -230,6 +239,8 @@ def render(state: WatchState, now_s: float | None = None) -> RenderableType:
         # (the daemons' own station_conflict alert, when it is in ALERTS, says it already)
         body = Group(Text(f" station_conflict: {daemons} daemons publish as station "
                           f"{state.station!r} ", style="bold white on red"), body)
+    if rtk is not None:
+        body = Group(body, rtk_line(rtk, rtk_q))
     if rejected:
         body = Group(body, Text(f"{rejected} bad messages dropped (last: {why})",
                                 style="bold yellow"))
@@ -238,6 +249,33 @@ def render(state: WatchState, now_s: float | None = None) -> RenderableType:
     alerts = st.get("alerts") or []
     border = ("cyan" if session_finished(st, session) else "red" if stale or alerts else "green")
     return Panel(body, title=title, border_style=border)
+
+
+RTK_STYLE = {"fix": "bold green", "float": "bold yellow", "dgps": "yellow", "single": "red",
+             "none": "dim"}
+
+
+def rtk_line(msg: dict[str, Any], recent: list[str]) -> Text:
+    """The live position in one line: quality, its share over the last minute, ratio,
+    satellites, base age, sigma; the operator's alert when the fix is lost during photos."""
+    q = str(msg.get("quality"))
+    line = Text(" live RTK ")
+    line.append(f" {q} ", style=RTK_STYLE.get(q, "dim"))
+    if recent:
+        line.append(f"  fixed {sum(r == 'fix' for r in recent) / len(recent):.0%} of the last "
+                    f"{len(recent) / 5:.0f} s")
+    if q == "none":
+        line.append(f"  ({msg.get('why') or 'no position'})", style="dim")
+    else:
+        age = msg.get("age_s")
+        line.append(f"  ratio {float(msg.get('ratio') or 0):.1f}  sats {msg.get('sats')}"
+                    + (f"  base age {age:.1f} s" if isinstance(age, (int, float)) else ""))
+        sd = msg.get("sd_enu_m")
+        if isinstance(sd, list) and len(sd) == 3:
+            line.append("  σ e/n/u " + "/".join(f"{float(v) * 100:.1f}" for v in sd) + " cm")
+    if msg.get("alert") == "fix_lost":
+        line.append("  FIX LOST while photos are taken", style="bold white on red")
+    return line
 
 
 def _status_body(st: dict[str, Any], marks: list[dict[str, Any]],

@@ -22,8 +22,8 @@ from peers import CliProc, Received, cli_env, free_port, wait_until
 
 from groundstation.bus import Bus, key
 from groundstation.config import ZenohSettings
-from groundstation.live.rtk import LiveRtk, LiveSolution
-from groundstation.records import RawEpoch, Subframe
+from groundstation.live.rtk import LiveRtk
+from groundstation.records import LiveSolution, RawEpoch, Subframe
 from groundstation.sim.faults import FaultConfig
 from groundstation.sim.stream import SimConfig, SimResult, simulate
 from groundstation.ubx.decode import Decoder
@@ -92,9 +92,9 @@ def test_fixed_for_the_last_minute_and_centimetres_from_the_truth(flight: SimRes
     assert first <= 40 * 5
     assert len(err) >= 0.8 * (len(sols) - first)
     assert float(np.median(err)) < 0.015 and float(np.percentile(err, 95)) < 0.05
-    first = sols[0]
-    assert first.quality == "none" and "ephemerides of" in first.why
-    assert first.message()["why"] == first.why and "ecef_m" in first.message()
+    start = sols[0]
+    assert start.quality == "none" and "ephemerides of" in start.why
+    assert start.message()["why"] == start.why and "ecef_m" in start.message()
 
 
 def test_the_rtk_command_solves_from_the_bus(flight: SimResult, tmp_path: Path) -> None:
