@@ -153,3 +153,31 @@ def test_the_rtk_message_is_json_with_the_documented_fields() -> None:
     s = LiveSolution(1_000_000_000, "float", 2.5, 7, 0.2, (1.0, 2.0, 3.0), (0.1, 0.1, 0.2))
     msg = json.loads(json.dumps(s.message()))
     assert set(msg) == {"t_gps_ns", "quality", "ratio", "sats", "age_s", "ecef_m", "sd_enu_m"}
+
+
+def test_the_demo_solves_live_and_publishes_every_epoch(tmp_path: Path) -> None:
+    """The README's first command's flight (default profile), as fast as possible, without the
+    bus: a live position for every rover epoch through the daemon's pipeline, fixed for the
+    whole last minute; each one handed to the views as an ``rtk`` message."""
+    import asyncio
+
+    from groundstation import messages
+    from groundstation.live.demo import DemoOptions, run_demo
+
+    seen: list[dict[str, object]] = []
+
+    def on_payload(kind: str, payload: bytes) -> None:
+        if kind == "rtk":
+            seen.append(messages.parse(payload, "rtk"))
+
+    opts = DemoOptions(flight_s=300.0, speed=None, out_dir=tmp_path / "flights", zenoh=False)
+    result = asyncio.run(run_demo(opts, on_payload=on_payload))
+    epochs = result.summary.frames_by_type.get("RXM-RAW", 0)
+    assert len(result.live) == len(seen) and len(seen) >= 0.98 * epochs > 0
+    last = result.live[-300:]
+    assert sum(s.quality == "fix" for s in last) >= 0.95 * len(last)
+    assert seen[-1]["quality"] == "fix" and seen[-1]["station"] == "demo"
+    no_base = asyncio.run(run_demo(DemoOptions(
+        flight_s=60.0, speed=None, out_dir=tmp_path / "nb", zenoh=False, live_rtk=False),
+        on_payload=lambda k, p: None))
+    assert no_base.live == () and no_base.live_missing == ""

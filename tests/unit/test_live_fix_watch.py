@@ -1,0 +1,75 @@
+"""The operator's alert for the live position, its line in ``watch`` and its message's checks.
+
+``FixWatch``: no alert while marks do not come in, however long the fix is lost; raised once
+the fix has been lost for 10 s with a mark in the last 10 s; cleared (with how long it was
+lost) at the next fix. ``rtk_line``: quality, fixed share, ratio, satellites, base age, sigma,
+why there is none, the alert. ``messages.check``: the ``rtk`` fields in range, the rest refused.
+"""
+
+from __future__ import annotations
+
+import pytest
+
+from groundstation import events, messages
+from groundstation.live.rtk import FIX_LOST_ALERT_S, FixWatch
+from groundstation.records import LiveSolution
+from groundstation.view.watch import rtk_line
+
+S = 1_000_000_000
+
+
+def _sol(t_s: float, quality: str) -> LiveSolution:
+    fixed = quality != "none"
+    return LiveSolution(int(t_s * S), quality, 5.0 if fixed else 0.0, 8, 0.2,
+                        (4146349.0, 612312.0, 4791750.0) if fixed else None,
+                        (0.01, 0.01, 0.02) if fixed else None,
+                        "" if fixed else "no base epoch yet")
+
+
+def test_the_alert_needs_a_lost_fix_and_marks() -> None:
+    w = FixWatch()
+    assert w.update(_sol(0, "fix")) is None
+    for t in range(1, 40):  # 39 s of float, no mark: nothing to say
+        assert w.update(_sol(t, "float")) is None
+    w.mark(40 * S)
+    raised = w.update(_sol(40.2, "float"))
+    assert raised is not None and raised[0] == events.RTK_FIX_LOST
+    assert raised[1] == {"since_t_gps_ns": 0, "lost_s": 40.2}
+    assert w.update(_sol(41, "float")) is None  # once
+    cleared = w.update(_sol(45, "fix"))
+    assert cleared == (events.RTK_FIX_REGAINED, {"lost_s": 45.0})
+
+
+def test_raised_at_the_threshold_while_photos_are_taken() -> None:
+    w = FixWatch()
+    w.update(_sol(100, "fix"))
+    out = []
+    for k in range(1, 80):
+        t = 100 + k * 0.2
+        if k % 10 == 0:
+            w.mark(int(t * S))
+        out.append((t, w.update(_sol(t, "float"))))
+    first = next(t for t, r in out if r is not None)
+    assert first == pytest.approx(100 + FIX_LOST_ALERT_S)
+
+
+def test_the_line_in_watch() -> None:
+    fixed = _sol(1, "fix").message()
+    line = rtk_line(fixed, ["fix"] * 240 + ["float"] * 60).plain
+    assert "fix" in line and "fixed 80% of the last 60 s" in line
+    assert "ratio 5.0  sats 8  base age 0.2 s  σ e/n/u 1.0/1.0/2.0 cm" in line
+    none = rtk_line(_sol(1, "none").message(), []).plain
+    assert "(no base epoch yet)" in none
+    lost = rtk_line({**_sol(2, "float").message(), "alert": "fix_lost"}, ["float"]).plain
+    assert "FIX LOST while photos are taken" in lost
+
+
+def test_the_message_is_checked() -> None:
+    good = {"type": "rtk", "station": "demo", **_sol(1, "fix").message()}
+    assert messages.check(good, "rtk") == good
+    cases: list[tuple[dict[str, object], str]] = [
+        ({"quality": "great"}, "quality"), ({"sats": -1}, "sats"), ({"ecef_m": [1, 2]}, "ecef_m"),
+        ({"t_gps_ns": 1.5}, "t_gps_ns"), ({"ratio": float("nan")}, "ratio"), ({"why": 5}, "why")]
+    for bad, said in cases:
+        with pytest.raises(messages.BadMessage, match=said):
+            messages.check({**good, **bad}, "rtk")
