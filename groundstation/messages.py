@@ -116,9 +116,11 @@ def _finite(v: Any) -> bool:
 
 def _check_rtk(msg: dict[str, Any]) -> None:
     """A live position (``groundstation/<rover>/rtk``, docs/zenoh.md)."""
-    t = msg.get("t_gps_ns")
-    if not isinstance(t, int) or isinstance(t, bool) or not 0 <= t <= MAX_TIME_NS:
-        raise BadMessage(f"t_gps_ns: expected a GPS time in ns, got {t!r}")
+    for name in ("t_gps_ns", "rx_host_ns"):
+        t = msg.get(name)
+        if (name == "t_gps_ns" or t is not None) and (
+                not isinstance(t, int) or isinstance(t, bool) or not 0 <= t <= MAX_TIME_NS):
+            raise BadMessage(f"{name}: expected a time in ns, got {t!r}")
     if msg.get("quality") not in RTK_QUALITIES:
         raise BadMessage(f"quality: expected one of {sorted(RTK_QUALITIES)}, "
                          f"got {msg.get('quality')!r}")

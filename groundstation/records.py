@@ -487,6 +487,9 @@ class LiveSolution:
     sd_enu_m: tuple[float, float, float] | None
     why: str = ""
     """Why there is no position (quality ``none``)."""
+    rx_host_ns: int = 0
+    """When the rover epoch's frame was received (host UNIX ns; 0: not known here), so that a
+    reader can tell how late the position comes."""
 
     def message(self) -> dict[str, Any]:
         """The ``groundstation/<rover>/rtk`` message body (docs/zenoh.md)."""
@@ -496,7 +499,8 @@ class LiveSolution:
                 "ecef_m": None if self.ecef_m is None else [round(v, 4) for v in self.ecef_m],
                 "sd_enu_m": (None if self.sd_enu_m is None else
                              [round(v, 4) for v in self.sd_enu_m]),
-                **({"why": self.why} if self.why else {})}
+                **({"why": self.why} if self.why else {}),
+                **({"rx_host_ns": self.rx_host_ns} if self.rx_host_ns else {})}
 
 
 Item = (RawChunk | RawEpoch | TimeMark | Subframe | Ephemeris | NavSolution | SvInfo | Event

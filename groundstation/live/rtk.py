@@ -16,6 +16,7 @@ satellite's ambiguity in the filter, as in post-processing.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import tempfile
 from collections import deque
@@ -309,7 +310,7 @@ class LiveRtkSink:
         if not isinstance(item, RawEpoch):
             return
         self._feed_base(item.t_gps_ns, item.gps_week)
-        sol = self.engine.add_rover(item)
+        sol = dataclasses.replace(self.engine.add_rover(item), rx_host_ns=item.t_host_ns)
         self.solutions.append(sol)
         publish(sol)
         raised = self.watch.update(sol)
