@@ -268,7 +268,9 @@ def rtk_line(msg: dict[str, Any], recent: list[str]) -> Text:
         line.append(f"  ({msg.get('why') or 'no position'})", style="dim")
     else:
         age = msg.get("age_s")
-        line.append(f"  ratio {float(msg.get('ratio') or 0):.1f}  sats {msg.get('sats')}"
+        ratio = float(msg.get("ratio") or 0)
+        held = "  held" if ratio >= 999 else f"  ratio {ratio:.1f}"  # fix-and-hold: 999.9
+        line.append(f"{held}  sats {msg.get('sats')}"
                     + (f"  base age {age:.1f} s" if isinstance(age, (int, float)) else ""))
         sd = msg.get("sd_enu_m")
         if isinstance(sd, list) and len(sd) == 3:

@@ -247,7 +247,8 @@ def test_hub_discovers_stations_and_catches_up_when_a_daemon_appears() -> None:
     hub.attach(bus)
     try:
         assert set(bus.subs) == {f"groundstation/*/{leaf}"
-                                 for leaf in ("status", "event", "timemark", "session", "solution")}
+                                 for leaf in ("status", "event", "timemark", "session", "solution",
+                                              "rtk")}
         wait_until(lambda: "groundstation/a/q/timemarks" in bus.queries)
         assert hub.document(None)["station"] == "a"  # listed, nothing heard yet
         bus.alive["groundstation/*/alive/**"]("groundstation/b/alive/1a2b", True)

@@ -73,3 +73,32 @@ def test_the_message_is_checked() -> None:
     for bad, said in cases:
         with pytest.raises(messages.BadMessage, match=said):
             messages.check({**good, **bad}, "rtk")
+
+
+def test_the_dashboard_draws_the_live_track_and_the_marks_on_it() -> None:
+    """The dashboard's live panel: the latest message, the fixed share, the track in metres
+    east/north of its first point with each point's quality, each mark where it fell with the
+    quality there; what lies more than a second from any live position is not placed."""
+    import json
+
+    from groundstation.geodesy import enu_to_ecef
+    from groundstation.view.dashboard.state import StationView
+
+    v = StationView("demo")
+    origin = (4146349.0, 612312.0, 4791750.0)
+    for k in range(50):
+        xyz = enu_to_ecef((k * 1.0, k * 0.5, 0.0), origin)
+        sol = LiveSolution(1000 * S + k * S // 5, "fix" if k >= 10 else "float", 5.0, 8, 0.1,
+                           xyz, (0.01, 0.01, 0.02))
+        v.on_payload("groundstation/demo/rtk", json.dumps(
+            {"type": "rtk", "station": "demo", **sol.message()}).encode(), 0.0)
+    for idx, t in enumerate((1001 * S, 1009 * S, 2000 * S)):
+        v.on_payload("groundstation/demo/timemark", json.dumps(
+            {"type": "timemark", "index": idx, "falling_t_gps_ns": t, "count": idx + 1}
+        ).encode(), 0.0)
+    panel = v.snapshot(0.0)["rtk"]
+    assert panel["latest"]["quality"] == "fix" and panel["fixed_share"] == pytest.approx(0.8)
+    assert panel["track"][0] == [0.0, 0.0, "float"]
+    assert panel["track"][-1] == pytest.approx([49.0, 24.5, "fix"], abs=0.01)
+    assert panel["marks"] == [pytest.approx([5.0, 2.5, "float"], abs=0.01),
+                              pytest.approx([45.0, 22.5, "fix"], abs=0.01)]

@@ -34,7 +34,7 @@ from groundstation.view.dashboard.state import FileInfo, StationView
 
 log = logging.getLogger("groundstation.dashboard")
 
-LEAVES = ("status", "event", "timemark", "session", "solution")
+LEAVES = ("status", "event", "timemark", "session", "solution", "rtk")
 """What the dashboard subscribes to (not ``epoch``/``ubx``: they are heavy and not shown)."""
 HEARTBEAT_S = 1.0
 MIN_PUSH_INTERVAL_S = 0.2

@@ -9,6 +9,7 @@ PPK-readiness figures, alerts, recent events and the session.
 
 from __future__ import annotations
 
+import bisect
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -17,6 +18,7 @@ from urllib.parse import quote
 
 from groundstation import events as kinds
 from groundstation import gpstime, messages
+from groundstation.geodesy import ecef_to_llh, enu_rotation
 from groundstation.storage.naming import session_start_ns
 from groundstation.view.summary import (
     ppk_label,
@@ -39,9 +41,16 @@ DROPOUTS_KEPT = 1000
 MARKS_KEPT = 3000
 """Up to 5 marks a second over the timeline span."""
 LEAF_KINDS = {"status": "status", "q/status": "status", "event": "event",
-              "timemark": "timemark", "q/timemarks": "timemark", "session": "session"}
+              "timemark": "timemark", "q/timemarks": "timemark", "session": "session",
+              "rtk": "rtk"}
 """Key leaf -> the message kind it must carry."""
-NOT_SHOWN = frozenset({"ubx", "epoch", "alive"})
+NOT_SHOWN = frozenset({"ubx", "epoch", "alive", "obs"})
+RTK_KEPT = 6000
+"""Live positions kept for the track (20 min at 5 Hz)."""
+RTK_TRACK_POINTS = 800
+"""At most this many points of the track go to the page (every k-th, the latest always)."""
+RTK_WINDOW = 300
+"""Live positions the fixed share is counted over (60 s at 5 Hz)."""
 
 NS = gpstime.NS_PER_S
 
@@ -118,6 +127,13 @@ class StationView:
     rejected: int = 0
     """Payloads dropped as bad (:mod:`groundstation.messages`): counted, shown, never fatal."""
     last_rejection: str = ""
+    rtk: dict[str, Any] | None = None
+    """The latest live position (``.../rtk``)."""
+    rtk_track: deque[tuple[int, float, float, str]] = field(
+        default_factory=lambda: deque(maxlen=RTK_KEPT))
+    """(GPS ns, east, north, quality) of the live positions, metres from the first one."""
+    rtk_qualities: deque[str] = field(default_factory=lambda: deque(maxlen=RTK_WINDOW))
+    _rtk_origin: tuple[float, float, float] | None = None
 
     # -- folding ---------------------------------------------------------------------------
 
@@ -144,6 +160,8 @@ class StationView:
             self._on_mark(msg)
         elif kind == "session":
             self.session = msg
+        elif kind == "rtk":
+            self._on_rtk(msg)
         elif kind == "solution":
             if msg.get("status") != "ok" or not isinstance(msg.get("report"), str):
                 return False
@@ -181,6 +199,9 @@ class StationView:
         self._session_id = session_id
         self.session_changed = True
         self.session = None  # the previous daemon's "finished"
+        self.rtk, self._rtk_origin = None, None  # the previous flight's live track
+        self.rtk_track.clear()
+        self.rtk_qualities.clear()
         self.marks.clear()
         self._mark_indices.clear()
         self._mark_times.clear()
@@ -274,6 +295,47 @@ class StationView:
             t = msg.get("t_host_ns")
             gps = self._host_to_gps(int(t)) if isinstance(t, int) else None
             self.outages[-1].end_gps_ns = gps if gps is not None else self.outages[-1].start_gps_ns
+
+    def _on_rtk(self, msg: dict[str, Any]) -> None:
+        self.rtk = msg
+        q = str(msg.get("quality"))
+        self.rtk_qualities.append(q)
+        xyz = msg.get("ecef_m")
+        if not isinstance(xyz, list) or len(xyz) != 3:
+            return
+        if self._rtk_origin is None:
+            self._rtk_origin = (float(xyz[0]), float(xyz[1]), float(xyz[2]))
+        o = self._rtk_origin
+        lat, lon, _ = ecef_to_llh(*o)
+        r = enu_rotation(lat, lon)
+        d = [float(xyz[i]) - o[i] for i in range(3)]
+        east = sum(r[0][i] * d[i] for i in range(3))
+        north = sum(r[1][i] * d[i] for i in range(3))
+        self.rtk_track.append((int(msg["t_gps_ns"]), round(east, 2), round(north, 2), q))
+
+    def _rtk_panel(self) -> dict[str, Any] | None:
+        """The live position: the latest message, the fixed share of the last minute, the track
+        (east/north metres, quality) and where each mark fell on it, with the quality there."""
+        if self.rtk is None:
+            return None
+        track = list(self.rtk_track)
+        step = max(1, len(track) // RTK_TRACK_POINTS)
+        shown = track[::step] + ([track[-1]] if track and (len(track) - 1) % step else [])
+        times = [t for t, *_ in track]
+        marks = []
+        for t, _ in self.marks:
+            i = bisect.bisect_left(times, t)
+            near = [j for j in (i - 1, i) if 0 <= j < len(track)]
+            if near:
+                j = min(near, key=lambda k: abs(times[k] - t))
+                if abs(times[j] - t) <= NS:  # within a second of a live position
+                    marks.append([track[j][1], track[j][2], track[j][3]])
+        recent = list(self.rtk_qualities)
+        return {"latest": self.rtk,
+                "fixed_share": (sum(q == "fix" for q in recent) / len(recent)
+                                if recent else None),
+                "window_s": len(recent) / 5,
+                "track": [[e, n, q] for _, e, n, q in shown], "marks": marks}
 
     def _on_mark(self, msg: dict[str, Any]) -> None:
         idx = msg.get("index")
@@ -385,6 +447,7 @@ class StationView:
             "data_clock": self.data_clock(gps_now),
             "session": self._session_panel(st, file_info),
             "report": self._report_panel(),
+            "rtk": self._rtk_panel(),
         }
         return out
 

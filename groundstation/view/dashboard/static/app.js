@@ -512,6 +512,60 @@ function renderReport(r) {
   }
 }
 
+const RTK_QUALITIES = new Set(["fix", "float", "dgps", "single", "none"]);
+const rtkClass = (q) => "rtk-" + (RTK_QUALITIES.has(q) ? q : "none");  // colours: style.css
+
+function renderRtk(r) {
+  // The live position (groundstation rtk / the demo's engine): quality, its fixed share over
+  // the last minute, ratio, satellites, base age, sigma; the track in east/north metres from
+  // its first point, one path per run of a quality; each mark where it fell, in that colour.
+  const q = $("rtk-q"), text = $("rtk-text"), svg = $("rtk-track");
+  clear(svg);
+  $("rtk-alert").hidden = !(r && r.latest && r.latest.alert === "fix_lost");
+  if (!r || !r.latest) {
+    q.className = "none"; q.textContent = "-"; text.textContent = "no live positions";
+    return;
+  }
+  const m = r.latest;
+  q.className = m.quality; q.textContent = m.quality;
+  const parts = [];
+  if (r.fixed_share !== null && r.fixed_share !== undefined)
+    parts.push("fixed " + Math.round(r.fixed_share * 100) + "% of the last " +
+               Math.round(r.window_s) + " s");
+  if (m.quality === "none") parts.push(m.why || "no position");
+  else {
+    // fix-and-hold reports its held ambiguities with ratio 999.9
+    parts.push((m.ratio >= 999 ? "held" : "ratio " + num(m.ratio, 1)) + ", " + m.sats + " sats");
+    if (typeof m.age_s === "number") parts.push("base age " + num(m.age_s, 1) + " s");
+    if (m.sd_enu_m) parts.push("σ " + m.sd_enu_m.map(v => num(v * 100, 1)).join("/") + " cm");
+  }
+  text.textContent = parts.join(" · ");
+  const pts = r.track || [];
+  if (pts.length < 2) return;
+  let x0 = Infinity, x1 = -Infinity, y0 = Infinity, y1 = -Infinity;
+  for (const [e, n] of pts) { x0 = Math.min(x0, e); x1 = Math.max(x1, e);
+                              y0 = Math.min(y0, n); y1 = Math.max(y1, n); }
+  const w = Math.max(x1 - x0, y1 - y0, 1) * 1.08, cx = (x0 + x1) / 2, cy = (y0 + y1) / 2;
+  svg.setAttribute("viewBox", `${cx - w / 2} ${-cy - w / 2} ${w} ${w}`);
+  const stroke = w / 150;
+  let run = [], runQ = null;
+  const flush = () => {
+    if (run.length > 1) svg.appendChild(el("polyline", {
+      points: run.map(([e, n]) => `${e},${-n}`).join(" "), fill: "none",
+      class: "rtk-path " + rtkClass(runQ), "stroke-width": stroke}));
+  };
+  for (const p of pts) {
+    if (p[2] !== runQ) { const last = run[run.length - 1]; flush();
+                         run = last ? [last] : []; runQ = p[2]; }
+    run.push(p);
+  }
+  flush();
+  for (const [e, n, mq] of r.marks || []) {
+    svg.appendChild(el("circle", {cx: e, cy: -n, r: stroke * 2.5, class: "rtk-mark " + rtkClass(mq),
+                                  "stroke-width": stroke * 1.2}));
+  }
+}
+
 function renderAlerts(view) {
   const alerts = view.alerts;
   const ended = Boolean(view.finished);  // the alerts standing when the session ended
@@ -586,6 +640,7 @@ function render(doc) {
     panel("report", renderReport, view.report);
     panel("alerts", renderAlerts, view);
     panel("events", renderEvents, view.events);
+    panel("rtk", renderRtk, view.rtk);
   }
   panel("rejected", renderRejected, view);
   panel("badge", refreshBadge);
