@@ -315,3 +315,31 @@ def grades_text(rows: Sequence[CameraRow]) -> str:
         detail = ", ".join(f"{k} {v}" for k, v in sorted(by.items(), key=lambda kv: -kv[1]))
         parts.append(f"{name} {len(mine)} ({detail})")
     return "; ".join(parts)
+
+
+GO_GAP_NS = 30 * 1_000_000_000
+"""Marks not fixed that far apart (or a fixed one between them) are separate stretches."""
+
+
+def go_no_go(rows: Sequence[CameraRow]) -> dict[str, Any]:
+    """Before the team packs up: how many of the flight's marks are fixed and checked, and the
+    stretches of the others (first and last mark time, how many), which to fly again. A
+    stretch ends at a fixed mark or after :data:`GO_GAP_NS` without a mark."""
+    marks = sorted((r for r in rows if r.mark >= 0 and r.t_gps_ns >= 0),
+                   key=lambda r: r.t_gps_ns)
+    fixed = sum(r.grade == "fixed" for r in marks)
+    stretches: list[dict[str, int]] = []
+    last_bad = False
+    for r in marks:
+        if r.grade == "fixed":
+            last_bad = False
+            continue
+        if last_bad and r.t_gps_ns - stretches[-1]["end_t_gps_ns"] <= GO_GAP_NS:
+            stretches[-1]["end_t_gps_ns"] = r.t_gps_ns
+            stretches[-1]["marks"] += 1
+        else:
+            stretches.append({"start_t_gps_ns": r.t_gps_ns, "end_t_gps_ns": r.t_gps_ns,
+                              "marks": 1})
+        last_bad = True
+    return {"marks": len(marks), "fixed": fixed, "stretches": stretches}
+

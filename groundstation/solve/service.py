@@ -61,6 +61,7 @@ from groundstation.solve.base import BASE_KEYS, base_position
 from groundstation.solve.fetch import Remote, remote_for
 from groundstation.solve.pairing import BASE_WAIT_S, Pairing, base_station, span_of
 from groundstation.solve.pipeline import SolveResult, solve
+from groundstation.solve.report_data import go_no_go
 from groundstation.solve.settings import SolveSettings
 from groundstation.solve.trajectory import Q_FIX
 
@@ -644,6 +645,7 @@ class SolverService:
         reports = {p.name: str(p) for p in result.files}
         self._send(job.station, STATUS_OK, job.flight, job.session_id, out_dir=str(s.out_dir),
                    files=files, counts=summary, quality=quality_summary(result), notes=notes,
+                   go_no_go=go_no_go(result.rows),
                    report=reports.get("report.html"), report_pdf=reports.get("report.pdf"),
                    elapsed_s=round(elapsed, 3))
 

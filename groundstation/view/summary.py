@@ -6,6 +6,7 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from typing import Any
 
+from groundstation import gpstime
 from groundstation.config import MonitorSettings
 from groundstation.records import Status
 
@@ -104,3 +105,17 @@ def status_lines(st: Status, *, injected_lost_epochs: int | None = None,
          f"{ppk_label(clean_s)}, {need} needed; alerts: "
          f"{'; '.join(st.alerts) or 'none'}{earlier}"),
     ]
+
+
+def go_no_go_text(doc: Mapping[str, Any]) -> str:
+    """``go_no_go`` in words: "all 59 marks fixed and checked" or the stretches to fly again."""
+    n, fixed = int(doc.get("marks") or 0), int(doc.get("fixed") or 0)
+    if n == 0:
+        return "no marks positioned"
+    if fixed == n:
+        return f"all {n} marks fixed and checked"
+    parts = [f"{gpstime.gps_as_datetime(s['start_t_gps_ns']):%H:%M:%S}-"
+             f"{gpstime.gps_as_datetime(s['end_t_gps_ns']):%H:%M:%S} GPS ({s['marks']})"
+             for s in doc.get("stretches") or []]
+    return (f"{n - fixed} of {n} marks not fixed: fly again over " + ", ".join(parts[:5])
+            + (f" and {len(parts) - 5} more stretches" if len(parts) > 5 else ""))

@@ -21,6 +21,7 @@ from groundstation import gpstime, messages
 from groundstation.geodesy import ecef_to_llh, enu_rotation
 from groundstation.storage.naming import session_start_ns
 from groundstation.view.summary import (
+    go_no_go_text,
     ppk_label,
     ppk_thresholds,
     session_finished,
@@ -491,8 +492,17 @@ class StationView:
         if r is None:
             return None
         flight = str(r.get("flight") or "")
+        go = r.get("go_no_go")
+        verdict = None
+        if isinstance(go, dict):
+            try:
+                verdict = {"ok": go.get("fixed") == go.get("marks") and bool(go.get("marks")),
+                           "text": go_no_go_text(go)}
+            except (TypeError, ValueError, KeyError, OverflowError):
+                verdict = None  # a message the page cannot put in words: the link stays
         return {"url": "/report?station=" + quote(self.station), "flight": flight.split("/")[-1],
-                "pdf": bool(r.get("report_pdf")), "t_host_ns": r.get("t_host_ns")}
+                "pdf": bool(r.get("report_pdf")), "t_host_ns": r.get("t_host_ns"),
+                "verdict": verdict}
 
     def _session_panel(
         self, st: dict[str, Any], file_info: Callable[[str], FileInfo]

@@ -506,6 +506,12 @@ function renderReport(r) {
   };
   const a = link(r.url, "latest: " + r.flight);
   td.appendChild(a);
+  if (r.verdict) {  // go / no-go before packing up: all marks fixed, or what to fly again
+    const v = document.createElement("div");
+    v.className = "verdict " + (r.verdict.ok ? "go" : "nogo");
+    v.textContent = r.verdict.text;
+    td.appendChild(v);
+  }
   if (r.pdf) {
     td.appendChild(document.createTextNode(" · "));
     td.appendChild(link(r.url + "&format=pdf", "PDF"));
