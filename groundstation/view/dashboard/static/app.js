@@ -498,7 +498,7 @@ function renderReport(r) {
   // The latest flight report the solver announced (served by the dashboard at /report).
   const td = $("sess-report");
   clear(td);
-  if (!r) { td.textContent = "-"; return; }
+  if (!r) { td.textContent = "-"; $("verdict").hidden = true; return; }
   const link = (href, text) => {
     const a = document.createElement("a");
     a.href = href; a.target = "_blank"; a.rel = "noopener"; a.textContent = text;
@@ -506,11 +506,13 @@ function renderReport(r) {
   };
   const a = link(r.url, "latest: " + r.flight);
   td.appendChild(a);
-  if (r.verdict) {  // go / no-go before packing up: all marks fixed, or what to fly again
-    const v = document.createElement("div");
+  // go / no-go before packing up (all marks fixed, or what to fly again): beside the alerts,
+  // where the whole width shows it
+  const v = $("verdict");
+  v.hidden = !r.verdict;
+  if (r.verdict) {
     v.className = "verdict " + (r.verdict.ok ? "go" : "nogo");
-    v.textContent = r.verdict.text;
-    td.appendChild(v);
+    v.textContent = (r.verdict.ok ? "GO: " : "FLY AGAIN: ") + r.verdict.text;
   }
   if (r.pdf) {
     td.appendChild(document.createTextNode(" · "));
