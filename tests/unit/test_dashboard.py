@@ -362,7 +362,7 @@ def test_latest_report_is_linked_and_served(
     code, _, raw = _get(dash, "/api/snapshot?station=st")
     report = json.loads(raw)["view"]["report"]
     assert report == {"url": "/report?station=st", "flight": "flight1.mcap", "pdf": False,
-                      "t_host_ns": None}
+                      "t_host_ns": None, "verdict": None}  # (a solver before go_no_go)
     code, ctype, raw = _get(dash, report["url"])
     assert code == 200 and ctype.startswith("text/html") and raw.startswith(b"<!DOCTYPE html>")
     assert _get(dash, report["url"] + "&format=pdf")[0] == 404  # no PDF was written
