@@ -20,21 +20,9 @@ from collections.abc import Callable
 
 from groundstation.bus import encode
 from groundstation.live import obswire
-from groundstation.live.rtk import LiveRtk
+from groundstation.live.rtk import BaseFeed, LiveRtk, measurements
 from groundstation.records import RawEpoch, Subframe
 from groundstation.sim.stream import SimConfig, simulate
-from groundstation.ubx.decode import Decoder
-from groundstation.ubx.framer import UbxFramer
-
-
-def _items(data: bytes) -> list[RawEpoch | Subframe]:
-    framer, dec = UbxFramer(), Decoder()
-    out: list[RawEpoch | Subframe] = []
-    for f in framer.feed(data, 0) + framer.flush(0):
-        r = dec.decode(f)
-        if isinstance(r, (RawEpoch, Subframe)):
-            out.append(r)
-    return out
 
 
 def _best(fn: Callable[[], object], repeat: int) -> float:
@@ -53,7 +41,7 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=5)
     a = ap.parse_args()
     sim = simulate(SimConfig(duration_s=a.duration, seed=a.seed))
-    rover, base = _items(sim.rover_bytes), _items(sim.base_bytes)
+    rover, base = measurements(sim.rover_bytes), measurements(sim.base_bytes)
     epochs = [r for r in rover if isinstance(r, RawEpoch)]
     frames = [r for r in rover if isinstance(r, Subframe)]
 
@@ -77,20 +65,14 @@ def main() -> None:
 
     def engine() -> tuple[int, float]:
         eng = LiveRtk(tuple(sim.truth["base"]["ecef_m"]))
+        feed = BaseFeed(eng, base)
         week = epochs[0].gps_week
-        k, solved, spent = 0, 0, 0.0
+        solved, spent = 0, 0.0
         for r in rover:
             if isinstance(r, Subframe):
                 eng.add_subframe(r, week)
                 continue
-            while k < len(base) and not (isinstance(base[k], RawEpoch)
-                                         and base[k].t_gps_ns > r.t_gps_ns):  # type: ignore[union-attr]
-                b = base[k]
-                if isinstance(b, RawEpoch):
-                    eng.add_base(b)
-                else:
-                    eng.add_subframe(b, week)
-                k += 1
+            feed.until(r.t_gps_ns, week)
             t0 = time.perf_counter()
             s = eng.add_rover(r)
             spent += time.perf_counter() - t0

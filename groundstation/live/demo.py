@@ -26,14 +26,12 @@ from groundstation.config import (
 )
 from groundstation.live.daemon import Pipeline, RunSummary
 from groundstation.live.fanout import Inbox, InboxClosed, Item, Overflow
-from groundstation.live.rtk import EngineUnavailable, LiveRtkSink
-from groundstation.records import Event, LiveSolution, RawEpoch, Status, Subframe, TimeMark
+from groundstation.live.rtk import EngineUnavailable, LiveRtkSink, measurements
+from groundstation.records import Event, LiveSolution, Status, TimeMark
 from groundstation.sim.faults import FaultConfig
 from groundstation.sim.profiles import sim_config
 from groundstation.sim.ptylink import PtyLink
 from groundstation.sim.stream import SimResult, simulate
-from groundstation.ubx.decode import Decoder
-from groundstation.ubx.framer import UbxFramer
 
 log = logging.getLogger("groundstation.demo")
 
@@ -227,14 +225,8 @@ class AlertLog:
 def _live_sink(sim: SimResult) -> tuple[LiveRtkSink | None, str]:
     """The live engine on the rover's epochs against the simulated base (its stream decoded
     as the base's daemon would); None and why when pyrtklib5 is missing."""
-    framer, decoder = UbxFramer(), Decoder()
-    base: list[RawEpoch | Subframe] = []
-    for frame in framer.feed(sim.base_bytes, 0) + framer.flush(0):
-        rec = decoder.decode(frame)
-        if isinstance(rec, (RawEpoch, Subframe)):
-            base.append(rec)
     try:
-        return LiveRtkSink(tuple(sim.truth["base"]["ecef_m"]), base), ""
+        return LiveRtkSink(tuple(sim.truth["base"]["ecef_m"]), measurements(sim.base_bytes)), ""
     except EngineUnavailable as err:
         log.warning("no live positions: %s", err)
         return None, str(err)

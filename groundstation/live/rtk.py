@@ -216,6 +216,61 @@ def _sd_enu(xyz: tuple[float, float, float], q: list[float],
     return e, n, u
 
 
+# -- recorded streams ---------------------------------------------------------------------------
+
+
+def measurements(data: bytes) -> list[RawEpoch | Subframe]:
+    """A receiver's stream decoded as its daemon decodes it: the epochs and subframes, in
+    stream order (the base's stream for :class:`LiveRtkSink`, recordings replayed live)."""
+    from groundstation.ubx.decode import Decoder
+    from groundstation.ubx.framer import UbxFramer
+
+    framer, decoder = UbxFramer(), Decoder()
+    out: list[RawEpoch | Subframe] = []
+    for frame in framer.feed(data, 0) + framer.flush(0):
+        rec = decoder.decode(frame)
+        if isinstance(rec, (RawEpoch, Subframe)):
+            out.append(rec)
+    return out
+
+
+class BaseFeed:
+    """A base's decoded stream handed to the engine as the rover's epochs reach its times (the
+    base's stream arrives first, as from a base on the laptop's serial port)."""
+
+    def __init__(self, engine: LiveRtk, items: list[RawEpoch | Subframe]) -> None:
+        self.engine, self.items, self._k = engine, items, 0
+
+    def until(self, t_gps_ns: int, week: int) -> None:
+        """Every base item up to the first base epoch after ``t_gps_ns``."""
+        while self._k < len(self.items):
+            b = self.items[self._k]
+            if isinstance(b, RawEpoch):
+                if b.t_gps_ns > t_gps_ns:
+                    return
+                self.engine.add_base(b)
+            else:
+                self.engine.add_subframe(b, week)
+            self._k += 1
+
+
+def solve_recorded(rover: bytes, base: bytes, base_ecef_m: tuple[float, float, float],
+                   ) -> list[LiveSolution]:
+    """Two recorded streams solved epoch by epoch as the live engine would have solved them."""
+    engine = LiveRtk(base_ecef_m)
+    base_items = measurements(base)
+    feed = BaseFeed(engine, base_items)
+    week = next((b.gps_week for b in base_items if isinstance(b, RawEpoch)), 0)
+    out = []
+    for r in measurements(rover):
+        if isinstance(r, Subframe):
+            engine.add_subframe(r, week)
+            continue
+        feed.until(r.t_gps_ns, r.gps_week)
+        out.append(engine.add_rover(r))
+    return out
+
+
 # -- the operator's alert -----------------------------------------------------------------------
 
 FIX_LOST_ALERT_S = 10.0
@@ -279,22 +334,10 @@ class LiveRtkSink:
         import time
 
         self.engine = LiveRtk(base_ecef_m)
-        self._base = base_items
-        self._k = 0
+        self._base = BaseFeed(self.engine, base_items)
         self.watch = FixWatch()
         self.solutions: list[LiveSolution] = []
         self._clock = clock or time.time_ns
-
-    def _feed_base(self, t_gps_ns: int, week: int) -> None:
-        while self._k < len(self._base):
-            b = self._base[self._k]
-            if isinstance(b, RawEpoch):
-                if b.t_gps_ns > t_gps_ns:
-                    return
-                self.engine.add_base(b)
-            else:
-                self.engine.add_subframe(b, week)
-            self._k += 1
 
     def handle(self, item: Any, publish: Any) -> None:
         from groundstation.records import Event
@@ -309,7 +352,7 @@ class LiveRtkSink:
             return
         if not isinstance(item, RawEpoch):
             return
-        self._feed_base(item.t_gps_ns, item.gps_week)
+        self._base.until(item.t_gps_ns, item.gps_week)
         sol = dataclasses.replace(self.engine.add_rover(item), rx_host_ns=item.t_host_ns)
         self.solutions.append(sol)
         publish(sol)

@@ -22,24 +22,12 @@ from peers import CliProc, Received, cli_env, free_port, wait_until
 
 from groundstation.bus import Bus, key
 from groundstation.config import ZenohSettings
-from groundstation.live.rtk import LiveRtk
-from groundstation.records import LiveSolution, RawEpoch, Subframe
+from groundstation.live.rtk import solve_recorded
+from groundstation.records import LiveSolution
 from groundstation.sim.faults import FaultConfig
 from groundstation.sim.stream import SimConfig, SimResult, simulate
-from groundstation.ubx.decode import Decoder
-from groundstation.ubx.framer import UbxFramer
 
 pytestmark = pytest.mark.xdist_group("test_live_rtk")
-
-
-def _items(data: bytes) -> list[RawEpoch | Subframe]:
-    framer, dec = UbxFramer(), Decoder()
-    out: list[RawEpoch | Subframe] = []
-    for f in framer.feed(data, 0) + framer.flush(0):
-        r = dec.decode(f)
-        if isinstance(r, (RawEpoch, Subframe)):
-            out.append(r)
-    return out
 
 
 @pytest.fixture(scope="module")
@@ -50,24 +38,7 @@ def flight() -> SimResult:
 def _live(sim: SimResult) -> list[LiveSolution]:
     """Every rover epoch solved as the engine would live: the base's stream (epochs and
     subframes, in its order) up to the rover epoch's time first."""
-    engine = LiveRtk(tuple(sim.truth["base"]["ecef_m"]))
-    base = _items(sim.base_bytes)
-    week = next(b.gps_week for b in base if isinstance(b, RawEpoch))
-    k, out = 0, []
-    for r in _items(sim.rover_bytes):
-        if isinstance(r, Subframe):
-            engine.add_subframe(r, week)
-            continue
-        while k < len(base) and not (
-                isinstance(base[k], RawEpoch) and base[k].t_gps_ns > r.t_gps_ns):  # type: ignore[union-attr]
-            b = base[k]
-            if isinstance(b, RawEpoch):
-                engine.add_base(b)
-            else:
-                engine.add_subframe(b, week)
-            k += 1
-        out.append(engine.add_rover(r))
-    return out
+    return solve_recorded(sim.rover_bytes, sim.base_bytes, tuple(sim.truth["base"]["ecef_m"]))
 
 
 def test_fixed_for_the_last_minute_and_centimetres_from_the_truth(flight: SimResult) -> None:

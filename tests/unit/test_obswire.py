@@ -7,21 +7,13 @@ from __future__ import annotations
 import pytest
 
 from groundstation.live import obswire
+from groundstation.live.rtk import measurements
 from groundstation.records import RawEpoch, Subframe
 from groundstation.sim.stream import SimConfig, simulate
-from groundstation.ubx.decode import Decoder
-from groundstation.ubx.framer import UbxFramer
 
 
 def _items() -> list[RawEpoch | Subframe]:
-    sim = simulate(SimConfig(duration_s=40.0, seed=5, with_base=False))
-    framer, dec = UbxFramer(), Decoder()
-    out: list[RawEpoch | Subframe] = []
-    for f in framer.feed(sim.rover_bytes, 0) + framer.flush(0):
-        r = dec.decode(f)
-        if isinstance(r, (RawEpoch, Subframe)):
-            out.append(r)
-    return out
+    return measurements(simulate(SimConfig(duration_s=40.0, seed=5, with_base=False)).rover_bytes)
 
 
 def test_every_epoch_and_subframe_round_trips() -> None:
