@@ -467,7 +467,7 @@ ROUTER_SCHEMA: Schema = {
 }
 ROUTER = Scope("router", ROUTER_SCHEMA, ENV_PREFIX + "ROUTER_",
                tables={"stations": ROUTER_STATION_KEYS})
-SCOPES: tuple[Scope, ...] = (DAEMON, SOLVER, WATCH, DASHBOARD, ROUTER)
+SCOPES: tuple[Scope, ...] = (DAEMON, SOLVER, WATCH, DASHBOARD, ROUTER, RTK)
 
 
 def known_variables() -> frozenset[str]:

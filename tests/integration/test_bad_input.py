@@ -290,6 +290,14 @@ CASES: list[Case] = [
     c("watch-config-fifo", "watch --config fifo", 2, "not a regular file"),
     c("watch-duration", "watch --duration -1", 2, "duration"),
     c("watch-endpoint", "watch --zenoh-connect nowhere", 2, "zenoh.connect"),
+    # -- rtk: the live engine ---------------------------------------------------------------------
+    c("rtk-rover-name", ("rtk", "--rover", "a/b", "--base", "b", "--base-xyz",
+                         "4146349.2,612312.5,4791750.9"), 2, BAD_STATION),
+    c("rtk-no-base-position", "rtk --rover a --base b", 2, "--base-xyz: give the base's position"),
+    c("rtk-endpoint", "rtk --rover a --base b --base-xyz 4146349.2,612312.5,4791750.9 "
+      "--zenoh-connect nowhere", 2, "zenoh.connect"),
+    c("rtk-base-env", "rtk --rover a --base-xyz 4146349.2,612312.5,4791750.9", 2, BAD_STATION,
+      GROUNDSTATION_RTK_BASE="x y"),
     c("dashboard-station", ("dashboard", "--station", "**"), 2, BAD_STATION),
     c("dashboard-station-in-config", "dashboard --config stations.toml", 2, BAD_STATION),
     c("dashboard-port", "dashboard --port 70000", 2, "port"),
