@@ -13,8 +13,10 @@ alike is second order: the directions to the satellites change by the baseline o
 (1 km / 20 000 km: 0.05 mm per metre moved) and the tropospheric delay modelled at the base
 changes with its height (about 0.3 mm in the zenith per metre, more at low elevation). On the
 2018-10-09 flight, a base moved by 1.2 m (0.96 m of it in height) and solved again gave fixed
-camera positions within 2.7 mm of the shifted ones (median 0.4 mm): what the report says. The
-engine's own files (``rtklib/``) are kept as they were, relative to the base the engine used.
+camera positions within 2.7 mm of the shifted ones (median 0.4 mm): what the report says. A
+move whose first-order error (the move times the longest baseline over the range, 20 000 km)
+could exceed 2 mm is refused: solve again. The engine's own files (``rtklib/``) are kept as
+they were, relative to the base the engine used.
 """
 
 from __future__ import annotations
@@ -38,6 +40,10 @@ TRAJECTORY_NAME = "trajectory.npz"
 ENGINE_DIR = "rtklib"
 """The engine's files (solution, options, conditioning): carried over into a re-based result."""
 FORMAT = "groundstation solve record 1"
+SATELLITE_RANGE_MIN_M = 2.0e7
+"""The shortest range to a GPS satellite (overhead, about 20 200 km)."""
+REBASE_MAX_ERROR_M = 0.002
+"""A re-base whose geometric error could exceed this is refused (solve again)."""
 _HERE = "{result}/"
 """Stands for the result's folder in the recorded trajectory's notes."""
 
@@ -171,6 +177,15 @@ def shifted_trajectory(s: SolveSettings, stage: Path) -> tuple[tr.Trajectory, st
     lat, lon, _ = ecef_to_llh(*old_xyz)
     east, north, up = (np.array(enu_rotation(lat, lon)) @ move).tolist()
     notes = tuple(t.replace(_HERE, f"{stage}/") for t in traj.notes)
+    # The shift is exact but for the directions to the satellites, which move by the base's
+    # move over their range: at most |move| x baseline / range on the baseline.
+    baseline = float(np.max(np.linalg.norm(traj.ecef_m - np.array(old_xyz), axis=1)))
+    bound = float(np.linalg.norm(move)) * baseline / SATELLITE_RANGE_MIN_M
+    if bound > REBASE_MAX_ERROR_M:
+        raise ConfigError("--rebase", (
+            f"the base moves {float(np.linalg.norm(move)):.1f} m with baselines up to "
+            f"{baseline / 1000:.2f} km: moving the result would be off by up to "
+            f"{bound * 1000:.0f} mm; solve again with the new base instead"))
     moved = replace(traj, ecef_m=traj.ecef_m + move, notes=notes)
     text = (f"re-based without solving again (solve --rebase): the base moved by east {east:+.4f}, "
             f"north {north:+.4f}, up {up:+.4f} m ({float(np.linalg.norm(move)):.4f} m) from ECEF "

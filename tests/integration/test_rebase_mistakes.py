@@ -79,3 +79,30 @@ def test_a_result_without_a_base_or_whose_recording_has_gone_is_refused(
     assert proc.returncode == 2, proc.stderr
     assert f"{tmp_path.resolve()}/b/rover.ubx: no longer there" in proc.stderr
     assert len(proc.stderr.strip().splitlines()) == 1
+
+
+def test_a_move_too_large_for_the_baselines_is_refused(tmp_path: Path) -> None:
+    """10 km baselines and a base moved 10 m: the directions to the satellites change enough
+    (up to 5 mm on the baseline) that the shifted result would not be the solve's."""
+    from groundstation.errors import ConfigError
+    from groundstation.geodesy import enu_to_ecef
+
+    base = (3774696.5547, -596647.9083, 5089485.6511)
+    done = tmp_path / "done"
+    done.mkdir()
+    far = [enu_to_ecef((10_000.0 * k / 10, 0.0, 100.0), base) for k in range(11)]
+    traj = make_trajectory([k * 200_000_000 for k in range(11)], np.array(far), [1] * 11)
+    s = SolveSettings(flight=tmp_path / "r.ubx", out_dir=done, base=tmp_path / "b.ubx",
+                      base_ecef_m=base)
+    record.write(s, traj, done, done)
+    for step_m, refused in ((10.0, True), (1.0, False)):
+        new = enu_to_ecef((step_m, 0.0, 0.0), base)
+        rb = SolveSettings(flight=tmp_path / "r.ubx", out_dir=tmp_path / "o", base_ecef_m=new,
+                           rebase=done, previous_bases=((base, "given with --base-xyz"),))
+        if refused:
+            with pytest.raises(ConfigError, match="off by up to 5 mm; solve again"):
+                record.shifted_trajectory(rb, tmp_path / "stage")
+        else:
+            traj2, text = record.shifted_trajectory(rb, tmp_path / "stage")
+            assert np.allclose(traj2.ecef_m - traj.ecef_m, np.array(new) - np.array(base))
+            assert "east +1.0000, north +0.0000, up -0.0000 m" in text
