@@ -105,7 +105,7 @@ def build_parser(argv: Sequence[str]) -> argparse.ArgumentParser:
         "result, 2 bad input or configuration (the message names the option, key, variable or "
         "file; an input that cannot be used), 130 interrupted (Ctrl-C or SIGTERM) for the "
         "commands that end by themselves (demo, replay, inspect, rinex, solve, simulate, "
-        "configure); run, watch, dashboard, solver and router run until stopped: Ctrl-C is "
+        "configure); run, watch, dashboard, solver, router and rtk run until stopped: Ctrl-C is "
         "their normal end (0)",
         formatter_class=HelpFormatter,
     )

@@ -230,8 +230,9 @@ def live_text(live: Any) -> str:
     n = Counter(s.quality for s in live)
     last = live[-300:]
     return (f"{len(live)} rover epochs solved during the flight: "
-            + ", ".join(f"{k} {n[k]}" for k in ("fix", "float", "dgps", "single", "none")
-                        if n[k])
+            + ", ".join(f"{k} {n[k]}" for k in ("fix", "float", "dgps", "single") if n[k])
+            + (f", none {n['none']} (no position yet: waiting for the ephemerides, or the "
+               "base)" if n["none"] else "")
             + f"; fixed {sum(s.quality == 'fix' for s in last) / len(last):.0%} of the last "
             f"{len(last) / 5:.0f} s")
 
@@ -265,6 +266,8 @@ def _print_summary(result: Any, photos: Path | None = None) -> None:
         print(f"  live RTK:    {live_text(result.live)} (groundstation/{result.station}/rtk)")
     elif result.live_missing:
         print(f"  live RTK:    not run: {result.live_missing}")
+    else:
+        print("  live RTK:    off (--no-base)")
     print(f"  truth:       {result.truth_path}")
     if photos is not None:
         print(f"  photos:      {photos} ({len(sent.exposures)} JPEGs)")

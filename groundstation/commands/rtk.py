@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import sys
 
 from groundstation.commands.options import add_config, add_zenoh_client, layer
 from groundstation.config import RTK, resolve, zenoh_settings
@@ -28,7 +29,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from groundstation.live.rtk import run_rtk
+    from groundstation.live.rtk import RtkRun, run_rtk
     from groundstation.solve.base import base_position
 
     values = resolve(RTK, args.config, overrides=layer(args, {
@@ -45,10 +46,21 @@ def run(args: argparse.Namespace) -> int:
     if xyz is None:
         raise ConfigError("--base-xyz", "give the base's position (--base-xyz X,Y,Z or "
                           "--base-llh LAT,LON,H)")
+    done = RtkRun()
     with contextlib.suppress(KeyboardInterrupt):
         done = run_rtk(top["rover"], top["base"], xyz, zenoh_settings(values["zenoh"]),
                        duration_s=float(top.get("duration_s", 0.0)))
-        print(f"rtk: {done.rover_epochs} rover epochs solved, {done.base_epochs} base epochs, "
-              f"{done.subframes} subframes, {done.bad_messages} unreadable messages; "
-              + ", ".join(f"{k} {v}" for k, v in sorted((done.by_quality or {}).items())))
+    counts = ", ".join(f"{k} {v}" for k, v in sorted((done.by_quality or {}).items()))
+    print(f"rtk: {done.rover_epochs} rover epochs, {done.base_epochs} base epochs, "
+          f"{done.subframes} subframes, {done.bad_messages} unreadable messages"
+          + (f"; positions: {counts}" if counts else ""))
+    missing = [f"{what} {name!r}" for what, name, n in (
+        ("rover", top["rover"], done.rover_epochs), ("base", top["base"], done.base_epochs))
+        if n == 0]
+    if missing:  # a run that gave no result (exit 1), and why it may be
+        print(f"groundstation rtk: nothing received from the {' and the '.join(missing)} on "
+              f"groundstation/<station>/obs: is the daemon running under that station name, "
+              "with [zenoh] publish_obs on, and reachable at the --connect endpoint?",
+              file=sys.stderr)
+        return 1
     return 0

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import math
 import sys
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -195,6 +196,8 @@ def settings_from_args(args: argparse.Namespace) -> SolveSettings:
         base_ecef_m=base_xyz,
         base_given=base_given,
         base_sd_enu_m=base_sd,
+        base_antenna_height_m=_antenna(args)[0], base_antenna=_antenna(args)[1],
+        antex=_antenna(args)[2],
         source=args.source,
         photos=Path(args.photos) if args.photos else None,
         lever_arm_m=_option("--lever-arm", "lever_arm", args.lever_arm),
@@ -212,17 +215,18 @@ def settings_from_args(args: argparse.Namespace) -> SolveSettings:
     )
 
 
-def _base(args: argparse.Namespace) -> tuple[
+def _base(args: argparse.Namespace, solved: SolveSettings | None = None) -> tuple[
         tuple[float, float, float] | None, str, tuple[float, float, float] | None]:
-    """The base position from whichever form it was given in, how, and its sigma."""
+    """The base position from whichever form it was given in, how, and its sigma. ``solved``:
+    a re-base's earlier settings, whose antenna height and offset apply again unless given
+    (not to a position file, which is the antenna's position)."""
+    height, antenna, antex = _antenna(args, solved)
     base_xyz, base_given = base_position(
         _option("--base-xyz", "base_xyz", args.base_xyz),
-        _option("--base-llh", "base_llh", args.base_llh),
-        _option("--base-antenna-height", "base_antenna_height_m", args.base_antenna_height),
+        _option("--base-llh", "base_llh", args.base_llh), height,
         en=_option("--base-en", "base_en", args.base_en),
         crs=_option("--base-crs", "base_crs", args.base_crs),
-        antenna=args.base_antenna or _rinex_antenna(args),
-        antex_file=_option("--antex", "antex", args.antex))
+        antenna=antenna, antex_file=antex)
     file_sd = None
     if args.base_position is not None:
         if base_xyz is not None or args.base_antenna_height is not None or args.antex:
@@ -233,6 +237,20 @@ def _base(args: argparse.Namespace) -> tuple[
             raise ConfigError("--base-position", f"{args.base_position}: no such file")
         base_xyz, file_sd, base_given = read_base_position(Path(args.base_position))
     return base_xyz, base_given, _base_sigma(args.base_sigma, base_xyz) or file_sd
+
+
+def _antenna(args: argparse.Namespace, solved: SolveSettings | None = None,
+             ) -> tuple[float | None, str | None, Path | None]:
+    """The base antenna's height over the mark, type and ANTEX file: as given, else (a
+    re-base, not with a position file) as the result was solved with."""
+    height = _option("--base-antenna-height", "base_antenna_height_m", args.base_antenna_height)
+    antex = _option("--antex", "antex", args.antex)
+    antenna = args.base_antenna or _rinex_antenna(args)
+    if solved is not None and args.base_position is None:
+        height = height if height is not None else solved.base_antenna_height_m
+        if antex is None and antenna is None:
+            antex, antenna = solved.antex, solved.base_antenna
+    return height, antenna, antex
 
 
 def _rinex_antenna(args: argparse.Namespace) -> str | None:
@@ -263,13 +281,20 @@ def _rebase_settings(args: argparse.Namespace) -> SolveSettings:
             raise ConfigError("--rebase", f"takes only the new base position (and --out-dir); "
                               f"{name} was given: the result keeps the options it was solved "
                               "with (solve again to change them)")
-    base_xyz, base_given, base_sd = _base(args)
-    if base_xyz is None:
+    if all(v is None for v in (args.base_xyz, args.base_llh, args.base_en, args.base_position)):
         raise ConfigError("--rebase", "give the new base position: --base-xyz X,Y,Z, --base-llh "
                           "LAT,LON,H, --base-en E,N,H with --base-crs, or --base-position FILE")
+
+    def position(solved: SolveSettings) -> tuple[
+            tuple[float, float, float], str, tuple[float, float, float] | None]:
+        xyz, given, sd = _base(args, solved)
+        assert xyz is not None
+        return xyz, given, sd
+
     result = Path(args.rebase)
-    return rebase_settings(result, Path(args.out) if args.out else result, base_xyz,
-                           base_given, base_sd)
+    s = rebase_settings(result, Path(args.out) if args.out else result, position)
+    height, antenna, antex = _antenna(args, s)
+    return replace(s, base_antenna_height_m=height, base_antenna=antenna, antex=antex)
 
 
 class _Progress:
@@ -306,6 +331,9 @@ def run(args: argparse.Namespace) -> int:
         progress.done()
     # A solve that positions nothing fails inside (pipeline.NothingPositionedError, exit 1)
     # and leaves nothing written.
+    if settings.base_ecef_m is not None and settings.base is not None:
+        x, y, z = settings.base_ecef_m
+        sys.stdout.write(f"base       ECEF {x:.4f}, {y:.4f}, {z:.4f} m, {settings.base_given}\n")
     sys.stdout.write(format_result(result))
     return 0
 

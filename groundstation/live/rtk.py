@@ -88,6 +88,8 @@ class LiveRtk:
         self._known: set[int] = set()
         self._asm: lnav.EphemerisAssembler | None = None
         self._base: deque[RawEpoch] = deque(maxlen=BASE_BUFFER)
+        self.base_name = ""
+        """`` station NAME`` for the messages, when the base is a station on the bus."""
         self._obs = p.Arr1Dobsd_t(2 * p.MAXOBS)
         self.solved = 0
 
@@ -127,7 +129,7 @@ class LiveRtk:
         t = epoch.t_gps_ns
         base = self._base_for(t)
         age = None if base is None else (t - base.t_gps_ns) / 1e9
-        why = ("no base epoch yet" if not self._base else
+        why = (f"no epoch from the base{self.base_name} yet" if not self._base else
                "the base's epochs are all later than this one" if base is None else
                f"the base's latest epoch is {age:.0f} s old" if age is not None
                and age > MAX_BASE_AGE_S else
@@ -144,7 +146,8 @@ class LiveRtk:
         stat = int(sol.stat)
         if stat == 0:
             return LiveSolution(t, "none", 0.0, int(sol.ns), age, None, None,
-                                "no solution (too few satellites in common?)")
+                                "no solution: too few satellites in common with the base, or "
+                                "the base position is wrong (kilometres off?)")
         xyz = (float(sol.rr[0]), float(sol.rr[1]), float(sol.rr[2]))
         return LiveSolution(t, QUALITY.get(stat, "single"), float(sol.ratio), int(sol.ns), age,
                             xyz, _sd_enu(xyz, [float(sol.qr[i]) for i in range(6)]))
@@ -415,6 +418,7 @@ def run_rtk(
     from groundstation.live import obswire
 
     engine = LiveRtk(base_ecef_m)
+    engine.base_name = f" station {base!r}"
     inbox: queue.Queue[tuple[str, bytes]] = queue.Queue(maxsize=10_000)
     run = RtkRun(by_quality={})
     bus = open_bus(settings)

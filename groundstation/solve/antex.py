@@ -80,9 +80,11 @@ def l1_offset(path: Path, antenna: str, option: str = "--antex",
         raise ConfigError(antenna_option, f"{' '.join(want)} has no GPS L1 ({L1}) calibration "
                           f"in {path.name}")
     near = sorted({f"{t} {r}" for t, r in names if t[:5] == want[0][:5]})[:5]
+    some = sorted({f"{t} {r}" for t, r in names})
     raise ConfigError(antenna_option, (
         f"{' '.join(want)} is not in {path.name} ({len(names)} antennas"
-        + (f"; of a similar name: {', '.join(near)}" if near else "")
+        + (f"; of a similar name: {', '.join(near)}" if near else
+           f": {', '.join(some[:5])}{' ...' if len(some) > 5 else ''}" if some else "")
         + "): give the type as the file spells it, radome after a space (NONE without one)"))
 
 

@@ -83,7 +83,8 @@ def read_sum(path: Path, text: str) -> tuple[tuple[float, float, float],
     x, y, z = llh_to_ecef(lat, lon, h)
     sd = (sd_e * SIGMA_95_TO_1, sd_n * SIGMA_95_TO_1, sd_u * SIGMA_95_TO_1)
     how = (f"from {path.name} (NRCan CSRS-PPP, {frame}{_epoch_text(epoch)}, its 95 % sigmas "
-           "as one sigma; a PPP from L1-only data is good to decimetres at best)")
+           "divided by 1.96 for one sigma; a PPP from L1-only data is good to decimetres at "
+           "best)")
     return (x, y, z), sd, how
 
 

@@ -278,7 +278,7 @@ def read_base_position(path: Path) -> tuple[tuple[float, float, float],
         data = path.read_bytes()
     except OSError as err:
         raise ConfigError("--base-position", f"{path}: cannot read: {err}") from err
-    if csrs.looks_like_sum(data[:65536]):
+    if path.name.lower().endswith(".sum") or csrs.looks_like_sum(data[:65536]):
         return csrs.read_sum(path, data.decode("latin-1"))
     try:
         doc = jsonio.loads(data)

@@ -22,7 +22,7 @@ they were, relative to the base the engine used.
 from __future__ import annotations
 
 import shutil
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import fields, replace
 from pathlib import Path
 from typing import Any
@@ -48,7 +48,7 @@ _HERE = "{result}/"
 """Stands for the result's folder in the recorded trajectory's notes."""
 
 _PATHS = ("flight", "out_dir", "positions", "base", "photos", "eo", "geoid", "rtk_conf",
-          "rebase")
+          "rebase", "antex")
 _TRIPLES = ("base_ecef_m", "base_sd_enu_m", "lever_arm_m")
 _NOT_RECORDED = ("flight_copies", "recordings", "merged_from", "rebase", "previous_bases")
 
@@ -79,12 +79,17 @@ def write(s: SolveSettings, traj: tr.Trajectory, out_dir: Path, final_dir: Path)
     tr.save_npz(replace(traj, notes=notes), out_dir / TRAJECTORY_NAME)
 
 
+BasePosition = tuple[tuple[float, float, float], str, tuple[float, float, float] | None]
+"""A base position: ECEF, how it was given, its sigma east/north/up (None: exact)."""
+
+
 def rebase_settings(
-    result: Path, out_dir: Path, base_ecef_m: tuple[float, float, float], base_given: str,
-    base_sd_enu_m: tuple[float, float, float] | None,
+    result: Path, out_dir: Path, position: Callable[[SolveSettings], BasePosition],
 ) -> SolveSettings:
     """The settings of the solve that made ``result``, with the new base position, writing to
-    ``out_dir`` (``result`` itself to re-base in place).
+    ``out_dir`` (``result`` itself to re-base in place). ``position`` gives the new base
+    position from the old settings (the antenna's height and offsets as solved, unless given
+    again).
 
     Raises:
         ConfigError: naming ``--rebase``: not a finished result with a record, a result made
@@ -120,11 +125,20 @@ def rebase_settings(
         if p is not None and not p.exists():
             raise ConfigError("--rebase", f"{p}: no longer there; the result was made from "
                               "it, and the marks, photos and report are drawn from it again")
+    base_ecef_m, base_given, base_sd_enu_m = position(old)
     return replace(
         old, flight=recordings[0], flight_copies=tuple(recordings[1:]), out_dir=out_dir,
         base_ecef_m=base_ecef_m, base_given=base_given, base_sd_enu_m=base_sd_enu_m,
         base_estimated=False, rebase=result,
-        previous_bases=(*previous, (old.base_ecef_m, old.base_given)))
+        previous_bases=(*previous, (old.base_ecef_m, _short(old.base_given))))
+
+
+def _short(given: str) -> str:
+    """How a base was given, for the record of earlier bases (a base that was the mean of its
+    receiver's own fixes in a few words, not the whole warning)."""
+    if given.startswith("not given"):
+        return "the mean of the base receiver's own fixes, known to metres"
+    return given
 
 
 def _read(result: Path) -> dict[str, Any]:
@@ -175,7 +189,7 @@ def shifted_trajectory(s: SolveSettings, stage: Path) -> tuple[tr.Trajectory, st
     old_xyz, old_given = s.previous_bases[-1]
     move = np.array(s.base_ecef_m) - np.array(old_xyz)
     lat, lon, _ = ecef_to_llh(*old_xyz)
-    east, north, up = (np.array(enu_rotation(lat, lon)) @ move).tolist()
+    east, north, up = (round(v, 4) + 0.0 for v in (np.array(enu_rotation(lat, lon)) @ move))
     notes = tuple(t.replace(_HERE, f"{stage}/") for t in traj.notes)
     # The shift is exact but for the directions to the satellites, which move by the base's
     # move over their range: at most |move| x baseline / range on the baseline.
@@ -192,6 +206,7 @@ def shifted_trajectory(s: SolveSettings, stage: Path) -> tuple[tr.Trajectory, st
             f"{old_xyz[0]:.4f}, {old_xyz[1]:.4f}, {old_xyz[2]:.4f} ({old_given}); every "
             "position moved with it (what the base's height changes in the modelled "
             "troposphere is left out: millimetres per metre moved); the engine's files in "
-            f"{ENGINE_DIR}/ are relative to the old base")
+            f"{ENGINE_DIR}/ are relative to the base it ran with, ECEF "
+            + ", ".join(f"{v:.4f}" for v in s.previous_bases[0][0]))
     return moved, text
 

@@ -145,7 +145,9 @@ def _summary(inp: ReportInput) -> str:
         if PCO_APPLIED not in inp.base_check:
             base += ("<br>antenna: no phase-centre offset applied (no --antex): the position "
                      "given is taken as the antenna's L1 phase centre")
-        base += "".join(f"<br>re-based from {_e(b)}" for b in reversed(inp.base_before))
+        if inp.base_before:  # solve --rebase: the bases before, oldest (the engine's) first
+            base += "<br>re-based (solve --rebase); solved with " + _e(inp.base_before[0]) + (
+                "".join(f"<br>then re-based to {_e(b)}" for b in inp.base_before[1:]))
     else:
         base = _e(inp.base_check or "none")
     opts = ""

@@ -29,6 +29,12 @@ class SolveSettings:
     """What the merge of several recordings took from each (for the notes)."""
     base_estimated: bool = False
     """No base position was given: it is the mean of the base receiver's own fixes."""
+    base_antenna_height_m: float | None = None
+    base_antenna: str | None = None
+    antex: Path | None = None
+    """How the base antenna stood over the coordinates given (the height from the mark, its
+    type and the ANTEX file of its offset): already in ``base_ecef_m``; kept for a re-base,
+    which takes them again for the new coordinates (:mod:`.record`)."""
     source: str | None = None
     photos: Path | None = None
     lever_arm_m: tuple[float, float, float] | None = None

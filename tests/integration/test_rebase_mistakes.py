@@ -105,4 +105,4 @@ def test_a_move_too_large_for_the_baselines_is_refused(tmp_path: Path) -> None:
         else:
             traj2, text = record.shifted_trajectory(rb, tmp_path / "stage")
             assert np.allclose(traj2.ecef_m - traj.ecef_m, np.array(new) - np.array(base))
-            assert "east +1.0000, north +0.0000, up -0.0000 m" in text
+            assert "east +1.0000, north +0.0000, up +0.0000 m" in text

@@ -150,7 +150,7 @@ def test_a_base_1_m_off_with_a_1_m_sigma_widens_the_absolute_sigmas_only(
          "--base-xyz", XYZ_1009_1M_EAST, "--base-sigma", "1", "--out-dir", "rebased"],
         cwd=tmp_path, env=cli_env(), capture_output=True, text=True, timeout=600, check=False)
     assert proc.returncode == 0, proc.stderr
-    assert "the base moved by east +1.0000, north +0.0000, up -0.0000 m" in proc.stdout
+    assert "the base moved by east +1.0000, north +0.0000, up +0.0000 m" in proc.stdout
     off_fixed = []
     for a, b in zip(cams["off"], _cameras(tmp_path / "rebased"), strict=True):
         assert (a["mark"], a["grade"]) == (b["mark"], b["grade"])

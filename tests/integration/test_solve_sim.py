@@ -328,7 +328,8 @@ def test_rebase_moves_every_camera_with_the_base_without_solving_again(
         moved += 1
     assert moved >= 0.9 * len(before)
     report = (tmp_path / "moved" / "report.html").read_text()
-    assert "re-based from ECEF" in report and "(given with --base-xyz)" in report
+    assert "re-based (solve --rebase); solved with ECEF" in report
+    assert "(given with --base-xyz)" in report
 
 
 def test_the_base_antennas_phase_centre_offset_moves_every_camera(
