@@ -4,6 +4,7 @@ given too, no new base, a result solved without a base, a recording that has gon
 
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 from pathlib import Path
@@ -106,3 +107,45 @@ def test_a_move_too_large_for_the_baselines_is_refused(tmp_path: Path) -> None:
             traj2, text = record.shifted_trajectory(rb, tmp_path / "stage")
             assert np.allclose(traj2.ecef_m - traj.ecef_m, np.array(new) - np.array(base))
             assert "east +1.0000, north +0.0000, up +0.0000 m" in text
+
+
+def test_the_antenna_height_and_offset_it_was_solved_with_apply_again(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A result solved with the mark's coordinates, a 1.5 m antenna height and an ANTEX offset:
+    re-based to new coordinates of the mark, the antenna stands as it stood (the surveyor
+    gives the mark again, not the antenna); a height given again replaces it; a position file
+    (the antenna's own position) takes neither."""
+    import argparse
+
+    from antex_file import antenna_block, write_antex
+
+    from groundstation.commands import solve as cmd
+    from groundstation.geodesy import ecef_to_llh, enu_rotation
+
+    atx = write_antex(tmp_path / "a.atx", antenna_block("ANT1", "NONE", {"G01": (0, 0, 80.0)}))
+    _result(tmp_path, base_antenna_height_m=1.5, base_antenna="ANT1", antex=atx)
+    mark = np.array([3774696.5547 + 0.5, -596647.9083, 5089485.6511])
+
+    def rebased(*extra: str) -> SolveSettings:
+        parser = argparse.ArgumentParser()
+        cmd.add_arguments(parser)
+        return cmd.settings_from_args(parser.parse_args(
+            ["--rebase", "done", *extra, "--out-dir", "out"]))
+
+    monkeypatch.chdir(tmp_path)
+    xyz = ",".join(f"{v:.4f}" for v in mark)
+    lat, lon, _ = ecef_to_llh(*mark.tolist())
+    rot = np.array(enu_rotation(lat, lon))
+    s = rebased("--base-xyz", xyz)
+    assert s.base_ecef_m is not None
+    assert rot @ (np.array(s.base_ecef_m) - mark) == pytest.approx((0, 0, 1.58), abs=1e-4)
+    assert (s.base_antenna_height_m, s.base_antenna) == (1.5, "ANT1")
+    assert "1.5000 m above it" in s.base_given and "L1 phase-centre offset of ANT1" in s.base_given
+    s = rebased("--base-xyz", xyz, "--base-antenna-height", "1.2")
+    assert s.base_ecef_m is not None
+    assert rot @ (np.array(s.base_ecef_m) - mark) == pytest.approx((0, 0, 1.28), abs=1e-4)
+    position = tmp_path / "b.json"
+    position.write_text(json.dumps({"ecef_m": mark.tolist()}))
+    s = rebased("--base-position", str(position))
+    assert s.base_ecef_m == pytest.approx(tuple(mark.tolist()))
+    assert s.base_antenna_height_m is None and s.antex is None
