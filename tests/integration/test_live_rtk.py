@@ -152,3 +152,15 @@ def test_the_demo_solves_live_and_publishes_every_epoch(tmp_path: Path) -> None:
         flight_s=60.0, speed=None, out_dir=tmp_path / "nb", zenoh=False, live_rtk=False),
         on_payload=lambda k, p: None))
     assert no_base.live == () and no_base.live_missing == ""
+
+
+def test_an_rtk_run_that_received_nothing_says_so_and_exits_1(tmp_path: Path) -> None:
+    proc = subprocess.run([sys.executable, "-m", "groundstation.cli", "rtk", "--rover", "demo",
+                           "--base", "base", "--base-xyz", "4146349.2,612312.5,4791750.9",
+                           "--connect", f"tcp/127.0.0.1:{free_port()}", "--duration", "2"],
+                          cwd=tmp_path, env=cli_env(), capture_output=True, text=True,
+                          timeout=60, check=False)
+    assert proc.returncode == 1, proc.stderr
+    assert proc.stdout.strip() == ("rtk: 0 rover epochs, 0 base epochs, 0 subframes, "
+                                   "0 unreadable messages")
+    assert "nothing received from the rover 'demo' and the base 'base'" in proc.stderr
