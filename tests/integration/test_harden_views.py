@@ -126,6 +126,12 @@ def test_ack_from_another_origin_is_refused(dashboard: tuple[Dashboard, Bus]) ->
     port = dash.http.server_address[1]
     path = "/api/ack?station=p&alert=marks_missed"
     ours = f"127.0.0.1:{port}"
+    # the subscription reaches the dashboard's session first (on a loaded machine a put made
+    # at once could pass before it): the page's own acknowledgement until one arrives
+    wait_until(lambda: _post(dash, path, {"Host": ours, "X-Groundstation": "ack"}) == 200
+               and len(acks.all()) >= 1, 30, what="the subscription to the acknowledgements",
+               poll_s=0.5)
+    before = len(acks.all())
     foreign = [
         {"Host": f"rebind.attacker.example:{port}",
          "Origin": f"http://rebind.attacker.example:{port}"},
@@ -141,8 +147,8 @@ def test_ack_from_another_origin_is_refused(dashboard: tuple[Dashboard, Bus]) ->
     assert _post(dash, path, {"Host": ours, "Origin": f"http://{ours}",
                               "X-Groundstation": "ack"}) == 200
     assert _post(dash, path, {"Host": f"localhost:{port}", "X-Groundstation": "ack"}) == 200
-    wait_until(lambda: len(acks.all()) >= 2, what="the two acknowledgements on the bus")
-    assert [a["alert"] for a in acks.all()] == ["marks_missed", "marks_missed"]
+    wait_until(lambda: len(acks.all()) >= before + 2, what="the two acknowledgements on the bus")
+    assert {a["alert"] for a in acks.all()} == {"marks_missed"}
 
 
 def test_held_connections_keep_a_bounded_number_of_threads(
