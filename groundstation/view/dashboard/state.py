@@ -135,6 +135,7 @@ class StationView:
     """(GPS ns, east, north, quality) of the live positions, metres from the first one."""
     rtk_qualities: deque[str] = field(default_factory=lambda: deque(maxlen=RTK_WINDOW))
     _rtk_origin: tuple[float, float, float] | None = None
+    _rtk_rotation: tuple[tuple[float, float, float], ...] = ()
 
     # -- folding ---------------------------------------------------------------------------
 
@@ -304,11 +305,11 @@ class StationView:
         xyz = msg.get("ecef_m")
         if not isinstance(xyz, list) or len(xyz) != 3:
             return
-        if self._rtk_origin is None:
+        if self._rtk_origin is None:  # the track's origin and its east/north/up, once
             self._rtk_origin = (float(xyz[0]), float(xyz[1]), float(xyz[2]))
-        o = self._rtk_origin
-        lat, lon, _ = ecef_to_llh(*o)
-        r = enu_rotation(lat, lon)
+            lat, lon, _ = ecef_to_llh(*self._rtk_origin)
+            self._rtk_rotation = enu_rotation(lat, lon)
+        o, r = self._rtk_origin, self._rtk_rotation
         d = [float(xyz[i]) - o[i] for i in range(3)]
         east = sum(r[0][i] * d[i] for i in range(3))
         north = sum(r[1][i] * d[i] for i in range(3))
