@@ -100,6 +100,13 @@ def run(args: argparse.Namespace) -> int:
             print(f"demo: publishing on Zenoh {', '.join(endpoints)} (watch it from another "
                   f"terminal: {watch})",
                   file=sys.stderr, flush=True)
+            if info.get("base_station"):
+                xyz = ",".join(f"{v:.4f}" for v in sim.truth["base"]["ecef_m"])
+                rtk = command("rtk", "--rover", info["station"], "--base", info["base_station"],
+                              "--base-xyz", xyz, *(("--connect", endpoints[0]) if connect else ()))
+                print(f"demo: base station {info['base_station']} on pty {info['base_pty']} "
+                      f"(carrier-phase positions from the bus: {rtk})", file=sys.stderr,
+                      flush=True)
         print("demo: Ctrl-C stops it early (files closed cleanly; exit status 130)",
               file=sys.stderr, flush=True)
 
@@ -262,6 +269,10 @@ def _print_summary(result: Any, photos: Path | None = None) -> None:
     for path in s.sidecars:
         print(f"  raw UBX:     {path}")
     print(f"  base UBX:    {result.base_path}")
+    bs = result.base_station
+    if bs is not None and bs.files:
+        print(f"  base station {result.station}-base (its own daemon): {bs.files[0]}, "
+              f"{bs.records:,} records")
     if result.live:
         print(f"  live RTK:    {live_text(result.live)} (groundstation/{result.station}/rtk)")
     elif result.live_missing:

@@ -126,6 +126,8 @@ class DemoResult:
     """The live engine's position at every rover epoch (none without it)."""
     live_missing: str = ""
     """Why the live engine did not run, when it was asked for."""
+    base_station: RunSummary | None = None
+    """The base station's daemon (``<station>-base``): its recording and counts."""
 
     def sent(self) -> SentFigures:
         """The simulator's figures up to the stop (the whole flight's when it ran to its end),
@@ -296,6 +298,19 @@ async def run_demo(
     live, live_missing = _live_sink(sim) if opts.live_rtk else (None, "")
     if live is not None:
         pipeline.add_sink(live, 1000, Overflow.NEVER_DROP)
+    # The base receiver as a station of its own (``<station>-base``): its pty and daemon,
+    # recorded beside the rover and published (``groundstation rtk --rover <station> --base
+    # <station>-base`` solves from the bus). The demo's own engine takes the same stream
+    # decoded in advance: at any speed each base epoch is there before the rover's.
+    base_feeder = PtyLink() if opts.live_rtk else None
+    base_pipeline = None
+    if base_feeder is not None:
+        base_pipeline = Pipeline(dataclasses.replace(
+            settings, station=f"{station}-base",
+            source=SerialSourceSettings(port=base_feeder.path, baud=PTY_BAUD),
+            zenoh=dataclasses.replace(zenoh, mode="client", listen=(),
+                                      connect=tuple(zenoh.listen))
+            if zenoh.enabled else zenoh))
     stop = asyncio.Event()
 
     async def drained() -> None:
@@ -331,19 +346,32 @@ async def run_demo(
         watchers.append(asyncio.create_task(stop_after_duration(), name="duration"))
     if ready is not None:
         ready({"pty": feeder.path, "out_dir": str(out_dir), "station": station,
+               "base_station": f"{station}-base" if base_feeder is not None else None,
+               "base_pty": base_feeder.path if base_feeder is not None else None,
                "zenoh": list(zenoh.listen) if zenoh.enabled else None,
                "flight_s": opts.flight_s, "speed": opts.speed})
     runner = asyncio.create_task(pipeline.run(stop, handle_signals=True), name="pipeline")
+    base_runner = (asyncio.create_task(base_pipeline.run(stop), name="base-pipeline")
+                   if base_pipeline is not None else None)
     # the serial source opens the pty (and flushes its input) before the first byte is written
     for _ in range(200):
         if getattr(getattr(pipeline.source, "state", None), "connected", False):
             break
         await asyncio.sleep(0.01)
+    for _ in range(200 if base_pipeline is not None else 0):
+        if getattr(getattr(base_pipeline.source, "state", None), "connected", False):  # type: ignore[union-attr]
+            break
+        await asyncio.sleep(0.01)
     feeder.start_feed(sim.rover_chunks, opts.speed)
+    if base_feeder is not None:
+        base_feeder.start_feed(sim.base_chunks, opts.speed)
     try:
         summary = await runner
+        base_summary = await base_runner if base_runner is not None else None
     finally:
         feeder.close()
+        if base_feeder is not None:
+            base_feeder.close()
         for w in watchers:
             w.cancel()
     write_companions(summary.files[0].stem if summary.files else f"{station}_demo")
@@ -356,6 +384,7 @@ async def run_demo(
         bytes_written=feeder.bytes_written,
         alerts_cleared=alert_log.cleared(),
         live=tuple(live.solutions) if live is not None else (), live_missing=live_missing,
+        base_station=base_summary,
         sent_until_gps_ns=(None if feeder.chunks_written == len(sim.rover_chunks)
                            else feeder.last_t_ns if feeder.last_t_ns is not None
                            else int(sim.truth["start_gps_ns"])),
