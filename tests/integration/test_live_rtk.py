@@ -148,10 +148,13 @@ def test_the_demo_solves_live_and_publishes_every_epoch(tmp_path: Path) -> None:
     last = result.live[-300:]
     assert sum(s.quality == "fix" for s in last) >= 0.95 * len(last)
     assert seen[-1]["quality"] == "fix" and seen[-1]["station"] == "demo"
+    base = result.base_station  # the base receiver as a station of its own, recorded
+    assert base is not None and base.files and base.files[0].name.startswith("demo-base_")
+    assert base.frames_by_type.get("RXM-RAW", 0) >= 0.98 * epochs
     no_base = asyncio.run(run_demo(DemoOptions(
         flight_s=60.0, speed=None, out_dir=tmp_path / "nb", zenoh=False, live_rtk=False),
         on_payload=lambda k, p: None))
-    assert no_base.live == () and no_base.live_missing == ""
+    assert no_base.live == () and no_base.live_missing == "" and no_base.base_station is None
 
 
 def test_an_rtk_run_that_received_nothing_says_so_and_exits_1(tmp_path: Path) -> None:
@@ -164,3 +167,25 @@ def test_an_rtk_run_that_received_nothing_says_so_and_exits_1(tmp_path: Path) ->
     assert proc.stdout.strip() == ("rtk: 0 rover epochs, 0 base epochs, 0 subframes, "
                                    "0 unreadable messages")
     assert "nothing received from the rover 'demo' and the base 'base'" in proc.stderr
+
+
+def test_the_rtk_command_solves_the_demo_from_the_bus(tmp_path: Path) -> None:
+    """The demo's rover and its base station (``demo-base``, a daemon of its own) on the bus:
+    ``groundstation rtk`` as the demo suggests, from another process, fixes."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    demo = CliProc(tmp_path / "demo", "demo", "--flight", "150", "--speed", "4", "--no-view",
+                   "--out-dir", "flights", env={"GROUNDSTATION_ZENOH_LISTEN": endpoint})
+    try:
+        demo.wait_for("rtk --rover demo --base demo-base", 60)
+        proc = subprocess.run(
+            [sys.executable, "-m", "groundstation.cli", "rtk", "--rover", "demo", "--base",
+             "demo-base", "--base-xyz", "4146349.2471,612312.5498,4791750.8505", "--connect",
+             endpoint, "--duration", "20"],
+            cwd=tmp_path, env=cli_env(), capture_output=True, text=True, timeout=90,
+            check=False)
+    finally:
+        demo.stop()
+    assert proc.returncode == 0, proc.stderr
+    last = proc.stdout.strip().splitlines()[-1]
+    assert "base epochs" in last and " 0 base epochs" not in last, last
+    assert " fix " in proc.stdout, proc.stdout
