@@ -245,6 +245,8 @@ def live_text(live: Any) -> str:
 
 
 def _print_summary(result: Any, photos: Path | None = None) -> None:
+    from groundstation.live.demo import base_station_name
+
     s = result.summary
     truth = result.sim.truth
     sent = result.sent()
@@ -271,7 +273,8 @@ def _print_summary(result: Any, photos: Path | None = None) -> None:
     print(f"  base UBX:    {result.base_path}")
     bs = result.base_station
     if bs is not None and bs.files:
-        print(f"  base station {result.station}-base (its own daemon): {bs.files[0]}, "
+        print(f"  base station {base_station_name(result.station)} (its own daemon): "
+              f"{bs.files[0]}, "
               f"{bs.records:,} records")
     if result.live:
         print(f"  live RTK:    {live_text(result.live)} (groundstation/{result.station}/rtk)")

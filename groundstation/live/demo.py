@@ -224,6 +224,11 @@ class AlertLog:
         return tuple(m for n, m in self.raised.items() if n not in self.standing)
 
 
+def base_station_name(station: str) -> str:
+    """The demo's base station: ``<station>-base``, cut to stay a station name (64 at most)."""
+    return f"{station[:59]}-base"
+
+
 def _live_sink(sim: SimResult) -> tuple[LiveRtkSink | None, str]:
     """The live engine on the rover's epochs against the simulated base (its stream decoded
     as the base's daemon would); None and why when pyrtklib5 is missing."""
@@ -306,7 +311,7 @@ async def run_demo(
     base_pipeline = None
     if base_feeder is not None:
         base_pipeline = Pipeline(dataclasses.replace(
-            settings, station=f"{station}-base",
+            settings, station=base_station_name(station),
             source=SerialSourceSettings(port=base_feeder.path, baud=PTY_BAUD),
             zenoh=dataclasses.replace(zenoh, mode="client", listen=(),
                                       connect=tuple(zenoh.listen))
@@ -346,7 +351,7 @@ async def run_demo(
         watchers.append(asyncio.create_task(stop_after_duration(), name="duration"))
     if ready is not None:
         ready({"pty": feeder.path, "out_dir": str(out_dir), "station": station,
-               "base_station": f"{station}-base" if base_feeder is not None else None,
+               "base_station": base_station_name(station) if base_feeder is not None else None,
                "base_pty": base_feeder.path if base_feeder is not None else None,
                "zenoh": list(zenoh.listen) if zenoh.enabled else None,
                "flight_s": opts.flight_s, "speed": opts.speed})
