@@ -28,8 +28,9 @@ WAIT_S = 60.0  # generous: the shared 2-core machine
 
 
 def daemon(tmp: Path, station: str, endpoint: str) -> CliProc:
-    return CliProc(tmp / station, "demo", "--station", station, "--no-view", "--flight", "900",
-                "--zenoh-listen", endpoint)
+    # (--no-base: daemons of these stations only, not the demo's base stations beside them)
+    return CliProc(tmp / station, "demo", "--station", station, "--no-view", "--no-base",
+                   "--flight", "900", "--zenoh-listen", endpoint)
 
 
 def watch_sees(tmp: Path, station: str, endpoint: str) -> bool:

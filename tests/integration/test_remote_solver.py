@@ -119,7 +119,8 @@ def test_a_remote_solver_fetches_the_recording_through_the_router_and_solves_it(
     router = running.start(router_dir, "router", "--config", "router.toml")
     router.wait_for("router listening")
     # the station: a flight long enough for the solver to start while it flies
-    demo = running.start(a_dir, "demo", "--station", "rover", "--no-view", "--flight", "120",
+    demo = running.start(a_dir, "demo", "--station", "rover", "--no-view", "--no-base",
+                         "--flight", "120",
                          "--speed", "6", "--seed", "6", "--out-dir", "flights",
                          "--zenoh-listen", endpoint, "--serve-after", "300")
     demo.wait_for("is taken: joined it")  # the router holds the endpoint
