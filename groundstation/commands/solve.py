@@ -181,7 +181,8 @@ def settings_from_args(args: argparse.Namespace) -> SolveSettings:
     if args.rtk_conf is not None and not Path(args.rtk_conf).is_file():
         raise ConfigError("--rtk-conf", f"{args.rtk_conf}: no such file")
     rtk_opts = ppk.options.parse_assignments(args.rtk_opt)
-    base_xyz, base_given, base_sd = _base(args)
+    setup = _antenna(args)  # read once (a RINEX base's header may name the antenna)
+    base_xyz, base_given, base_sd = _base(args, setup)
     if args.base is not None:  # the engine runs: check its options now, before any work
         ppk.resolve_options(
             ppk.get_engine(args.engine), base_xyz,
@@ -196,8 +197,7 @@ def settings_from_args(args: argparse.Namespace) -> SolveSettings:
         base_ecef_m=base_xyz,
         base_given=base_given,
         base_sd_enu_m=base_sd,
-        base_antenna_height_m=_antenna(args)[0], base_antenna=_antenna(args)[1],
-        antex=_antenna(args)[2],
+        base_antenna_height_m=setup[0], base_antenna=setup[1], antex=setup[2],
         source=args.source,
         photos=Path(args.photos) if args.photos else None,
         lever_arm_m=_option("--lever-arm", "lever_arm", args.lever_arm),
@@ -215,12 +215,15 @@ def settings_from_args(args: argparse.Namespace) -> SolveSettings:
     )
 
 
-def _base(args: argparse.Namespace, solved: SolveSettings | None = None) -> tuple[
+Antenna = tuple[float | None, str | None, Path | None]
+"""The base antenna's height over the mark, type and ANTEX file (:func:`_antenna`)."""
+
+
+def _base(args: argparse.Namespace, antenna_setup: Antenna) -> tuple[
         tuple[float, float, float] | None, str, tuple[float, float, float] | None]:
-    """The base position from whichever form it was given in, how, and its sigma. ``solved``:
-    a re-base's earlier settings, whose antenna height and offset apply again unless given
-    (not to a position file, which is the antenna's position)."""
-    height, antenna, antex = _antenna(args, solved)
+    """The base position from whichever form it was given in, how, and its sigma, the antenna
+    standing as ``antenna_setup`` says (:func:`_antenna`)."""
+    height, antenna, antex = antenna_setup
     base_xyz, base_given = base_position(
         _option("--base-xyz", "base_xyz", args.base_xyz),
         _option("--base-llh", "base_llh", args.base_llh), height,
@@ -239,8 +242,7 @@ def _base(args: argparse.Namespace, solved: SolveSettings | None = None) -> tupl
     return base_xyz, base_given, _base_sigma(args.base_sigma, base_xyz) or file_sd
 
 
-def _antenna(args: argparse.Namespace, solved: SolveSettings | None = None,
-             ) -> tuple[float | None, str | None, Path | None]:
+def _antenna(args: argparse.Namespace, solved: SolveSettings | None = None) -> Antenna:
     """The base antenna's height over the mark, type and ANTEX file: as given, else (a
     re-base, not with a position file) as the result was solved with."""
     height = _option("--base-antenna-height", "base_antenna_height_m", args.base_antenna_height)
@@ -285,15 +287,18 @@ def _rebase_settings(args: argparse.Namespace) -> SolveSettings:
         raise ConfigError("--rebase", "give the new base position: --base-xyz X,Y,Z, --base-llh "
                           "LAT,LON,H, --base-en E,N,H with --base-crs, or --base-position FILE")
 
+    setup: list[Antenna] = []  # the antenna as it stands for the new coordinates
+
     def position(solved: SolveSettings) -> tuple[
             tuple[float, float, float], str, tuple[float, float, float] | None]:
-        xyz, given, sd = _base(args, solved)
+        setup.append(_antenna(args, solved))
+        xyz, given, sd = _base(args, setup[0])
         assert xyz is not None
         return xyz, given, sd
 
     result = Path(args.rebase)
     s = rebase_settings(result, Path(args.out) if args.out else result, position)
-    height, antenna, antex = _antenna(args, s)
+    height, antenna, antex = setup[0]
     return replace(s, base_antenna_height_m=height, base_antenna=antenna, antex=antex)
 
 
