@@ -401,7 +401,10 @@ WATCH_SCHEMA: Schema = {
 }
 
 RTK_SCHEMA: Schema = {
-    "": {"rover": STATION, "base": STATION, "base_xyz": ECEF, "base_llh": TRIPLE,
+    "": {"rover": STATION, "base": STATION,
+         **{k: SOLVER_STATION_KEYS[k] for k in (
+             "base_xyz", "base_llh", "base_en", "base_crs", "base_antenna_height_m",
+             "base_antenna", "antex")},
          "duration_s": _num("float", 0.0, 10 * 365 * 86_400.0)},
     "zenoh": ZENOH_KEYS,
 }

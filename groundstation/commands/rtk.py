@@ -7,7 +7,7 @@ import argparse
 import contextlib
 import sys
 
-from groundstation.commands.options import add_config, add_zenoh_client, layer
+from groundstation.commands.options import add_base_position, add_config, add_zenoh_client, layer
 from groundstation.config import RTK, resolve, zenoh_settings
 from groundstation.errors import ConfigError
 
@@ -16,25 +16,23 @@ HELP = "live carrier-phase positions of a rover against a base, from Zenoh"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    add_config(parser, RTK, "rover, base, base_xyz and [zenoh]")
+    add_config(parser, RTK, "rover, base, base_xyz or another form of the base position, "
+               "and [zenoh]")
     parser.add_argument("--rover", help="the rover's station name")
     parser.add_argument("--base", help="the base's station name")
-    parser.add_argument("--base-xyz", metavar="X,Y,Z",
-                        help="the base antenna's position, ECEF metres (as solve takes it)")
-    parser.add_argument("--base-llh", metavar="LAT,LON,H",
-                        help="or as WGS84 latitude, longitude (degrees), ellipsoidal height (m)")
+    add_base_position(parser, without="one of the base position's forms is needed (as "
+                      "solve takes them)")
     add_zenoh_client(parser)
     parser.add_argument("--duration", type=float, metavar="S",
                         help="stop after S seconds (default: Ctrl-C)")
 
 
 def run(args: argparse.Namespace) -> int:
+    from groundstation.commands.options import base_from, base_options
     from groundstation.live.rtk import RtkRun, run_rtk
-    from groundstation.solve.base import base_position
 
     values = resolve(RTK, args.config, overrides=layer(args, {
-        "rover": "rover", "base": "base", "base_xyz": "base_xyz", "base_llh": "base_llh",
-        "duration": "duration_s"})).values
+        "rover": "rover", "base": "base", "duration": "duration_s"}) | base_options(args)).values
     top = values[""]
     for name in ("rover", "base"):
         if not top.get(name):
@@ -42,10 +40,11 @@ def run(args: argparse.Namespace) -> int:
     if top["rover"] == top["base"]:
         raise ConfigError("--base", f"the base must be another station than the rover "
                           f"({top['rover']!r})")
-    xyz, _ = base_position(top.get("base_xyz"), top.get("base_llh"))
+    xyz, given, _ = base_from(top, args.base_position)
     if xyz is None:
-        raise ConfigError("--base-xyz", "give the base's position (--base-xyz X,Y,Z or "
-                          "--base-llh LAT,LON,H)")
+        raise ConfigError("--base-xyz", "give the base's position (--base-xyz X,Y,Z, --base-llh "
+                          "LAT,LON,H, --base-en E,N,H with --base-crs, or --base-position FILE)")
+    print(f"rtk: base ECEF {xyz[0]:.4f}, {xyz[1]:.4f}, {xyz[2]:.4f} m, {given}", flush=True)
     done = RtkRun()
     with contextlib.suppress(KeyboardInterrupt):
         done = run_rtk(top["rover"], top["base"], xyz, zenoh_settings(values["zenoh"]),

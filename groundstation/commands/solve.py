@@ -9,14 +9,13 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
+from groundstation.commands.options import add_base_position, base_from, base_options
 from groundstation.config import SOLVER_STATION_KEYS, convert
 from groundstation.errors import ConfigError
 from groundstation.solve import engine as ppk
 from groundstation.solve import interpolate as interp
 from groundstation.solve.antex import rinex_antenna
-from groundstation.solve.base import base_position
 from groundstation.solve.exif import JPEG_SUFFIXES
-from groundstation.solve.locate import read_base_position
 from groundstation.solve.pipeline import SolveResult, solve
 from groundstation.solve.record import rebase_settings
 from groundstation.solve.report_data import grades_text
@@ -44,39 +43,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="RTKLIB solution (.pos, .pos.gz); no base needed")
     parser.add_argument("--base", metavar="FILE",
                         help="base observations (.obs RINEX or .ubx recording)")
-    parser.add_argument("--base-xyz", metavar="X,Y,Z",
-                        help="known base position, ECEF metres (not lat,lon,h; a value starting "
-                        "with '-' is written --base-xyz=-3976219.2,...); without any base "
-                        "position the mean of the base receiver's own fixes is used, known to "
-                        "metres (said so)")
-    parser.add_argument("--base-llh", metavar="LAT,LON,H",
-                        help="known base position instead: WGS84 latitude, longitude (degrees) "
-                        "and ellipsoidal height (m)")
-    parser.add_argument("--base-en", metavar="E,N,H",
-                        help="known base position instead: easting, northing and height (m) in "
-                        "the projected CRS of --base-crs")
-    parser.add_argument("--base-crs", metavar="CODE",
-                        help="EPSG code of --base-en: projected (height ellipsoidal), or "
-                        "projected+vertical for a height above the geoid, e.g. 32629+5773 "
-                        "(UTM 29N + EGM96) or 2157+5731 (Irish ITM + Malin Head), if PROJ has "
-                        "the geoid grid")
-    parser.add_argument("--base-position", metavar="FILE",
-                        help="the base position (and its sigma) from groundstation locate-base "
-                        "--out, or an NRCan CSRS-PPP summary (.sum: its ITRF/IGS position)")
+    add_base_position(parser, without="without any base position the mean of the base "
+                      "receiver's own fixes is used, known to metres (said so)",
+                      antenna_default="; default: a RINEX base's header")
     parser.add_argument("--base-sigma", metavar="S|E,N,U",
                         help="the base position's own uncertainty, metres (one value or east,"
                         "north,up): added to the cameras' absolute sigmas")
-    parser.add_argument("--base-antenna", metavar="TYPE",
-                        help="the base antenna's type as ANTEX spells it, radome after a space "
-                        "(e.g. 'TRM55971.00 NONE'; default: a RINEX base's header): with --antex "
-                        "its L1 phase-centre offset is added to the base position")
-    parser.add_argument("--antex", metavar="FILE",
-                        help="ANTEX file with the base antenna's calibration (igs20.atx, .gz "
-                        "too); without it the base position is taken as the antenna's phase "
-                        "centre")
-    parser.add_argument("--base-antenna-height", metavar="M",
-                        help="the base position given is the ground mark; the antenna reference "
-                        "point is M metres vertically above it")
     parser.add_argument(
         "--source", metavar="{pos,rtklib,receiver}",
         help="position source (default: pos with --positions, rtklib with --base)",
@@ -224,21 +196,9 @@ def _base(args: argparse.Namespace, antenna_setup: Antenna) -> tuple[
     """The base position from whichever form it was given in, how, and its sigma, the antenna
     standing as ``antenna_setup`` says (:func:`_antenna`)."""
     height, antenna, antex = antenna_setup
-    base_xyz, base_given = base_position(
-        _option("--base-xyz", "base_xyz", args.base_xyz),
-        _option("--base-llh", "base_llh", args.base_llh), height,
-        en=_option("--base-en", "base_en", args.base_en),
-        crs=_option("--base-crs", "base_crs", args.base_crs),
-        antenna=antenna, antex_file=antex)
-    file_sd = None
-    if args.base_position is not None:
-        if base_xyz is not None or args.base_antenna_height is not None or args.antex:
-            raise ConfigError("--base-position", "give the base as one of --base-position, "
-                              "--base-xyz, --base-llh or --base-en (the file is the antenna's "
-                              "position)")
-        if not Path(args.base_position).is_file():
-            raise ConfigError("--base-position", f"{args.base_position}: no such file")
-        base_xyz, file_sd, base_given = read_base_position(Path(args.base_position))
+    base_xyz, base_given, file_sd = base_from(base_options(args) | {
+        "base_antenna_height_m": height, "base_antenna": antenna, "antex": antex,
+    }, args.base_position)
     return base_xyz, base_given, _base_sigma(args.base_sigma, base_xyz) or file_sd
 
 

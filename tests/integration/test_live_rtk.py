@@ -108,7 +108,15 @@ def test_the_rtk_command_solves_from_the_bus(flight: SimResult, tmp_path: Path) 
     (["--rover", "a", "--base", "a", "--base-xyz", "4146349.2,612312.5,4791750.9"],
      "--base: the base must be another station than the rover ('a')"),
     (["--rover", "a", "--base", "b"], "--base-xyz: give the base's position"),
-    (["--rover", "a", "--base", "b", "--base-xyz", "1,2"], "base_xyz: "),
+    (["--rover", "a", "--base", "b", "--base-xyz", "1,2"], "--base-xyz: expected three numbers"),
+    (["--rover", "a", "--base", "b", "--base-en", "700000,5900000,10"],
+     "--base-crs: --base-en E,N,H and --base-crs CODE go together"),
+    (["--rover", "a", "--base", "b", "--base-position", "nope.json"],
+     "--base-position: nope.json: no such file"),
+    (["--rover", "a", "--base", "b", "--base-llh", "53,-6,90", "--base-position", "x.json"],
+     "--base-position: give the base as one of"),
+    (["--rover", "a", "--base", "b", "--base-llh", "53,-6,90", "--base-antenna", "X NONE"],
+     "--base-antenna: goes with --antex FILE"),
 ])
 def test_what_the_rtk_command_refuses(tmp_path: Path, args: list[str], said: str) -> None:
     proc = subprocess.run([sys.executable, "-m", "groundstation.cli", "rtk", *args,
@@ -118,6 +126,47 @@ def test_what_the_rtk_command_refuses(tmp_path: Path, args: list[str], said: str
     assert proc.returncode == 2, proc.stderr
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and said in lines[0], proc.stderr
+
+
+BASE_XYZ = (4146349.2471, 612312.5498, 4791750.8505)
+
+
+@pytest.mark.parametrize("form", ["xyz", "llh", "mark+height", "en", "file"])
+def test_the_rtk_command_takes_the_base_in_every_form_solve_takes(tmp_path: Path,
+                                                                  form: str) -> None:
+    """The live engine's base is the solver's: the same point given as ECEF, latitude /
+    longitude / height, a ground mark plus the tripod's height, UTM coordinates or a
+    locate-base file gives the same ECEF (printed before the bus opens)."""
+    from groundstation.geodesy import ecef_to_llh, llh_to_ecef
+
+    lat, lon, h = ecef_to_llh(*BASE_XYZ)
+    if form == "xyz":
+        given = ["--base-xyz", ",".join(f"{v:.4f}" for v in BASE_XYZ)]
+    elif form == "llh":
+        given = ["--base-llh", f"{lat:.10f},{lon:.10f},{h:.4f}"]
+    elif form == "mark+height":
+        given = ["--base-llh", f"{lat:.10f},{lon:.10f},{h - 1.5:.4f}",
+                 "--base-antenna-height", "1.5"]
+    elif form == "en":
+        from pyproj import Transformer
+        zone = int((lon + 180) // 6) + 1
+        e, n = Transformer.from_crs("EPSG:4326", f"EPSG:{32600 + zone}",
+                                    always_xy=True).transform(lon, lat)
+        given = ["--base-en", f"{e:.4f},{n:.4f},{h:.4f}", "--base-crs", str(32600 + zone)]
+    else:
+        (tmp_path / "base.json").write_text(json.dumps(
+            {"ecef_m": list(BASE_XYZ), "sigma_enu_m": [0.01, 0.01, 0.02]}))
+        given = ["--base-position", "base.json"]
+    proc = subprocess.run([sys.executable, "-m", "groundstation.cli", "rtk", "--rover", "a",
+                           "--base", "b", *given, "--duration", "0.5",
+                           "--connect", f"tcp/127.0.0.1:{free_port()}"],
+                          cwd=tmp_path, env=cli_env(), capture_output=True, text=True,
+                          timeout=60, check=False)
+    line = next(x for x in proc.stdout.splitlines() if x.startswith("rtk: base ECEF"))
+    xyz = [float(v) for v in line.split("ECEF ")[1].split(" m,")[0].split(",")]
+    assert np.allclose(xyz, BASE_XYZ, atol=1e-3), (form, line)
+    assert proc.returncode == 1  # nothing on the bus: said, exit 1
+    assert np.allclose(llh_to_ecef(lat, lon, h), BASE_XYZ, atol=1e-6)
 
 
 def test_the_rtk_message_is_json_with_the_documented_fields() -> None:
@@ -164,8 +213,9 @@ def test_an_rtk_run_that_received_nothing_says_so_and_exits_1(tmp_path: Path) ->
                           cwd=tmp_path, env=cli_env(), capture_output=True, text=True,
                           timeout=60, check=False)
     assert proc.returncode == 1, proc.stderr
-    assert proc.stdout.strip() == ("rtk: 0 rover epochs, 0 base epochs, 0 subframes, "
-                                   "0 unreadable messages")
+    assert proc.stdout.strip().splitlines() == [
+        "rtk: base ECEF 4146349.2000, 612312.5000, 4791750.9000 m, given with --base-xyz",
+        "rtk: 0 rover epochs, 0 base epochs, 0 subframes, 0 unreadable messages"]
     assert "nothing received from the rover 'demo' and the base 'base'" in proc.stderr
 
 
