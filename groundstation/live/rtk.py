@@ -38,6 +38,9 @@ QUALITY = {1: "fix", 2: "float", 3: "dgps", 4: "dgps", 5: "single", 6: "single"}
 MIN_EPHEMERIDES = 4
 MAX_BASE_AGE_S = 30.0
 """A base epoch older than this is not used (``pos2-maxage``'s default)."""
+MIN_KEPT_LOCK = 4
+"""Satellites that must keep lock from one rover epoch to the next for the filter's state to
+carry over (a position and a clock: four unknowns); with fewer the filter restarts."""
 BASE_BUFFER = 150
 """Base epochs kept (30 s at 5 Hz): the base's stream usually arrives before the rover's."""
 
@@ -67,7 +70,11 @@ class LiveRtk:
                  overrides: dict[str, str] | None = None) -> None:
         from groundstation.solve.engine import get_engine, resolve_options
         from groundstation.solve.engine.options import conf_text
+        from groundstation.solve.integrity.grade import FIXED_MAX_SIGMA_M
 
+        self.fixed_max_sigma_m = FIXED_MAX_SIGMA_M
+        """An integer solution looser than this on any axis is called ``float``, as after the
+        flight (a fixed position promises 10 cm at 3 sigma)."""
         self._p = p = _rtklib()
         opts, _ = resolve_options(get_engine("demo5"), base_ecef_m, None, overrides or {})
         with tempfile.TemporaryDirectory(prefix="gs-rtk-") as tmp:
@@ -92,6 +99,9 @@ class LiveRtk:
         """`` station NAME`` for the messages, when the base is a station on the bus."""
         self._obs = p.Arr1Dobsd_t(2 * p.MAXOBS)
         self.solved = 0
+        self.restarts = 0
+        self._locked: frozenset[int] = frozenset()
+        """The GPS satellites with a carrier phase in the last rover epoch solved."""
 
     # -- inputs --------------------------------------------------------------------------------
 
@@ -137,6 +147,7 @@ class LiveRtk:
                if len(self._known) < MIN_EPHEMERIDES else "")
         if why or base is None:
             return LiveSolution(t, "none", 0.0, 0, age, None, None, why)
+        why = self._restart_if_unconnected(epoch)
         n = self._fill(epoch, 1, 0)
         n = self._fill(base, 2, n)
         p = self._p
@@ -149,8 +160,40 @@ class LiveRtk:
                                 "no solution: too few satellites in common with the base, or "
                                 "the base position is wrong (kilometres off?)")
         xyz = (float(sol.rr[0]), float(sol.rr[1]), float(sol.rr[2]))
-        return LiveSolution(t, QUALITY.get(stat, "single"), float(sol.ratio), int(sol.ns), age,
-                            xyz, _sd_enu(xyz, [float(sol.qr[i]) for i in range(6)]))
+        sd = _sd_enu(xyz, [float(sol.qr[i]) for i in range(6)])
+        quality = QUALITY.get(stat, "single")
+        if quality == "fix" and sd is not None and max(sd) > self.fixed_max_sigma_m:
+            quality, why = "float", (
+                f"integer solution with a sigma of {max(sd) * 100:.1f} cm: not called fixed "
+                f"(over {self.fixed_max_sigma_m * 100:.1f} cm, the post-flight rule)")
+        return LiveSolution(t, quality, float(sol.ratio), int(sol.ns), age, xyz, sd, why)
+
+    def _restart_if_unconnected(self, epoch: RawEpoch) -> str:
+        """Restart the filter from the single-point position when fewer than
+        :data:`MIN_KEPT_LOCK` satellites kept lock since the last epoch solved (a bridge, a
+        canopy, the whole sky lost): no carrier phase then connects the filter's state to this
+        epoch. Its ambiguities are all void, and the position and velocity it carried across
+        the outage rest on the dynamic model alone (process noise of a fraction of a m/s²,
+        where a multicopter accelerates by metres per s²): kept, they bias the new float
+        solution by metres under a sigma of decimetres, and fix-and-hold then holds a wrong
+        fix (measured: docs/live-rtk.md). Returns the reason said with the epoch, or ``""``."""
+        now = frozenset(s.sv for s in epoch.sats
+                        if s.gnss == GNSS_GPS and s.cp_valid and _finite(s))
+        kept = {s.sv for s in epoch.sats if s.sv in self._locked and s.gnss == GNSS_GPS
+                and s.cp_valid and not s.lli & 1}
+        if len(now) < MIN_KEPT_LOCK:
+            return ""
+        restart = bool(self._locked) and len(kept) < MIN_KEPT_LOCK
+        self._locked = now
+        if not restart:
+            return ""
+        p = self._p
+        p.rtkfree(self.rtk)
+        self.rtk = p.rtk_t()
+        p.rtkinit(self.rtk, self._popt)
+        self.restarts += 1
+        return (f"filter restarted: {len(kept)} satellites kept lock since the last epoch "
+                f"({MIN_KEPT_LOCK} needed to carry its state)")
 
     # -- RTKLIB's structures -------------------------------------------------------------------
 

@@ -103,6 +103,19 @@ class ShadowModel:
 
 
 @dataclass(frozen=True, slots=True)
+class Blockage:
+    """The sky hidden from the antenna for a while: a bridge, a tree canopy, a building the
+    copter flies past. Every satellite lower than ``below_elevation_deg`` (90: all of them) is
+    lost from ``start_s`` (seconds since the first epoch) for ``duration_s``; each is
+    reacquired afterwards with a new ambiguity (a loss of lock, LLI bit 0).
+    """
+
+    start_s: float
+    duration_s: float
+    below_elevation_deg: float = 90.0
+
+
+@dataclass(frozen=True, slots=True)
 class ReceiverConfig:
     """One receiver's characteristics.
 
@@ -120,6 +133,7 @@ class ReceiverConfig:
         squaring: the carrier-loop model.
         flight_losses: frequent in-flight losses of lock (replaces the squaring model's slips).
         shadow: airframe shadowing in turns.
+        blockages: spells of a hidden sky (:class:`Blockage`).
     """
 
     name: str
@@ -135,6 +149,7 @@ class ReceiverConfig:
     squaring: SquaringModel = field(default_factory=SquaringModel)
     flight_losses: FlightLossModel | None = None
     shadow: ShadowModel | None = None
+    blockages: tuple[Blockage, ...] = ()
 
 
 @dataclass(frozen=True, slots=True)
@@ -325,9 +340,10 @@ def observe(
         slip = np.zeros(n_epochs, dtype=bool)
         track = np.zeros(n_epochs, dtype=bool)
         acq_epochs = int(round(sq.acquisition_s / dt_s))
-        for a, b in _runs(visible & ~shadowed):
+        hidden = shadowed | _blocked(config.blockages, t_rel_s, elev)
+        for a, b in _runs(visible & ~hidden):
             # Back from a shadow the receiver reacquires at once (it still has the satellite).
-            back = a > 0 and bool(shadowed[a - 1])
+            back = a > 0 and bool(hidden[a - 1])
             a = a + acq_epochs if a > 0 and not back else a
             if a >= b:
                 continue
@@ -456,6 +472,16 @@ def _shadowed(
         away = np.abs((azim - turn.away_azimuth_deg + 180.0) % 360.0 - 180.0)
         during = (t_s >= turn.t_s) & (t_s < turn.t_s + model.duration_s)
         out |= during & low & (away <= model.half_width_deg)
+    return out
+
+
+def _blocked(blockages: Sequence[Blockage], t_s: FloatArray, elev: FloatArray,
+             ) -> NDArray[np.bool_]:
+    """Epochs at which a blockage hides this satellite."""
+    out = np.zeros(t_s.shape, dtype=bool)
+    for b in blockages:
+        out |= (t_s >= b.start_s) & (t_s < b.start_s + b.duration_s) & (
+            elev < b.below_elevation_deg)
     return out
 
 
