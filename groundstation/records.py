@@ -486,8 +486,8 @@ class LiveSolution:
     ecef_m: tuple[float, float, float] | None
     sd_enu_m: tuple[float, float, float] | None
     why: str = ""
-    """Why there is no position (quality ``none``), or why an integer solution is not called
-    fixed (quality ``float``: its sigma)."""
+    """Why there is no position (quality ``none``), why an integer solution is not called
+    fixed (quality ``float``: its sigma), or that the filter restarted (the sky was lost)."""
     rx_host_ns: int = 0
     """When the rover epoch's frame was received (host UNIX ns; 0: not known here), so that a
     reader can tell how late the position comes."""

@@ -64,10 +64,12 @@ class LiveRtk:
     Args:
         base_ecef_m: the base antenna's position (as ``solve`` takes it).
         overrides: engine options over the defaults (RTKLIB keys, checked).
+        restart: restart the filter when the sky was lost (:meth:`_restart_if_unconnected`;
+            off only to measure what it changes, ``benchmarks/bench_live_accuracy.py``).
     """
 
     def __init__(self, base_ecef_m: tuple[float, float, float],
-                 overrides: dict[str, str] | None = None) -> None:
+                 overrides: dict[str, str] | None = None, *, restart: bool = True) -> None:
         from groundstation.solve.engine import get_engine, resolve_options
         from groundstation.solve.engine.options import conf_text
         from groundstation.solve.integrity.grade import FIXED_MAX_SIGMA_M
@@ -100,8 +102,10 @@ class LiveRtk:
         self._obs = p.Arr1Dobsd_t(2 * p.MAXOBS)
         self.solved = 0
         self.restarts = 0
-        self._locked: frozenset[int] = frozenset()
-        """The GPS satellites with a carrier phase in the last rover epoch solved."""
+        self.restart = restart
+        self._previous: frozenset[int] = frozenset()
+        """The GPS satellites with a carrier phase in the previous rover epoch (an epoch of the
+        outage itself, with none, counts: a satellite absent from it did not keep lock)."""
 
     # -- inputs --------------------------------------------------------------------------------
 
@@ -170,7 +174,7 @@ class LiveRtk:
 
     def _restart_if_unconnected(self, epoch: RawEpoch) -> str:
         """Restart the filter from the single-point position when fewer than
-        :data:`MIN_KEPT_LOCK` satellites kept lock since the last epoch solved (a bridge, a
+        :data:`MIN_KEPT_LOCK` satellites kept lock since the previous epoch (a bridge, a
         canopy, the whole sky lost): no carrier phase then connects the filter's state to this
         epoch. Its ambiguities are all void, and the position and velocity it carried across
         the outage rest on the dynamic model alone (process noise of a fraction of a m/s²,
@@ -179,13 +183,11 @@ class LiveRtk:
         fix (measured: docs/live-rtk.md). Returns the reason said with the epoch, or ``""``."""
         now = frozenset(s.sv for s in epoch.sats
                         if s.gnss == GNSS_GPS and s.cp_valid and _finite(s))
-        kept = {s.sv for s in epoch.sats if s.sv in self._locked and s.gnss == GNSS_GPS
-                and s.cp_valid and not s.lli & 1}
-        if len(now) < MIN_KEPT_LOCK:
-            return ""
-        restart = bool(self._locked) and len(kept) < MIN_KEPT_LOCK
-        self._locked = now
-        if not restart:
+        kept = {s.sv for s in epoch.sats if s.sv in self._previous and s.gnss == GNSS_GPS
+                and s.cp_valid and _finite(s) and not s.lli & 1}
+        self._previous = now
+        if not self.restart or self.solved == 0 or len(now) < MIN_KEPT_LOCK or len(
+                kept) >= MIN_KEPT_LOCK:
             return ""
         p = self._p
         p.rtkfree(self.rtk)
@@ -301,9 +303,9 @@ class BaseFeed:
 
 
 def solve_recorded(rover: bytes, base: bytes, base_ecef_m: tuple[float, float, float],
-                   ) -> list[LiveSolution]:
+                   *, restart: bool = True) -> list[LiveSolution]:
     """Two recorded streams solved epoch by epoch as the live engine would have solved them."""
-    engine = LiveRtk(base_ecef_m)
+    engine = LiveRtk(base_ecef_m, restart=restart)
     base_items = measurements(base)
     feed = BaseFeed(engine, base_items)
     week = next((b.gps_week for b in base_items if isinstance(b, RawEpoch)), 0)
