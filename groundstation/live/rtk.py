@@ -11,7 +11,11 @@ Each rover epoch is solved with the latest base epoch not after it (the base is 
 older one serves, its age is reported as ``age_s``); a rover epoch before any base epoch, or
 before four ephemerides are known, is reported with quality ``none``. Measurements carry the
 phase rule's loss-of-lock bits (:mod:`groundstation.rules.phase`): a slip resets the
-satellite's ambiguity in the filter, as in post-processing.
+satellite's ambiguity in the filter, as in post-processing. After a radio gap the post-flight
+conditioning's gap test flags the slips the gap hid; when fewer than four satellites kept lock
+the filter restarts. An integer solution is published as ``fix`` only under the post-flight
+sigma rule (every axis at most 3.3 cm), else ``float`` with the reason in ``why``
+(docs/live-rtk.md).
 """
 
 from __future__ import annotations
@@ -22,12 +26,18 @@ import tempfile
 from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
 
 from groundstation import gpstime
 from groundstation.gnss import lnav
 from groundstation.gnss.ephemeris import BroadcastEphemeris
 from groundstation.records import LiveSolution, RawEpoch, SatObs, Subframe, TimeMark
+from groundstation.rules.phase import LLI_SLIP
+
+if TYPE_CHECKING:
+    from groundstation.offline.rinex.observations import ObsSet
 
 GNSS_GPS = 0
 """u-blox gnssId of GPS (the LEA-6T tracks GPS only)."""
@@ -38,6 +48,9 @@ QUALITY = {1: "fix", 2: "float", 3: "dgps", 4: "dgps", 5: "single", 6: "single"}
 MIN_EPHEMERIDES = 4
 MAX_BASE_AGE_S = 30.0
 """A base epoch older than this is not used (``pos2-maxage``'s default)."""
+GAP_CONTEXT = 8
+"""Rover epochs kept before a radio gap for the gap check (the conditioning needs a few to know
+the epoch interval)."""
 MIN_KEPT_LOCK = 4
 """Satellites that must keep lock from one rover epoch to the next for the filter's state to
 carry over (a position and a clock: four unknowns); with fewer the filter restarts."""
@@ -103,6 +116,11 @@ class LiveRtk:
         self.solved = 0
         self.restarts = 0
         self.restart = restart
+        self._recent: deque[RawEpoch] = deque(maxlen=GAP_CONTEXT)
+        """The last rover epochs received, the context of the gap check."""
+        self._ephemerides: dict[int, BroadcastEphemeris] = {}
+        self.gaps_checked = 0
+        self.gap_slips = 0
         self._previous: frozenset[int] = frozenset()
         """The GPS satellites with a carrier phase in the previous rover epoch (an epoch of the
         outage itself, with none, counts: a satellite absent from it did not keep lock)."""
@@ -151,6 +169,7 @@ class LiveRtk:
                if len(self._known) < MIN_EPHEMERIDES else "")
         if why or base is None:
             return LiveSolution(t, "none", 0.0, 0, age, None, None, why)
+        epoch = self._flag_gap_slips(epoch)
         why = self._restart_if_unconnected(epoch)
         n = self._fill(epoch, 1, 0)
         n = self._fill(base, 2, n)
@@ -171,6 +190,47 @@ class LiveRtk:
                 f"integer solution with a sigma of {max(sd) * 100:.1f} cm: not called fixed "
                 f"(over {self.fixed_max_sigma_m * 100:.1f} cm, the post-flight rule)")
         return LiveSolution(t, quality, float(sol.ratio), int(sol.ns), age, xyz, sd, why)
+
+    def _flag_gap_slips(self, epoch: RawEpoch) -> RawEpoch:
+        """The epoch with LLI bit 0 set on every satellite whose phase the post-flight
+        conditioning (:func:`groundstation.solve.conditioning.condition`, on the last
+        :data:`GAP_CONTEXT` epochs and this one) does not find continuous across a radio gap
+        before it.
+
+        RXM-RAW has no lock time: a slip's LLI travels in the epoch after it, and when the radio
+        drops that epoch the slip is invisible; the filter would carry the ambiguity across it
+        (measured: docs/live-rtk.md). A jump the conditioning would repair is flagged too: the
+        live filter starts that ambiguity again rather than taking a phase correction it cannot
+        see confirmed by later epochs."""
+        from groundstation.solve import conditioning
+
+        recent = list(self._recent)
+        self._recent.append(epoch)
+        if len(recent) < 3 or self.solved == 0:
+            return epoch
+        times = np.array([e.t_gps_ns for e in recent], dtype=np.int64)
+        step = conditioning.STEP_INTERVALS * float(np.median(np.diff(times)))
+        rr = self.rtk.sol.rr
+        if epoch.t_gps_ns - int(times[-1]) <= step or not any(float(rr[i]) for i in range(3)):
+            return epoch
+        obs = _window_obs([*recent, epoch])
+        out, _ = conditioning.condition(obs, list(self._ephemerides.values()),
+                                        (float(rr[0]), float(rr[1]), float(rr[2])))
+        self.gaps_checked += 1
+        correction = out.cp_cyc - obs.cp_cyc
+        last = len(recent)
+        before = {int(obs.prn[k]): float(correction[k]) for k in np.flatnonzero(obs.epoch < last)}
+        slips = {int(obs.prn[k]) for k in np.flatnonzero(obs.epoch == last)
+                 if out.lli[k] & LLI_SLIP
+                 or abs(float(correction[k]) - before.get(int(obs.prn[k]), 0.0)) > 1e-9}
+        if not slips:
+            return epoch
+        self.gap_slips += len(slips)
+        sats = tuple(dataclasses.replace(s, lli=s.lli | LLI_SLIP)
+                     if s.gnss == GNSS_GPS and s.sv in slips else s for s in epoch.sats)
+        marked = dataclasses.replace(epoch, sats=sats)
+        self._recent[-1] = marked
+        return marked
 
     def _restart_if_unconnected(self, epoch: RawEpoch) -> str:
         """Restart the filter from the single-point position when fewer than
@@ -221,6 +281,7 @@ class LiveRtk:
         return k
 
     def _set_eph(self, eph: BroadcastEphemeris) -> None:
+        self._ephemerides[eph.sv] = eph
         p = self._p
         sat = p.satno(p.SYS_GPS, eph.sv)
         e = self._eph_slots[sat - 1]
@@ -250,8 +311,6 @@ def _finite(s: SatObs) -> bool:
 def _sd_enu(xyz: tuple[float, float, float], q: list[float],
             ) -> tuple[float, float, float] | None:
     """East/north/up sigmas from RTKLIB's ECEF covariance (xx, yy, zz, xy, yz, zx)."""
-    import numpy as np
-
     from groundstation.geodesy import ecef_to_llh, enu_rotation
 
     if not any(q):
@@ -262,6 +321,26 @@ def _sd_enu(xyz: tuple[float, float, float], q: list[float],
     d = np.diag(r @ c @ r.T)
     e, n, u = (float(math.sqrt(max(v, 0.0))) for v in d)
     return e, n, u
+
+
+def _window_obs(epochs: list[RawEpoch]) -> ObsSet:
+    """A few rover epochs as the conditioning's observations (GPS phases of RXM-RAW)."""
+    from groundstation.offline.rinex.observations import ObsSet
+
+    rows = [(i, s) for i, e in enumerate(epochs) for s in e.sats
+            if s.gnss == GNSS_GPS and s.cp_valid and s.pr_valid and _finite(s)]
+    n = len(rows)
+    return ObsSet(
+        t_gps_ns=np.array([e.t_gps_ns for e in epochs], dtype=np.int64),
+        leap_s=np.full(len(epochs), -1, dtype=np.int64),
+        epoch=np.array([i for i, _ in rows], dtype=np.int64),
+        sys=np.full(n, "G", dtype="<U2"), prn=np.array([s.sv for _, s in rows], dtype=np.int64),
+        code=np.full(n, "1C", dtype="<U2"),
+        pr_m=np.array([s.pseudorange_m for _, s in rows], dtype=np.float64),
+        cp_cyc=np.array([s.carrier_phase_cyc for _, s in rows], dtype=np.float64),
+        do_hz=np.array([s.doppler_hz for _, s in rows], dtype=np.float64),
+        cno_dbhz=np.array([s.cno_dbhz for _, s in rows], dtype=np.float64),
+        lli=np.array([s.lli for _, s in rows], dtype=np.int64), glo_fcn={}, source="RXM-RAW")
 
 
 # -- recorded streams ---------------------------------------------------------------------------
