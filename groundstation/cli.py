@@ -33,7 +33,7 @@ FINISH_UNREAD = frozenset({"solve", "rinex", "locate-base", "simulate"})
 (``| head``, a pager quit early), instead of stopping half-way with nothing written."""
 """Ctrl-C or SIGTERM ended a command that ends by itself (``demo``, ``replay``, the offline
 commands). For the commands that run until stopped (``run``, ``watch``, ``dashboard``,
-``solver``, ``router``) Ctrl-C is the normal end: status 0."""
+``solver``, ``router``, ``rtk``) Ctrl-C is the normal end: status 0."""
 INTERRUPTS = frozenset({"SIGINT", "SIGTERM"})
 """The pipeline's ``stopped_by`` when a signal ended it."""
 

@@ -104,9 +104,9 @@ def run(args: argparse.Namespace) -> int:
                 xyz = ",".join(f"{v:.4f}" for v in sim.truth["base"]["ecef_m"])
                 rtk = command("rtk", "--rover", info["station"], "--base", info["base_station"],
                               "--base-xyz", xyz, *(("--connect", endpoints[0]) if connect else ()))
-                print(f"demo: base station {info['base_station']} on pty {info['base_pty']} "
-                      f"(carrier-phase positions from the bus: {rtk})", file=sys.stderr,
-                      flush=True)
+                print(f"demo: base station {info['base_station']} on pty {info['base_pty']}; "
+                      f"carrier-phase positions from the bus, from another terminal:\n  {rtk}",
+                      file=sys.stderr, flush=True)
         print("demo: Ctrl-C stops it early (files closed cleanly; exit status 130)",
               file=sys.stderr, flush=True)
 

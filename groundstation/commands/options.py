@@ -99,7 +99,8 @@ def add_base_position(parser: argparse.ArgumentParser, *, without: str,
                         "the geoid grid")
     parser.add_argument("--base-position", metavar="FILE",
                         help="the base position (and its sigma) from groundstation locate-base "
-                        "--out, or an NRCan CSRS-PPP summary (.sum: its ITRF/IGS position)")
+                        "--out (JSON: ecef_m [x, y, z], optional sigma_enu_m [e, n, u], metres), "
+                        "or an NRCan CSRS-PPP summary (.sum: its ITRF/IGS position)")
     parser.add_argument("--base-antenna", metavar="TYPE",
                         help="the base antenna's type as ANTEX spells it, radome after a space "
                         f"(e.g. 'TRM55971.00 NONE'{antenna_default}): with --antex "

@@ -4,8 +4,9 @@ base station's measurements on the bus (``.../obs``), published on ``.../rtk``."
 from __future__ import annotations
 
 import argparse
-import contextlib
+import signal
 import sys
+import threading
 
 from groundstation.commands.options import add_base_position, add_config, add_zenoh_client, layer
 from groundstation.config import RTK, resolve, zenoh_settings
@@ -24,12 +25,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                       "solve takes them)")
     add_zenoh_client(parser)
     parser.add_argument("--duration", type=float, metavar="S",
-                        help="stop after S seconds (default: Ctrl-C)")
+                        help="stop after S seconds (default, or 0: until Ctrl-C or SIGTERM, "
+                        "the normal end, status 0; the first fix takes a minute or more from a "
+                        "cold start: ephemerides 20-40 s, then the ambiguities)")
 
 
 def run(args: argparse.Namespace) -> int:
     from groundstation.commands.options import base_from, base_options
-    from groundstation.live.rtk import RtkRun, run_rtk
+    from groundstation.live.rtk import run_rtk
 
     values = resolve(RTK, args.config, overrides=layer(args, {
         "rover": "rover", "base": "base", "duration": "duration_s"}) | base_options(args)).values
@@ -45,10 +48,11 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError("--base-xyz", "give the base's position (--base-xyz X,Y,Z, --base-llh "
                           "LAT,LON,H, --base-en E,N,H with --base-crs, or --base-position FILE)")
     print(f"rtk: base ECEF {xyz[0]:.4f}, {xyz[1]:.4f}, {xyz[2]:.4f} m, {given}", flush=True)
-    done = RtkRun()
-    with contextlib.suppress(KeyboardInterrupt):
-        done = run_rtk(top["rover"], top["base"], xyz, zenoh_settings(values["zenoh"]),
-                       duration_s=float(top.get("duration_s", 0.0)))
+    stop = threading.Event()  # Ctrl-C and SIGTERM are the normal end: the summary follows
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+    done = run_rtk(top["rover"], top["base"], xyz, zenoh_settings(values["zenoh"]),
+                   duration_s=float(top.get("duration_s", 0.0)), stop=stop.is_set)
     counts = ", ".join(f"{k} {v}" for k, v in sorted((done.by_quality or {}).items()))
     print(f"rtk: {done.rover_epochs} rover epochs, {done.base_epochs} base epochs, "
           f"{done.subframes} subframes, {done.bad_messages} unreadable messages"

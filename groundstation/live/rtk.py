@@ -165,7 +165,7 @@ class LiveRtk:
                "the base's epochs are all later than this one" if base is None else
                f"the base's latest epoch is {age:.0f} s old" if age is not None
                and age > MAX_BASE_AGE_S else
-               f"ephemerides of {len(self._known)} satellites (4 needed)"
+               f"ephemerides of {len(self._known)} satellites, 4 needed"
                if len(self._known) < MIN_EPHEMERIDES else "")
         if why or base is None:
             return LiveSolution(t, "none", 0.0, 0, age, None, None, why)

@@ -269,7 +269,9 @@ def rtk_line(msg: dict[str, Any], recent: list[str]) -> Text:
     else:
         age = msg.get("age_s")
         ratio = float(msg.get("ratio") or 0)
-        held = "  held" if ratio >= 999 else f"  ratio {ratio:.1f}"  # fix-and-hold: 999.9
+        # fix-and-hold says 999.9; 0: no ambiguity resolution tried at this epoch
+        held = ("  ambiguities held" if ratio >= 999 else f"  ratio {ratio:.1f}" if ratio > 0
+                else "")
         line.append(f"{held}  sats {msg.get('sats')}"
                     + (f"  base age {age:.1f} s" if isinstance(age, (int, float)) else ""))
         sd = msg.get("sd_enu_m")

@@ -101,6 +101,12 @@ def test_the_rtk_command_solves_from_the_bus(flight: SimResult, tmp_path: Path) 
     assert len(fix["ecef_m"]) == 3 and fix["sats"] >= 5 and fix["age_s"] is not None
     out = (tmp_path / "rtk" / "stdout.txt").read_text()
     assert " fix " in out and "σ e/n/u" in out
+    # SIGTERM (CliProc.stop) is the normal end: status 0 and the run's counts, not "nothing
+    # received" (it printed that and exited 1 when stopped by a signal)
+    assert rtk.proc.returncode == 0, rtk.stderr()
+    summary = out.strip().splitlines()[-1]
+    assert summary.startswith("rtk: ") and " 0 rover epochs" not in summary, summary
+    assert "fix " in summary.split("positions: ")[1], summary
 
 
 @pytest.mark.parametrize(("args", "said"), [

@@ -62,6 +62,10 @@ def test_the_line_in_watch() -> None:
     assert "(no base epoch yet)" in none
     lost = rtk_line({**_sol(2, "float").message(), "alert": "fix_lost"}, ["float"]).plain
     assert "FIX LOST while photos are taken" in lost
+    held = rtk_line({**fixed, "ratio": 999.9}, ["fix"]).plain
+    assert "ambiguities held  sats 8" in held  # fix-and-hold's 999.9, said in words
+    untried = rtk_line({**_sol(3, "float").message(), "ratio": 0.0}, ["float"]).plain
+    assert "ratio" not in untried and "  sats 8" in untried  # no "ratio 0.0" on a float
 
 
 def test_the_message_is_checked() -> None:

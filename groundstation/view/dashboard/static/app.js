@@ -543,7 +543,8 @@ function renderRtk(r) {
   if (m.quality === "none") parts.push(m.why || "no position");
   else {
     // fix-and-hold reports its held ambiguities with ratio 999.9
-    parts.push((m.ratio >= 999 ? "held" : "ratio " + num(m.ratio, 1)) + ", " + m.sats + " sats");
+    // 0: no ambiguity resolution tried at this epoch (a float)
+    parts.push((m.ratio >= 999 ? "ambiguities held, " : m.ratio > 0 ? "ratio " + num(m.ratio, 1) + ", " : "") + m.sats + " sats");
     if (typeof m.age_s === "number") parts.push("base age " + num(m.age_s, 1) + " s");
     if (m.sd_enu_m) parts.push("σ " + m.sd_enu_m.map(v => num(v * 100, 1)).join("/") + " cm");
   }
