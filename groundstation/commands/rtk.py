@@ -34,8 +34,15 @@ def run(args: argparse.Namespace) -> int:
     from groundstation.commands.options import base_from, base_options
     from groundstation.live.rtk import run_rtk
 
-    values = resolve(RTK, args.config, overrides=layer(args, {
-        "rover": "rover", "base": "base", "duration": "duration_s"}) | base_options(args)).values
+    options = {"rover": "rover", "base": "base", "duration": "duration_s"}
+    try:
+        values = resolve(RTK, args.config, overrides=layer(args, options)
+                         | base_options(args)).values
+    except ConfigError as err:  # typed on the command line: name the option, not the key
+        typed = {key: "--" + opt for opt, key in options.items()}
+        if err.key in typed and err.message.endswith("(command line)"):
+            raise ConfigError(typed[err.key], err.message.removesuffix(" (command line)")) from err
+        raise
     top = values[""]
     for name in ("rover", "base"):
         if not top.get(name):

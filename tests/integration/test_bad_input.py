@@ -292,7 +292,9 @@ CASES: list[Case] = [
     c("watch-endpoint", "watch --zenoh-connect nowhere", 2, "zenoh.connect"),
     # -- rtk: the live engine ---------------------------------------------------------------------
     c("rtk-rover-name", ("rtk", "--rover", "a/b", "--base", "b", "--base-xyz",
-                         "4146349.2,612312.5,4791750.9"), 2, BAD_STATION),
+                         "4146349.2,612312.5,4791750.9"), 2, "--rover: 'a/b' is not a station"),
+    c("rtk-negative-duration", "rtk --rover a --base b --base-xyz 4146349.2,612312.5,4791750.9 "
+      "--duration -5", 2, "--duration: must be >= 0"),
     c("rtk-no-base-position", "rtk --rover a --base b", 2, "--base-xyz: give the base's position"),
     c("rtk-endpoint", "rtk --rover a --base b --base-xyz 4146349.2,612312.5,4791750.9 "
       "--zenoh-connect nowhere", 2, "zenoh.connect"),
