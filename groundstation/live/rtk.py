@@ -621,7 +621,9 @@ def _line(s: LiveSolution) -> str:
     """One printed line: time, quality, ratio, satellites, base age, position and sigma."""
     when = gpstime.gps_as_datetime(s.t_gps_ns).strftime("%H:%M:%S.%f")[:-5]
     age = "-" if s.age_s is None else f"{s.age_s:.1f} s"
-    head = f"{when} GPS  {s.quality:<6} ratio {s.ratio:5.1f}  sats {s.sats:2d}  base age {age}"
+    # fix-and-hold's 999.9 is "held" (its ambiguities held); 0: no resolution tried
+    ratio = "held" if s.ratio >= 999 else "-" if s.ratio <= 0 else f"{s.ratio:.1f}"
+    head = f"{when} GPS  {s.quality:<6} ratio {ratio:>5}  sats {s.sats:2d}  base age {age}"
     if s.ecef_m is None:
         return f"{head}  ({s.why})" if s.why else head
     from groundstation.geodesy import ecef_to_llh

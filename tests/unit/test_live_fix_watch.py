@@ -8,6 +8,8 @@ why there is none, the alert. ``messages.check``: the ``rtk`` fields in range, t
 
 from __future__ import annotations
 
+import dataclasses
+
 import pytest
 
 from groundstation import events, messages
@@ -106,3 +108,13 @@ def test_the_dashboard_draws_the_live_track_and_the_marks_on_it() -> None:
     assert panel["track"][-1] == pytest.approx([49.0, 24.5, "fix"], abs=0.01)
     assert panel["marks"] == [pytest.approx([5.0, 2.5, "float"], abs=0.01),
                               pytest.approx([45.0, 22.5, "fix"], abs=0.01)]
+
+
+def test_the_line_rtk_prints_says_held_and_no_ratio_in_words() -> None:
+    from groundstation.live.rtk import _line
+
+    held = _line(dataclasses.replace(_sol(1, "fix"), ratio=999.9))
+    assert " fix    ratio  held  sats  8" in held  # fix-and-hold's 999.9
+    untried = _line(dataclasses.replace(_sol(2, "float"), ratio=0.0))
+    assert " float  ratio     -  sats  8" in untried  # no "ratio 0.0"
+    assert "ratio   5.0" in _line(_sol(3, "fix"))
