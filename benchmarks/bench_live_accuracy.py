@@ -31,8 +31,8 @@ from typing import Any
 
 import numpy as np
 
-from groundstation.live.rtk import FixWatch, solve_recorded
-from groundstation.records import LiveSolution, TimeMark
+from groundstation.live.rtk import FixWatch, mark_times, solve_recorded
+from groundstation.records import LiveSolution
 from groundstation.sim.faults import FaultConfig
 from groundstation.sim.profiles import DEFAULT_FAULTS, sim_config
 from groundstation.sim.receiver import Blockage
@@ -40,18 +40,6 @@ from groundstation.sim.stream import SimConfig, SimResult, simulate
 from groundstation.solve.integrity.grade import FIXED
 from groundstation.solve.pipeline import solve
 from groundstation.solve.settings import SolveSettings
-from groundstation.ubx.decode import Decoder
-from groundstation.ubx.framer import UbxFramer
-
-
-def _marks(data: bytes) -> list[int]:
-    framer, decoder = UbxFramer(), Decoder()
-    out = []
-    for frame in framer.feed(data, 0) + framer.flush(0):
-        rec = decoder.decode(frame)
-        if isinstance(rec, TimeMark) and rec.falling_t_gps_ns:
-            out.append(rec.falling_t_gps_ns)
-    return out
 
 
 def _post(sim: SimResult, base_xyz: tuple[float, float, float]) -> Any:
@@ -91,7 +79,7 @@ def measure(sim: SimResult, post: Any, live: list[LiveSolution]) -> dict[str, fl
         elif s.quality == "float" and s.sd_enu_m:
             floats += 1
             beyond += err(s.t_gps_ns, s.ecef_m) > 3 * max(s.sd_enu_m)
-    marks, watch, alerts, k = _marks(sim.rover_bytes), FixWatch(), 0, 0
+    marks, watch, alerts, k = mark_times(sim.rover_bytes), FixWatch(), 0, 0
     for s in live:
         while k < len(marks) and marks[k] <= s.t_gps_ns:
             watch.mark(marks[k])

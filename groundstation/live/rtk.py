@@ -349,16 +349,22 @@ def _window_obs(epochs: list[RawEpoch]) -> ObsSet:
 def measurements(data: bytes) -> list[RawEpoch | Subframe]:
     """A receiver's stream decoded as its daemon decodes it: the epochs and subframes, in
     stream order (the base's stream for :class:`LiveRtkSink`, recordings replayed live)."""
+    return [r for r in _decoded(data) if isinstance(r, (RawEpoch, Subframe))]
+
+
+def mark_times(data: bytes) -> list[int]:
+    """The exposures' times (GPS ns, falling edge) of the time marks in a rover's stream, as
+    :class:`FixWatch` takes them."""
+    return [r.falling_t_gps_ns for r in _decoded(data)
+            if isinstance(r, TimeMark) and r.falling_t_gps_ns]
+
+
+def _decoded(data: bytes) -> list[Any]:
     from groundstation.ubx.decode import Decoder
     from groundstation.ubx.framer import UbxFramer
 
     framer, decoder = UbxFramer(), Decoder()
-    out: list[RawEpoch | Subframe] = []
-    for frame in framer.feed(data, 0) + framer.flush(0):
-        rec = decoder.decode(frame)
-        if isinstance(rec, (RawEpoch, Subframe)):
-            out.append(rec)
-    return out
+    return [decoder.decode(frame) for frame in framer.feed(data, 0) + framer.flush(0)]
 
 
 class BaseFeed:

@@ -21,8 +21,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from groundstation.live.rtk import FixWatch, solve_recorded
-from groundstation.records import TimeMark
+from groundstation.live.rtk import FixWatch, mark_times, solve_recorded
 from groundstation.sim.faults import FaultConfig
 from groundstation.sim.profiles import DEFAULT_FAULTS, sim_config
 from groundstation.sim.receiver import Blockage
@@ -30,8 +29,6 @@ from groundstation.sim.stream import SimResult, simulate
 from groundstation.solve.integrity.grade import FIXED
 from groundstation.solve.pipeline import solve
 from groundstation.solve.settings import SolveSettings
-from groundstation.ubx.decode import Decoder
-from groundstation.ubx.framer import UbxFramer
 
 pytestmark = pytest.mark.xdist_group("test_live_blockage")
 
@@ -45,16 +42,6 @@ def _flight(seed: int) -> SimResult:
     blockages = (Blockage(FIRST_S, LOST_S), Blockage(FIRST_S + LOST_S + BETWEEN_S, LOST_S))
     return simulate(dataclasses.replace(cfg, rover=dataclasses.replace(
         cfg.rover, blockages=blockages)))
-
-
-def _marks(data: bytes) -> list[int]:
-    framer, decoder = UbxFramer(), Decoder()
-    out = []
-    for frame in framer.feed(data, 0) + framer.flush(0):
-        rec = decoder.decode(frame)
-        if isinstance(rec, TimeMark) and rec.falling_t_gps_ns:
-            out.append(rec.falling_t_gps_ns)
-    return out
 
 
 @pytest.mark.parametrize("seed", [41, 42])
@@ -122,7 +109,7 @@ def test_the_live_fix_drops_where_the_post_flight_solve_is_float_and_the_alert_f
 
     # The alert: raised while photos are taken, about the fix lost at the first blockage,
     # and cleared once the fix is back.
-    marks = _marks(sim.rover_bytes)
+    marks = mark_times(sim.rover_bytes)
     watch, alerts, k = FixWatch(), [], 0
     for s in live:
         while k < len(marks) and marks[k] <= s.t_gps_ns:
