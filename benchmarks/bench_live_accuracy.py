@@ -31,7 +31,7 @@ from typing import Any
 
 import numpy as np
 
-from groundstation.live.rtk import FixWatch, mark_times, solve_recorded
+from groundstation.live.rtk import mark_times, solve_recorded, watch_recorded
 from groundstation.records import LiveSolution
 from groundstation.sim.faults import FaultConfig
 from groundstation.sim.profiles import DEFAULT_FAULTS, sim_config
@@ -79,13 +79,8 @@ def measure(sim: SimResult, post: Any, live: list[LiveSolution]) -> dict[str, fl
         elif s.quality == "float" and s.sd_enu_m:
             floats += 1
             beyond += err(s.t_gps_ns, s.ecef_m) > 3 * max(s.sd_enu_m)
-    marks, watch, alerts, k = mark_times(sim.rover_bytes), FixWatch(), 0, 0
-    for s in live:
-        while k < len(marks) and marks[k] <= s.t_gps_ns:
-            watch.mark(marks[k])
-            k += 1
-        said = watch.update(s)
-        alerts += bool(said and said[0] == "rtk.fix_lost")
+    alerts = sum(kind == "rtk.fix_lost"
+                 for _, kind, _ in watch_recorded(live, mark_times(sim.rover_bytes)))
     return {"p95_cm": float(np.percentile(agree, 95)) * 100 if agree else float("nan"),
             "wrong": len(wrong), "worst_cm": max(wrong, default=0.0) * 100,
             "fixed_where_post_float": fixed_where_float,

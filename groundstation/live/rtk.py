@@ -452,6 +452,22 @@ class FixWatch:
         return None
 
 
+def watch_recorded(solutions: list[LiveSolution], marks: list[int],
+                   ) -> list[tuple[int, str, dict[str, Any]]]:
+    """The operator's alerts over solved epochs and the flight's mark times
+    (:func:`mark_times`), as the live :class:`FixWatch` raises and clears them:
+    ``(rover epoch, event kind, data)``."""
+    watch, out, k = FixWatch(), [], 0
+    for s in solutions:
+        while k < len(marks) and marks[k] <= s.t_gps_ns:
+            watch.mark(marks[k])
+            k += 1
+        said = watch.update(s)
+        if said is not None:
+            out.append((s.t_gps_ns, *said))
+    return out
+
+
 class LiveRtkSink:
     """A daemon's pipeline sink (the demo's): its rover epochs solved against a base stream
     known in advance (the simulator's, each base item handed over once the rover's epochs

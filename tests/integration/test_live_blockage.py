@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from groundstation.live.rtk import FixWatch, mark_times, solve_recorded
+from groundstation.live.rtk import mark_times, solve_recorded, watch_recorded
 from groundstation.sim.faults import FaultConfig
 from groundstation.sim.profiles import DEFAULT_FAULTS, sim_config
 from groundstation.sim.receiver import Blockage
@@ -110,14 +110,7 @@ def test_the_live_fix_drops_where_the_post_flight_solve_is_float_and_the_alert_f
     # The alert: raised while photos are taken, about the fix lost at the first blockage,
     # and cleared once the fix is back.
     marks = mark_times(sim.rover_bytes)
-    watch, alerts, k = FixWatch(), [], 0
-    for s in live:
-        while k < len(marks) and marks[k] <= s.t_gps_ns:
-            watch.mark(marks[k])
-            k += 1
-        said = watch.update(s)
-        if said:
-            alerts.append((s.t_gps_ns, *said))
+    alerts = watch_recorded(live, marks)
     raised = [(t, data) for t, kind, data in alerts if kind == "rtk.fix_lost"]
     assert raised, "no fix-lost alert"
     t_raised, data = raised[0]
