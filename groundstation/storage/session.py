@@ -471,9 +471,11 @@ class SessionRecorder:
             self._write(msg)  # into the new part, or held if there is none
             return
         pending = False
+        closed = self._idents
         try:
             if rotate:
                 self._close_file()
+                self._closed_pair_gone(closed, now)  # before the next part takes a name
                 self._open_file(now)
             pending = True  # _put makes it pending before anything can fail
             self._put(msg)
@@ -481,6 +483,30 @@ class SessionRecorder:
             self._fail(err)  # the pending messages go to the backlog, in order
             if not pending:  # the rotation failed
                 self._backlog.hold(msg)
+
+    def _closed_pair_gone(self, closed: list[tuple[Path, tuple[int, int]]], now: int) -> None:
+        """The pair just closed by a rotation, deleted between the check before it and its
+        close (the directory removed while the summary was written): the alert
+        :meth:`_pair_gone` would have given. Checked before the next part is opened, which
+        makes the directory again and could take the deleted part's free name (and inode),
+        so that nothing would ever look lost."""
+        gone = [path for path, ident in closed if not _still(path, ident)]
+        if not gone:
+            return
+        self._say_vanished(f"{gone[0].name} was deleted or moved", self._mark_lost(),
+                           f"continuing in a new part in {self.out_dir}", gone[0], now)
+
+    def _say_vanished(self, why: str, lost: list[Path], then: str, file: Path,
+                      now: int) -> None:
+        """Log and publish that the recording vanished (``kinds.RECORDER_VANISHED``)."""
+        names = ", ".join(p.name for p in lost) or "none"
+        text = f"the recording vanished ({why}): {len(lost)} file(s) lost ({names}); {then}"
+        log.error("%s", text)
+        self._notices.append(Event(
+            kinds.RECORDER_VANISHED, now, text, "error",
+            {"error": why, "errno": errno.ENOENT, "file": str(file),
+             "lost": [str(p) for p in lost], "out_dir": str(self.out_dir)},
+        ))
 
     def _put(self, msg: Msg) -> None:
         """Into the current pair (pending until the next successful flush)."""
@@ -643,14 +669,7 @@ class SessionRecorder:
         except OSError as e:  # the directory cannot be made again: hold and retry
             err = e
             then = f"cannot make {self.out_dir} again ({e.strerror or e}): holding the data"
-        names = ", ".join(p.name for p in lost) or "none"
-        text = f"the recording vanished ({why}): {len(lost)} file(s) lost ({names}); {then}"
-        log.error("%s", text)
-        self._notices.append(Event(
-            kinds.RECORDER_VANISHED, now, text, "error",
-            {"error": why, "errno": errno.ENOENT, "file": str(mcap.path),
-             "lost": [str(p) for p in lost], "out_dir": str(self.out_dir)},
-        ))
+        self._say_vanished(why, lost, then, mcap.path, now)
         if err is not None:  # the write-failure machine from here on
             self._failure = err
             self._failures += 1

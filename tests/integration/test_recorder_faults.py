@@ -377,6 +377,42 @@ def test_out_dir_deleted_with_rotation_on_loses_nothing_after_it(tmp_path: Path)
     assert b"".join(d for d, _ in Recording(stats.files[0]).chunks()) == got
 
 
+def test_out_dir_deleted_while_a_rotation_closes_its_part_is_alerted(tmp_path: Path) -> None:
+    """The directory removed after the check before a rotation and before the closed part's
+    summary is written: the rotation makes the directory again for the next part, and the
+    lost parts are alerted at once, not only in the session's end summary (a full suite run
+    saw the daemon rotate on without the alert)."""
+    out = tmp_path / "out"
+    clock = FakeClock()
+    rec = SessionRecorder(out, "st1", chunk_size_bytes=512, clock=clock,
+                          flush_interval_ns=10**12, rotate_size_bytes=6_000)
+    rec.open()
+    close_file = rec._close_file
+    removed: list[Path] = []
+
+    def close_after_removal() -> None:
+        if not removed:  # the first rotation: the operator's rmtree wins the race
+            removed.extend(sorted(out.iterdir()))
+            shutil.rmtree(out)
+        close_file()
+
+    rec._close_file = close_after_removal  # type: ignore[method-assign]
+    stream = generated_stream(n=2400)
+    notices: list[Event] = []
+    for i in range(0, len(stream), 97):
+        rec.write_raw(stream[i : i + 97], clock())
+        notices += rec.take_notices()
+        if removed:
+            break
+    vanished = [e for e in notices if e.kind == "recorder.vanished"]
+    assert removed and len(vanished) == 1, [e.kind for e in notices]
+    assert set(vanished[0].data["lost"]) == {str(p) for p in removed}
+    assert "was deleted or moved" in vanished[0].message
+    rec.close()
+    assert set(rec.stats.lost_files) == set(removed)
+    assert all(p.exists() for p in rec.stats.files)
+
+
 def test_a_deleted_sidecar_is_cut_from_its_mcap_without_duplicates(tmp_path: Path) -> None:
     f = Feeder(tmp_path, Disk())
     stream = generated_stream(n=1200)
