@@ -469,6 +469,76 @@ def sweep_real(work: Path, name: str, fault_seeds: list[int]) -> list[dict[str, 
     return rows
 
 
+def _graded(res: Any) -> dict[str, int]:
+    """Camera positions per grade of a ``SolveResult``."""
+    g = res.mark_positions.grade
+    return {name: int(np.sum(g == code)) for code, name in GRADE_NAMES.items()
+            if np.any(g == code)}
+
+
+def why_real(work: Path, name: str) -> None:
+    """Where a real flight's fixes go as a LEA-6T (issue 22, item 5): the camera positions
+    graded fixed on the untouched recording (GPS + GLONASS, and GPS alone) and on its LEA-6T
+    rewrite without faults; then the rewrite's epochs left at ``demoted:one-direction``: the
+    one direction's fix against the untouched recording's checked fixes (GPS + GLONASS,
+    graded ``fixed``), i.e. what promoting them would have given."""
+    from groundstation.sim.rewrite import RewriteConfig, rewrite
+    from groundstation.solve.integrity.grade import CHECK_NAMES, FIXED
+
+    day, rover, base, base_xyz = JD_SWEEP[name]
+    src = SHARED / "real" / "jdesbonnet__GNSS_RTK_data" / day
+    work.mkdir(parents=True, exist_ok=True)
+    full = _solve(src / f"{rover}.ubx.gz", src / f"{base}.ubx.gz", base_xyz, work / "full")
+    gps = _solve(src / f"{rover}.ubx.gz", src / f"{base}.ubx.gz", base_xyz, work / "gps",
+                 (("pos1-navsys", "1"),))
+    (work / "rover.ubx").write_bytes(rewrite(src / f"{rover}.ubx.gz", RewriteConfig()).data)
+    (work / "base.ubx").write_bytes(rewrite(src / f"{base}.ubx.gz", RewriteConfig()).data)
+    lea = _solve(work / "rover.ubx", work / "base.ubx", base_xyz, work / "lea")
+    print(f"{name}: camera positions per grade")
+    for label, res in (("untouched, GPS + GLONASS", full), ("untouched, GPS alone", gps),
+                       ("LEA-6T rewrite, no faults", lea)):
+        print(f"  {label}: {_graded(res)}")
+    tr = lea.trajectory
+    one = np.flatnonzero(tr.check == CHECK_NAMES.index("demoted:one-direction")) \
+        if tr.check is not None else np.zeros(0, dtype=np.int64)
+    print(f"  rewrite epochs demoted:one-direction: {one.size}; their one direction's fix "
+          "against the untouched recording (GPS + GLONASS):")
+    graded = full.trajectory
+    engine_own = read_pos(work / "full" / "rtklib" / "rover.pos")
+    for label, ref, checked in (
+            ("its checked fixes", graded, graded.grade == FIXED),
+            ("the engine's own fixes (the sweep's reference)", engine_own,
+             engine_own.quality == Q_FIX)):
+        print(f"   {label}:")
+        _one_direction_errors(work / "lea", tr.t_gps_ns[one], ref, checked)
+
+
+def _nearest(times: npt.NDArray[np.int64], t: npt.NDArray[np.int64]
+             ) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.bool_]]:
+    """Index of the epoch of ``times`` nearest each of ``t``, and whether it is within 50 ms
+    (the .pos files' times are rounded to the microsecond)."""
+    k = np.clip(np.searchsorted(times, t), 1, max(times.size - 1, 1))
+    k = np.where(np.abs(times[k - 1] - t) <= np.abs(times[k] - t), k - 1, k)
+    return k, np.abs(times[k] - t) < 50_000_000
+
+
+def _one_direction_errors(out: Path, t: npt.NDArray[np.int64], ref: Trajectory,
+                          checked: npt.NDArray[np.bool_]) -> None:
+    """Each direction's fixes at epochs ``t`` against ``ref`` where ``checked``."""
+    for direction in ("forward", "backward"):
+        run = read_pos(out / "rtklib" / direction / "rover.pos")
+        k, near_k = _nearest(run.t_gps_ns, t)
+        j, near_j = _nearest(ref.t_gps_ns, t)
+        use = near_k & (run.quality[k] == Q_FIX) & near_j & checked[j]
+        err = np.linalg.norm(run.ecef_m[k[use]] - ref.ecef_m[j[use]], axis=1)
+        if err.size == 0:
+            print(f"    {direction}: none to compare")
+            continue
+        print(f"    {direction}: {err.size} epochs, error min / median / max "
+              f"{err.min():.3f} / {np.median(err):.3f} / {err.max():.3f} m, > 5 cm "
+              f"{int((err > 0.05).sum())}, > 10 cm {int((err > WRONG_M).sum())}")
+
+
 def _summary(rows: list[dict[str, Any]]) -> None:
     """Minimum, median and maximum per group, as a markdown table."""
     groups: dict[str, list[dict[str, Any]]] = {}
@@ -549,8 +619,14 @@ def main() -> None:
     ap.add_argument("--real-seeds", default="1-5", help="fault seeds of the real flights, or "
                     "none")
     ap.add_argument("--out", default="", help="write every run as a JSON line here")
+    ap.add_argument("--why-real", action="store_true", help="where the real flights' fixes "
+                    "go as a LEA-6T (see why_real)")
     args = ap.parse_args()
-    if args.hour:
+    if args.why_real:
+        with tempfile.TemporaryDirectory(prefix="bench-why-") as tmp:
+            for name in JD_SWEEP:
+                why_real(Path(tmp) / name.replace(" ", "_"), name)
+    elif args.hour:
         hour(args)
     elif args.sweep:
         sweep(args)
