@@ -5,6 +5,7 @@ Run: python benchmarks/bench_ppk.py [--seed-s 1200] [--seeds 1,2,3] [--severitie
      python benchmarks/bench_ppk.py --hour [--repeat 2]
      python benchmarks/bench_ppk.py --sweep [--sweep-seeds 501-530] [--sweep-severities
          0.5,1,1.5,2] [--real-seeds 1-5] [--out FILE.jsonl]
+     python benchmarks/bench_ppk.py --why-real
 
 ``--sweep`` (issue 22): the whole ``solve`` (engine, integrity stage, marks) on many flights,
 judged at the camera positions: the seed profile's default 50-min flight at each severity for
@@ -32,6 +33,10 @@ Columns: epochs; fixed share (seed: of the in-flight epochs); wrong fixes (fixed
 lever arm: the lever arm is exact in the simulation) RMS horizontal / vertical against the
 truth's; agreement with the demo5 reference where both are fixed (p95 3D); wall time of the
 whole ``run_engine`` call (RINEX conversion, conditioning, engine).
+
+``--why-real`` (issue 22, item 5): where the real flights' fixes go as a LEA-6T (camera
+positions per grade, untouched with and without GLONASS and rewritten), and what the
+one-direction fixes the grading holds back would have given (:func:`why_real`).
 
 ``--hour``: a 1-hour seed flight (severity 1): our conditioning + the dynamics pass + demo5
 combined (forward and backward) from the UBX recordings against b34's combined mode on the RINEX
