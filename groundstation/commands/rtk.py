@@ -59,7 +59,8 @@ def run(args: argparse.Namespace) -> int:
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
     done = run_rtk(top["rover"], top["base"], xyz, zenoh_settings(values["zenoh"]),
-                   duration_s=float(top.get("duration_s", 0.0)), stop=stop.is_set)
+                   duration_s=float(top.get("duration_s", 0.0)), stop=stop.is_set,
+                   base_how=given)
     counts = ", ".join(f"{k} {v}" for k, v in sorted((done.by_quality or {}).items()))
     print(f"rtk: {done.rover_epochs} rover epochs, {done.base_epochs} base epochs, "
           f"{done.subframes} subframes, {done.bad_messages} unreadable messages"

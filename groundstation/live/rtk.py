@@ -57,6 +57,17 @@ carry over (a position and a clock: four unknowns); with fewer the filter restar
 BASE_BUFFER = 150
 """Base epochs kept (30 s at 5 Hz): the base's stream usually arrives before the rover's."""
 
+BASE_CHECK_FIXES = 10
+"""Single-point fixes of the base, one a second from its own pseudoranges, compared with the
+given base coordinates once there are this many (``solve``'s check, :func:`groundstation.solve.
+base.compare_base`: their mean is good to a few metres, where a wrong base shifts every live
+position by its error and, kilometres off, gives none)."""
+BASE_CHECK_SPACING_S = 1.0
+KLOBUCHAR_DEFAULT = ((0.1118e-07, -0.7451e-08, -0.5961e-07, 0.1192e-06),
+                     (0.1167e06, -0.2294e06, -0.1311e06, 0.1049e07))
+"""Klobuchar alpha, beta before the receivers' subframe 4 page 18 arrives (RTKLIB's default,
+the broadcast values of 2004-01-01: a mean ionosphere, good enough for a check at metres)."""
+
 
 class EngineUnavailable(RuntimeError):
     """pyrtklib5 cannot be imported (the live engine needs it)."""
@@ -110,6 +121,17 @@ class LiveRtk:
         self._known: set[int] = set()
         self._asm: lnav.EphemerisAssembler | None = None
         self._base: deque[RawEpoch] = deque(maxlen=BASE_BUFFER)
+        self.base_ecef_m = base_ecef_m
+        self.base_how = "given"
+        """How the base coordinates were given (``given with --base-llh ...``), for the check."""
+        self._base_fixes: list[tuple[float, float, float]] = []
+        self._base_fix_ns: int | None = None
+        self._iono: tuple[tuple[float, float, float, float],
+                          tuple[float, float, float, float]] | None = None
+        self.base_check = ""
+        """The given coordinates against the base's own fixes, once made (:meth:`_check_base`)."""
+        self.base_check_alert = False
+        """The check found them doubtful or far off (``solve`` would warn or refuse)."""
         self.base_name = ""
         """`` station NAME`` for the messages, when the base is a station on the bus."""
         self._obs = p.Arr1Dobsd_t(2 * p.MAXOBS)
@@ -131,6 +153,13 @@ class LiveRtk:
         """A GPS subframe from either receiver; True when it completed a new ephemeris."""
         if sf.gnss != GNSS_GPS:
             return False
+        words = sf.data_words()
+        try:
+            iono = lnav.decode_iono_utc(words) if lnav.subframe_id(words) == 4 else None
+        except lnav.LnavError:  # not a subframe (its own checks follow in the assembler)
+            iono = None
+        if iono is not None:
+            self._iono = (iono.alpha, iono.beta)
         if self._asm is None:
             self._asm = lnav.EphemerisAssembler(week_hint)
         eph = self._asm.add(sf.sv, sf.data_words())
@@ -148,6 +177,74 @@ class LiveRtk:
         if self._base and epoch.t_gps_ns <= self._base[-1].t_gps_ns:
             self._base.clear()  # the base restarted, or its clock stepped back
         self._base.append(epoch)
+        if not self.base_check:
+            self._check_base(epoch)
+
+    def _check_base(self, epoch: RawEpoch) -> None:
+        """A single-point fix of the base from ``epoch`` (one a second); with
+        :data:`BASE_CHECK_FIXES` of them, the given base coordinates checked against their mean
+        as ``solve`` checks them against the base receiver's own fixes (``base_check``,
+        ``base_check_alert``)."""
+        from groundstation.errors import ConfigError
+        from groundstation.solve.base import compare_base
+
+        last = self._base_fix_ns
+        if last is not None and epoch.t_gps_ns - last < BASE_CHECK_SPACING_S * 1e9:
+            return
+        gps = [s for s in epoch.sats if s.gnss == GNSS_GPS and s.pseudorange_m > 0
+               and s.sv in self._ephemerides]
+        if len(gps) < 5:
+            return
+        x = self._single_point(epoch.t_gps_ns, epoch.tow_ns, gps)
+        if x is None:
+            return
+        self._base_fix_ns = epoch.t_gps_ns
+        self._base_fixes.append((float(x[0]), float(x[1]), float(x[2])))
+        if len(self._base_fixes) < BASE_CHECK_FIXES:
+            return
+        try:
+            text, doubtful = compare_base(
+                self._base_fixes, self.base_ecef_m, self.base_how,
+                "{n} single-point fixes from the base's own pseudoranges")
+        except ConfigError as err:  # solve would refuse them: live, the operator is told
+            text, doubtful = f"{err.key}: {err.message}", True
+        self.base_check, self.base_check_alert = text, doubtful
+
+    def _single_point(self, t_gps_ns: int, tow_ns: int, sats: list[SatObs],
+                      ) -> tuple[float, float, float] | None:
+        """A receiver's single-point position from its GPS pseudoranges, corrected for the
+        troposphere (Saastamoinen) and the ionosphere (the broadcast Klobuchar model, from
+        subframe 4 page 18 once received; RTKLIB's default coefficients before): the
+        ionosphere alone moves an uncorrected fix by tens of metres."""
+        from groundstation.geodesy import azimuth_elevation, ecef_to_llh
+        from groundstation.gnss.atmosphere import klobuchar_delay_m, saastamoinen_delay_m
+        from groundstation.gnss.geometry import SatGeometry
+
+        t = np.array([t_gps_ns], dtype=np.int64)
+        svs = [s.sv for s in sats]
+        ephs = [self._ephemerides[s.sv] for s in sats]
+        pr = np.array([[s.pseudorange_m for s in sats]])
+        x = SatGeometry(t, svs, pr, ephs, self.base_ecef_m).position(0)
+        for _ in range(2):  # the delays from where the fix is, then the fix again
+            if x is None:
+                return None
+            geo = SatGeometry(t, svs, pr, ephs, (float(x[0]), float(x[1]), float(x[2])))
+            lat, lon, h = ecef_to_llh(float(x[0]), float(x[1]), float(x[2]))
+            azel = [azimuth_elevation(tuple(geo.pos[0, j]), tuple(x)) if np.all(
+                np.isfinite(geo.pos[0, j])) else (0.0, -90.0) for j in range(len(sats))]
+            az = np.array([a for a, _ in azel])
+            el = np.array([e for _, e in azel])
+            alpha, beta = self._iono or KLOBUCHAR_DEFAULT
+            delay = (saastamoinen_delay_m(lat, np.full(el.shape, h), np.maximum(el, 5.0))
+                     + klobuchar_delay_m(alpha, beta, lat, lon, az, np.maximum(el, 5.0),
+                                         (tow_ns / 1e9) % 86400.0))
+            keep = el >= 5.0
+            if int(keep.sum()) < 5:
+                return None
+            x = SatGeometry(t, [sv for sv, k in zip(svs, keep, strict=True) if k],
+                            (pr - delay)[:, keep], [e for e, k in zip(ephs, keep, strict=True)
+                                                    if k], self.base_ecef_m).position(0)
+        return None if x is None else (float(x[0]), float(x[1]), float(x[2]))
 
     def _base_for(self, t_gps_ns: int) -> RawEpoch | None:
         """The latest base epoch not after ``t_gps_ns``."""
@@ -540,16 +637,20 @@ class RtkRun:
     bad_messages: int = 0
     published: int = 0
     by_quality: dict[str, int] | None = None
+    base_check: str = ""
 
 
 def run_rtk(
     rover: str, base: str, base_ecef_m: tuple[float, float, float], settings: Any,
     *, duration_s: float = 0.0, print_every_s: float = 1.0,
-    out: Any = None, stop: Any = None,
+    out: Any = None, stop: Any = None, base_how: str = "given",
 ) -> RtkRun:
     """Subscribe to both stations' ``obs``, solve every rover epoch, publish
     ``groundstation/<rover>/rtk`` (JSON, :meth:`LiveSolution.message`) and print a line a
-    second; until Ctrl-C, ``duration_s`` or ``stop()``.
+    second; until Ctrl-C, ``duration_s`` or ``stop()``. Once the base has sent
+    :data:`BASE_CHECK_FIXES` epochs, the given base coordinates (``base_how``: how they were
+    given) are checked against its own single-point fixes and the result printed, as an
+    ``ALERT`` line where ``solve`` would warn or refuse.
 
     Raises:
         EngineUnavailable: pyrtklib5 is missing.
@@ -565,6 +666,7 @@ def run_rtk(
 
     engine = LiveRtk(base_ecef_m)
     engine.base_name = f" station {base!r}"
+    engine.base_how = base_how
     inbox: queue.Queue[tuple[str, bytes]] = queue.Queue(maxsize=10_000)
     run = RtkRun(by_quality={})
     bus = open_bus(settings)
@@ -614,6 +716,14 @@ def run_rtk(
             if which == "base":
                 run.base_epochs += 1
                 engine.add_base(rec)
+                if engine.base_check and not run.base_check:
+                    run.base_check = engine.base_check
+                    out.write(("ALERT base coordinates: " if engine.base_check_alert else
+                               "rtk: base check: ") + engine.base_check
+                              + (" Every live position is off by the base's error: check the "
+                                 "coordinates (solve checks them the same way)."
+                                 if engine.base_check_alert else "") + "\n")
+                    out.flush()
                 continue
             run.rover_epochs += 1
             sol = engine.add_rover(rec)

@@ -442,8 +442,11 @@ def compare_base(
     base_fixes_ecef_m: Sequence[tuple[float, float, float]],
     base_ecef_m: tuple[float, float, float],
     how_given: str,
+    fixes_are: str = "the base receiver's own {n} fixes",
 ) -> tuple[str, bool]:
     """How the base coordinates compare with the base receiver's own fixes: (text, doubtful).
+    ``fixes_are`` names the fixes (``{n}``: how many) where they are not the receiver's (the
+    live engine's single-point fixes from the base's pseudoranges).
 
     Raises:
         ConfigError: naming ``--base-xyz``: more than :data:`BASE_REFUSED_M` away.
@@ -459,12 +462,12 @@ def compare_base(
                 "llh": " Latitude and longitude swapped?"}.get(key.rsplit("-", 1)[-1]
                                                               .removeprefix("base_"), "")
         raise ConfigError(key, (
-            f"{d / 1000:.2f} km from where the base receiver's own {len(base_fixes_ecef_m)} "
-            f"fixes put the base ({mean[0]:.1f},{mean[1]:.1f},{mean[2]:.1f}; stand-alone fixes "
+            f"{d / 1000:.2f} km from where {fixes_are.format(n=len(base_fixes_ecef_m))} "
+            f"put the base ({mean[0]:.1f},{mean[1]:.1f},{mean[2]:.1f}; stand-alone fixes "
             f"are good to a few metres): not this base's coordinates (another day's or "
             f"site's?).{hint}"))
-    text = (f"{how_given}; {d:.1f} m from the mean of the base receiver's own "
-            f"{len(base_fixes_ecef_m)} fixes (stand-alone, metre level)")
+    text = (f"{how_given}; {d:.1f} m from the mean of "
+            f"{fixes_are.format(n=len(base_fixes_ecef_m))} (stand-alone, metre level)")
     lat, lon, _h = ecef_to_llh(*(float(v) for v in mean))
     e, n, u = np.asarray(enu_rotation(lat, lon)) @ (np.asarray(base_ecef_m) - mean)
     if d > BASE_DOUBTFUL_M and abs(u) > 10.0 and math.hypot(e, n) < 10.0:

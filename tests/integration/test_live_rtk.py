@@ -101,12 +101,46 @@ def test_the_rtk_command_solves_from_the_bus(flight: SimResult, tmp_path: Path) 
     assert len(fix["ecef_m"]) == 3 and fix["sats"] >= 5 and fix["age_s"] is not None
     out = (tmp_path / "rtk" / "stdout.txt").read_text()
     assert " fix " in out and "σ e/n/u" in out
+    # the given base checked against the base's own single-point fixes, once, as solve does
+    check = [ln for ln in out.splitlines() if "single-point fixes" in ln]
+    assert len(check) == 1 and check[0].startswith("rtk: base check: given with --base-xyz; ")
+    assert "ALERT" not in out
     # SIGTERM (CliProc.stop) is the normal end: status 0 and the run's counts, not "nothing
     # received" (it printed that and exited 1 when stopped by a signal)
     assert rtk.proc.returncode == 0, rtk.stderr()
     summary = out.strip().splitlines()[-1]
     assert summary.startswith("rtk: ") and " 0 rover epochs" not in summary, summary
     assert "fix " in summary.split("positions: ")[1], summary
+
+
+@pytest.mark.parametrize(("off_m", "alert", "said"), [
+    (0.0, False, "m from the mean of 10 single-point fixes from the base's own pseudoranges"),
+    (60.0, True, "m from the mean of 10 single-point fixes"),
+    (2000.0, True, ("--base-xyz: 2.00 km from where 10 single-point fixes from the base's "
+                    "own pseudoranges put the base")),
+])
+def test_the_given_base_is_checked_against_its_own_fixes(
+        flight: SimResult, off_m: float, alert: bool, said: str) -> None:
+    """The live engine checks the base coordinates as solve does (a wrong base shifts every
+    live position by its error, kilometres give none): after ten single-point fixes of the
+    base, corrected for the atmosphere (without: 21 m off on a simulated flight, seed 3)."""
+    from groundstation.live.rtk import LiveRtk, measurements
+    from groundstation.records import RawEpoch, Subframe
+
+    x, y, z = flight.truth["base"]["ecef_m"]
+    engine = LiveRtk((x + off_m, y, z))
+    engine.base_how = "given with --base-xyz"
+    items = measurements(flight.base_bytes)
+    week = next(b.gps_week for b in items if isinstance(b, RawEpoch))
+    for b in items:
+        if isinstance(b, Subframe):
+            engine.add_subframe(b, week)
+        else:
+            engine.add_base(b)
+    assert said in engine.base_check and engine.base_check_alert is alert, engine.base_check
+    metres = float(engine.base_check.split(" m from")[0].rsplit(" ", 1)[1]) if "km" not in \
+        engine.base_check else off_m
+    assert abs(metres - off_m) < 5.0  # stand-alone fixes: metres
 
 
 @pytest.mark.parametrize(("args", "said"), [
