@@ -4,7 +4,7 @@ Run: python benchmarks/bench_ppk.py [--seed-s 1200] [--seeds 1,2,3] [--severitie
          [--only KEY] [--ours-opt KEY=VALUE ...]
      python benchmarks/bench_ppk.py --hour [--repeat 2]
      python benchmarks/bench_ppk.py --sweep [--sweep-seeds 501-530] [--sweep-severities
-         0.5,1,1.5,2] [--real-seeds 1-5] [--out FILE.jsonl]
+         0.5,1,1.5,2] [--real-seeds 1-5] [--interp METHOD] [--out FILE.jsonl]
      python benchmarks/bench_ppk.py --why-real
 
 ``--sweep`` (issue 22): the whole ``solve`` (engine, integrity stage, marks) on many flights,
@@ -374,13 +374,18 @@ def _judge(res: Any, ref_xyz: FloatArray, ref_fixed: npt.NDArray[np.bool_],
     }
 
 
+INTERP: list[str] = []
+"""``--interp``: the interpolation the sweep's solves use (default: ``solve``'s)."""
+
+
 def _solve(rover: Path, base: Path, base_xyz: tuple[float, float, float], out: Path,
            rtk_options: tuple[tuple[str, str], ...] = ()) -> Any:
     from groundstation.solve.pipeline import solve
     from groundstation.solve.settings import SolveSettings
 
+    more = {"interp": INTERP[0]} if INTERP else {}
     return solve(SolveSettings(flight=rover, out_dir=out, base=base, base_ecef_m=base_xyz,
-                               rtk_options=rtk_options))
+                               rtk_options=rtk_options, **more))  # type: ignore[arg-type]
 
 
 def sweep_sim(work: Path, seed: int, severity: float) -> dict[str, Any]:
@@ -624,9 +629,13 @@ def main() -> None:
     ap.add_argument("--real-seeds", default="1-5", help="fault seeds of the real flights, or "
                     "none")
     ap.add_argument("--out", default="", help="write every run as a JSON line here")
+    ap.add_argument("--interp", default="", help="the sweep's interpolation at the marks "
+                    "(default: solve's)")
     ap.add_argument("--why-real", action="store_true", help="where the real flights' fixes "
                     "go as a LEA-6T (see why_real)")
     args = ap.parse_args()
+    if args.interp:
+        INTERP.append(args.interp)
     if args.why_real:
         with tempfile.TemporaryDirectory(prefix="bench-why-") as tmp:
             for name in JD_SWEEP:

@@ -76,8 +76,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--geoid", metavar="FILE",
                         help="geoid grid (.gtx or GeoTIFF, as PROJ reads them): heights above it "
                         "instead of ellipsoidal heights, with a horizontal --epsg")
-    parser.add_argument("--interp", default="linear", metavar="{linear,spline,smoother}",
-                        help="interpolation between epochs")
+    parser.add_argument("--interp", default=interp.DEFAULT_METHOD,
+                        metavar="{linear,spline,smoother}",
+                        help="interpolation between epochs (default smoother: between fixed "
+                        "epochs it bridges radio gaps with an honest sigma; elsewhere the "
+                        "straight line)")
     parser.add_argument("--edge", default="falling", metavar="{falling,rising,mid}",
                         help="which edge of the hot-shoe pulse is the exposure")
     parser.add_argument("--shutter-delay-ms", default="0", metavar="MS",
@@ -224,7 +227,8 @@ def _rinex_antenna(args: argparse.Namespace) -> str | None:
 
 _SOLVE_ONLY: dict[str, object] = {"flight": [], "positions": None, "base": None, "source": None,
                "engine": ppk.DEFAULT_ENGINE, "rtk_opt": [], "rtk_conf": None, "photos": None,
-               "lever_arm": None, "eo": None, "epsg": None, "geoid": None, "interp": "linear",
+               "lever_arm": None, "eo": None, "epsg": None, "geoid": None,
+               "interp": interp.DEFAULT_METHOD,
                "edge": "falling", "shutter_delay_ms": "0",
                "max_gap": str(interp.DEFAULT_MAX_GAP_S), "exif": False}
 """The options of a solve (and their defaults) that a re-base takes from the result's record."""

@@ -105,7 +105,7 @@ class StationSolve:
     photos: str | None = None
     out_root: Path = Path("solutions")
     lever_arm_m: tuple[float, float, float] | None = None
-    interp: str = "smoother"
+    interp: str = mi.DEFAULT_METHOD
     edge: str = "falling"
     epsg: int | str | None = None
     geoid: Path | None = None

@@ -41,7 +41,7 @@ class SolveSettings:
     eo: Path | None = None
     epsg: int | str | None = None
     geoid: Path | None = None
-    interp: str = "linear"
+    interp: str = mi.DEFAULT_METHOD
     edge: mi.Edge = "falling"
     shutter_delay_ms: float = 0.0
     max_gap_s: float = mi.DEFAULT_MAX_GAP_S
