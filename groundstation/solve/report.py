@@ -233,9 +233,11 @@ INTEGRITY_TEXT = (
     "fixed within their covariances, or one fixed and the other's float agreeing within its "
     "calibrated covariance). A fix that fails is demoted to float. Every sigma is meant to "
     "cover the error (|error| <= 3 sigma for 99 % of camera positions): float sigmas are the "
-    "engine's multiplied by a factor measured on this flight's own checked fixes, and a mark "
-    "between two epochs adds what a straight line may miss (a h^2/8). A position whose sigma "
-    "is over 3.3 cm on any axis is not called fixed.")
+    "engine's multiplied by a factor measured on this flight's own checked fixes. A mark "
+    "between two fixed epochs takes a smoother's sigma across the time between them (the "
+    "default interpolation; never below the epochs' own), any other mark adds what a "
+    "straight line may miss (a h^2/8). A position whose sigma is over 3.3 cm on any axis is "
+    "not called fixed.")
 """The rule, as the report states it (docs/integrity.md has the details)."""
 
 
