@@ -93,8 +93,13 @@ def _rover_on_simulator(running: Running, tmp_path: Path, top: str = "", more: s
     rover's session messages. Returns the daemon, the bus and the messages."""
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     sim_port = free_port()
-    running.start(tmp_path / "sim", "simulate", "--tcp", str(sim_port), "--duration", "600",
-                  "--speed", "1")
+    sim = running.start(tmp_path / "sim", "simulate", "--tcp", str(sim_port), "--duration",
+                        "600", "--speed", "1")
+    # the daemon only once the simulator listens: started before it on a loaded machine, the
+    # daemon of a 4 s session found nothing to connect to for all of it and exited 1 ("no
+    # data received"; a fresh clone's suite run)
+    wait_until(lambda: "listening on tcp" in sim.out_path.read_text(), 60,
+               "the simulator listening")
     a_dir = tmp_path / "A"
     a_dir.mkdir()
     (a_dir / "rover.toml").write_text(
