@@ -719,8 +719,8 @@ def run_rtk(
                 if engine.base_check and not run.base_check:
                     run.base_check = engine.base_check
                     out.write(("ALERT base coordinates: " if engine.base_check_alert else
-                               "rtk: base check: ") + engine.base_check
-                              + (" Every live position is off by the base's error: check the "
+                               "rtk: base check: ") + engine.base_check.rstrip(".")
+                              + (". Every live position carries the base's error: check the "
                                  "coordinates (solve checks them the same way)."
                                  if engine.base_check_alert else "") + "\n")
                     out.flush()
@@ -742,15 +742,22 @@ def run_rtk(
             now = time.monotonic()
             if now >= next_print:
                 next_print = now + print_every_s
-                out.write(_line(sol) + "\n")
+                out.write(_line(sol, engine.base_check_alert) + "\n")
                 out.flush()
     finally:
         bus.close()
     return run
 
 
-def _line(s: LiveSolution) -> str:
-    """One printed line: time, quality, ratio, satellites, base age, position and sigma."""
+def _line(s: LiveSolution, base_doubtful: bool = False) -> str:
+    """One printed line: time, quality, ratio, satellites, base age, position and sigma; after
+    the base check found the base coordinates doubtful, every line says so (a surveyor who
+    missed the one ALERT line would otherwise take the centimetre sigmas at their word)."""
+    line = _line_of(s)
+    return f"{line}  [base coordinates doubtful: see the ALERT]" if base_doubtful else line
+
+
+def _line_of(s: LiveSolution) -> str:
     when = gpstime.gps_as_datetime(s.t_gps_ns).strftime("%H:%M:%S.%f")[:-5]
     age = "-" if s.age_s is None else f"{s.age_s:.1f} s"
     # fix-and-hold's 999.9 is "held" (its ambiguities held); 0: no resolution tried

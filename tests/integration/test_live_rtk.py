@@ -141,6 +141,14 @@ def test_the_given_base_is_checked_against_its_own_fixes(
     metres = float(engine.base_check.split(" m from")[0].rsplit(" ", 1)[1]) if "km" not in \
         engine.base_check else off_m
     assert abs(metres - off_m) < 5.0  # stand-alone fixes: metres
+    # every printed line says so once the base is doubtful (a newcomer saw centimetre "fix"
+    # lines go on under a base 50 m off, the one ALERT line scrolled away)
+    from groundstation.live.rtk import _line
+
+    fix = LiveSolution(flight.truth["trajectory"]["t_gps_ns"][0], "fix", 999.9, 8, 0.0,
+                       (x, y, z), (0.007, 0.008, 0.016), "")
+    assert _line(fix, engine.base_check_alert).endswith(
+        "[base coordinates doubtful: see the ALERT]") is alert
 
 
 @pytest.mark.parametrize(("args", "said"), [
