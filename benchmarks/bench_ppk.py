@@ -66,6 +66,7 @@ from groundstation.sim.stream import simulate
 from groundstation.solve import engine
 from groundstation.solve import interpolate as mi
 from groundstation.solve.engine import options as eo
+from groundstation.solve.engine.dynamics import nearest_index
 from groundstation.solve.flight import read_flight
 from groundstation.solve.integrity.grade import GRADE_NAMES
 from groundstation.solve.posfile import read_pos
@@ -523,13 +524,8 @@ def why_real(work: Path, name: str) -> None:
         _one_direction_errors(work / "lea", tr.t_gps_ns[one], ref, checked)
 
 
-def _nearest(times: npt.NDArray[np.int64], t: npt.NDArray[np.int64]
-             ) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.bool_]]:
-    """Index of the epoch of ``times`` nearest each of ``t``, and whether it is within 50 ms
-    (the .pos files' times are rounded to the microsecond)."""
-    k = np.clip(np.searchsorted(times, t), 1, max(times.size - 1, 1))
-    k = np.where(np.abs(times[k - 1] - t) <= np.abs(times[k] - t), k - 1, k)
-    return k, np.abs(times[k] - t) < 50_000_000
+MATCH_NS = 50_000_000
+"""Epochs of two solutions within this are the same epoch."""
 
 
 def _one_direction_errors(out: Path, t: npt.NDArray[np.int64], ref: Trajectory,
@@ -537,9 +533,10 @@ def _one_direction_errors(out: Path, t: npt.NDArray[np.int64], ref: Trajectory,
     """Each direction's fixes at epochs ``t`` against ``ref`` where ``checked``."""
     for direction in ("forward", "backward"):
         run = read_pos(out / "rtklib" / direction / "rover.pos")
-        k, near_k = _nearest(run.t_gps_ns, t)
-        j, near_j = _nearest(ref.t_gps_ns, t)
-        use = near_k & (run.quality[k] == Q_FIX) & near_j & checked[j]
+        k, j = nearest_index(run.t_gps_ns, t), nearest_index(ref.t_gps_ns, t)
+        near = ((np.abs(run.t_gps_ns[k] - t) < MATCH_NS)  # .pos times: rounded to 1 us
+                & (np.abs(ref.t_gps_ns[j] - t) < MATCH_NS))
+        use = near & (run.quality[k] == Q_FIX) & checked[j]
         err = np.linalg.norm(run.ecef_m[k[use]] - ref.ecef_m[j[use]], axis=1)
         if err.size == 0:
             print(f"    {direction}: none to compare")

@@ -224,26 +224,30 @@ class LiveRtk:
         svs = [s.sv for s in sats]
         ephs = [self._ephemerides[s.sv] for s in sats]
         pr = np.array([[s.pseudorange_m for s in sats]])
-        x = SatGeometry(t, svs, pr, ephs, self.base_ecef_m).position(0)
+        geo = SatGeometry(t, svs, pr, ephs, self.base_ecef_m)
+        x = geo.position(0)
+        # the satellites' positions from the first geometry: the delays move their
+        # transmission times by tens of nanoseconds, the positions by a fraction of a mm
+        sat_pos = [(float(p[0]), float(p[1]), float(p[2])) for p in geo.pos[0]]
+        seen = np.all(np.isfinite(geo.pos[0]), axis=1).tolist()
         for _ in range(2):  # the delays from where the fix is, then the fix again
             if x is None:
                 return None
-            geo = SatGeometry(t, svs, pr, ephs, (float(x[0]), float(x[1]), float(x[2])))
-            lat, lon, h = ecef_to_llh(float(x[0]), float(x[1]), float(x[2]))
-            azel = [azimuth_elevation(tuple(geo.pos[0, j]), tuple(x)) if np.all(
-                np.isfinite(geo.pos[0, j])) else (0.0, -90.0) for j in range(len(sats))]
-            az = np.array([a for a, _ in azel])
-            el = np.array([e for _, e in azel])
+            here = (float(x[0]), float(x[1]), float(x[2]))
+            lat, lon, h = ecef_to_llh(*here)
+            azel = np.array([azimuth_elevation(p, here) if ok else (0.0, -90.0)
+                             for p, ok in zip(sat_pos, seen, strict=True)])
+            az, el = azel[:, 0], azel[:, 1]
+            keep = el >= 5.0
+            if int(keep.sum()) < 5:
+                return None
             alpha, beta = self._iono or KLOBUCHAR_DEFAULT
             delay = (saastamoinen_delay_m(lat, np.full(el.shape, h), np.maximum(el, 5.0))
                      + klobuchar_delay_m(alpha, beta, lat, lon, az, np.maximum(el, 5.0),
                                          (tow_ns / 1e9) % 86400.0))
-            keep = el >= 5.0
-            if int(keep.sum()) < 5:
-                return None
             x = SatGeometry(t, [sv for sv, k in zip(svs, keep, strict=True) if k],
                             (pr - delay)[:, keep], [e for e, k in zip(ephs, keep, strict=True)
-                                                    if k], self.base_ecef_m).position(0)
+                                                    if k], here).position(0)
         return None if x is None else (float(x[0]), float(x[1]), float(x[2]))
 
     def _base_for(self, t_gps_ns: int) -> RawEpoch | None:

@@ -111,7 +111,8 @@ class Dynamics:
         }
 
 
-def _nearest(t: npt.NDArray[np.int64], target: npt.NDArray[np.int64]) -> npt.NDArray[np.intp]:
+def nearest_index(t: npt.NDArray[np.int64], target: npt.NDArray[np.int64]
+                  ) -> npt.NDArray[np.intp]:
     """Index of the element of sorted ``t`` nearest to each ``target``."""
     hi = np.clip(np.searchsorted(t, target), 1, t.size - 1)
     lo = hi - 1
@@ -125,7 +126,7 @@ def _second_difference(
     within a quarter of it): ``2 ((p+ - p) / h+ - (p - p-) / h-) / (h+ + h-)``; (which epochs
     have both neighbours, their accelerations)."""
     h_ns = int(round(baseline_s * 1e9))
-    jp, jm = _nearest(t, t + h_ns), _nearest(t, t - h_ns)
+    jp, jm = nearest_index(t, t + h_ns), nearest_index(t, t - h_ns)
     hp = (t[jp] - t) / 1e9
     hm = (t - t[jm]) / 1e9
     good = (np.abs(hp - baseline_s) <= baseline_s / 4) & (np.abs(hm - baseline_s) <= baseline_s / 4)
