@@ -44,7 +44,7 @@ def test_sure_differences_are_fixed_to_the_truth() -> None:
     truth = frac + rng.integers(-50, 50, 12).astype(float)
     a, q = _float_constants(truth, 0.01, rng)
     lat = resolve_lattice(a, q, np.ones(12, bool), 1.0)
-    assert lat.fixed_combinations == 11
+    assert lat.fixed_combinations == 11 and lat.contradictions == 0
     d = lat.constants - lat.constants[0]
     assert np.allclose(d, truth - truth[0], atol=1e-6)
     # relative covariance: every difference is known
@@ -83,6 +83,8 @@ def test_an_arc_off_the_lattice_is_never_rounded_onto_it() -> None:
     assert np.allclose(d[others], (truth - truth[0])[others], atol=1e-6)
     # arc 3 is not tied to the others: its difference keeps its float uncertainty
     assert lat.cov[3, 3] > 1e-6
+    # and the lattice says the model is wrong: one sure difference per other arc was off
+    assert lat.contradictions >= 1
 
 
 def test_time_correlation_is_one_for_white_noise_and_more_for_a_drift() -> None:

@@ -169,6 +169,8 @@ def _arcs_of(res: Resolution, base_x: FloatArray, t0: float) -> Arcs:
         "integer_combinations": lat_res.combinations,
         "fixed_combinations": lat_res.fixed_combinations,
         "stopped_by": lat_res.stopped_by,
+        "contradictions": lat_res.contradictions,
+        "gap_judgements": res.gap_judgements,
         "first_float_sigma_steps": round(lat_res.ratio_to_lattice, 3),
         "slips_found_as_steps": [
             {"satellite": f"G{sv:02d}", "t_gps_ns": t} for sv, t in res.steps],

@@ -156,6 +156,9 @@ class Lattice:
         stopped_by: why fixing stopped: "sure" (all fixed), "sigma" or "off-lattice".
         ratio_to_lattice: the conditional standard deviation (lattice steps) of the first
             combination left float (0 when all were fixed).
+        contradictions: how many sure differences (or, in the decorrelated stage, sure
+            combinations) lay off the lattice: each is proof that the model is wrong somewhere
+            (an unflagged slip) or that something fixed before it is.
     """
 
     constants: FloatArray
@@ -165,6 +168,7 @@ class Lattice:
     combinations: int
     stopped_by: str
     ratio_to_lattice: float
+    contradictions: int = 0
 
 
 def resolve_lattice(a: FloatArray, q: FloatArray, informed: BoolArray,
@@ -194,6 +198,7 @@ def resolve_lattice(a: FloatArray, q: FloatArray, informed: BoolArray,
     group = np.arange(n)
     skip = np.zeros((n, n), dtype=bool)
     fixed_n = 0
+    contradictions = 0
     stopped = "sure"
     first_float = 0.0
     for _ in range(4 * n):
@@ -213,6 +218,7 @@ def resolve_lattice(a: FloatArray, q: FloatArray, informed: BoolArray,
         r = round(d)
         if abs(d - r) >= FIX_DISTANCE:
             skip[i, j] = skip[j, i] = True
+            contradictions += 1
             continue
         g = np.zeros(n)
         g[i], g[j] = 1.0, -1.0
@@ -234,6 +240,7 @@ def resolve_lattice(a: FloatArray, q: FloatArray, informed: BoolArray,
         fixed_n += more
         if more or why != "sure":
             stopped, first_float = why, sig
+        contradictions += why == "off-lattice"
     const = np.full(na, np.nan)
     const[ok] = x
     cov = np.zeros((na, na))
@@ -243,4 +250,4 @@ def resolve_lattice(a: FloatArray, q: FloatArray, informed: BoolArray,
     t[:, r_ok] -= 1.0
     rel = t @ c @ t.T
     cov[np.ix_(ok, ok)] = 0.5 * (rel + rel.T)
-    return Lattice(const, cov, ref, fixed_n, n - 1, stopped, first_float)
+    return Lattice(const, cov, ref, fixed_n, n - 1, stopped, first_float, contradictions)
