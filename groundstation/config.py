@@ -578,7 +578,8 @@ def _parse(spec: Key, value: Any, *, from_text: bool) -> Any:
         xyz = _parse(TRIPLE, value, from_text=from_text)
         norm = math.sqrt(sum(v * v for v in xyz))
         if not ECEF_NORM_M[0] <= norm <= ECEF_NORM_M[1]:
-            hint = (" (this looks like latitude,longitude,height: give ECEF X,Y,Z in metres)"
+            hint = (" (this looks like latitude,longitude,height: give those with --base-llh,"
+                    " or base_llh in the configuration)"
                     if abs(xyz[0]) <= 90 and abs(xyz[1]) <= 360 else "")
             raise ValueError(f"{value!r} is {norm / 1000:,.1f} km from the Earth's centre, not "
                              f"on its surface: expected ECEF metres X,Y,Z{hint}")

@@ -83,6 +83,7 @@ def test_base_xyz_given_as_lat_lon_h_exits_2(flight: dict[str, Path]) -> None:
                 "--out-dir", "o_llh", "--no-progress", cwd=flight["dir"])
     assert proc.returncode == 2, proc.stderr
     assert "--base-xyz" in proc.stderr and "latitude,longitude,height" in proc.stderr
+    assert "give those with --base-llh" in proc.stderr  # the option that takes them
     assert not (flight["dir"] / "o_llh").exists()
 
 
