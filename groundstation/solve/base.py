@@ -468,10 +468,14 @@ def compare_base(
             f"site's?).{hint}"))
     text = (f"{how_given}; {d:.1f} m from the mean of "
             f"{fixes_are.format(n=len(base_fixes_ecef_m))} (stand-alone, metre level)")
-    lat, lon, _h = ecef_to_llh(*(float(v) for v in mean))
+    lat, lon, h_m = ecef_to_llh(*(float(v) for v in mean))
     e, n, u = np.asarray(enu_rotation(lat, lon)) @ (np.asarray(base_ecef_m) - mean)
+    if d > BASE_DOUBTFUL_M:
+        # where the fixes put it, to hold against the surveyor's own notes of the point
+        text += (f"; they put the base at {lat:.6f}, {lon:.6f}, {h_m:.1f} m (WGS84 latitude, "
+                 f"longitude, ellipsoidal height)")
     if d > BASE_DOUBTFUL_M and abs(u) > 10.0 and math.hypot(e, n) < 10.0:
-        text += (f", {u:+.1f} m of it in height: a height above the geoid given as an "
-                 "ellipsoidal one? (a compound CRS such as --base-crs 32629+5773 takes a "
+        text += (f"; {u:+.1f} m of the difference in height: a height above the geoid given "
+                 "as an ellipsoidal one? (a compound CRS such as --base-crs 32629+5773 takes a "
                  "height above the geoid)")
     return text, d > BASE_DOUBTFUL_M

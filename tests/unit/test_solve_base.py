@@ -233,7 +233,8 @@ def test_the_base_check_names_the_form_given_and_what_the_difference_looks_like(
     fixes = [XYZ, XYZ]
     low = llh_to_ecef(lat, lon, h - 57.5)
     text, doubtful = compare_base(fixes, low, "given with --base-en 1,2,3 in EPSG:32629")
-    assert doubtful and "-57.5 m of it in height" in text and "32629+5773" in text
+    assert doubtful and "-57.5 m of the difference in height" in text and "32629+5773" in text
+    assert f"they put the base at {lat:.6f}, {lon:.6f}, {h:.1f} m" in text
     swapped = llh_to_ecef(lon, lat, h)
     with pytest.raises(ConfigError) as err:
         compare_base(fixes, swapped, f"given with --base-llh {lon},{lat},{h}")
