@@ -18,7 +18,7 @@ from groundstation.solve.antex import rinex_antenna
 from groundstation.solve.exif import JPEG_SUFFIXES
 from groundstation.solve.pipeline import SolveResult, solve
 from groundstation.solve.record import rebase_settings
-from groundstation.solve.report_data import grades_text
+from groundstation.solve.report_data import checks_text, grades_text
 from groundstation.solve.report_notes import printed_notes
 from groundstation.solve.settings import SolveSettings
 
@@ -318,6 +318,9 @@ def format_result(r: SolveResult) -> str:
          f"{fixed_word}, {s['marks_in_gap']} in data gaps"),
         f"grades     {grades_text(r.rows)}",
     ]
+    legend = checks_text(r.rows)
+    if legend:
+        lines.append(f"checks     {legend}")
     if r.match is not None:
         lines.extend(r.reconciliation[:3])
     # the engine's technical notes in plain words (they stay whole in engine.json and the

@@ -456,6 +456,12 @@ INTERPOLATORS: dict[str, Callable[[Trajectory, Sequence[int | None], float], Mar
     "smoother": interpolate_smoother,
 }
 """Method name -> function(trajectory, mark times, max_gap_s)."""
+METHOD_TEXT: dict[str, str] = {
+    "linear": "straight line between the epochs around each mark",
+    "spline": "cubic spline through the epochs of each stretch without a gap",
+    "smoother": "smoothed trajectory between fixed epochs, straight line elsewhere",
+}
+"""Method name -> what it does, in the words the printout and the report use."""
 
 
 def interpolate(

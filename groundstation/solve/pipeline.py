@@ -428,7 +428,7 @@ def _positions_at_marks(
         progress(f"interpolate ({s.interp})", 1.0)
     notes.append(
         f"marks: {len(marks)}, positioned {mp.positioned}, edge {s.edge}, shutter delay "
-        f"{s.shutter_delay_ms:g} ms, {s.interp} interpolation, "
+        f"{s.shutter_delay_ms:g} ms, interpolation {mi.METHOD_TEXT[s.interp]} (--interp), "
         f"{int(np.sum((mp.flags & mi.FLAG_GAP) != 0))} in gaps > {s.max_gap_s:g} s"
     )
     return times, mp
@@ -552,8 +552,10 @@ def _lever_arm(
             "applied as camera = antenna - M^T L (L from projection centre to antenna)"
         )
     if any(a == "nadir-track" for a in attitude):
+        whose = ("no attitude for some photos" if any(a == "eo" for a in attitude)
+                 else "no attitude given (--eo)")
         notes.append(
-            "no attitude for some photos: nadir camera assumed (omega = phi = 0), kappa from the "
+            f"{whose}: nadir camera assumed (omega = phi = 0), kappa from the "
             "direction of travel (image x axis along track)"
             + (f" + {s.kappa_offset_deg:g} deg" if s.kappa_offset_deg else "")
         )

@@ -27,7 +27,7 @@ from groundstation.rules.marks import (
     numbers_text,
 )
 from groundstation.solve.flight import SatelliteObs, Span
-from groundstation.solve.integrity.grade import GRADE_NAMES
+from groundstation.solve.integrity.grade import CHECK_TEXT, GRADE_NAMES
 from groundstation.solve.interpolate import FLAG_CAMERA_CLOCK, FLAG_GAP
 from groundstation.solve.outputs import CameraRow
 from groundstation.solve.trajectory import Q_DGPS, Q_FIX, Q_FLOAT, Q_PPP, Q_SBAS, Q_SINGLE
@@ -315,6 +315,13 @@ def grades_text(rows: Sequence[CameraRow]) -> str:
         detail = ", ".join(f"{k} {v}" for k, v in sorted(by.items(), key=lambda kv: -kv[1]))
         parts.append(f"{name} {len(mine)} ({detail})")
     return "; ".join(parts)
+
+
+def checks_text(rows: Sequence[CameraRow]) -> str:
+    """What each check named in :func:`grades_text` means, for the checks the camera positions
+    carry: ``arcs: our whole-arc phase solution fixed it on its own; ...``."""
+    seen = sorted({r.check for r in rows if r.positioned and r.check in CHECK_TEXT})
+    return "; ".join(f"{c}: {CHECK_TEXT[c]}" for c in seen)
 
 
 GO_GAP_NS = 30 * 1_000_000_000

@@ -62,6 +62,22 @@ def test_exports_carry_every_positioned_mark_by_its_count(solved: dict[str, Any]
     assert "no photos given: marks named mark_NNNN" in solved["stdout"]
 
 
+def test_the_printout_says_what_its_words_mean(solved: dict[str, Any]) -> None:
+    """A newcomer's findings: "arcs-and-engine", "smoother interpolation" and "no attitude
+    for some photos" (with no photo at all) said nothing to a surveyor."""
+    from groundstation.solve.integrity.grade import CHECK_TEXT
+
+    out = solved["stdout"]
+    grades = next(ln for ln in out.splitlines() if ln.startswith("grades "))
+    checks = next(ln for ln in out.splitlines() if ln.startswith("checks "))
+    named = re.findall(r"[(,] ?([a-z:-]+) \d+", grades)
+    assert named and all(f"{c}: {CHECK_TEXT[c]}" in checks for c in named), (grades, checks)
+    assert ("interpolation smoothed trajectory between fixed epochs, straight line elsewhere "
+            "(--interp)") in out
+    assert "no attitude given (--eo): nadir camera assumed" in out
+    assert "some photos" not in out
+
+
 def test_report_names_the_marks_and_lists_the_missed_ones(solved: dict[str, Any]) -> None:
     text = (solved["out"] / "report.html").read_text(encoding="utf-8")
     assert "without a photo" not in text  # no photos were given: none are missing

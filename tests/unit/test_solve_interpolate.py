@@ -195,3 +195,11 @@ def test_natural_spline_second_derivatives_vanish_at_the_ends() -> None:
     m2 = ip.natural_spline_m2(x, y)
     assert m2[0].tolist() == [0.0, 0.0] and m2[-1].tolist() == [0.0, 0.0]
     assert m2[5, 1] == pytest.approx(2.0, abs=0.1)
+
+
+def test_every_method_and_every_check_has_words_for_the_printout() -> None:
+    from groundstation.solve.integrity.grade import CHECK_NAMES, CHECK_TEXT
+    from groundstation.solve.interpolate import INTERPOLATORS, METHOD_TEXT
+
+    assert set(METHOD_TEXT) == set(INTERPOLATORS)
+    assert set(CHECK_TEXT) == {c for c in CHECK_NAMES if c}

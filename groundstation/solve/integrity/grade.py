@@ -88,6 +88,22 @@ CHECK_NAMES: tuple[str, ...] = (
                                 #     on the same arcs gives the same position
 )
 """Check code -> name: which check decided an epoch's grade."""
+CHECK_TEXT: dict[str, str] = {
+    "arcs": "our whole-arc phase solution fixed it on its own",
+    "both-directions": "the engine fixed it forward and backward, alike",
+    "other-direction-float": "one direction fixed, the other's precise float agrees",
+    "demoted:directions-disagree": "both directions fixed, differently",
+    "demoted:float-disagrees": "one direction fixed, the other's precise float disagrees",
+    "demoted:arcs-disagree": "our whole-arc fix and an engine fix disagree",
+    "demoted:one-direction": "one direction fixed, nothing precise to compare it with",
+    "float": "no fix anywhere",
+    "unchecked": "nothing to check with",
+    "demoted:interpolation": "fixed around the mark, not a centimetre position at it",
+    "arcs-and-engine": "our whole-arc fix and the engine's fix agree",
+    "demoted:camera-clock": "fixed, but the photo's time comes from the camera clock",
+    "carried-along-arcs": "one direction fixed, a checked fix on the same arcs agrees",
+}
+"""Check name -> what it means, in a line (the printout's legend; docs/integrity.md says more)."""
 C_ARCS, C_BOTH, C_OTHER_FLOAT = 1, 2, 3
 C_DEM_DIRECTIONS, C_DEM_FLOAT, C_DEM_ARCS, C_DEM_ONE, C_FLOAT, C_UNCHECKED = 4, 5, 6, 7, 8, 9
 C_DEM_INTERP = 10
