@@ -253,6 +253,18 @@ def _gap_splits(gaps: dict[str, Any]) -> str:
     return (f"every arc split at {found + hidden} radio gap(s) ({', '.join(parts)}): "
             "their phase is not carried across")
 
+
+def _judged_again(arcs: dict[str, Any]) -> str:
+    """The gaps judged again because the integers contradicted the model, in words ("" when
+    they were judged once)."""
+    n = int(arcs.get("gap_judgements", 1))
+    if n <= 1:
+        return ""
+    left = int(arcs.get("contradictions", 0))
+    return (f"; the gaps judged {n} times, as a sure integer difference off the lattice "
+            "showed the model wrong" + (f" ({left} such difference(s) left)" if left else ""))
+
+
 def _integrity(inp: ReportInput) -> str:
     """The integrity section: the rule, and what it found on this flight."""
     ig = inp.integrity
@@ -275,7 +287,8 @@ def _integrity(inp: ReportInput) -> str:
             f"{arcs.get('integer_combinations')} integer combinations fixed (lattice "
             f"{arcs.get('lattice_cycles')} cycle; stopped: {arcs.get('stopped_by')}); "
             f"{arcs.get('epochs_fixed_precise')} epochs fixed by it; {len(steps)} slip(s) "
-            f"nobody flagged found and split off; {_gap_splits(gaps)}")),
+            f"nobody flagged found and split off; {_gap_splits(gaps)}"
+            + _judged_again(arcs))),
         ("Smoothing", _e(
             f"jerk density {sm.get('jerk_density_h_m2_s5')} / {sm.get('jerk_density_v_m2_s5')} "
             f"m^2/s^5 horizontal / vertical (the most likely for the flight's quickest "

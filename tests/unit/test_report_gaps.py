@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from groundstation.solve.report import _gap_splits
+from groundstation.solve.report import _gap_splits, _judged_again
 
 
 def test_no_split_says_the_continuity_was_checked() -> None:
@@ -17,3 +17,11 @@ def test_splits_are_counted_by_why() -> None:
     assert "3 where such a step could have passed unseen" in words
     only = _gap_splits({"steps_found": 0, "steps_could_hide": 2})
     assert "with a step" not in only and "2 where such a step" in only
+
+
+def test_gaps_judged_again_are_said_with_why() -> None:
+    assert _judged_again({}) == "" and _judged_again({"gap_judgements": 1}) == ""
+    words = _judged_again({"gap_judgements": 2, "contradictions": 0})
+    assert "judged 2 times" in words and "off the lattice" in words and "left" not in words
+    assert "(3 such difference(s) left)" in _judged_again({"gap_judgements": 3,
+                                                           "contradictions": 3})
