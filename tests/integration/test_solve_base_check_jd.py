@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from once import made_once
 from peers import cli_env
 
 from groundstation.geodesy import ecef_to_llh
@@ -77,20 +78,33 @@ def test_the_rover_as_its_own_base_is_refused_before_the_engine(
     assert not (tmp_path / "out").exists()
 
 
+def _solve_with(shared_data: Path, out: Path, args: list[str]) -> None:
+    """The 2018-10-09 flight solved with its base given by ``args`` into ``out``."""
+    proc = subprocess.run(
+        [sys.executable, "-m", "groundstation.cli", "solve", str(shared_data / JD / ROVER_1009),
+         "--base", str(shared_data / JD / BASE_1009), *args, "--out-dir", str(out),
+         "--no-progress"],
+        cwd=out.parent, env=cli_env(), capture_output=True, text=True, timeout=600, check=False)
+    assert proc.returncode == 0, proc.stderr
+
+
+@pytest.fixture
+def solved_xyz(shared_data: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The result of the solve with ``--base-xyz`` of the base's own coordinates, which two
+    tests compare with: made once for the run (read only)."""
+    d = made_once(tmp_path_factory, "jd-1009-base-xyz",
+                  lambda d: _solve_with(shared_data, d / "out", ["--base-xyz", XYZ_1009]))
+    return d / "out"
+
+
 def _solved(shared_data: Path, tmp_path: Path, forms: dict[str, list[str]],
             ) -> dict[str, list[dict[str, str]]]:
     """The 2018-10-09 flight solved with its base given each way (``--out-dir`` by name):
     every run's cameras.csv rows."""
     cams = {}
     for name, args in forms.items():
-        out = tmp_path / name
-        proc = subprocess.run(
-            [sys.executable, "-m", "groundstation.cli", "solve", str(shared_data / JD / ROVER_1009),
-             "--base", str(shared_data / JD / BASE_1009), *args, "--out-dir", str(out),
-             "--no-progress"],
-            cwd=tmp_path, env=cli_env(), capture_output=True, text=True, timeout=600, check=False)
-        assert proc.returncode == 0, proc.stderr
-        cams[name] = _cameras(out)
+        _solve_with(shared_data, tmp_path / name, args)
+        cams[name] = _cameras(tmp_path / name)
     return cams
 
 
@@ -101,18 +115,17 @@ def _cameras(out: Path) -> list[dict[str, str]]:
 
 
 def test_the_base_as_ecef_as_latitude_longitude_and_as_a_mark_give_the_same_cameras(
-        shared_data: Path, tmp_path: Path) -> None:
+        shared_data: Path, tmp_path: Path, solved_xyz: Path) -> None:
     lat, lon, h = ecef_to_llh(*(float(v) for v in XYZ_1009.split(",")))
     position = tmp_path / "base.json"  # as locate-base --out writes it
     position.write_text(json.dumps({"ecef_m": [float(v) for v in XYZ_1009.split(",")],
                                     "sigma_enu_m": [0.02, 0.02, 0.04],
                                     "reference": "ABCD00IRL.crx.gz", "baseline_m": 12345.0}))
-    forms = {"xyz": ["--base-xyz", XYZ_1009],
-             "file": ["--base-position", str(position)],
+    forms = {"file": ["--base-position", str(position)],
              "llh": ["--base-llh", f"{lat:.10f},{lon:.10f},{h:.4f}"],
              "mark": ["--base-llh", f"{lat:.10f},{lon:.10f},{h - 1.5:.4f}",
                       "--base-antenna-height", "1.5"]}
-    cams = _solved(shared_data, tmp_path, forms)
+    cams = {"xyz": _cameras(solved_xyz), **_solved(shared_data, tmp_path, forms)}
     assert "1.5000 m above it (--base-antenna-height)" in (tmp_path / "mark" / "report.html"
                                                           ).read_text()
     ref = cams["xyz"]
@@ -131,10 +144,9 @@ XYZ_1009_1M_EAST = "3774696.7108,-596646.9206,5089485.6511"  # XYZ_1009 moved 1 
 
 
 def test_a_base_1_m_off_with_a_1_m_sigma_widens_the_absolute_sigmas_only(
-        shared_data: Path, tmp_path: Path) -> None:
-    cams = _solved(shared_data, tmp_path, {
-        "right": ["--base-xyz", XYZ_1009],
-        "off": ["--base-xyz", XYZ_1009_1M_EAST, "--base-sigma", "1"]})
+        shared_data: Path, tmp_path: Path, solved_xyz: Path) -> None:
+    cams = {"right": _cameras(solved_xyz), **_solved(shared_data, tmp_path, {
+        "off": ["--base-xyz", XYZ_1009_1M_EAST, "--base-sigma", "1"]})}
     sd = ("sd_e_m", "sd_n_m", "sd_u_m")
     for a, b in zip(cams["right"], cams["off"], strict=True):
         assert all(float(b[f"abs_{k}"]) >= 1.0 for k in sd), b
@@ -146,7 +158,7 @@ def test_a_base_1_m_off_with_a_1_m_sigma_widens_the_absolute_sigmas_only(
     assert "σ east/north/up 1.000/1.000/1.000 m: in the cameras&#x27; absolute sigmas" in report
     # The right result re-based to the base 1 m off: the full solve's cameras, without the engine
     proc = subprocess.run(
-        [sys.executable, "-m", "groundstation.cli", "solve", "--rebase", str(tmp_path / "right"),
+        [sys.executable, "-m", "groundstation.cli", "solve", "--rebase", str(solved_xyz),
          "--base-xyz", XYZ_1009_1M_EAST, "--base-sigma", "1", "--out-dir", "rebased"],
         cwd=tmp_path, env=cli_env(), capture_output=True, text=True, timeout=600, check=False)
     assert proc.returncode == 0, proc.stderr
