@@ -278,6 +278,35 @@ def test_two_floats_that_disagree_widen_the_sigma_by_their_difference() -> None:
     assert np.all(sd[:, 2] >= 0.99 * up[2])
 
 
+def test_our_float_that_disagrees_with_the_engines_widens_its_sigma() -> None:
+    """Seed 712 at severity 2: both engine directions float, agreeing 1.6 m from the truth
+    with millimetre sigmas; our whole-arc float 8 cm off with 12 cm."""
+    n = 70  # epochs 10..69: our fixes, against which the float factor is measured
+    truth = np.tile(X0, (n, 1))
+    rng = np.random.default_rng(3)
+    eng_x = truth + np.vstack([np.tile([1.3, -1.0, 0.05], (10, 1)),
+                               rng.normal(size=(60, 3)) * 0.005])
+    eng = _cand(eng_x, 0.005, 2)
+    ours_x = truth + np.vstack([np.tile([0.05, 0.05, 0.08], (10, 1)), np.zeros((60, 3))])
+    ours = gr.Candidate(ours_x, np.stack([np.eye(3) * (0.12 if k < 10 else 0.005) ** 2
+                                          for k in range(n)]), np.zeros(n, np.int64))
+    ours_fixed = np.arange(n) >= 10
+    g = gr.grade(ours_fixed, ours, eng, eng, eng)
+    rot = gr._enu_rot(truth)
+    off = np.abs((g.x[:10] - truth[:10]) @ rot.T)
+    sd = np.sqrt(np.einsum("eii->ei", np.einsum("ij,ejk,lk->eil", rot, g.cov[:10], rot)))
+    assert {gr.CHECK_NAMES[int(c)] for c in g.check[:10]} == {"floats-disagree"}
+    assert np.all(g.grade[:10] == gr.FLOAT) and np.all(off <= sd)  # covered, not 3 sigma out
+    # where our float agrees with the engine's, the engine's stands as it was
+    ours_near = gr.Candidate(eng_x.copy(), ours.cov, ours.q)
+    g2 = gr.grade(ours_fixed, ours_near, eng, eng, eng)
+    assert {gr.CHECK_NAMES[int(c)] for c in g2.check[:10]} == {"float"}
+    assert np.allclose(g2.x[:10], eng_x[:10])
+    # and ours counts only where its phase behaved as modelled
+    g3 = gr.grade(ours_fixed, ours, eng, eng, eng, ours_alone=False)
+    assert "floats-disagree" not in {gr.CHECK_NAMES[int(c)] for c in g3.check}
+
+
 def test_an_arc_the_engine_contradicts_takes_away_the_standing_of_every_epoch_on_it() -> None:
     n = 10
     truth = np.tile(X0, (n, 1))

@@ -30,7 +30,10 @@ The rule, per epoch:
 4. An engine that combined its two directions itself (``--engine rnx2rtkp``) cannot be
    checked this way: its remaining fixes are **fixed-unchecked** (its own sigma, Q 1).
 5. Otherwise a fix of the engine is **demoted** to float (its check names why), and the epoch
-   gets the engine's combined float position with the calibrated float sigma.
+   gets the engine's combined float position with the calibrated float sigma. Where no fix
+   was made at all and our whole-arc float (its phase as modelled) disagrees with that
+   beyond their covariances, the epoch gets their middle with half their distance as sigma
+   (``floats-disagree``).
 
 A float sigma is the engine's formal one times a factor measured on this flight: at epochs
 where a position is fixed and checked, each direction's float position there is compared with
@@ -86,6 +89,8 @@ CHECK_NAMES: tuple[str, ...] = (
                                 #     camera clock, too loose for a centimetre position
     "carried-along-arcs",       # 13: one direction fixed, a checked fix at another epoch
                                 #     on the same arcs gives the same position
+    "floats-disagree",          # 14: no fix; the engine's float and our whole-arc float
+                                #     disagree: their middle, half their distance as sigma
 )
 """Check code -> name: which check decided an epoch's grade."""
 CHECK_TEXT: dict[str, str] = {
@@ -102,6 +107,7 @@ CHECK_TEXT: dict[str, str] = {
     "arcs-and-engine": "our whole-arc fix and the engine's fix agree",
     "demoted:camera-clock": "fixed, but the photo's time comes from the camera clock",
     "carried-along-arcs": "one direction fixed, a checked fix on the same arcs agrees",
+    "floats-disagree": "no fix; the engine's float and ours disagree: their middle, wide sigma",
 }
 """Check name -> what it means, in a line (the printout's legend; docs/integrity.md says more)."""
 C_ARCS, C_BOTH, C_OTHER_FLOAT = 1, 2, 3
@@ -110,6 +116,7 @@ C_DEM_INTERP = 10
 C_ARCS_ENGINE = 11
 C_DEM_CLOCK = 12
 C_BY_ARCS = 13
+C_FLOATS_DISAGREE = 14
 TAINT_EPOCHS = 5
 """Contradicted epochs that take away an arc's standing (one is an accident of the engine)."""
 PHASE_MODEL_FACTOR = 2.0
@@ -403,6 +410,22 @@ def grade(ours_fixed: BoolArray, ours: Candidate, forward: Candidate | None,
             extra = np.zeros((d.shape[0], 3, 3))
             extra[:, [0, 1, 2], [0, 1, 2]] = d * d
             cov[both_float] += np.einsum("ji,ejk,kl->eil", rot, extra, rot)
+    # Where no fix stands, our whole-arc float (where its phase behaved as modelled) is a
+    # second estimate of the position from another model: when it and the engine's float
+    # disagree beyond their covariances, one of them is wrong and nothing says which (seed 712
+    # at severity 2: the engine's two directions agreed 1.6 m from the truth with 5 mm
+    # sigmas, ours was 8 cm off with 12 cm). As for two fixes that disagree: their middle,
+    # and a sigma of half their distance on every axis plus the larger of their own.
+    plain = (left & ~m_fix & (merged.q == 2) & alone & ~ours_fixed
+             & np.all(np.isfinite(ours.x), axis=1) & np.all(np.isfinite(x), axis=1))
+    floats_disagree = plain & ~agree(ours.x, ours.cov, x, cov)
+    if floats_disagree.any():
+        fd = floats_disagree
+        dist = np.linalg.norm(ours.x[fd] - x[fd], axis=1)
+        own = np.maximum(np.trace(ours.cov[fd], axis1=1, axis2=2),
+                         np.trace(cov[fd], axis1=1, axis2=2)) / 3.0
+        x[fd] = 0.5 * (ours.x[fd] + x[fd])
+        cov[fd] = (0.25 * dist * dist + own)[:, None, None] * np.eye(3)[None]
     is_float = left & (merged.q <= 2)
     gradec[is_float] = FLOAT
     gradec[left & (merged.q > 2)] = SINGLE
@@ -411,6 +434,7 @@ def grade(ours_fixed: BoolArray, ours: Candidate, forward: Candidate | None,
     check[left & dem_float] = C_DEM_FLOAT
     check[left & dem_one] = C_DEM_ONE
     check[left & veto] = C_DEM_ARCS
+    check[floats_disagree] = C_FLOATS_DISAGREE
     quality = np.where((gradec == FIXED) | (gradec == FIXED_UNCHECKED), 1,
                        np.where(gradec == FLOAT, 2, np.where(gradec == SINGLE, 5, 0)))
     counts = {CHECK_NAMES[k]: int(np.sum(check == k)) for k in range(1, len(CHECK_NAMES))
