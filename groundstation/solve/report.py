@@ -26,7 +26,7 @@ from groundstation import gpstime
 from groundstation.solve import clockoffset, figures
 from groundstation.solve.base import PCO_APPLIED
 from groundstation.solve.figures import QUALITY_COLOURS
-from groundstation.solve.integrity.grade import GRADE_MEANING
+from groundstation.solve.integrity.grade import CHECK_TEXT, GRADE_MEANING
 from groundstation.solve.interpolate import flag_names
 from groundstation.solve.outputs import mark_numbers_text
 from groundstation.solve.pdf import find_chromium, print_pdf
@@ -282,6 +282,8 @@ def _integrity(inp: ReportInput) -> str:
     rows = [
         ("Epochs", _e(", ".join(f"{k} {v}" for k, v in ig.get("grades", {}).items()))),
         ("Decided by", _e(", ".join(f"{k} {v}" for k, v in ig.get("checks", {}).items()))),
+        ("What the checks mean", _e("; ".join(f"{k}: {CHECK_TEXT[k]}" for k in ig.get("checks", {})
+                                              if k in CHECK_TEXT))),
         ("Whole-arc solution", _e(
             f"{arcs.get('arcs')} arcs of GPS phase; {arcs.get('fixed_combinations')} of "
             f"{arcs.get('integer_combinations')} integer combinations fixed (lattice "

@@ -252,6 +252,14 @@ def test_warnings_name_what_a_reviewer_must_know(flight: dict[str, Any]) -> None
         assert "pos1-navsys" in text  # the full option set
         assert "pos2-armode = fix-and-hold" in text  # and its options
         assert "m from the mean of the base receiver" in text
+        # the integrity section says what every check it counts means
+        from groundstation.solve.integrity.grade import CHECK_TEXT
+
+        decided = re.search(r"Decided by</t[hd]>\s*<td>(.*?)</td>", text)
+        assert decided, "no Decided by row"
+        for name in re.findall(r"([a-z:-]+) \d+", decided.group(1)):
+            if name in CHECK_TEXT:
+                assert f"{name}: {html.escape(CHECK_TEXT[name], quote=True)}" in text, name
 
 
 def test_the_result_comes_first_and_the_full_options_last(flight: dict[str, Any]) -> None:
