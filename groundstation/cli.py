@@ -191,6 +191,26 @@ def main(argv: Sequence[str] | None = None) -> int:
     return status
 
 
+def _unrecognized(parser: argparse.ArgumentParser, args: argparse.Namespace,
+                  extra: list[str]) -> NoReturn:
+    """The one-line error for arguments nobody takes, from the command's own parser (its
+    name in front) with the options a mistyped one is closest to (``--base-xzy``: did you mean
+    --base-xyz?)."""
+    import difflib
+
+    command = parser
+    for action in parser._actions:  # the subcommand's parser, when one was named
+        if isinstance(action, argparse._SubParsersAction) and args.command in action.choices:
+            command = action.choices[args.command]
+    known = [o for a in command._actions for o in a.option_strings if o.startswith("--")]
+    close = [m for x in extra if x.startswith("--")
+             for m in difflib.get_close_matches(x.split("=", 1)[0], known, n=1, cutoff=0.75)]
+    said = f"unrecognized arguments: {' '.join(extra)}"
+    if close:
+        said += f"; did you mean {', '.join(dict.fromkeys(close))}?"
+    command.error(said)
+
+
 def _main(argv: Sequence[str] | None) -> int:
     # numpy's OpenBLAS starts one thread per core when numpy is first imported (~50 ms of a
     # command's start-up here); the project's array work is element-wise, so one thread is
@@ -198,7 +218,9 @@ def _main(argv: Sequence[str] | None) -> int:
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     args_list = list(sys.argv[1:] if argv is None else argv)
     parser = build_parser(args_list)
-    args = parser.parse_args(args_list)
+    args, extra = parser.parse_known_args(args_list)
+    if extra:
+        _unrecognized(parser, args, extra)
     if not args.command:
         parser.print_help()
         return EXIT_CONFIG

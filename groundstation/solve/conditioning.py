@@ -291,7 +291,8 @@ def condition(
     """
     rep = ConditioningReport()
     if obs.source != "RXM-RAW":
-        rep.note = f"{obs.source}: lock times mark every slip, nothing to condition"
+        rep.note = (f"{obs.source} gives each satellite's lock time, which marks every slip: "
+                    "nothing to repair")
         return obs, rep
     rows = np.flatnonzero((obs.sys == "G") & (obs.cp_cyc != 0.0))
     if rows.size == 0:

@@ -261,8 +261,9 @@ def _judged_again(arcs: dict[str, Any]) -> str:
     if n <= 1:
         return ""
     left = int(arcs.get("contradictions", 0))
-    return (f"; the gaps judged {n} times, as a sure integer difference off the lattice "
-            "showed the model wrong" + (f" ({left} such difference(s) left)" if left else ""))
+    return (f"; the radio gaps checked {n} times: the whole-cycle (integer) differences "
+            "between satellites did not all fit, a sign of a slip a check had missed"
+            + (f" ({left} misfit(s) left after the last)" if left else ""))
 
 
 def _integrity(inp: ReportInput) -> str:
@@ -281,7 +282,7 @@ def _integrity(inp: ReportInput) -> str:
     gaps = arcs.get("gaps_with_every_arc_split") or {}
     rows = [
         ("Epochs", _e(", ".join(f"{k} {v}" for k, v in ig.get("grades", {}).items()))),
-        ("Decided by", _e(", ".join(f"{k} {v}" for k, v in ig.get("checks", {}).items()))),
+        ("Decided by (epochs)", _e(", ".join(f"{k} {v}" for k, v in ig.get("checks", {}).items()))),
         ("What the checks mean", _e("; ".join(f"{k}: {CHECK_TEXT[k]}" for k in ig.get("checks", {})
                                               if k in CHECK_TEXT))),
         ("Whole-arc solution", _e(

@@ -79,7 +79,7 @@ def _integrity(ig: Mapping[str, Any]) -> str:
 
 def _conditioning(cond: Mapping[str, Any]) -> list[str]:
     if not cond.get("applied"):
-        return [f"carrier phase not checked before solving: {cond.get('note') or 'not applied'}"]
+        return [f"carrier phase not repaired before solving: {cond.get('note') or 'not applied'}"]
     t = {k: int(v) for k, v in dict(cond.get("totals") or {}).items()}
     line = (f"carrier phase checked before solving: {t.get('receiver_slips', 0)} cycle slips "
             f"marked by the receiver, {t.get('hidden_found', 0)} more found where the phase was "

@@ -255,7 +255,7 @@ def test_warnings_name_what_a_reviewer_must_know(flight: dict[str, Any]) -> None
         # the integrity section says what every check it counts means
         from groundstation.solve.integrity.grade import CHECK_TEXT
 
-        decided = re.search(r"Decided by</t[hd]>\s*<td>(.*?)</td>", text)
+        decided = re.search(r"Decided by \(epochs\)</t[hd]>\s*<td>(.*?)</td>", text)
         assert decided, "no Decided by row"
         for name in re.findall(r"([a-z:-]+) \d+", decided.group(1)):
             if name in CHECK_TEXT:

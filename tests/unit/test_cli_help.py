@@ -71,3 +71,25 @@ def test_no_default_said_twice_and_placeholders_name_units(
     twice = re.search(r"\(([^()\s]+)\) \(default: \1\)", text)  # "(3.04) (default: 3.04)"
     assert twice is None, twice
     assert "SHUTTER_DELAY_MS" not in text
+
+
+@pytest.mark.parametrize(("argv", "said"), [
+    (["solve", "f.ubx", "--base-xzy", "1,2,3"],
+     ("groundstation solve: error: unrecognized arguments: --base-xzy 1,2,3; did you mean "
+      "--base-xyz? (see --help)")),
+    (["solve", "f.ubx", "--base-xzy=1,2,3"], "did you mean --base-xyz?"),
+    (["inspect", "f.ubx", "--nonsense"],
+     "groundstation inspect: error: unrecognized arguments: --nonsense (see --help)"),
+])
+def test_a_mistyped_option_names_the_command_and_the_option_meant(
+        argv: list[str], said: str, capsys: pytest.CaptureFixture[str]) -> None:
+    """A newcomer's finding: ``--base-xzy`` got "groundstation: error: unrecognized
+    arguments", naming neither the command nor the option it is closest to."""
+    from groundstation.cli import main
+
+    with pytest.raises(SystemExit) as done:
+        main(argv)
+    assert done.value.code == 2
+    err = capsys.readouterr().err
+    assert said in err and len(err.strip().splitlines()) == 1, err
+    assert "did you mean" not in err or "--nonsense" not in err

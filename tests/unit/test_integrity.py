@@ -343,3 +343,14 @@ def test_a_demoted_fix_keeps_no_fix_sigma() -> None:
     err = np.linalg.norm(g.x - truth, axis=1)
     sd = np.sqrt(np.trace(g.cov, axis1=1, axis2=2) / 3.0)
     assert np.all(err <= 3 * sd)
+
+
+def test_a_code_only_epoch_says_so() -> None:
+    """A newcomer's finding: "single 32 (float 32)", a code position whose check said float."""
+    n = 3
+    truth = np.tile(X0, (n, 1))
+    single = _cand(truth, 2.0, 5)
+    g = gr.grade(np.zeros(n, bool), _cand(truth, 1.0, 0), single, single, single)
+    assert np.all(g.grade == gr.SINGLE)
+    assert {gr.CHECK_NAMES[int(c)] for c in g.check} == {"code-only"}
+    assert gr.CHECK_TEXT["code-only"].startswith("no carrier-phase solution")

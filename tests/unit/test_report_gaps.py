@@ -22,6 +22,6 @@ def test_splits_are_counted_by_why() -> None:
 def test_gaps_judged_again_are_said_with_why() -> None:
     assert _judged_again({}) == "" and _judged_again({"gap_judgements": 1}) == ""
     words = _judged_again({"gap_judgements": 2, "contradictions": 0})
-    assert "judged 2 times" in words and "off the lattice" in words and "left" not in words
-    assert "(3 such difference(s) left)" in _judged_again({"gap_judgements": 3,
-                                                           "contradictions": 3})
+    assert "checked 2 times" in words and "did not all fit" in words and "left" not in words
+    assert "(3 misfit(s) left after the last)" in _judged_again({"gap_judgements": 3,
+                                                                "contradictions": 3})

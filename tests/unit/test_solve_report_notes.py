@@ -30,7 +30,7 @@ def test_other_engine_cases_in_plain_words() -> None:
         "conditioning": {"applied": False, "note": "not applied (no broadcast ephemeris)"},
         "dynamics": {"measured": None, "used": {"a": "0.3", "b": "0.05"}},
     }) == [
-        "carrier phase not checked before solving: not applied (no broadcast ephemeris)",
+        "carrier phase not repaired before solving: not applied (no broadcast ephemeris)",
         ("motion model: the engine's default setting 0.3 / 0.05 horizontal / vertical (the "
         "rover's motion could not be measured)"),
     ]

@@ -91,6 +91,7 @@ CHECK_NAMES: tuple[str, ...] = (
                                 #     on the same arcs gives the same position
     "floats-disagree",          # 14: no fix; the engine's float and our whole-arc float
                                 #     disagree: their middle, half their distance as sigma
+    "code-only",                # 15: no carrier-phase solution at all: the code's position
 )
 """Check code -> name: which check decided an epoch's grade."""
 CHECK_TEXT: dict[str, str] = {
@@ -108,6 +109,7 @@ CHECK_TEXT: dict[str, str] = {
     "demoted:camera-clock": "fixed, but the photo's time comes from the camera clock",
     "carried-along-arcs": "one direction fixed, a checked fix on the same arcs agrees",
     "floats-disagree": "no fix; the engine's float and ours disagree: their middle, wide sigma",
+    "code-only": "no carrier-phase solution: the code's metre-level position",
 }
 """Check name -> what it means, in a line (the printout's legend; docs/integrity.md says more)."""
 C_ARCS, C_BOTH, C_OTHER_FLOAT = 1, 2, 3
@@ -117,6 +119,7 @@ C_ARCS_ENGINE = 11
 C_DEM_CLOCK = 12
 C_BY_ARCS = 13
 C_FLOATS_DISAGREE = 14
+C_CODE_ONLY = 15
 TAINT_EPOCHS = 5
 """Contradicted epochs that take away an arc's standing (one is an accident of the engine)."""
 PHASE_MODEL_FACTOR = 2.0
@@ -430,6 +433,7 @@ def grade(ours_fixed: BoolArray, ours: Candidate, forward: Candidate | None,
     gradec[is_float] = FLOAT
     gradec[left & (merged.q > 2)] = SINGLE
     check[left] = C_FLOAT
+    check[left & (merged.q > 2)] = C_CODE_ONLY
     check[left & m_fix & f_fix & b_fix] = C_DEM_DIRECTIONS
     check[left & dem_float] = C_DEM_FLOAT
     check[left & dem_one] = C_DEM_ONE
