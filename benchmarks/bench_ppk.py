@@ -49,6 +49,7 @@ from __future__ import annotations
 import argparse
 import gzip
 import shutil
+import sys
 import tempfile
 import time
 from dataclasses import dataclass
@@ -58,6 +59,10 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+# The tree this script is in, not whichever groundstation the venv has installed: run from a
+# second checkout (a worktree of another commit) it measured the installed one (session 12's
+# first sweeps compared main with itself).
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from groundstation.geodesy import ecef_to_llh, enu_rotation, llh_to_ecef
 from groundstation.offline import rinex
 from groundstation.rules.marks import build_marks
