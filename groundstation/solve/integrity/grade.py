@@ -71,30 +71,7 @@ GRADE_MEANING: dict[str, str] = {
     "none": "no position",
 }
 
-CHECK_NAMES: tuple[str, ...] = (
-    "",                         # 0: no check made
-    "arcs",                     # 1: our whole-arc integer solution
-    "both-directions",          # 2: the engine fixed forward and backward, consistently
-    "other-direction-float",    # 3: one direction fixed, the other's float agrees
-    "demoted:directions-disagree",   # 4: both directions fixed, inconsistent
-    "demoted:float-disagrees",  # 5: one direction fixed, the other's float disagrees
-    "demoted:arcs-disagree",    # 6: our fixed solution and an engine fix disagree
-    "demoted:one-direction",    # 7: one direction fixed, nothing precise to compare with
-    "float",                    # 8: no fix anywhere
-    "unchecked",                # 9: no observations to check with (a .pos file)
-    "demoted:interpolation",    # 10: fixed epochs, but the mark between them is not a
-                                #     centimetre position (a gap, a quick manoeuvre)
-    "arcs-and-engine",          # 11: our fix and an engine fix in one direction agree
-    "demoted:camera-clock",     # 12: fixed epochs, but the photo's time comes from the
-                                #     camera clock, too loose for a centimetre position
-    "carried-along-arcs",       # 13: one direction fixed, a checked fix at another epoch
-                                #     on the same arcs gives the same position
-    "floats-disagree",          # 14: no fix; the engine's float and our whole-arc float
-                                #     disagree: their middle, half their distance as sigma
-    "code-only",                # 15: no carrier-phase solution at all: the code's position
-)
-"""Check code -> name: which check decided an epoch's grade."""
-CHECK_TEXT: dict[str, str] = {
+CHECK_TEXT: dict[str, str] = {  # in the order of the check codes, from 1
     "arcs": "our whole-arc phase solution fixed it on its own",
     "both-directions": "the engine fixed it forward and backward, alike",
     "other-direction-float": "one direction fixed, the other's precise float agrees",
@@ -103,7 +80,7 @@ CHECK_TEXT: dict[str, str] = {
     "demoted:arcs-disagree": "our whole-arc fix and an engine fix disagree",
     "demoted:one-direction": "one direction fixed, nothing precise to compare it with",
     "float": "no fix anywhere",
-    "unchecked": "nothing to check with",
+    "unchecked": "nothing to check with (a .pos file)",
     "demoted:interpolation": "fixed around the mark, not a centimetre position at it",
     "arcs-and-engine": "our whole-arc fix and the engine's fix agree",
     "demoted:camera-clock": "fixed, but the photo's time comes from the camera clock",
@@ -111,7 +88,10 @@ CHECK_TEXT: dict[str, str] = {
     "floats-disagree": "no fix; the engine's float and ours disagree: their middle, wide sigma",
     "code-only": "no carrier-phase solution: the code's metre-level position",
 }
-"""Check name -> what it means, in a line (the printout's legend; docs/integrity.md says more)."""
+"""Check name -> what it means, in a line (the printout's legend, the report's;
+docs/integrity.md says more)."""
+CHECK_NAMES: tuple[str, ...] = ("", *CHECK_TEXT)
+"""Check code -> name: which check decided an epoch's grade (0: no check made)."""
 C_ARCS, C_BOTH, C_OTHER_FLOAT = 1, 2, 3
 C_DEM_DIRECTIONS, C_DEM_FLOAT, C_DEM_ARCS, C_DEM_ONE, C_FLOAT, C_UNCHECKED = 4, 5, 6, 7, 8, 9
 C_DEM_INTERP = 10
