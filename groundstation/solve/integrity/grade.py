@@ -223,6 +223,16 @@ def _scale_cov(cov: FloatArray, rot: FloatArray, fh: float, fv: float) -> FloatA
     return np.asarray(m @ cov @ m.T, dtype=np.float64)
 
 
+def _middle(xa: FloatArray, ca: FloatArray, xb: FloatArray, cb: FloatArray,
+            ) -> tuple[FloatArray, FloatArray]:
+    """Two estimates that disagree, the truth near one of them: their middle, and on every
+    axis a variance of half their distance squared plus the larger of their own (mean per
+    axis); (n, 3) positions and (n, 3, 3) covariances."""
+    dist = np.linalg.norm(xa - xb, axis=1)
+    own = np.maximum(np.trace(ca, axis1=1, axis2=2), np.trace(cb, axis1=1, axis2=2)) / 3.0
+    return 0.5 * (xa + xb), (0.25 * dist * dist + own)[:, None, None] * np.eye(3)[None]
+
+
 def grade(ours_fixed: BoolArray, ours: Candidate, forward: Candidate | None,
           backward: Candidate | None, merged: Candidate, ours_alone: bool = True,
           ours_arcs: IntArray | None = None, by_arcs: BoolArray | None = None) -> Graded:
@@ -369,20 +379,14 @@ def grade(ours_fixed: BoolArray, ours: Candidate, forward: Candidate | None,
             cov[demoted_one] = cd
         disagree = left & m_fix & f_fix & b_fix & ~veto
         if disagree.any():
-            dist = np.linalg.norm(forward.x[disagree] - backward.x[disagree], axis=1)
-            x[disagree] = 0.5 * (forward.x[disagree] + backward.x[disagree])
-            own = np.maximum(np.trace(forward.cov[disagree], axis1=1, axis2=2),
-                             np.trace(backward.cov[disagree], axis1=1, axis2=2)) / 3.0
-            cov[disagree] = (0.25 * dist * dist + own)[:, None, None] * np.eye(3)[None]
+            x[disagree], cov[disagree] = _middle(forward.x[disagree], forward.cov[disagree],
+                                                 backward.x[disagree], backward.cov[disagree])
     # Two fixes that disagree: the truth is near one of them, so the position is their middle
     # and its sigma on every local axis half their distance, plus the larger of their own.
     split = left & veto & np.all(np.isfinite(ours.x), axis=1)
     if split.any():
-        dist = np.linalg.norm(ours.x[split] - merged.x[split], axis=1)
-        x[split] = 0.5 * (ours.x[split] + merged.x[split])
-        own = np.maximum(np.trace(ours.cov[split], axis1=1, axis2=2),
-                         np.trace(merged.cov[split], axis1=1, axis2=2)) / 3.0
-        cov[split] = ((0.25 * dist * dist + own)[:, None, None] * np.eye(3)[None])
+        x[split], cov[split] = _middle(ours.x[split], ours.cov[split], merged.x[split],
+                                       merged.cov[split])
     # Where both directions are float, they are two estimates of the same position from
     # disjoint data: their difference is a measure of the float's error at that very epoch,
     # added to its variance on each local axis.
@@ -404,11 +408,7 @@ def grade(ours_fixed: BoolArray, ours: Candidate, forward: Candidate | None,
     floats_disagree = plain & ~agree(ours.x, ours.cov, x, cov)
     if floats_disagree.any():
         fd = floats_disagree
-        dist = np.linalg.norm(ours.x[fd] - x[fd], axis=1)
-        own = np.maximum(np.trace(ours.cov[fd], axis1=1, axis2=2),
-                         np.trace(cov[fd], axis1=1, axis2=2)) / 3.0
-        x[fd] = 0.5 * (ours.x[fd] + x[fd])
-        cov[fd] = (0.25 * dist * dist + own)[:, None, None] * np.eye(3)[None]
+        x[fd], cov[fd] = _middle(ours.x[fd], ours.cov[fd], x[fd], cov[fd])
     is_float = left & (merged.q <= 2)
     gradec[is_float] = FLOAT
     gradec[left & (merged.q > 2)] = SINGLE
