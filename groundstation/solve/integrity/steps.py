@@ -97,11 +97,13 @@ def step_tests(tab: PhaseTable, sys: EpochSystem, fl: FloatArcs,
 
 
 def split_arcs(tab: PhaseTable, steps: list[tuple[int, int]]) -> PhaseTable:
-    """The table with each (arc, epoch) of ``steps`` split into two arcs there."""
+    """The table with each (arc, epoch) of ``steps`` split into two arcs there (an arc may be
+    split at several epochs: the later part is cut off first, so that each cut still finds
+    the arc it names)."""
     arc = tab.arc.copy()
     sv = list(tab.arc_sv.tolist())
     n = tab.n_arcs
-    for a, row in steps:
+    for a, row in sorted(steps, key=lambda s: -s[1]):
         m = (arc == a)
         m[:row] = False
         arc[m] = n
