@@ -117,12 +117,10 @@ def test_arcs_that_did_not_step_keep_their_continuity() -> None:
     assert wrong == 0 and fixed == tab.n_epochs
 
 
-def test_a_gap_judged_reliable_is_judged_again_when_the_lattice_contradicts_the_model(
-        monkeypatch: pytest.MonkeyPatch) -> None:
+def test_a_joint_step_soon_after_a_gap_given_up_is_found() -> None:
     # Every arc starts again at 290 s (flags); 4 s later a radio gap the new arcs are too
     # young to bridge (their continuity is given up); 36 s after it, satellites 1-3 step half
-    # a cycle together across a second gap. Judged with the arcs whole, that gap looked
-    # reliable; once they are split at the first, it is not (seed 608 at severity 1).
+    # a cycle together across a second gap (seed 608 at severity 1).
     events: list[Event] = [(290.0, 1.0, tuple(range(7)), ()), (294.0, 2.4, (), ()),
                            (330.0, 1.6, (3,), (0, 1, 2))]
     tab, x = _flight_with(1, events, 500.0)
@@ -130,7 +128,45 @@ def test_a_gap_judged_reliable_is_judged_again_when_the_lattice_contradicts_the_
     assert wrong == 0 and fixed >= 0.99 * tab.n_epochs
     assert res.lattice.contradictions == 0
     assert any(abs(tab.t_ns[d.row] / 1e9 - 331.6) < 0.01 for d in res.gap_doubts)
-    # judged once, as before: the pairs fixed across the second gap are wrong
+
+
+def test_an_arc_cut_at_several_gaps_at_once_is_cut_at_every_one() -> None:
+    tab, _ = _flight_with(3, [(200.0, 2.4, (), ()), (400.0, 2.4, (), ())], 500.0)
+    first = int(np.searchsorted(tab.t_ns, 202.4e9))
+    second = int(np.searchsorted(tab.t_ns, 402.4e9))
+    cut = steps.split_arcs(tab, [(0, first), (1, first), (0, second), (1, second)])
+    for j in (0, 1):
+        col = cut.arc[:, j]
+        pieces = [col[:first], col[first:second], col[second:]]
+        assert all(np.unique(p).size == 1 for p in pieces)
+        assert len({int(p[0]) for p in pieces}) == 3
+    assert cut.n_arcs == tab.n_arcs + 4
+    assert np.array_equal(cut.arc[:, 2:], tab.arc[:, 2:])
+
+
+def test_a_gap_judged_reliable_is_judged_again_when_the_lattice_contradicts_the_model(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    # Two radio gaps 100 s apart, satellites 1-4 continuing across both, 5-7 starting again
+    # after each; half a cycle on satellites 3 and 4 at the first, on 1 and 2 at the second.
+    # Judged on the model with the first step in it, the second gap looks reliable; judged
+    # again once the first is split, its test is too weak to rely on (4 arcs continue: a step
+    # in two of them is nearly a jump of the position, told apart only by the sky's slow
+    # turn) and both gaps are cut (seed 829 at severity 1: the second cut of every arc was
+    # lost, and the weakness counted the common part the test cannot see; the arcs ran on
+    # across a joint half-cycle step, 51 camera positions fixed 16-18 cm off).
+    events: list[Event] = [(300.0, 2.4, (4, 5, 6), (2, 3)), (400.0, 2.4, (4, 5, 6), (0, 1))]
+    tab, x = _flight_with(2, events, 550.0)
+    res, fixed, wrong = _solve(tab, x)
+    assert wrong == 0 and fixed == tab.n_epochs and res.lattice.contradictions == 0
+    first, second = (int(np.searchsorted(tab.t_ns, t)) for t in (302.4e9, 402.4e9))
+    by_row = {d.row: d for d in res.gap_doubts}
+    assert by_row[first].contradicted
+    weak = by_row[second]
+    assert not weak.contradicted and weak.weakest < weak.needed
+    for j in range(4):
+        assert np.unique(res.tab.arc[:, j]).size == 3
+    # judged once: the second gap is kept, the pairs fixed across it are wrong
     monkeypatch.setattr(integrity, "MAX_GAP_JUDGEMENTS", 1)
     res_once, _, wrong_once = _solve(tab, x)
     assert res_once.lattice.contradictions > 0 and wrong_once > 100
+    assert second not in {d.row for d in res_once.gap_doubts}
