@@ -255,3 +255,15 @@ def gap_doubts(tab: PhaseTable, sys: EpochSystem, fl: FloatArcs,
             out.append(GapDoubt(int(g), tuple(int(a) for a in s_arcs), round(chi2, 1),
                                 round(th, 1), round(weakest, 1), round(lam, 1)))
     return out
+
+
+def most_evident(doubts: list[GapDoubt]) -> GapDoubt | None:
+    """The contradicted gap whose joint test is the least probable under the model (its tail
+    probability, so that tests of different numbers of arcs compare), or None."""
+    from scipy import stats
+
+    found = [d for d in doubts if d.contradicted]
+    if not found:
+        return None
+    return min(found, key=lambda d: float(stats.chi2.logsf(d.chi2, len(d.arcs) - 1)))
+
