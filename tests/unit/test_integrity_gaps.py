@@ -175,7 +175,7 @@ def test_joint_steps_at_two_gaps_are_found_one_at_a_time(
         assert np.unique(res.tab.arc[:, j]).size == 3
     # every contradicted gap split at once, judged once: the second gap, judged on a model
     # with the first step in it, is kept and the pairs fixed across it are wrong
-    monkeypatch.setattr(steps, "most_evident", lambda doubts: None)
+    monkeypatch.setattr(steps, "most_evident", lambda doubts: [])
     res_all, _, wrong_all = _solve(tab, x)
     assert res_all.lattice.contradictions > 0 and wrong_all > 100
     assert second not in {d.row for d in res_all.gap_doubts}
@@ -185,7 +185,7 @@ def test_a_gap_judged_reliable_is_judged_again_when_the_lattice_contradicts_the_
         monkeypatch: pytest.MonkeyPatch) -> None:
     # The backstop behind the one-at-a-time search: with it off, the lattice's contradiction
     # has the gaps judged again, and the second gap is split then.
-    monkeypatch.setattr(steps, "most_evident", lambda doubts: None)
+    monkeypatch.setattr(steps, "most_evident", lambda doubts: [])
     tab, x, _, second = _two_gaps()
     res, fixed, wrong = _solve(tab, x)
     assert wrong == 0 and fixed == tab.n_epochs

@@ -257,13 +257,19 @@ def gap_doubts(tab: PhaseTable, sys: EpochSystem, fl: FloatArcs,
     return out
 
 
-def most_evident(doubts: list[GapDoubt]) -> GapDoubt | None:
-    """The contradicted gap whose joint test is the least probable under the model (its tail
-    probability, so that tests of different numbers of arcs compare), or None."""
+def most_evident(doubts: list[GapDoubt]) -> list[GapDoubt]:
+    """The contradicted gaps to take as found: the one whose joint test is the least probable
+    under the model (its tail probability, so that tests of different numbers of arcs
+    compare), then the next that shares no arc with those taken (a step shows only in the
+    tests of gaps its arcs cross), and so on."""
     from scipy import stats
 
-    found = [d for d in doubts if d.contradicted]
-    if not found:
-        return None
-    return min(found, key=lambda d: float(stats.chi2.logsf(d.chi2, len(d.arcs) - 1)))
-
+    found = sorted((d for d in doubts if d.contradicted),
+                   key=lambda d: float(stats.chi2.logsf(d.chi2, len(d.arcs) - 1)))
+    taken: list[GapDoubt] = []
+    used: set[int] = set()
+    for d in found:
+        if used.isdisjoint(d.arcs):
+            taken.append(d)
+            used.update(d.arcs)
+    return taken
