@@ -29,8 +29,8 @@ FloatArray = npt.NDArray[np.float64]
 
 MAX_SPLIT_ROUNDS = 24
 """Rounds of step tests (each splits at most one step per arc, or every arc at the gap with the
-most evident joint step (and others sharing no arc with it), or, the first time nothing steps, every arc at the gaps whose
-continuity is in doubt)."""
+most evident joint step and at others sharing no arc with it, or, the first time nothing
+steps, every arc at the gaps whose continuity is in doubt)."""
 MAX_GAP_JUDGEMENTS = 3
 """Judgements of the gaps' continuity: the first on the model as the step tests leave it, the
 others only when the fixed solution's lattice contradicts the model (:func:`resolve`)."""
@@ -147,9 +147,9 @@ def _split(tab: PhaseTable, x: FloatArray, code_infl: float, nominal: float,
         # gap shows in the test of every earlier gap of the same arcs (each tests the arcs'
         # data from its gap on against their whole), so only the most evident is taken as
         # found (and any other sharing no arc with it) and the others tested again without it
-        # (Baarda's identification, one alternative at a time; seed 829 at severity 1: one joint half-cycle step at a 2.2 s
-        # gap contradicted all 73 gaps of the 270 s around it, which were all split and left
-        # that stretch without a fix).
+        # (Baarda's identification, one alternative at a time; seed 829 at severity 1: one
+        # joint half-cycle step at a 2.2 s gap contradicted all 73 gaps of the 270 s around
+        # it, which were all split and left that stretch without a fix).
         doubts = steps.gap_doubts(tab, system, fl, nominal)
         evident = steps.most_evident(doubts)
         if evident:
