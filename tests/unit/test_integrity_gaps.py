@@ -190,3 +190,13 @@ def test_a_gap_judged_reliable_is_judged_again_when_the_lattice_contradicts_the_
     res, fixed, wrong = _solve(tab, x)
     assert wrong == 0 and fixed == tab.n_epochs
     assert res.gap_judgements > 1 and second in {d.row for d in res.gap_doubts}
+
+
+def test_what_is_still_in_doubt_when_the_rounds_are_spent_is_split(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    # one round: the evident gap is split in it; the other, never judged, is split at the end
+    monkeypatch.setattr(integrity, "MAX_SPLIT_ROUNDS", 1)
+    tab, x, first, second = _two_gaps()
+    res, fixed, wrong = _solve(tab, x)
+    assert {first, second} <= {d.row for d in res.gap_doubts}
+    assert wrong == 0 and fixed == tab.n_epochs

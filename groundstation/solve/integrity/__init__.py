@@ -128,8 +128,9 @@ def resolve(tab: PhaseTable, x0: FloatArray) -> Resolution:
 def _split(tab: PhaseTable, x: FloatArray, code_infl: float, nominal: float,
            ) -> tuple[PhaseTable, float, list[tuple[int, int]], list[GapDoubt]]:
     """Split the arcs at the steps the single tests find, then at the gaps where a joint step
-    is found (the most evident first, one at a time) and, once none is left, at the gaps
-    where one could hide; (table, code inflation, steps, doubts)."""
+    is found (the most evident first, with others sharing no arc with it, and test again)
+    and, once none is left, at the gaps where one could hide; (table, code inflation, steps,
+    doubts)."""
     found_all: list[tuple[int, int]] = []
     gap_doubts: list[GapDoubt] = []
     gaps_judged = False
@@ -166,6 +167,13 @@ def _split(tab: PhaseTable, x: FloatArray, code_infl: float, nominal: float,
         if gaps_judged or not doubts:
             break
         gaps_judged = True
+        gap_doubts += doubts
+        tab = steps.split_arcs(tab, [(a, d.row) for d in doubts for a in d.arcs])
+    else:
+        # rounds spent with steps still being found: whatever gap is still in doubt is split,
+        # all at once (nothing is left relying on a continuity not checked)
+        system = normal.epoch_system(tab, x, code_infl)
+        doubts = steps.gap_doubts(tab, system, normal.float_arcs(tab, system), nominal)
         gap_doubts += doubts
         tab = steps.split_arcs(tab, [(a, d.row) for d in doubts for a in d.arcs])
     return tab, code_infl, found_all, gap_doubts
