@@ -242,15 +242,18 @@ INTEGRITY_TEXT = (
 
 
 def _gap_splits(gaps: dict[str, Any]) -> str:
-    """The radio gaps across which every arc was split, in words."""
+    """The radio gaps across which arcs were split, in words."""
     found = int(gaps.get("steps_found", 0))
     hidden = int(gaps.get("steps_could_hide", 0))
     if found + hidden == 0:
         return "every arc's continuity across the radio gaps checked"
+    cut = int(gaps.get("arcs_split_where_steps_could_hide", 0))
     parts = [f"{n} {what}" for n, what in (
-        (found, "with a step of several satellites at once"),
-        (hidden, "where such a step could have passed unseen")) if n]
-    return (f"every arc split at {found + hidden} radio gap(s) ({', '.join(parts)}): "
+        (found, "with a step of several satellites at once: every arc split there"),
+        (hidden, ("where such a step could have passed unseen: "
+                  f"{cut} arc(s) whose continuity the others could not check split there")))
+             if n]
+    return (f"arcs split at {found + hidden} radio gap(s) ({'; '.join(parts)}): "
             "their phase is not carried across")
 
 
@@ -279,7 +282,7 @@ def _integrity(inp: ReportInput) -> str:
     fac = ig.get("float_sigma_factor") or {}
     sm = arcs.get("smoothing") or {}
     steps = arcs.get("slips_found_as_steps", [])
-    gaps = arcs.get("gaps_with_every_arc_split") or {}
+    gaps = arcs.get("gaps_split") or {}
     rows = [
         ("Epochs", _e(", ".join(f"{k} {v}" for k, v in ig.get("grades", {}).items()))),
         ("Decided by (epochs)", _e(", ".join(f"{k} {v}" for k, v in ig.get("checks", {}).items()))),

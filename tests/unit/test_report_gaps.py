@@ -1,4 +1,4 @@
-"""The report's words for the radio gaps across which the whole-arc solution split every arc."""
+"""The report's words for the radio gaps across which the whole-arc solution split arcs."""
 
 from __future__ import annotations
 
@@ -11,10 +11,11 @@ def test_no_split_says_the_continuity_was_checked() -> None:
 
 
 def test_splits_are_counted_by_why() -> None:
-    words = _gap_splits({"steps_found": 1, "steps_could_hide": 3})
-    assert words.startswith("every arc split at 4 radio gap(s)")
-    assert "1 with a step of several satellites at once" in words
-    assert "3 where such a step could have passed unseen" in words
+    words = _gap_splits({"steps_found": 1, "steps_could_hide": 3,
+                         "arcs_split_where_steps_could_hide": 5})
+    assert words.startswith("arcs split at 4 radio gap(s)")
+    assert "1 with a step of several satellites at once: every arc split there" in words
+    assert "3 where such a step could have passed unseen: 5 arc(s)" in words
     only = _gap_splits({"steps_found": 0, "steps_could_hide": 2})
     assert "with a step" not in only and "2 where such a step" in only
 

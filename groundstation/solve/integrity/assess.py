@@ -174,9 +174,11 @@ def _arcs_of(res: Resolution, base_x: FloatArray, t0: float) -> Arcs:
         "first_float_sigma_steps": round(lat_res.ratio_to_lattice, 3),
         "slips_found_as_steps": [
             {"satellite": f"G{sv:02d}", "t_gps_ns": t} for sv, t in res.steps],
-        "gaps_with_every_arc_split": {
+        "gaps_split": {
             "steps_found": sum(d.contradicted for d in res.gap_doubts),
             "steps_could_hide": sum(not d.contradicted for d in res.gap_doubts),
+            "arcs_split_where_steps_could_hide": sum(
+                len(d.cut) for d in res.gap_doubts if not d.contradicted),
         },
         "code_variance_factor": round(res.code_inflation, 2),
         "phase_variance_factor": round(res.phase_factor, 2),
