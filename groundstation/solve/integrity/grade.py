@@ -80,7 +80,7 @@ CHECK_TEXT: dict[str, str] = {  # in the order of the check codes, from 1
     "demoted:float-disagrees": "one direction fixed, the other's precise float disagrees",
     "demoted:arcs-disagree": "our whole-arc fix and an engine fix disagree",
     "demoted:one-direction": "one direction fixed, nothing precise to compare it with",
-    "float": "no fix anywhere",
+    "float": "no fix anywhere: the engine's float, or its middle with ours",
     "unchecked": "nothing to check with (a .pos file)",
     "demoted:interpolation": "fixed around the mark, not a centimetre position at it",
     "arcs-and-engine": "our whole-arc fix and the engine's fix agree",
