@@ -167,7 +167,7 @@ class GapDoubt:
     threshold: float
     weakest: float
     needed: float
-    cut: tuple[int, ...] = ()
+    cut: tuple[int, ...]
     """The arcs split there: all of them where a step was found; where one could hide, those
     whose continuity the others cannot check (:func:`_unverifiable`)."""
 
