@@ -155,7 +155,7 @@ def _split(tab: PhaseTable, x: FloatArray, code_infl: float, nominal: float,
         evident = steps.most_evident(doubts)
         if evident:
             gap_doubts += evident
-            tab = steps.split_arcs(tab, [(a, d.row) for d in evident for a in d.cut])
+            tab = steps.split_at_gaps(tab, evident)
             continue
         # Nothing stepped: are the arcs' continuities across the gaps to be relied on? Each
         # gap is judged once, on the model as the tests above left it (Baarda: every
@@ -168,14 +168,14 @@ def _split(tab: PhaseTable, x: FloatArray, code_infl: float, nominal: float,
             break
         gaps_judged = True
         gap_doubts += doubts
-        tab = steps.split_arcs(tab, [(a, d.row) for d in doubts for a in d.cut])
+        tab = steps.split_at_gaps(tab, doubts)
     else:
         # rounds spent with steps still being found: whatever gap is still in doubt is split,
         # all at once (nothing is left relying on a continuity not checked)
         system = normal.epoch_system(tab, x, code_infl)
         doubts = steps.gap_doubts(tab, system, normal.float_arcs(tab, system), nominal)
         gap_doubts += doubts
-        tab = steps.split_arcs(tab, [(a, d.row) for d in doubts for a in d.cut])
+        tab = steps.split_at_gaps(tab, doubts)
     return tab, code_infl, found_all, gap_doubts
 
 

@@ -120,6 +120,11 @@ POWER = 0.8
 relied on (Baarda's reliability; the usual 80 %)."""
 
 
+def split_at_gaps(tab: PhaseTable, doubts: list[GapDoubt]) -> PhaseTable:
+    """The table with the arcs each doubt cuts (:attr:`GapDoubt.cut`) split at its gap."""
+    return split_arcs(tab, [(a, d.row) for d in doubts for a in d.cut])
+
+
 @lru_cache(maxsize=32)
 def _patterns(n: int) -> FloatArray:
     """The smallest steps an arc set can take at one gap, in lattice units: one or two arcs by
