@@ -3,7 +3,8 @@ through pyrtklib5) fed epoch by epoch with the rover's and the base's measuremen
 
 The filter takes the same option set as the post-flight engine (``solve``'s demo5 defaults and
 the base position, :func:`groundstation.solve.engine.resolve_options`, loaded through RTKLIB's
-own option table), so that a live fix and a post-flight fix mean the same thing. Broadcast
+own option table), so that a live fix and a post-flight fix mean the same thing, except where
+a forward filter alone needs otherwise (:data:`LIVE_OPTIONS`). Broadcast
 ephemerides come from the subframes the receivers forward (RXM-SFRB / RXM-SFRBX), decoded by
 our LNAV decoder (:class:`groundstation.gnss.lnav.EphemerisAssembler`) and handed to RTKLIB.
 
@@ -57,6 +58,17 @@ carry over (a position and a clock: four unknowns); with fewer the filter restar
 BASE_BUFFER = 150
 """Base epochs kept (30 s at 5 Hz): the base's stream usually arrives before the rover's."""
 
+LIVE_OPTIONS = {"stats-prnaccelv": "0.08"}
+"""Where the live filter departs from the post-flight engine's option set: its vertical
+acceleration noise (m/s^2 per sqrt(s); post-flight 0.05 before the dynamics stage). The
+post-flight solve combines a forward and a backward run, whose lags at a climb's or a descent's
+start and end are opposite and cancel; a forward filter alone keeps its lag, which at 0.05 put
+fixes 5-7 cm off at every climb's start and end, under sigmas of 1-2 cm (1-8 live fixes
+beyond 3 sigma on each of 13 simulated flights, up to 13.8 cm on one). 0.08 is the stiffest
+of the steps measured (0.05, 0.08, 0.1, 0.2) with no live fix beyond 3 sigma on those flights;
+looser only widens the sigmas, and more integer solutions fail the 3.3 cm rule
+(benchmarks/RESULTS.md, "The live filter's vertical dynamics")."""
+
 BASE_CHECK_FIXES = 10
 """Single-point fixes of the base, one a second from its own pseudoranges, compared with the
 given base coordinates once there are this many (``solve``'s check, :func:`groundstation.solve.
@@ -102,7 +114,8 @@ class LiveRtk:
         """An integer solution looser than this on any axis is called ``float``, as after the
         flight (a fixed position promises 10 cm at 3 sigma)."""
         self._p = p = _rtklib()
-        opts, _ = resolve_options(get_engine("demo5"), base_ecef_m, None, overrides or {})
+        opts, _ = resolve_options(get_engine("demo5"), base_ecef_m, None,
+                                  {**LIVE_OPTIONS, **(overrides or {})})
         with tempfile.TemporaryDirectory(prefix="gs-rtk-") as tmp:
             conf = Path(tmp) / "live.conf"
             conf.write_text(conf_text(opts, ["groundstation: live demo5 options"]))
@@ -489,9 +502,11 @@ class BaseFeed:
 
 
 def solve_recorded(rover: bytes, base: bytes, base_ecef_m: tuple[float, float, float],
-                   *, restart: bool = True) -> list[LiveSolution]:
-    """Two recorded streams solved epoch by epoch as the live engine would have solved them."""
-    engine = LiveRtk(base_ecef_m, restart=restart)
+                   *, restart: bool = True, overrides: dict[str, str] | None = None,
+                   ) -> list[LiveSolution]:
+    """Two recorded streams solved epoch by epoch as the live engine would have solved them
+    (``overrides``: engine options over the live engine's, to measure what they change)."""
+    engine = LiveRtk(base_ecef_m, overrides, restart=restart)
     base_items = measurements(base)
     feed = BaseFeed(engine, base_items)
     week = next((b.gps_week for b in base_items if isinstance(b, RawEpoch)), 0)

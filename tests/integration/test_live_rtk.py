@@ -23,6 +23,7 @@ from peers import CliProc, Received, cli_env, free_port, wait_until
 
 from groundstation.bus import Bus, key
 from groundstation.config import ZenohSettings
+from groundstation.geodesy import ecef_to_llh, enu_rotation
 from groundstation.live.rtk import solve_recorded
 from groundstation.records import LiveSolution
 from groundstation.sim.faults import FaultConfig
@@ -42,8 +43,14 @@ def _live(sim: SimResult) -> list[LiveSolution]:
     return solve_recorded(sim.rover_bytes, sim.base_bytes, tuple(sim.truth["base"]["ecef_m"]))
 
 
-def test_fixed_for_the_last_minute_and_centimetres_from_the_truth(flight: SimResult) -> None:
-    sols = _live(flight)
+@pytest.fixture(scope="module")
+def live(flight: SimResult) -> list[LiveSolution]:
+    return _live(flight)
+
+
+def test_fixed_for_the_last_minute_and_centimetres_from_the_truth(
+        flight: SimResult, live: list[LiveSolution]) -> None:
+    sols = live
     assert len(sols) >= 0.95 * 300 * 5
     last = sols[-300:]  # the last 60 s at 5 Hz
     assert sum(s.quality == "fix" for s in last) >= 0.95 * len(last)
@@ -67,6 +74,26 @@ def test_fixed_for_the_last_minute_and_centimetres_from_the_truth(flight: SimRes
     start = sols[0]
     assert start.quality == "none" and "ephemerides of" in start.why
     assert start.message()["why"] == start.why and "ecef_m" in start.message()
+
+
+def test_every_live_fix_is_within_3_sigma_of_the_truth_where_the_copter_climbs(
+        flight: SimResult, live: list[LiveSolution]) -> None:
+    # A forward filter lags at a climb's or a descent's start and end (its acceleration noise,
+    # live.rtk.LIVE_OPTIONS): with the post-flight engine's 0.05 m/s^2/sqrt(s) vertically, this
+    # flight had 4 live fixes 4-6 cm off in height under sigmas of 1-2 cm.
+    tr = flight.truth["trajectory"]
+    t = np.array(tr["t_gps_ns"], dtype=np.int64)
+    xyz = np.column_stack([tr["x_m"], tr["y_m"], tr["z_m"]])
+    lat, lon, _ = ecef_to_llh(*flight.truth["base"]["ecef_m"])
+    rot = np.array(enu_rotation(lat, lon))
+    fixes = [s for s in live if s.quality == "fix" and s.ecef_m and s.sd_enu_m]
+    assert len(fixes) > 1000
+    beyond = []
+    for s in fixes:
+        enu = rot @ (np.array(s.ecef_m) - xyz[int(np.searchsorted(t, s.t_gps_ns))])
+        if np.any(np.abs(enu) > 3 * np.array(s.sd_enu_m)):
+            beyond.append((round((s.t_gps_ns - int(t[0])) / 1e9, 1), enu.round(3).tolist()))
+    assert not beyond
 
 
 def test_the_rtk_command_solves_from_the_bus(flight: SimResult, tmp_path: Path) -> None:
