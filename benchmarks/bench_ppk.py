@@ -4,7 +4,8 @@ Run: python benchmarks/bench_ppk.py [--seed-s 1200] [--seeds 1,2,3] [--severitie
          [--only KEY] [--ours-opt KEY=VALUE ...]
      python benchmarks/bench_ppk.py --hour [--repeat 2]
      python benchmarks/bench_ppk.py --sweep [--sweep-seeds 501-530] [--sweep-severities
-         0.5,1,1.5,2] [--real-seeds 1-5] [--interp METHOD] [--out FILE.jsonl]
+         0.5,1,1.5,2] [--sweep-faults SPEC] [--real-seeds 1-5] [--interp METHOD]
+         [--out FILE.jsonl]
      python benchmarks/bench_ppk.py --why-real
 
 ``--sweep`` (issue 22): the whole ``solve`` (engine, integrity stage, marks) on many flights,
@@ -15,6 +16,8 @@ and through the seed link with each of ``--real-seeds``, against the solve of th
 recording (its fixed camera positions). Per run: camera positions fixed (share), wrong fixes
 (fixed and more than 10 cm off), positions off by more than 5 cm and more than 3 sigma on an
 axis, the worst error of a fixed one, wall time; then minimum, median and maximum per group.
+``--sweep-faults`` gives the simulated flights another link than the seed profile's (a fault
+file, e.g. ``benchmarks/faults/long-outages.toml``): fault patterns the rules were not made on.
 
 Engines (rows per dataset):
 - ``b34``: Debian's rnx2rtkp 2.4.3 b34 with the project's former options (GPS L1, combined,
@@ -394,17 +397,22 @@ def _solve(rover: Path, base: Path, base_xyz: tuple[float, float, float], out: P
                                rtk_options=rtk_options, **more))  # type: ignore[arg-type]
 
 
-def sweep_sim(work: Path, seed: int, severity: float) -> dict[str, Any]:
+def sweep_sim(work: Path, seed: int, severity: float, faults: str = "") -> dict[str, Any]:
     """One seed-profile flight (the profile's default span), solved and judged at the marks
-    against the truth's exposures."""
-    cfg = sim_config("seed", seed=seed, severity=severity)
+    against the truth's exposures. ``faults``: the link's fault pattern (``FaultConfig.load``'s
+    spec; empty: the profile's own)."""
+    from groundstation.sim.faults import FaultConfig
+
+    link = FaultConfig.load(faults) if faults else None
+    cfg = sim_config("seed", seed=seed, severity=severity, faults=link)
     sim = simulate(cfg)
     work.mkdir(parents=True, exist_ok=True)
     (work / "rover.ubx").write_bytes(sim.rover_bytes)
     (work / "base.ubx").write_bytes(sim.base_bytes)
     base = tuple(float(v) for v in sim.truth["base"]["ecef_m"])
     t0 = time.perf_counter()
-    row: dict[str, Any] = {"flight": f"sim severity {severity:g}", "seed": seed}
+    label = f" link {Path(faults).stem}" if faults else ""
+    row: dict[str, Any] = {"flight": f"sim severity {severity:g}{label}", "seed": seed}
     try:
         res = _solve(work / "rover.ubx", work / "base.ubx", base, work / "out")  # type: ignore[arg-type]
     except Exception as err:  # recorded: the sweep must say every failure
@@ -608,7 +616,7 @@ def sweep(args: argparse.Namespace) -> None:
                 keep(r)
         for sev in [float(v) for v in args.sweep_severities.split(",") if v]:
             for seed in _span(args.sweep_seeds):
-                keep(sweep_sim(work / f"s{sev:g}_{seed}", seed, sev))
+                keep(sweep_sim(work / f"s{sev:g}_{seed}", seed, sev, args.sweep_faults))
                 shutil.rmtree(work / f"s{sev:g}_{seed}", ignore_errors=True)
     if out is not None:
         out.close()
@@ -628,6 +636,9 @@ def main() -> None:
     ap.add_argument("--sweep", action="store_true", help="issue 22's sweep (see the doc)")
     ap.add_argument("--sweep-seeds", default="501-530")
     ap.add_argument("--sweep-severities", default="0.5,1,1.5,2")
+    ap.add_argument("--sweep-faults", default="", metavar="SPEC",
+                    help="the simulated flights' link: none, default, seed or a fault file "
+                         "(benchmarks/faults/); default: the seed profile's own")
     ap.add_argument("--real-seeds", default="1-5", help="fault seeds of the real flights, or "
                     "none")
     ap.add_argument("--out", default="", help="write every run as a JSON line here")
