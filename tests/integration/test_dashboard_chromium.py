@@ -364,8 +364,8 @@ def test_dashboard_in_headless_chromium(
         assert chromium.eval("document.body?.dataset.state") == "finished"
         assert "daemon gone" not in chromium.eval(
             "document.getElementById('badge-detail').textContent")
-        assert not chromium.eval("document.getElementById('link-now').textContent"
-                                 ".startsWith('DROPOUT')")  # no frozen dropout
+        # no frozen dropout, and not "receiving" either (it read so after the end, 2026-11-29)
+        assert chromium.eval("document.getElementById('link-now').textContent") == "ended"
         chromium.screenshot(tmp_path / "3-finished.png")
 
         # the daemon comes back: live again, without reloading the page

@@ -428,6 +428,8 @@ function renderLink(view) {
   if (ongoing) {
     const secs = ongoing[1] - ongoing[0];
     setText("link-now", "DROPOUT " + num(secs, 1) + " s", "alarm");
+  } else if (view.finished) {
+    setText("link-now", "ended", "");  // not "receiving": nothing comes after the end
   } else {
     setText("link-now", link.epochs ? "receiving" : "-", link.epochs ? "good" : "");
   }
