@@ -113,9 +113,11 @@ def test_a_demo_cut_short_gives_the_figures_up_to_the_stop(tmp_path: Path) -> No
     cut = re.search(r"cut short: (\d+\.\d) s of the 300 s flight sent", out)
     assert cut, out
     sent_s = float(cut.group(1))
-    assert 0 < sent_s <= 61.0  # 3 s at x20, whatever the machine's load
+    # 3 s at x20 is about 60 s of the flight; a loaded machine stops a little later (61.1 s
+    # seen with the suite beside two benchmark sweeps), so the bound is what the figures below
+    # rest on: the cut lies inside the static start, before any exposure
     takeoff_s = (truth["phases"]["takeoff_gps_ns"] - truth["start_gps_ns"]) / 1e9
-    assert sent_s < takeoff_s
+    assert 0 < sent_s < takeoff_s, (sent_s, takeoff_s)
     assert len(truth["exposures"]) > 0 and len(truth["fault_summary"]["epochs_lost_tow_ms"]) > 0
     start = truth["start_gps_ns"]
     week0 = start - start % (604_800 * 10**9)
