@@ -57,6 +57,7 @@ from groundstation.gnss.noise import PHASE_SIGMA_45_CYC, cno_scale
 from groundstation.gnss.orbit import L1_WAVELENGTH_M
 from groundstation.offline.rinex.observations import ObsSet
 from groundstation.rules.phase import LLI_HALF_CYCLE, LLI_SLIP
+from groundstation.solve.integrity.table import ARC_GAP_S
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -68,8 +69,16 @@ MAX_CHI = 3.0
 """A fit whose normalised rms exceeds this determines no jump."""
 MIN_REFERENCE_SATS = 5
 """Satellites without a jump needed to determine another's jump across a gap."""
-MAX_BRIDGE_S = 4.0
-"""Longest span a satellite's phase is carried across (radio gaps are at most 3 s)."""
+MAX_BRIDGE_S = ARC_GAP_S
+"""Longest span a satellite's phase is carried across: the whole-arc solution's, past which no
+receiver's lock is taken to have held (:data:`groundstation.solve.integrity.table.ARC_GAP_S`,
+30 s). A bridge here is a proposal: the whole-arc solution judges every gap again in
+between-receiver differences, where the ionosphere and the troposphere cancel and a gap's
+length does not weaken the test (each epoch's position is free either way), and cuts the arcs
+at a gap it contradicts or cannot check (``integrity.steps``). Up to 2026-11-29 this was 4 s
+("radio gaps are at most 3 s", the seed link's longest): a link with longer outages started
+every satellite's ambiguity again at each, and its flights kept 8-100 % of their camera
+positions fixed, median 61 % (benchmarks/RESULTS.md, "Long radio outages")."""
 STEP_INTERVALS = 1.5
 """Epochs closer than this many nominal intervals are consecutive: no room for a slip the
 receiver did not flag."""

@@ -8,6 +8,7 @@ through demo5.
 
 from __future__ import annotations
 
+import tempfile
 from collections import defaultdict
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -19,6 +20,7 @@ import pytest
 from groundstation.gnss.ephemeris import BroadcastEphemeris
 from groundstation.offline import rinex
 from groundstation.offline.rinex.observations import ObsSet
+from groundstation.sim.faults import FaultConfig
 from groundstation.sim.profiles import sim_config
 from groundstation.sim.stream import SimResult, simulate
 from groundstation.solve import conditioning, engine
@@ -146,3 +148,56 @@ def test_demo5_fixes_the_seed_flight_once_conditioned(flight: Conditioned) -> No
     # No wrong fix: every fixed epoch within 10 cm of the truth (the simulator's ionosphere is
     # continuous and its legs jerk-limited; with a step in either, fixes came out 10-23 cm off).
     assert float(np.max(err[fixed])) <= 0.10, f"{np.sum(err[fixed] > 0.10)} fixes > 10 cm"
+
+
+LONG_OUTAGES = FaultConfig(flight_dropout_per_min=4.0, dropout_median_s=5.0,
+                           dropout_max_s=10.0, dropout_spacing_s=3.0)
+"""The copter behind a tree line: outages of seconds, up to 10 s (longer than
+benchmarks/faults/long-outages.toml's, so that a short flight has many)."""
+
+
+@pytest.fixture(scope="module")
+def long_outages() -> tuple[SimResult, ObsSet, conditioning.ConditioningReport]:
+    sim = simulate(sim_config("seed", duration_s=FLIGHT_S, seed=SEED, severity=1.0,
+                              faults=LONG_OUTAGES))
+    with tempfile.TemporaryDirectory(prefix="gs-cond-") as tmp:
+        (Path(tmp) / "rover.ubx").write_bytes(sim.rover_bytes)
+        seen: list[tuple[ObsSet, conditioning.ConditioningReport]] = []
+
+        def hook(obs: ObsSet, ephs: list[BroadcastEphemeris] | Any,
+                 approx: tuple[float, float, float]) -> ObsSet:
+            new, rep = conditioning.condition(obs, ephs, approx)
+            seen.append((obs, rep))
+            return new
+
+        rinex.convert(Path(tmp) / "rover.ubx", Path(tmp) / "rinex", obs_hook=hook)
+    return sim, *seen[0]
+
+
+def test_phase_is_carried_across_outages_longer_than_the_seed_links(
+        long_outages: tuple[SimResult, ObsSet, conditioning.ConditioningReport]) -> None:
+    # Until 2026-11-29 no phase was carried across more than 4 s (the seed link's outages are
+    # at most 3 s): every satellite started again after each longer outage, and such flights
+    # kept 8-100 % of their camera positions fixed (median 61 %).
+    sim, obs, rep = long_outages
+    sats: dict[int, set[str]] = defaultdict(set)  # epoch -> satellites with a phase
+    for t, sv, cp in zip(obs.t_gps_ns[obs.epoch].tolist(), obs.prn.tolist(),
+                         obs.cp_cyc.tolist(), strict=True):
+        if cp != 0.0:
+            sats[t].add(f"G{sv:02d}")
+    times = sorted(sats)
+    flagged = set(rep.flags)
+    across = carried = 0
+    for before, after in zip(times[:-1], times[1:], strict=True):
+        if (after - before) / 1e9 > 4.0:
+            both = sats[before] & sats[after]
+            across += len(both)
+            carried += sum((after, s) not in flagged for s in both)
+    # measured: 29 of 106 satellites carried across (the others' jumps not determined: the
+    # Doppler's integral misses the copter's accelerations over seconds); before, none
+    assert across >= 20 and carried >= 0.2 * across, (carried, across)
+    # ... and rightly: every repair takes out the true jump, across long outages too
+    jumps = _true_jumps(sim.truth)
+    for t_prev, t, sat, jump, _hidden in rep.repairs:
+        true = sum(j for tj, j in jumps[int(sat[1:])] if t_prev < tj <= t)
+        assert jump == true, (t, sat, jump, true)
