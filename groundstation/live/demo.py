@@ -38,6 +38,9 @@ log = logging.getLogger("groundstation.demo")
 DRAIN_IDLE_S = 2.0
 """At the end, the daemon reads what is still in the pty; if it reads nothing for this long it
 is not reading any more (the bytes it never read are then reported in the summary)."""
+BASE_WAITS_FOR_SESSION_S = 10.0
+"""How long the base station's daemon waits for the demo's Zenoh session to listen before it
+starts all the same (a session that cannot open: the demo records on and says so)."""
 
 
 SIMULATED_RECEIVER = "simulated u-blox LEA-6T (groundstation.sim)"
@@ -356,6 +359,14 @@ async def run_demo(
                "zenoh": list(zenoh.listen) if zenoh.enabled else None,
                "flight_s": opts.flight_s, "speed": opts.speed})
     runner = asyncio.create_task(pipeline.run(stop, handle_signals=True), name="pipeline")
+    if base_pipeline is not None and pipeline.publisher is not None:
+        # The base's daemon is a client of this session: it starts once the session listens.
+        # Started together, its first attempt could find nobody, warn "cannot open Zenoh
+        # session" on the README's first command and wait 5 s to try again (1 run in 3).
+        for _ in range(int(BASE_WAITS_FOR_SESSION_S / 0.01)):
+            if pipeline.publisher.bus is not None or runner.done():
+                break
+            await asyncio.sleep(0.01)
     base_runner = (asyncio.create_task(base_pipeline.run(stop), name="base-pipeline")
                    if base_pipeline is not None else None)
     # the serial source opens the pty (and flushes its input) before the first byte is written
