@@ -8,7 +8,6 @@ through demo5.
 
 from __future__ import annotations
 
-import tempfile
 from collections import defaultdict
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -47,10 +46,9 @@ class Conditioned:
         return self.sim.truth
 
 
-@pytest.fixture(scope="module")
-def flight(tmp_path_factory: pytest.TempPathFactory) -> Conditioned:
-    work = tmp_path_factory.mktemp("cond")
-    sim = simulate(sim_config("seed", duration_s=FLIGHT_S, seed=SEED, severity=1.0))
+def _conditioned(sim: SimResult, work: Path) -> Conditioned:
+    """The flight through our RINEX writer with the conditioning as its observation hook, as
+    the solver runs it: the observations before and the report."""
     (work / "rover.ubx").write_bytes(sim.rover_bytes)
     (work / "base.ubx").write_bytes(sim.base_bytes)
     out = Conditioned(sim, work)
@@ -66,6 +64,12 @@ def flight(tmp_path_factory: pytest.TempPathFactory) -> Conditioned:
     return out
 
 
+@pytest.fixture(scope="module")
+def flight(tmp_path_factory: pytest.TempPathFactory) -> Conditioned:
+    sim = simulate(sim_config("seed", duration_s=FLIGHT_S, seed=SEED, severity=1.0))
+    return _conditioned(sim, tmp_path_factory.mktemp("cond"))
+
+
 def _true_jumps(truth: dict[str, Any]) -> dict[int, list[tuple[int, float]]]:
     """Per satellite: (epoch time, phase jump there in cycles) of every loss and resolution."""
     jumps: dict[int, list[tuple[int, float]]] = defaultdict(list)
@@ -77,13 +81,17 @@ def _true_jumps(truth: dict[str, Any]) -> dict[int, list[tuple[int, float]]]:
     return jumps
 
 
+def _assert_every_repair_is_the_true_jump(c: Conditioned) -> None:
+    jumps = _true_jumps(c.truth)
+    for t_prev, t, sat, jump, _hidden in c.report[0].repairs:
+        true = sum(j for tj, j in jumps[int(sat[1:])] if t_prev < tj <= t)
+        assert jump == true, (t, sat, jump, true)
+
+
 def test_every_repair_takes_out_the_true_jump(flight: Conditioned) -> None:
     rep = flight.report[0]
     assert rep.applied and rep.repairs
-    jumps = _true_jumps(flight.truth)
-    for t_prev, t, sat, jump, _hidden in rep.repairs:
-        true = sum(j for tj, j in jumps[int(sat[1:])] if t_prev < tj <= t)
-        assert jump == true, (t, sat, jump, true)
+    _assert_every_repair_is_the_true_jump(flight)
 
 
 def test_slips_hidden_in_radio_gaps_are_found_and_mostly_repaired(flight: Conditioned) -> None:
@@ -157,29 +165,18 @@ benchmarks/faults/long-outages.toml's, so that a short flight has many)."""
 
 
 @pytest.fixture(scope="module")
-def long_outages() -> tuple[SimResult, ObsSet, conditioning.ConditioningReport]:
+def long_outages(tmp_path_factory: pytest.TempPathFactory) -> Conditioned:
     sim = simulate(sim_config("seed", duration_s=FLIGHT_S, seed=SEED, severity=1.0,
                               faults=LONG_OUTAGES))
-    with tempfile.TemporaryDirectory(prefix="gs-cond-") as tmp:
-        (Path(tmp) / "rover.ubx").write_bytes(sim.rover_bytes)
-        seen: list[tuple[ObsSet, conditioning.ConditioningReport]] = []
-
-        def hook(obs: ObsSet, ephs: list[BroadcastEphemeris] | Any,
-                 approx: tuple[float, float, float]) -> ObsSet:
-            new, rep = conditioning.condition(obs, ephs, approx)
-            seen.append((obs, rep))
-            return new
-
-        rinex.convert(Path(tmp) / "rover.ubx", Path(tmp) / "rinex", obs_hook=hook)
-    return sim, *seen[0]
+    return _conditioned(sim, tmp_path_factory.mktemp("cond-long"))
 
 
 def test_phase_is_carried_across_outages_longer_than_the_seed_links(
-        long_outages: tuple[SimResult, ObsSet, conditioning.ConditioningReport]) -> None:
+        long_outages: Conditioned) -> None:
     # Until 2026-11-29 no phase was carried across more than 4 s (the seed link's outages are
     # at most 3 s): every satellite started again after each longer outage, and such flights
     # kept 8-100 % of their camera positions fixed (median 61 %).
-    sim, obs, rep = long_outages
+    obs, rep = long_outages.before[0], long_outages.report[0]
     sats: dict[int, set[str]] = defaultdict(set)  # epoch -> satellites with a phase
     for t, sv, cp in zip(obs.t_gps_ns[obs.epoch].tolist(), obs.prn.tolist(),
                          obs.cp_cyc.tolist(), strict=True):
@@ -197,7 +194,4 @@ def test_phase_is_carried_across_outages_longer_than_the_seed_links(
     # Doppler's integral misses the copter's accelerations over seconds); before, none
     assert across >= 20 and carried >= 0.2 * across, (carried, across)
     # ... and rightly: every repair takes out the true jump, across long outages too
-    jumps = _true_jumps(sim.truth)
-    for t_prev, t, sat, jump, _hidden in rep.repairs:
-        true = sum(j for tj, j in jumps[int(sat[1:])] if t_prev < tj <= t)
-        assert jump == true, (t, sat, jump, true)
+    _assert_every_repair_is_the_true_jump(long_outages)

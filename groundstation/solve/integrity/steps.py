@@ -126,6 +126,14 @@ def split_at_gaps(tab: PhaseTable, doubts: list[GapDoubt]) -> PhaseTable:
 
 
 @lru_cache(maxsize=32)
+def _differences(n: int) -> FloatArray:
+    """An orthonormal basis (n x n-1) of the differences between ``n`` arcs: where a gap's
+    test runs, free of what all arcs share (the clocks)."""
+    basis: FloatArray = np.linalg.qr(np.eye(n) - 1.0 / n)[0][:, : n - 1]
+    return basis
+
+
+@lru_cache(maxsize=32)
 def _patterns(n: int) -> FloatArray:
     """The smallest steps an arc set can take at one gap, in lattice units: one or two arcs by
     one unit with any signs, and up to half the arcs by one unit with one sign (a repair of
@@ -246,7 +254,7 @@ def gap_doubts(tab: PhaseTable, sys: EpochSystem, fl: FloatArcs,
         v = 0.5 * (v + v.T)
         w = b - c @ a_hat
         # the common step is the epochs' clocks: test in the n-1 differences
-        basis = np.linalg.qr(np.eye(n) - 1.0 / n)[0][:, : n - 1]
+        basis = _differences(n)
         vd = basis.T @ v @ basis
         wd = basis.T @ w
         try:
@@ -291,7 +299,7 @@ def _unverifiable(v: FloatArray, step: float, needed: Callable[[int], float],
             vk = vk - vkf @ np.linalg.pinv(v[np.ix_(f, f)]) @ vkf.T
             vk = 0.5 * (vk + vk.T)
         m = k.size
-        basis = np.linalg.qr(np.eye(m) - 1.0 / m)[0][:, : m - 1]
+        basis = _differences(m)
         vd = basis.T @ vk @ basis
         pat = _patterns(m) * step
         vp = basis.T @ vk @ pat.T
