@@ -226,6 +226,23 @@ def test_looping_exif_photo_is_skipped_and_counted(tmp_path: Path) -> None:
                for ln in photos.reconciliation_lines(match, found, []))
 
 
+def test_a_photo_read_while_the_process_is_paused_keeps_its_time(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A good photo is read whatever the machine's load: here every look at the clock finds
+    10 s gone (a solve paused beside other work). A wall-clock budget lost such photos."""
+    import datetime as dt
+    import itertools
+    import time
+
+    (tmp_path / "ok.jpg").write_bytes(exif.make_jpeg(dt.datetime(2024, 1, 2, 3, 4, 5)))
+    clock = itertools.count(0.0, 10.0)
+    monkeypatch.setattr(time, "monotonic", lambda: next(clock))
+    (photo,) = exif.scan_photos(tmp_path)
+    assert photo.usable, photo.error
+    assert photo.exif_second_ns == int(dt.datetime(2024, 1, 2, 3, 4, 5, tzinfo=dt.UTC)
+                                       .timestamp()) * 1_000_000_000
+
+
 def test_csv_cells_are_neutralised_and_geo_txt_skips_names_with_spaces(
     out: outputs.SolveOutput,  # noqa: F811 (the fixture)
 ) -> None:
