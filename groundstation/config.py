@@ -382,6 +382,7 @@ SOLVER_STATION_KEYS: dict[str, Key] = {
     "geoid": PATH,
     "shutter_delay_ms": _num("float", -10_000.0, 10_000.0),
     "max_gap_s": _num("float", above=0.0, hi=3600.0),
+    "report_pdf": BOOL,  # print report.pdf with Chromium (false: report.html only)
     # fetch the recording over the bus: when not readable here (auto), always, never
     "fetch": _choice("auto", "always", "never"),
 }

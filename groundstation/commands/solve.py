@@ -93,6 +93,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--exif", action="store_true", help="write copies of the photos with EXIF GPS tags"
     )
     parser.add_argument("--no-progress", action="store_true", help="no progress on stderr")
+    parser.add_argument("--no-pdf", action="store_true",
+                        help="write report.html only, no report.pdf (printing it takes "
+                        "Chromium 1-8 s; a browser prints the HTML as the same page)")
 
 
 def _option(option: str, key: str, text: str | None) -> Any:
@@ -187,6 +190,7 @@ def settings_from_args(args: argparse.Namespace) -> SolveSettings:
         engine=args.engine,
         rtk_conf=Path(args.rtk_conf) if args.rtk_conf else None,
         rtk_options=tuple(rtk_opts.items()),
+        report_pdf=not args.no_pdf,
     )
 
 
@@ -263,7 +267,8 @@ def _rebase_settings(args: argparse.Namespace) -> SolveSettings:
     result = Path(args.rebase)
     s = rebase_settings(result, Path(args.out) if args.out else result, position)
     height, antenna, antex = setup[0]
-    return replace(s, base_antenna_height_m=height, base_antenna=antenna, antex=antex)
+    return replace(s, base_antenna_height_m=height, base_antenna=antenna, antex=antex,
+                   report_pdf=not args.no_pdf)
 
 
 class _Progress:

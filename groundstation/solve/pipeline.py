@@ -706,7 +706,7 @@ def _report(
         data = replace(data, slips_found=cond[0], slips_repaired=cond[1])
     elif data.satellites is not None:
         data = replace(data, slips_found=int(data.satellites.slip.sum()))
-    return report.write_report(data, s.out_dir)
+    return report.write_report(data, s.out_dir, pdf=s.report_pdf)
 
 
 def _apply_enu(

@@ -534,15 +534,22 @@ def render_html(inp: ReportInput) -> str:
     )
 
 
-def write_report(inp: ReportInput, out_dir: Path) -> tuple[list[Path], list[str]]:
-    """Write ``report.html`` and (with Chromium) ``report.pdf``; returns (paths, notes).
+def write_report(inp: ReportInput, out_dir: Path, *, pdf: bool = True,
+                 ) -> tuple[list[Path], list[str]]:
+    """Write ``report.html`` and (with Chromium, unless ``pdf`` is false) ``report.pdf``;
+    returns (paths, notes).
 
-    The notes say what is missing (no Chromium, printing failed) so the caller can show them.
+    The notes say what is missing (not asked for, no Chromium, printing failed) so the caller
+    can show them.
     """
     out_dir.mkdir(parents=True, exist_ok=True)
     hp = out_dir / "report.html"
     hp.write_text(render_html(inp), encoding="utf-8")
     paths, notes = [hp], []
+    if not pdf:
+        notes.append("report.pdf not written: not asked for (--no-pdf, or report_pdf = false "
+                     "for the solver); a browser prints report.html as the same page")
+        return paths, notes
     pp = out_dir / "report.pdf"
     chromium = find_chromium()
     if chromium is None:

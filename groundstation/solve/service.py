@@ -111,6 +111,7 @@ class StationSolve:
     geoid: Path | None = None
     shutter_delay_ms: float = 0.0
     max_gap_s: float = mi.DEFAULT_MAX_GAP_S
+    report_pdf: bool = True
     fetch: str = "auto"
 
 
@@ -376,6 +377,7 @@ def plan(station: str, session: Mapping[str, Any], conf: StationSolve,
             edge=conf.edge,  # type: ignore[arg-type]  # checked against mi.EDGES on load
             shutter_delay_ms=conf.shutter_delay_ms,
             max_gap_s=conf.max_gap_s,
+            report_pdf=conf.report_pdf,
         )
         out.append(Job(station, sid, flight, settings, tuple(notes), remote=remote,
                        base_station=paired, span_ns=span_of(session)))

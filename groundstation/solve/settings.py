@@ -53,6 +53,9 @@ class SolveSettings:
     recordings: tuple[Path, ...] = ()
     """The recordings as given when ``flight`` is their merge (a temporary file): what the
     run's record names (:mod:`.record`)."""
+    report_pdf: bool = True
+    """Print ``report.pdf`` from ``report.html`` with Chromium (``--no-pdf``: the HTML only;
+    the print costs 1-8 s, most of a short solve's time after the engine)."""
     rebase: Path | None = None
     """A finished result re-based to this base position: its trajectory is taken, shifted by
     the base's move, instead of running the engine again (:mod:`.record`)."""

@@ -78,7 +78,7 @@ def flight(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
                                     clock_error_s=3637.0, subsec=True, drift_ppm=20.0),
                     d / "photos")
     xyz = ",".join(f"{v:.4f}" for v in truth["base"]["ecef_m"])
-    proc = cli_without_rtklib("solve", "f.ubx", "--base", "b.ubx", "--base-xyz", xyz,
+    proc = cli_without_rtklib("solve", "--no-pdf", "f.ubx", "--base", "b.ubx", "--base-xyz", xyz,
                               "--photos", "photos", "--out-dir", "out", "--no-progress", cwd=d)
     assert proc.returncode == 0, proc.stderr
     rows = list(csv.DictReader(ln for ln in (d / "out" / "cameras.csv").read_text().splitlines()

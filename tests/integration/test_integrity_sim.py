@@ -39,7 +39,8 @@ def solved(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFact
     tmp = tmp_path_factory.mktemp("integrity")
     truth = _flight(tmp, seed, severity, 900.0)
     base = tuple(float(v) for v in truth["base"]["ecef_m"])
-    res = solve(SolveSettings(flight=tmp / "rover.ubx", out_dir=tmp / "out", base=tmp / "base.ubx",
+    res = solve(SolveSettings(report_pdf=False,
+                              flight=tmp / "rover.ubx", out_dir=tmp / "out", base=tmp / "base.ubx",
                               base_ecef_m=base))  # type: ignore[arg-type]
     return res, truth, tmp / "out"
 

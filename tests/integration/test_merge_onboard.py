@@ -37,7 +37,8 @@ def flight(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
     out = {}
     for name, flights in {"onboard": ["onboard.ubx"], "merged": ["radio.ubx", "onboard.ubx"],
                           "radio": ["radio.ubx"]}.items():
-        proc = cli_without_rtklib("solve", *flights, "--base", "b.ubx", "--base-xyz", xyz,
+        proc = cli_without_rtklib("solve", "--no-pdf",
+                                  *flights, "--base", "b.ubx", "--base-xyz", xyz,
                                   "--out-dir", name, "--no-progress", cwd=d)
         assert proc.returncode == 0, proc.stderr
         out[name] = proc.stdout

@@ -20,7 +20,7 @@ def test_solve_piped_into_head_still_writes_its_result(tmp_path: Path) -> None:
     (tmp_path / "b.ubx").write_bytes(sim.base_bytes)
     xyz = ",".join(f"{v:.4f}" for v in sim.truth["base"]["ecef_m"])
     proc = subprocess.Popen(
-        [sys.executable, "-m", "groundstation.cli", "solve", "r.ubx", "--base", "b.ubx",
+        [sys.executable, "-m", "groundstation.cli", "solve", "--no-pdf", "r.ubx", "--base", "b.ubx",
          "--base-xyz", xyz, "--out-dir", "sol"],
         cwd=tmp_path, env=cli_env(), stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
     assert proc.stdout is not None

@@ -35,7 +35,7 @@ def _result(d: Path, **settings: object) -> Path:
 
 
 def _rebase(cwd: Path, *args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "groundstation.cli", "solve", *args],
+    return subprocess.run([sys.executable, "-m", "groundstation.cli", "solve", "--no-pdf", *args],
                           cwd=cwd, env=cli_env(), capture_output=True, text=True, timeout=120,
                           check=False)
 

@@ -140,6 +140,7 @@ def test_a_remote_solver_fetches_the_recording_through_the_router_and_solves_it(
     xyz = ", ".join(f"{v:.4f}" for v in truth["base"]["ecef_m"])
     (b_dir / "solver.toml").write_text(
         f'out_root = "{b_dir / "solutions"}"\nrecording_roots = ["{b_dir / "flights"}"]\n'
+        'report_pdf = false\n'
         f'[zenoh]\nconnect = ["{endpoint}"]\nlisten = []\n'
         f'[stations.rover]\nbase = "{b_dir / "base"}/{{stem}}_base.ubx"\n'
         f'base_xyz = [{xyz}]\nlever_arm = [0.16, -0.03, 0.57]\n')
@@ -279,7 +280,7 @@ def test_over_mutual_tls_a_solver_fetches_and_another_station_cannot(
     xyz = ", ".join(f"{v:.4f}" for v in truth["base"]["ecef_m"])
     (b_dir / "solver.toml").write_text(
         f'out_root = "{b_dir / "solutions"}"\nrecording_roots = ["{b_dir / "flights"}"]\n'
-        f'base = "{base}"\nbase_xyz = [{xyz}]\n' + tls_zenoh("solver"))
+        f'base = "{base}"\nbase_xyz = [{xyz}]\nreport_pdf = false\n' + tls_zenoh("solver"))
     observer = running.keep(as_party("solver"))
     sols = Received(observer, key("*", "solution"))
     solver = running.start(b_dir, "solver", "--config", "solver.toml")

@@ -71,7 +71,7 @@ def test_photos_folder_without_jpegs_exits_2(flight: dict[str, Path]) -> None:
     d = flight["dir"] / "nophotos"
     d.mkdir(exist_ok=True)
     (d / "notes.txt").write_text("no photos here\n")
-    proc = _cli("solve", "f.ubx", "--base", "b.ubx", "--base-xyz", _base_xyz(flight),
+    proc = _cli("solve", "--no-pdf", "f.ubx", "--base", "b.ubx", "--base-xyz", _base_xyz(flight),
                 "--photos", "nophotos", "--out-dir", "o_photos", "--no-progress",
                 cwd=flight["dir"])
     assert proc.returncode == 2, proc.stderr
@@ -79,7 +79,8 @@ def test_photos_folder_without_jpegs_exits_2(flight: dict[str, Path]) -> None:
 
 
 def test_base_xyz_given_as_lat_lon_h_exits_2(flight: dict[str, Path]) -> None:
-    proc = _cli("solve", "f.ubx", "--base", "b.ubx", "--base-xyz", "49.0146,8.4004,166.5",
+    proc = _cli("solve", "--no-pdf",
+                "f.ubx", "--base", "b.ubx", "--base-xyz", "49.0146,8.4004,166.5",
                 "--out-dir", "o_llh", "--no-progress", cwd=flight["dir"])
     assert proc.returncode == 2, proc.stderr
     assert "--base-xyz" in proc.stderr and "latitude,longitude,height" in proc.stderr
@@ -88,7 +89,8 @@ def test_base_xyz_given_as_lat_lon_h_exits_2(flight: dict[str, Path]) -> None:
 
 
 def test_base_100_m_off_warns(flight: dict[str, Path]) -> None:
-    proc = _cli("solve", "f.ubx", "--base", "b.ubx", "--base-xyz", _base_xyz(flight, 100.0),
+    proc = _cli("solve", "--no-pdf",
+                "f.ubx", "--base", "b.ubx", "--base-xyz", _base_xyz(flight, 100.0),
                 "--out-dir", "o_off", "--no-progress", cwd=flight["dir"])
     assert proc.returncode == 0, proc.stderr
     assert "WARNING base coordinates" in proc.stdout and "100." in proc.stdout
@@ -107,7 +109,8 @@ def test_flight_without_marks_exits_2(flight: dict[str, Path]) -> None:
     kept = b"".join(f.raw for f in framer.feed(flight["flight"].read_bytes(), 0)
                     if (f.cls, f.id) != (0x0D, 0x03))  # TIM-TM2 out
     (flight["dir"] / "nomarks.ubx").write_bytes(kept)
-    proc = _cli("solve", "nomarks.ubx", "--base", "b.ubx", "--base-xyz", _base_xyz(flight),
+    proc = _cli("solve", "--no-pdf",
+                "nomarks.ubx", "--base", "b.ubx", "--base-xyz", _base_xyz(flight),
                 "--out-dir", "o_nomarks", "--no-progress", cwd=flight["dir"])
     assert proc.returncode == 2, proc.stderr
     assert "no camera marks in this flight" in proc.stderr and "TIM-TM2" not in proc.stderr
@@ -121,7 +124,7 @@ def test_solve_that_positions_nothing_exits_1(flight: dict[str, Path]) -> None:
         "2001/01/01 00:00:00.000   4146349.2471    612312.5498   4791750.8505   1   8\n"
         "2001/01/01 00:00:01.000   4146349.2471    612312.5498   4791750.8505   1   8\n",
         encoding="ascii")
-    proc = _cli("solve", "f.ubx", "--positions", "other_day.pos", "--out-dir", "o_none",
+    proc = _cli("solve", "--no-pdf", "f.ubx", "--positions", "other_day.pos", "--out-dir", "o_none",
                 "--no-progress", cwd=flight["dir"])
     assert proc.returncode == 1, proc.stdout + proc.stderr
     last = proc.stderr.strip().splitlines()[-1]
@@ -131,7 +134,8 @@ def test_solve_that_positions_nothing_exits_1(flight: dict[str, Path]) -> None:
 
 
 def test_base_kilometres_off_is_refused_before_any_work(flight: dict[str, Path]) -> None:
-    proc = _cli("solve", "f.ubx", "--base", "b.ubx", "--base-xyz", _base_xyz(flight, 5000.0),
+    proc = _cli("solve", "--no-pdf",
+                "f.ubx", "--base", "b.ubx", "--base-xyz", _base_xyz(flight, 5000.0),
                 "--out-dir", "o_5km", "--no-progress", cwd=flight["dir"])
     assert proc.returncode == 2, proc.stderr
     assert "configuration error: --base-xyz: 5.00 km from where the base receiver's own" \
@@ -141,7 +145,7 @@ def test_base_kilometres_off_is_refused_before_any_work(flight: dict[str, Path])
 
 
 def test_positions_given_a_photo_says_so(flight: dict[str, Path]) -> None:
-    proc = _cli("solve", "f.ubx", "--positions", "photo.jpg", "--out-dir", "o_jpg",
+    proc = _cli("solve", "--no-pdf", "f.ubx", "--positions", "photo.jpg", "--out-dir", "o_jpg",
                 "--no-progress", cwd=flight["dir"])
     assert proc.returncode == 2
     assert "photo.jpg: not an RTKLIB .pos text file (binary data)" in proc.stderr
@@ -200,7 +204,8 @@ def test_kappa_is_the_same_in_a_geographic_crs(flight: dict[str, Path]) -> None:
     kappas = []
     for epsg, out in (("4326", "o_geo"), (None, "o_utm")):
         extra = ["--epsg", epsg] if epsg else []
-        proc = _cli("solve", "f.ubx", "--base", "b.ubx", "--base-xyz", _base_xyz(flight),
+        proc = _cli("solve", "--no-pdf",
+                    "f.ubx", "--base", "b.ubx", "--base-xyz", _base_xyz(flight),
                     "--out-dir", out, "--no-progress", *extra, cwd=flight["dir"])
         assert proc.returncode == 0, proc.stderr
         rows = list(csv.DictReader(

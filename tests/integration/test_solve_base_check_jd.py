@@ -37,7 +37,8 @@ XYZ_1009 = "3774696.5547,-596647.9083,5089485.6511"
 
 def _solve(cwd: Path, data: Path, base: str, xyz: str) -> subprocess.CompletedProcess[str]:
     return subprocess.run(
-        [sys.executable, "-m", "groundstation.cli", "solve", str(data / JD / ROVER_1009),
+        [sys.executable, "-m", "groundstation.cli", "solve", "--no-pdf",
+         str(data / JD / ROVER_1009),
          "--base", str(data / JD / base), "--base-xyz", xyz, "--out-dir", "out",
          "--no-progress"],
         cwd=cwd, env=cli_env(), capture_output=True, text=True, timeout=600, check=False)
@@ -81,7 +82,8 @@ def test_the_rover_as_its_own_base_is_refused_before_the_engine(
 def _solve_with(shared_data: Path, out: Path, args: list[str]) -> None:
     """The 2018-10-09 flight solved with its base given by ``args`` into ``out``."""
     proc = subprocess.run(
-        [sys.executable, "-m", "groundstation.cli", "solve", str(shared_data / JD / ROVER_1009),
+        [sys.executable, "-m", "groundstation.cli", "solve", "--no-pdf",
+         str(shared_data / JD / ROVER_1009),
          "--base", str(shared_data / JD / BASE_1009), *args, "--out-dir", str(out),
          "--no-progress"],
         cwd=out.parent, env=cli_env(), capture_output=True, text=True, timeout=600, check=False)
@@ -158,7 +160,8 @@ def test_a_base_1_m_off_with_a_1_m_sigma_widens_the_absolute_sigmas_only(
     assert "σ east/north/up 1.000/1.000/1.000 m: in the cameras&#x27; absolute sigmas" in report
     # The right result re-based to the base 1 m off: the full solve's cameras, without the engine
     proc = subprocess.run(
-        [sys.executable, "-m", "groundstation.cli", "solve", "--rebase", str(solved_xyz),
+        [sys.executable, "-m", "groundstation.cli", "solve", "--no-pdf",
+         "--rebase", str(solved_xyz),
          "--base-xyz", XYZ_1009_1M_EAST, "--base-sigma", "1", "--out-dir", "rebased"],
         cwd=tmp_path, env=cli_env(), capture_output=True, text=True, timeout=600, check=False)
     assert proc.returncode == 0, proc.stderr

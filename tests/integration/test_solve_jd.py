@@ -99,7 +99,8 @@ def test_solve_command_end_to_end(jd: dict[str, Path], tmp_path: Path,
     eo.write_text("name,X,Y,Z,omega,phi,kappa\nIMG_0001.JPG,0,0,0,1.0,-2.0,95.0\n")
     out = tmp_path / "out"
     rc = main([
-        "solve", str(jd["rover"]), "--positions", str(jd["pos"]), "--photos", str(photo_dir),
+        "solve", "--no-pdf", str(jd["rover"]), "--positions", str(jd["pos"]),
+        "--photos", str(photo_dir),
         "--lever-arm", "0.16,-0.03,0.57", "--eo", str(eo), "--epsg", "25829",
         "--interp", "smoother", "--exif", "--out", str(out), "--no-progress",
     ])
@@ -159,7 +160,7 @@ def test_solve_refuses_to_write_into_the_photo_directory(
 ) -> None:
     (tmp_path / "p").mkdir()
     (tmp_path / "p" / "a.jpg").write_bytes(bytes.fromhex("ffd8ffd9"))  # a photo folder
-    rc = main(["solve", str(jd["rover"]), "--positions", str(jd["pos"]), "--photos",
+    rc = main(["solve", "--no-pdf", str(jd["rover"]), "--positions", str(jd["pos"]), "--photos",
                str(tmp_path / "p"), "--out", str(tmp_path / "p" / "out"), "--no-progress"])
     assert rc == 2 and "--out" in capsys.readouterr().err
 
@@ -205,8 +206,8 @@ def test_photo_subset_in_utc_is_not_shifted_by_whole_marks(
         when = dt.datetime.fromtimestamp(sec, tz=dt.UTC).replace(tzinfo=None)
         (d / f"IMG_{i + 1:04d}.JPG").write_bytes(exif.make_jpeg(when))
     out = tmp_path / "out"
-    rc = main(["solve", str(jd["rover"]), "--positions", str(jd["pos"]), "--photos", str(d),
-               "--out-dir", str(out), "--no-progress"])
+    rc = main(["solve", "--no-pdf", str(jd["rover"]), "--positions", str(jd["pos"]),
+               "--photos", str(d), "--out-dir", str(out), "--no-progress"])
     assert rc == 0
     text = capsys.readouterr().out
     assert f"{count} paired" in text

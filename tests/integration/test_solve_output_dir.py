@@ -93,6 +93,17 @@ def test_solving_again_replaces_the_earlier_result_whole(flights: Path, tmp_path
     assert listed == set(_tree(out)) - {MANIFEST_NAME, "photos/IMG_0001.JPG", "notes.txt"}
 
 
+def test_no_pdf_writes_the_report_as_html_only_and_says_so(flights: Path,
+                                                           tmp_path: Path) -> None:
+    out = tmp_path / "out"
+    rc, stdout, err = _run(flights, "solve", "a.ubx", "--source", "receiver", "--out-dir",
+                           str(out), "--no-progress", "--no-pdf")
+    assert rc == 0, err
+    assert (out / "report.html").is_file() and not (out / "report.pdf").exists()
+    assert "note       report.pdf not written: not asked for (--no-pdf" in stdout
+    assert "wrote      " + str(out / "report.html") in stdout
+
+
 def test_ctrl_c_leaves_the_earlier_result_as_it_was(flights: Path, tmp_path: Path) -> None:
     out = tmp_path / "out"
     rc, _, err = _solve(flights, "a.ubx", out)

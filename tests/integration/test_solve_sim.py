@@ -132,7 +132,7 @@ def _fly(faults: str, d: Path) -> Flight:
         f"{p.name},{c[0]:.4f},{c[1]:.4f},{c[2]:.4f},{o[0]:.5f},{o[1]:.5f},{o[2]:.5f}\n"
         for p, c, o in zip(photos, cam.tolist(), opk.tolist(), strict=True)
     ))
-    result = solve(SolveSettings(
+    result = solve(SolveSettings(report_pdf=False,
         flight=d / "rover.ubx", out_dir=d / "out", base=d / "base.ubx",
         base_ecef_m=tuple(sim.truth["base"]["ecef_m"]), photos=d / "photos",
         lever_arm_m=LEVER_M, eo=d / "eo.txt", epsg=epsg, interp="smoother",
@@ -307,7 +307,7 @@ def test_rebase_moves_every_camera_with_the_base_without_solving_again(
     move = np.array(enu_rotation(lat, lon)).T @ np.array([0.5, -0.3, 0.2])
     new = old + move
     proc = subprocess.run(
-        [sys.executable, "-m", "groundstation.cli", "solve", "--rebase", str(done),
+        [sys.executable, "-m", "groundstation.cli", "solve", "--no-pdf", "--rebase", str(done),
          "--base-xyz", ",".join(f"{v:.4f}" for v in new.tolist()), "--out-dir", "moved"],
         cwd=tmp_path, env=cli_env(), capture_output=True, text=True, timeout=300, check=False)
     assert proc.returncode == 0, proc.stderr
@@ -343,7 +343,7 @@ def test_the_base_antennas_phase_centre_offset_moves_every_camera(
                                                           {"G01": (2.0, -1.0, 85.0)}))
     xyz = flight.sim.truth["base"]["ecef_m"]
     proc = subprocess.run(
-        [sys.executable, "-m", "groundstation.cli", "solve", "--rebase", str(done),
+        [sys.executable, "-m", "groundstation.cli", "solve", "--no-pdf", "--rebase", str(done),
          "--base-xyz", ",".join(f"{v:.4f}" for v in xyz), "--antex", str(atx),
          "--base-antenna", "TESTANT", "--out-dir", "pco"],
         cwd=tmp_path, env=cli_env(), capture_output=True, text=True, timeout=300, check=False)

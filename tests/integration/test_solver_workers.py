@@ -79,7 +79,7 @@ def flights(tmp_path_factory: pytest.TempPathFactory) -> list[dict[str, Any]]:
 def _worker_config(path: Path, endpoint: str, flights: list[dict[str, Any]]) -> Path:
     lines = [f'out_root = "{path.parent / "solutions"}"',
              f'recording_roots = [{", ".join(json.dumps(str(f["mcap"].parent)) for f in flights)}]',
-             'interp = "linear"', "",
+             'interp = "linear"', "report_pdf = false", "",
              "[zenoh]", f'connect = ["{endpoint}"]', "listen = []", 'mode = "client"', ""]
     for f in flights:
         xyz = ", ".join(f"{v:.4f}" for v in f["base_xyz"])
@@ -227,7 +227,7 @@ def test_rover_and_base_daemons_are_paired_by_the_solver(tmp_path: Path) -> None
     conf.write_text(
         f'out_root = "{tmp_path / "solver" / "solutions"}"\n'
         f'recording_roots = ["{tmp_path / "base" / "flights"}", '
-        f'"{tmp_path / "rover" / "flights"}"]\nbase_wait_s = 60\n\n'
+        f'"{tmp_path / "rover" / "flights"}"]\nbase_wait_s = 60\nreport_pdf = false\n\n'
         f'[zenoh]\nconnect = ["{endpoint}"]\n\n'
         f'[stations.rover]\nbase = "station:base"\nbase_xyz = [{xyz}]\n')
     procs: list[CliProc] = []

@@ -108,7 +108,8 @@ def test_cli_rejects_unknown_option_and_bad_value_with_exit_2(
     flight, base = tmp_path / "f.ubx", tmp_path / "b.obs"
     flight.write_bytes(b"")
     base.write_text("")
-    common = ["solve", str(flight), "--base", str(base), "--base-xyz", "4201000,180000,4779000",
+    common = ["solve", "--no-pdf",
+              str(flight), "--base", str(base), "--base-xyz", "4201000,180000,4779000",
               "--out", str(tmp_path / "out"), "--no-progress"]
     assert main([*common, "--rtk-opt", "pos1-ephem=brdc"]) == 2
     assert "pos1-ephem" in capsys.readouterr().err

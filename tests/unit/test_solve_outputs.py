@@ -212,6 +212,6 @@ def test_bad_arguments_exit_2_naming_the_option(
     pos.write_text("x\n")
     (tmp_path / "B").write_text("x\n")
     args = [a if a not in ("P", "B") else str(tmp_path / a) for a in extra]
-    rc = main(["solve", str(tmp_path / "f.ubx"), "--out", str(tmp_path / "o"), *args])
+    rc = main(["solve", "--no-pdf", str(tmp_path / "f.ubx"), "--out", str(tmp_path / "o"), *args])
     assert rc == 2
     assert option in capsys.readouterr().err

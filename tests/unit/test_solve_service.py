@@ -96,6 +96,22 @@ def test_plan(tmp_path: Path) -> None:
     assert isinstance(empty, sv.Skip) and "no recording" in empty.reason
 
 
+def test_report_pdf_false_reaches_every_job(tmp_path: Path) -> None:
+    """``report_pdf = false`` (file, table or ``GROUNDSTATION_SOLVER_REPORT_PDF``): the jobs
+    write report.html only; the default prints report.pdf too."""
+    flight = tmp_path / "alpha_20250101T000000Z.mcap"
+    msg = {"state": "finished", "files": [str(flight)], "session_id": "s"}
+    env = sv.build_service_settings(
+        {"base": "b.ubx", "base_xyz": list(XYZ)},
+        environ={"GROUNDSTATION_SOLVER_REPORT_PDF": "false"})
+    table = sv.build_service_settings(
+        {"base": "b.ubx", "base_xyz": list(XYZ), "stations": {"alpha": {"report_pdf": False}}})
+    for settings, station, pdf in ((env, "alpha", False), (table, "alpha", False),
+                                   (table, "bravo", True)):
+        (job,) = sv.plan(station, msg, settings.for_station(station))
+        assert isinstance(job, sv.Job) and job.settings.report_pdf is pdf, station
+
+
 class FakeSolver:
     """Blocks until released; fails for flights whose name says so."""
 
