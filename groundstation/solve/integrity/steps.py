@@ -130,6 +130,7 @@ def _differences(n: int) -> FloatArray:
     """An orthonormal basis (n x n-1) of the differences between ``n`` arcs: where a gap's
     test runs, free of what all arcs share (the clocks)."""
     basis: FloatArray = np.linalg.qr(np.eye(n) - 1.0 / n)[0][:, : n - 1]
+    basis.flags.writeable = False  # shared by every gap with n arcs, as _patterns
     return basis
 
 
