@@ -33,17 +33,12 @@ from matplotlib.ticker import FuncFormatter  # noqa: E402
 
 from groundstation import gpstime  # noqa: E402
 from groundstation.solve.flight import Span  # noqa: E402
+from groundstation.solve.palette import GRADE_COLOURS, QUALITY_COLOURS  # noqa: E402
 from groundstation.solve.trajectory import QUALITY_NAMES  # noqa: E402
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
 
-QUALITY_COLOURS = {1: "#1a9850", 2: "#f39c12", 3: "#74add1", 4: "#4575b4", 5: "#d73027",
-                   6: "#8073ac", 0: "#7f7f7f"}
-"""Colour per RTKLIB quality (fix green, float orange, single red), shared by every figure."""
-GRADE_COLOURS = {"fixed": "#1a9850", "fixed-unchecked": "#2c7fb8", "float": "#f39c12",
-                 "single": "#d73027", "none": "#7f7f7f"}
-"""Colour per grade (the integrity stage's; checked fixes green, unchecked ones blue)."""
 WIDTH_IN = 7.2
 """Figure width: fits an A4 page between 12 mm margins at 100 %."""
 _RC: dict[Any, Any] = {

@@ -23,12 +23,12 @@ from typing import Any
 import numpy as np
 
 from groundstation import gpstime
-from groundstation.solve import clockoffset, figures
+from groundstation.solve import clockoffset
 from groundstation.solve.base import PCO_APPLIED
-from groundstation.solve.figures import QUALITY_COLOURS
 from groundstation.solve.integrity.grade import CHECK_TEXT, GRADE_MEANING
 from groundstation.solve.interpolate import flag_names
 from groundstation.solve.outputs import mark_numbers_text
+from groundstation.solve.palette import QUALITY_COLOURS
 from groundstation.solve.pdf import find_chromium, print_pdf
 from groundstation.solve.report_data import (
     QUALITY_KEYS,
@@ -435,6 +435,8 @@ def _marks_table(inp: ReportInput) -> str:
 
 def _figures(inp: ReportInput) -> list[tuple[str, str, str]]:
     """(title, svg, caption) of every figure."""
+    from groundstation.solve import figures  # matplotlib: loaded when a report is drawn
+
     rows = inp.rows
     cam_x = np.array([r.x_m for r in rows], dtype=np.float64)
     cam_y = np.array([r.y_m for r in rows], dtype=np.float64)

@@ -18,7 +18,6 @@ from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
-from scipy.stats import chi2
 
 from groundstation.solve.integrity.lattice import Lattice
 from groundstation.solve.integrity.normal import CODE_FLOOR_M, LAM, PHASE_FLOOR_M
@@ -70,6 +69,8 @@ def solve_epochs(
     phase_factor: float = 1.0, iterations: int = 1,
 ) -> EpochSolution:
     """Each epoch's position given the constants (see the module doc), iterated from ``x0``."""
+    from scipy import special  # chi-square tails; loaded when a solve gets here
+
     n_ep, n_sv = tab.sd_cyc.shape
     arc = tab.arc
     has_a = (arc >= 0) & np.isfinite(lat.constants[np.maximum(arc, 0)])
@@ -114,7 +115,7 @@ def solve_epochs(
     chi = np.einsum("es,est,et->e", vp, wp, vp) + np.sum(wc * vc * vc, axis=1)
     dof = np.sum(use_p, axis=1) + np.sum(use_c, axis=1) - 4
     chi_dof = np.where(dof > 0, chi / np.maximum(dof, 1), np.nan)
-    limit = chi2.isf(CHI2_LEVEL, np.maximum(dof, 1)) / np.maximum(dof, 1)
+    limit = special.chdtri(np.maximum(dof, 1), CHI2_LEVEL) / np.maximum(dof, 1)
     chi_ok = (dof > 0) & (chi_dof <= limit)
     # satellites on a fixed constant: small variance once the epoch's common part is removed
     m = np.maximum(np.sum(use_p, axis=1), 1)

@@ -198,7 +198,7 @@ def _misfit(t_s: FloatArray, enu: FloatArray, var: FloatArray, sm: FloatArray,
     """Epochs inside a window of :data:`CHECK_WINDOW_S` where the smoothed positions do not
     fit the epochs' own (chi-square of the standardised differences over the window's epochs
     and three axes, at :data:`CHECK_LEVEL`)."""
-    from scipy.stats import chi2
+    from scipy import special
 
     n = t_s.size
     use = ok & np.all(np.isfinite(sm), axis=1)
@@ -210,7 +210,7 @@ def _misfit(t_s: FloatArray, enu: FloatArray, var: FloatArray, sm: FloatArray,
     hi = np.searchsorted(t_s, t_s + half, side="right")
     s = c[hi] - c[lo]
     k = (cn[hi] - cn[lo]) * 3
-    limit = chi2.isf(CHECK_LEVEL, np.maximum(k, 1))
+    limit = special.chdtri(np.maximum(k, 1), CHECK_LEVEL)
     fail = use & (k > 0) & (s > limit)
     bad = np.zeros(n, dtype=bool)
     for i in np.flatnonzero(fail).tolist():

@@ -204,7 +204,7 @@ def gap_doubts(tab: PhaseTable, sys: EpochSystem, fl: FloatArcs,
     patterns of one lattice unit (:func:`_patterns`) must give the test the non-centrality
     that detects them with probability :data:`POWER`. A gap that fails either is a gap where
     the whole-arc solution cannot rely on the arcs being continuous."""
-    from scipy import optimize, stats
+    from scipy import optimize, special
 
     red, rhs = reduced(sys)
     arc = np.where(sys.phase_used, tab.arc, -1)
@@ -217,14 +217,16 @@ def gap_doubts(tab: PhaseTable, sys: EpochSystem, fl: FloatArcs,
         return []
     na = tab.n_arcs
     a_hat = np.nan_to_num(fl.a)
-    p_tail = 2.0 * float(stats.norm.sf(STEP_W))
+    p_tail = 2.0 * float(special.ndtr(-STEP_W))
     lam_cache: dict[int, tuple[float, float]] = {}
 
     def needed(dof: int) -> tuple[float, float]:
         if dof not in lam_cache:
-            th = float(stats.chi2.isf(p_tail, dof))
+            th = float(special.chdtri(dof, p_tail))
             lam = float(optimize.brentq(
-                lambda lam_: float(stats.ncx2.sf(th, dof, lam_)) - POWER, 1e-6, 1e6))
+                lambda lam_: 1.0 - float(special.chndtr(th, dof, lam_)) - POWER, 1e-6, 1e6))
+            # scipy.special's tails are the functions scipy.stats wraps; importing scipy.stats
+            # would cost every solve about 0.6 s of CPU
             lam_cache[dof] = (th, lam)
         return lam_cache[dof]
 
@@ -322,10 +324,10 @@ def most_evident(doubts: list[GapDoubt]) -> list[GapDoubt]:
     under the model (its tail probability, so that tests of different numbers of arcs
     compare), then the next that shares no arc with those taken (a step shows only in the
     tests of gaps its arcs cross), and so on."""
-    from scipy import stats
+    from scipy import special
 
     found = sorted((d for d in doubts if d.contradicted),
-                   key=lambda d: float(stats.chi2.logsf(d.chi2, len(d.arcs) - 1)))
+                   key=lambda d: float(special.chdtrc(len(d.arcs) - 1, d.chi2)))
     taken: list[GapDoubt] = []
     used: set[int] = set()
     for d in found:
