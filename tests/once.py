@@ -19,6 +19,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
+from peers import cli_env
 
 RTKLIB_PROGRAMS = {"rnx2rtkp", "convbin", "rtkrcv", "str2str", "pos2kml", "rtkpost"}
 
@@ -83,3 +84,23 @@ def demo_flight_300(factory: pytest.TempPathFactory) -> DemoFlight:
     files = {k: Path(v) for k, v in
              re.findall(r"^\s+(MCAP|base UBX|truth):\s+(\S+)$", stdout, re.M)}
     return DemoFlight(stdout, files)
+
+
+JD_1009 = "real/jdesbonnet__GNSS_RTK_data/20181009"
+JD_1009_BASE_XYZ = "3774696.5547,-596647.9083,5089485.6511"
+"""The 2018-10-09 base's coordinates (RTKLIB's "ref pos" of its solution)."""
+
+
+def jd_1009_solved(factory: pytest.TempPathFactory, shared_data: Path) -> Path:
+    """``groundstation solve --no-pdf`` of the real 2018-10-09 flight against its base at
+    :data:`JD_1009_BASE_XYZ` (a result folder, read only), made once for the whole run."""
+    def make(d: Path) -> None:
+        proc = subprocess.run(
+            [sys.executable, "-m", "groundstation.cli", "solve", "--no-pdf",
+             str(shared_data / JD_1009 / "rover-20181009-1221.ubx.gz"),
+             "--base", str(shared_data / JD_1009 / "base-20181009-1220.ubx.gz"),
+             "--base-xyz", JD_1009_BASE_XYZ, "--out-dir", str(d / "out"), "--no-progress"],
+            cwd=d, env=cli_env(), capture_output=True, text=True, timeout=600, check=False)
+        assert proc.returncode == 0, proc.stderr
+
+    return made_once(factory, "jd-1009-base-xyz", make) / "out"

@@ -9,9 +9,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from once import JD_1009, jd_1009_solved
 
+from groundstation.rules.marks import build_marks
 from groundstation.sim.rewrite import RewriteConfig, rewrite
 from groundstation.solve import interpolate as mi
+from groundstation.solve.flight import read_flight
 from groundstation.solve.integrity.grade import C_BY_ARCS
 from groundstation.solve.pipeline import solve
 from groundstation.solve.posfile import read_pos
@@ -21,20 +24,20 @@ from groundstation.solve.trajectory import Q_FIX
 pytestmark = [pytest.mark.shared_data, pytest.mark.slow,
               pytest.mark.xdist_group("test_integrity_real")]
 
-DAY = "real/jdesbonnet__GNSS_RTK_data/20181009"
-BASE_XYZ = (3774696.5547, -596647.9083, 5089485.6511)
+DAY = JD_1009
+BASE_XYZ = (3774696.5547, -596647.9083, 5089485.6511)  # JD_1009_BASE_XYZ
 
 
-def test_fixes_confirmed_along_the_arcs_are_right(shared_data: Path, tmp_path: Path) -> None:
+def test_fixes_confirmed_along_the_arcs_are_right(
+        shared_data: Path, tmp_path: Path, tmp_path_factory: pytest.TempPathFactory) -> None:
     rover = shared_data / DAY / "rover-20181009-1221.ubx.gz"
     base = shared_data / DAY / "base-20181009-1220.ubx.gz"
-    ref = solve(SolveSettings(report_pdf=False, flight=rover, out_dir=tmp_path / "ref", base=base,
-                              base_ecef_m=BASE_XYZ))
-    engine = read_pos(tmp_path / "ref" / "rtklib" / "rover.pos")
-    times = [mi.mark_time_ns(m.falling_t_gps_ns, m.rising_t_gps_ns, "falling")
-             for m in ref.marks]
+    # the untouched recording's solve (shared with other modules: the same solve of this flight)
+    engine = read_pos(jd_1009_solved(tmp_path_factory, shared_data) / "rtklib" / "rover.pos")
+    marks = build_marks(read_flight(rover).timemarks)  # the marks that solve positioned
+    times = [mi.mark_time_ns(m.falling_t_gps_ns, m.rising_t_gps_ns, "falling") for m in marks]
     at = mi.interpolate(engine, times, "linear")
-    truth = {m.number: x for m, x, q in zip(ref.marks, at.ecef_m, at.quality, strict=True)
+    truth = {m.number: x for m, x, q in zip(marks, at.ecef_m, at.quality, strict=True)
              if q == Q_FIX}
     (tmp_path / "rover.ubx").write_bytes(rewrite(rover, RewriteConfig()).data)
     (tmp_path / "base.ubx").write_bytes(rewrite(base, RewriteConfig()).data)

@@ -28,7 +28,7 @@ pytestmark = pytest.mark.xdist_group("test_merge_onboard")
 @pytest.fixture(scope="module")
 def flight(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
     d = tmp_path_factory.mktemp("merge")
-    result = simulate(sim_config("seed", duration_s=900, seed=23, severity=0.5,
+    result = simulate(sim_config("seed", duration_s=600, seed=23, severity=0.5,
                                  faults=FaultConfig.load(DEFAULT_FAULTS["seed"])))
     (d / "radio.ubx").write_bytes(result.rover_bytes)
     (d / "onboard.ubx").write_bytes(b"".join(m.raw for m in result.rover_messages))

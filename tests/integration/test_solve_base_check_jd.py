@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from once import made_once
+from once import JD_1009_BASE_XYZ, jd_1009_solved
 from peers import cli_env
 
 from groundstation.geodesy import ecef_to_llh
@@ -32,7 +32,7 @@ ROVER_1009 = "20181009/rover-20181009-1221.ubx.gz"
 BASE_1009 = "20181009/base-20181009-1220.ubx.gz"
 BASE_1004 = "20181004/base-20181004-1236.ubx.gz"
 XYZ_1004 = "3774090.1383,-601663.0449,5089319.1992"  # the 2018-10-04 base, 5 km from 10-09's
-XYZ_1009 = "3774696.5547,-596647.9083,5089485.6511"
+XYZ_1009 = JD_1009_BASE_XYZ
 
 
 def _solve(cwd: Path, data: Path, base: str, xyz: str) -> subprocess.CompletedProcess[str]:
@@ -93,10 +93,8 @@ def _solve_with(shared_data: Path, out: Path, args: list[str]) -> None:
 @pytest.fixture
 def solved_xyz(shared_data: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
     """The result of the solve with ``--base-xyz`` of the base's own coordinates, which two
-    tests compare with: made once for the run (read only)."""
-    d = made_once(tmp_path_factory, "jd-1009-base-xyz",
-                  lambda d: _solve_with(shared_data, d / "out", ["--base-xyz", XYZ_1009]))
-    return d / "out"
+    tests compare with (read only)."""
+    return jd_1009_solved(tmp_path_factory, shared_data)
 
 
 def _solved(shared_data: Path, tmp_path: Path, forms: dict[str, list[str]],
