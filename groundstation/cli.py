@@ -180,8 +180,17 @@ def main(argv: Sequence[str] | None = None) -> int:
     GIL during finalization is ended by a forced unwind that Rust cannot pass through: the
     process aborted with "FATAL: exception not rethrown" after a clean run (seen once in a
     test of two demos). Every file is closed and every session ended by then.
+
+    Ctrl-C while the command is still starting (its modules loading, which takes seconds on a
+    loaded machine) is an interruption like any other: one line and exit 130.
     """
-    status = _main(argv)
+    try:
+        status = _main(argv)
+    except KeyboardInterrupt:
+        words = list(sys.argv[1:] if argv is None else argv)
+        name = next((f"groundstation {w}" for w in words if w in COMMANDS), "groundstation")
+        print(f"{name}: interrupted", file=sys.stderr)
+        status = EXIT_INTERRUPTED
     if argv is None and "zenoh" in sys.modules:
         for stream in (sys.stdout, sys.stderr):
             with contextlib.suppress(OSError, ValueError):  # a reader gone, a stream closed

@@ -354,3 +354,19 @@ def test_bus_encode_round_trip_of_a_session() -> None:
     body = encode("session", {"state": "finished", "files": ["a.mcap"], "session_id": "s"},
                   station="st")
     assert messages.parse(body, "session")["files"] == ["a.mcap"]
+
+
+def test_ctrl_c_while_a_command_is_still_starting_is_one_line_and_130(
+        monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+    """Under load a command's modules take seconds to load (``build_parser`` loads them): a
+    Ctrl-C then was a traceback and exit -2 (seen in a replay test on a machine at load 16)."""
+    from groundstation import cli
+
+    def loading(argv: object) -> None:
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(cli, "build_parser", loading)
+    assert cli.main(["replay", "flight.ubx", "--speed", "1"]) == 130
+    assert capsys.readouterr().err == "groundstation replay: interrupted\n"
+    assert cli.main(["--speed", "1"]) == 130
+    assert capsys.readouterr().err == "groundstation: interrupted\n"
