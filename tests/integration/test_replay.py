@@ -197,6 +197,20 @@ def test_replay_summary_says_the_satellites_are_those_at_the_end_of_the_recordin
     assert tracked < 12  # the end of the file, not the flight's ~22
 
 
+def _reading(path: Path) -> bool:
+    """A process has ``path`` open and has read some of it (``/proc``: its descriptors and their
+    positions)."""
+    for fd in Path("/proc").glob("[0-9]*/fd/*"):
+        try:
+            if fd.readlink() == path:
+                info = (fd.parent.parent / "fdinfo" / fd.name).read_text()
+                if int(info.split()[1]) > 0:
+                    return True
+        except (OSError, ValueError, IndexError):  # a process or descriptor gone meanwhile
+            continue
+    return False
+
+
 def test_an_interrupted_replay_prints_its_summary_and_exits_130(tmp_path: Path) -> None:
     """``replay`` ends by itself, so Ctrl-C is an interruption (README: 130), unlike the
     daemon's normal end; the summary still comes, its satellites "where the replay stopped"."""
@@ -206,8 +220,11 @@ def test_an_interrupted_replay_prints_its_summary_and_exits_130(tmp_path: Path) 
     sim = simulate(SimConfig(duration_s=120, seed=2, with_base=False))
     path = tmp_path / "flight.ubx"
     path.write_bytes(sim.rover_bytes)
+    # Ctrl-C 3 s after the replay has begun reading (on a loaded machine its start alone
+    # can take longer than 3 s)
     returncode, out, err = interrupted_cli(
-        ["replay", str(path), "--speed", "1", "--no-zenoh"], after_s=3.0)
+        ["replay", str(path), "--speed", "1", "--no-zenoh"], ready=lambda: _reading(path),
+        after_s=3.0)
     assert returncode == 130, err
     assert "(SIGINT)" in out and "where the replay stopped: " in out, out
     assert "Traceback" not in err
