@@ -114,7 +114,7 @@ def build_parser(argv: Sequence[str]) -> argparse.ArgumentParser:
     _add_log_options(parser, None)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     # Only the chosen subcommand's module is imported (Zenoh, the simulator ... are heavy).
-    wanted = next((a for a in argv if a in COMMANDS), None)
+    wanted = _command_in(argv)
     for name in COMMANDS:
         example = "\n".join(f"  {line}" for line in
                             examples(EXAMPLES.get(name, "")).splitlines())
@@ -171,6 +171,11 @@ def setup_logging(verbose: int, quiet: bool) -> None:
     )
 
 
+def _command_in(argv: Sequence[str]) -> str | None:
+    """The command named on a command line (the first word that is one), if any."""
+    return next((a for a in argv if a in COMMANDS), None)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """The ``groundstation`` command: its exit status.
 
@@ -187,9 +192,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         status = _main(argv)
     except KeyboardInterrupt:
-        words = list(sys.argv[1:] if argv is None else argv)
-        name = next((f"groundstation {w}" for w in words if w in COMMANDS), "groundstation")
-        print(f"{name}: interrupted", file=sys.stderr)
+        name = _command_in(sys.argv[1:] if argv is None else argv)
+        print(f"groundstation {name}: interrupted" if name else "groundstation: interrupted",
+              file=sys.stderr)
         status = EXIT_INTERRUPTED
     if argv is None and "zenoh" in sys.modules:
         for stream in (sys.stdout, sys.stderr):

@@ -87,8 +87,10 @@ def demo_flight_300(factory: pytest.TempPathFactory) -> DemoFlight:
 
 
 JD_1009 = "real/jdesbonnet__GNSS_RTK_data/20181009"
-JD_1009_BASE_XYZ = "3774696.5547,-596647.9083,5089485.6511"
+JD_1009_BASE_ECEF = (3774696.5547, -596647.9083, 5089485.6511)
 """The 2018-10-09 base's coordinates (RTKLIB's "ref pos" of its solution)."""
+JD_1009_BASE_XYZ = ",".join(f"{v:.4f}" for v in JD_1009_BASE_ECEF)
+"""The same as ``--base-xyz`` takes them."""
 
 
 def jd_1009_solved(factory: pytest.TempPathFactory, shared_data: Path) -> Path:

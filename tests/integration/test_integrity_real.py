@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from once import JD_1009, jd_1009_solved
+from once import JD_1009, JD_1009_BASE_ECEF, jd_1009_solved
 
 from groundstation.rules.marks import build_marks
 from groundstation.sim.rewrite import RewriteConfig, rewrite
@@ -25,7 +25,7 @@ pytestmark = [pytest.mark.shared_data, pytest.mark.slow,
               pytest.mark.xdist_group("test_integrity_real")]
 
 DAY = JD_1009
-BASE_XYZ = (3774696.5547, -596647.9083, 5089485.6511)  # JD_1009_BASE_XYZ
+BASE_XYZ = JD_1009_BASE_ECEF
 
 
 def test_fixes_confirmed_along_the_arcs_are_right(
