@@ -26,7 +26,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         "seed profile 3000)")
     parser.add_argument("--speed", default="1", help="1 (real time, default), N or max")
     parser.add_argument("--duration", type=float, default=0.0, metavar="S",
-                        help="stop after S seconds of wall time (default: end of the flight)")
+                        help="stop sending S seconds of wall time after the first byte, read what "
+                        "was sent, then stop (default: end of the flight)")
     parser.add_argument("--seed", type=int, default=1, help="simulation seed")
     parser.add_argument("--faults", default=None, metavar="none|default|seed|FILE",
                         help="link and mark faults to inject (default: default; seed profile: "

@@ -337,21 +337,16 @@ async def run_demo(
                 return
             await asyncio.sleep(0.02)
 
-    async def stop_when_flight_ends() -> None:
+    async def stop_when_fed() -> None:
+        """Stop once the feed has ended (the flight sent, or cut at ``duration_s`` by the
+        feeder itself) and the daemon has read what it wrote."""
         await drained()
-        pipeline.stopped_by = pipeline.stopped_by or "end of simulated flight"
+        pipeline.stopped_by = pipeline.stopped_by or (
+            f"duration {opts.duration_s:g} s" if feeder.cut_short and opts.duration_s > 0
+            else "end of simulated flight")
         stop.set()
 
-    async def stop_after_duration() -> None:
-        await asyncio.sleep(opts.duration_s)
-        pipeline.stopped_by = pipeline.stopped_by or f"duration {opts.duration_s:g} s"
-        feeder.stop()  # the radio goes quiet first: what it sent is read, not cut off
-        await drained()
-        stop.set()
-
-    watchers = [asyncio.create_task(stop_when_flight_ends(), name="flight-end")]
-    if opts.duration_s > 0:
-        watchers.append(asyncio.create_task(stop_after_duration(), name="duration"))
+    watcher = asyncio.create_task(stop_when_fed(), name="feed-end")
     if ready is not None:
         ready({"pty": feeder.path, "out_dir": str(out_dir), "station": station,
                "base_station": base_station_name(station) if base_feeder is not None else None,
@@ -378,7 +373,7 @@ async def run_demo(
         if getattr(getattr(base_pipeline.source, "state", None), "connected", False):  # type: ignore[union-attr]
             break
         await asyncio.sleep(0.01)
-    feeder.start_feed(sim.rover_chunks, opts.speed)
+    feeder.start_feed(sim.rover_chunks, opts.speed, opts.duration_s)
     if base_feeder is not None:
         base_feeder.start_feed(sim.base_chunks, opts.speed)
     try:
@@ -388,8 +383,7 @@ async def run_demo(
         feeder.close()
         if base_feeder is not None:
             base_feeder.close()
-        for w in watchers:
-            w.cancel()
+        watcher.cancel()
     write_companions(summary.files[0].stem if summary.files else f"{station}_demo")
     base_path, truth_path = written
     return DemoResult(

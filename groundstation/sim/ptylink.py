@@ -13,6 +13,7 @@ import contextlib
 import logging
 import os
 import threading
+import time
 import tty
 from collections.abc import Iterable
 from pathlib import Path
@@ -42,6 +43,8 @@ class PtyLink:
         """Timed chunks :meth:`feed` has written whole (a cut run reports what was sent)."""
         self.last_t_ns: int | None = None
         """The time of the last chunk :meth:`feed` wrote whole, ``None`` before the first."""
+        self.cut_short = False
+        """A feed ended with chunks left: :meth:`stop` was called or its ``for_s`` ran out."""
         self.done = threading.Event()
         """Set when a feed has ended (all written, stopped, or the pty closed)."""
         self._stop = threading.Event()
@@ -74,29 +77,37 @@ class PtyLink:
                 view = view[n:]
             self.bytes_written += min(piece, len(data) - i)
 
-    def feed(self, chunks: Iterable[tuple[int, bytes]], speed: float | None) -> int:
+    def feed(self, chunks: Iterable[tuple[int, bytes]], speed: float | None,
+             for_s: float = 0.0) -> int:
         """Write timed chunks ``(t_ns, data)`` paced at ``speed`` (``None``: at once), until
-        they end or :meth:`stop` is called. Returns the bytes written.
+        they end, :meth:`stop` is called or ``for_s`` seconds (``> 0``) have passed since the
+        feed began. Returns the bytes written.
+
+        The time limit is kept here, by the thread that writes, like a radio that goes quiet:
+        an event loop kept busy cannot let more of the flight through than the limit allows.
 
         Raises:
             OSError: the pty was closed under the writer.
         """
-        start = self.bytes_written
+        start, began = self.bytes_written, time.monotonic()
+        self.cut_short = False
         for t_ns, chunk in paced(chunks, speed):
-            if self._stop.is_set():
+            if self._stop.is_set() or 0 < for_s <= time.monotonic() - began:
+                self.cut_short = True
                 break
             self.write(chunk, piece=len(chunk) or 1)
             self.chunks_written += 1
             self.last_t_ns = t_ns
         return self.bytes_written - start
 
-    def start_feed(self, chunks: Iterable[tuple[int, bytes]], speed: float | None) -> None:
+    def start_feed(self, chunks: Iterable[tuple[int, bytes]], speed: float | None,
+                   for_s: float = 0.0) -> None:
         """:meth:`feed` in a background thread; :attr:`done` is set when it ends."""
         self.done.clear()
 
         def run() -> None:
             try:
-                self.feed(chunks, speed)
+                self.feed(chunks, speed, for_s)
             except OSError as err:
                 log.warning("pty writer stopped: %s", err)
             finally:

@@ -59,10 +59,15 @@ def test_demo_bad_option_exits_2(tmp_path: Path) -> None:
 
 
 def test_a_demo_stopped_early_reads_every_byte_written(tmp_path: Path) -> None:
-    """``--duration`` ends the demo in the middle of the flight, fed as fast as possible (the
-    pty full, as when a loaded machine's daemon lags): the feeder stops first and the daemon
-    reads what is still in the pty, so the summary has nothing "not read"."""
-    opts = DemoOptions(flight_s=600, speed=None, seed=4, duration_s=1.0,
+    """``--duration`` ends the demo in the middle of the flight, fed faster than the daemon
+    reads (the pty full, as when a loaded machine's daemon lags): the feeder stops first and
+    the daemon reads what is still in the pty, so the summary has nothing "not read".
+
+    At x300 the 600 s flight takes at least 2 s to send, and the feeder itself stops sending
+    after 1 s, so the cut falls inside the flight however long the machine keeps the event
+    loop busy (fed at once and stopped by the loop, a loaded run let the whole flight through
+    before the loop's timer came)."""
+    opts = DemoOptions(flight_s=600, speed=300, seed=4, duration_s=1.0,
                        out_dir=tmp_path / "flights", zenoh=False)
     result = asyncio.run(run_demo(opts, on_payload=lambda k, p: None))
     assert result.summary.stopped_by == "duration 1 s"
