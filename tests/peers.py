@@ -334,6 +334,39 @@ class StatusEventCollector(ItemCollector):
     items: list[Event | Status]
 
 
+class Screen:
+    """What a program draws on a terminal (the master side of its pty), read as it comes by a
+    thread, so a test can wait for something to be shown while the program runs on."""
+
+    def __init__(self, master: int) -> None:
+        self._master = master
+        self._data = bytearray()
+        self._lock = threading.Lock()
+        self._thread = threading.Thread(target=self._read, name="screen", daemon=True)
+        self._thread.start()
+
+    def _read(self) -> None:
+        while True:
+            try:
+                data = os.read(self._master, 65536)
+            except OSError:  # EIO: the program closed the terminal; EBADF: closed here
+                return
+            if not data:
+                return
+            with self._lock:
+                self._data += data
+
+    def text(self) -> str:
+        """Everything drawn so far."""
+        with self._lock:
+            return self._data.decode(errors="replace")
+
+    def close(self) -> None:
+        """Read what is left once the program has ended, and close the master side."""
+        self._thread.join(timeout=5)
+        os.close(self._master)
+
+
 def read_terminal(master: int, timeout_s: float) -> str:
     """Everything the terminal shows until its last writer closes it."""
     out = b""

@@ -6,6 +6,7 @@ marks from the queryable, and `groundstation watch` shows the station and then t
 
 from __future__ import annotations
 
+import os
 import signal
 import subprocess
 import sys
@@ -14,11 +15,12 @@ import time
 from pathlib import Path
 
 import pytest
-from peers import REPO, Daemon, Pty, Received, free_port, wait_until
+from peers import REPO, Daemon, Pty, Received, Screen, cli_env, free_port, wait_until
 from streams import epoch_with_mark
 
 from groundstation.bus import Bus, decode, key, open_bus
 from groundstation.config import ZenohSettings
+from groundstation.view.watch import STALE_AFTER_S
 
 STATION = "zt"
 WEEK = 2300
@@ -121,16 +123,33 @@ def test_watch_shows_live_then_stale(tmp_path: Path, pty: Pty, daemons: list[Dae
     for text in ("LINK", "5 Hz", "G03", "G11", "PPK-ready", "MARKS", "ALERTS"):
         assert text in out, text
     flight.join()
+    # The second watch draws on a real terminal, so the test sees when it shows the station
+    # live and stops the daemon only then (a fixed 2 s was too short for a watch starting on
+    # a loaded machine: it came up after the daemon had gone).
+    master, slave = os.openpty()
     watch = subprocess.Popen(
         [sys.executable, "-m", "groundstation.cli", "watch", "--station", STATION,
-         "--connect", endpoint, "--duration", "6"],
-        cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-        env={"COLUMNS": "120", "PATH": "/usr/bin:/bin"},
+         "--connect", endpoint],
+        cwd=REPO, stdin=subprocess.DEVNULL, stdout=slave, stderr=subprocess.PIPE, text=True,
+        env=cli_env(TERM="xterm-256color", COLUMNS="120", LINES="40"),
     )
-    time.sleep(2.0)
-    rc, _ = d.stop(signal.SIGTERM)
-    assert rc == 0
-    out, err = watch.communicate(timeout=30)
+    os.close(slave)
+    screen = Screen(master)
+    try:
+        wait_until(lambda: "LIVE" in screen.text(), 60, "the watch showing the station live")
+        shown = len(screen.text())
+        rc, _ = d.stop(signal.SIGTERM)
+        assert rc == 0
+        wait_until(lambda: "SESSION FINISHED" in screen.text()[shown:], 30,
+                   "the watch showing the session finished")
+        # as long again as a silence takes to turn the screen STALE: a finished session stays
+        # finished, never "daemon gone"
+        time.sleep(STALE_AFTER_S)
+    finally:
+        watch.send_signal(signal.SIGINT)  # Ctrl-C: the watch draws its last screen and exits
+        _, err = watch.communicate(timeout=30)
+        screen.close()
+    out = screen.text()[shown:]
     (tmp_path / "watch-stale.txt").write_text(out)
     assert watch.returncode == 0, err
     # A normal end (SIGTERM): the daemon said "finished", so no red STALE / "daemon gone".
