@@ -218,7 +218,8 @@ class Pty(PtyLink):
 
 
 class Daemon:
-    """`python -m groundstation.cli run ...` with its stderr collected line by line."""
+    """`python -m groundstation.cli run ...` with its stderr collected line by line (and its
+    stdout whole)."""
 
     def __init__(self, *args: str, command: str = "run") -> None:
         self.proc = subprocess.Popen(
@@ -226,24 +227,36 @@ class Daemon:
             cwd=REPO, env=cli_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
         )
         self.lines: list[tuple[float, str]] = []
+        self._out: list[str] = []
+        # Each pipe has one reader, its own thread: ``communicate`` would read stderr too and
+        # take lines the pump had not read yet (a daemon that ended at once lost its one line).
         self._thread = threading.Thread(target=self._pump, daemon=True)
         self._thread.start()
+        self._out_thread = threading.Thread(target=self._pump_out, daemon=True)
+        self._out_thread.start()
 
     def _pump(self) -> None:
         assert self.proc.stderr is not None
         for line in self.proc.stderr:
             self.lines.append((time.monotonic(), line))
 
+    def _pump_out(self) -> None:
+        assert self.proc.stdout is not None
+        self._out.append(self.proc.stdout.read())
+
     def wait_for(self, text: str, timeout_s: float = 60.0, after: float = 0.0) -> float:
         """Monotonic time at which a stderr line containing ``text`` appeared (at most
         ``timeout_s``: generous, for a process starting on a busy machine; the time a
         behaviour must take is checked by the tests, not by this wait)."""
         deadline = time.monotonic() + timeout_s
-        while time.monotonic() < deadline:
+        while True:
+            ended = self.proc.poll() is not None
+            if ended:  # its last lines may still be in the pipe: read to the end first
+                self._thread.join(timeout=5)
             for t, line in list(self.lines):
                 if t >= after and text in line:
                     return t
-            if self.proc.poll() is not None:
+            if ended or time.monotonic() >= deadline:
                 break
             time.sleep(0.02)
         raise AssertionError(f"no {text!r} within {timeout_s} s; stderr:\n" + self.stderr)
@@ -253,10 +266,14 @@ class Daemon:
         return "".join(line for _, line in self.lines)
 
     def stop(self, sig: int = signal.SIGTERM, timeout_s: float = 15.0) -> tuple[int, str]:
-        self.proc.send_signal(sig)
-        out, _ = self.proc.communicate(timeout=timeout_s)
-        self._thread.join(timeout=2)
-        return self.proc.returncode, out
+        """Send ``sig`` (nothing if it has ended), wait for the end and for both pipes to be
+        read to their end: the exit status and stdout."""
+        if self.proc.poll() is None:
+            self.proc.send_signal(sig)
+        self.proc.wait(timeout=timeout_s)
+        self._thread.join(timeout=5)
+        self._out_thread.join(timeout=5)
+        return self.proc.returncode, "".join(self._out)
 
     def kill(self) -> None:
         if self.proc.poll() is None:
