@@ -359,14 +359,18 @@ class Screen:
         self._master = master
         self._data = bytearray()
         self._lock = threading.Lock()
+        self._stopping = False
         self._thread = threading.Thread(target=self._read, name="screen", daemon=True)
         self._thread.start()
 
     def _read(self) -> None:
-        while True:
+        while not self._stopping:  # polled: the fd is closed only once this thread has ended
+            ready, _, _ = select.select([self._master], [], [], 0.2)
+            if not ready:
+                continue
             try:
                 data = os.read(self._master, 65536)
-            except OSError:  # EIO: the program closed the terminal; EBADF: closed here
+            except OSError:  # EIO: the program closed the terminal
                 return
             if not data:
                 return
@@ -378,25 +382,28 @@ class Screen:
         with self._lock:
             return self._data.decode(errors="replace")
 
+    def ended(self, timeout_s: float) -> bool:
+        """Wait until the last writer has closed the terminal (at most ``timeout_s``)."""
+        self._thread.join(timeout=timeout_s)
+        return not self._thread.is_alive()
+
+    def stop(self) -> None:
+        """Stop reading (the master side stays open)."""
+        self._stopping = True
+        self._thread.join()
+
     def close(self) -> None:
-        """Read what is left once the program has ended, and close the master side."""
-        self._thread.join(timeout=5)
+        """Read what is left once the program has ended (at most 5 s), stop, close the master
+        side."""
+        self.ended(5)
+        self.stop()
         os.close(self._master)
 
 
 def read_terminal(master: int, timeout_s: float) -> str:
-    """Everything the terminal shows until its last writer closes it."""
-    out = b""
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        ready, _, _ = select.select([master], [], [], 0.5)
-        if not ready:
-            continue
-        try:
-            data = os.read(master, 65536)
-        except OSError:  # EIO: the slave side is closed
-            break
-        if not data:
-            break
-        out += data
-    return out.decode(errors="replace")
+    """Everything the terminal shows until its last writer closes it (at most ``timeout_s``;
+    the caller closes ``master``)."""
+    screen = Screen(master)
+    screen.ended(timeout_s)
+    screen.stop()
+    return screen.text()
