@@ -25,7 +25,6 @@ pytestmark = [pytest.mark.shared_data, pytest.mark.slow,
               pytest.mark.xdist_group("test_integrity_real")]
 
 DAY = JD_1009
-BASE_XYZ = JD_1009_BASE_ECEF
 
 
 def test_fixes_confirmed_along_the_arcs_are_right(
@@ -43,7 +42,7 @@ def test_fixes_confirmed_along_the_arcs_are_right(
     (tmp_path / "base.ubx").write_bytes(rewrite(base, RewriteConfig()).data)
     res = solve(SolveSettings(report_pdf=False,
                               flight=tmp_path / "rover.ubx", out_dir=tmp_path / "lea6t",
-                              base=tmp_path / "base.ubx", base_ecef_m=BASE_XYZ))
+                              base=tmp_path / "base.ubx", base_ecef_m=JD_1009_BASE_ECEF))
     mp = res.mark_positions
     fixed = [(k, m.number) for k, m in enumerate(res.marks)
              if mp.quality[k] == Q_FIX and m.number in truth]
