@@ -14,8 +14,7 @@ import pytest
 from sky import Sky
 
 from groundstation.gnss.orbit import L1_WAVELENGTH_M
-from groundstation.solve import integrity
-from groundstation.solve.integrity import steps
+from groundstation.solve.integrity import arcs, steps
 from groundstation.solve.integrity.table import PhaseTable
 
 FloatArray = npt.NDArray[np.float64]
@@ -74,7 +73,7 @@ def _flight_with(seed: int, events: list[Event], end_s: float = 600.0
 
 def _solve(tab: PhaseTable, x: FloatArray) -> tuple[Any, int, int]:
     """(resolution, epochs fixed, epochs fixed more than 5 cm from the truth)."""
-    res = integrity.resolve(tab, x + 0.5)
+    res = arcs.resolve(tab, x + 0.5)
     err = np.linalg.norm(res.solution.x - x, axis=1)
     fixed = res.solution.fixed
     return res, int(fixed.sum()), int(np.sum(fixed & (err > 0.05)))
@@ -163,7 +162,7 @@ def test_joint_steps_at_two_gaps_are_found_one_at_a_time(
     # turn), so it is split too (seed 829 at severity 1: a gap's reliability counted the
     # common part its test cannot see, 42 where the test saw 30; 51 camera positions fixed
     # 16-18 cm off).
-    monkeypatch.setattr(integrity, "MAX_GAP_JUDGEMENTS", 1)
+    monkeypatch.setattr(arcs, "MAX_GAP_JUDGEMENTS", 1)
     tab, x, first, second = _two_gaps()
     res, fixed, wrong = _solve(tab, x)
     assert wrong == 0 and fixed == tab.n_epochs and res.lattice.contradictions == 0
@@ -195,7 +194,7 @@ def test_a_gap_judged_reliable_is_judged_again_when_the_lattice_contradicts_the_
 def test_what_is_still_in_doubt_when_the_rounds_are_spent_is_split(
         monkeypatch: pytest.MonkeyPatch) -> None:
     # one round: the evident gap is split in it; the other, never judged, is split at the end
-    monkeypatch.setattr(integrity, "MAX_SPLIT_ROUNDS", 1)
+    monkeypatch.setattr(arcs, "MAX_SPLIT_ROUNDS", 1)
     tab, x, first, second = _two_gaps()
     res, fixed, wrong = _solve(tab, x)
     assert {first, second} <= {d.row for d in res.gap_doubts}

@@ -19,8 +19,8 @@ from groundstation.geodesy import ecef_to_llh, enu_rotation
 from groundstation.gnss.ephemeris import BroadcastEphemeris
 from groundstation.offline.rinex.observations import ObsSet
 from groundstation.solve.engine.combine import DTTOL_S
-from groundstation.solve.integrity import Resolution, resolve, without
 from groundstation.solve.integrity import grade as gr
+from groundstation.solve.integrity.arcs import Resolution, resolve, without
 from groundstation.solve.integrity.carry import confirmed_along_arcs
 from groundstation.solve.integrity.normal import code_positions
 from groundstation.solve.integrity.smooth import smooth
@@ -124,7 +124,7 @@ def arcs_stage(
     rover: ObsSet, base: ObsSet, ephemerides: Sequence[BroadcastEphemeris],
     base_ecef_m: tuple[float, float, float],
 ) -> Arcs | None:
-    """Our whole-arc solution (:func:`groundstation.solve.integrity.resolve`, smoothed), from
+    """Our whole-arc solution (:func:`groundstation.solve.integrity.arcs.resolve`, smoothed), from
     the observations alone: linearised at the code's positions, so it can run before the
     engine (and give the engine its motion model). None without rover epochs or without a
     phase shared with the base (another day's base)."""
