@@ -131,10 +131,14 @@ def _track_lines(pts: FloatArray, quality: IntArray, seg_ok: npt.NDArray[np.bool
 def trajectory(
     x_m: FloatArray, y_m: FloatArray, quality: IntArray, t_gps_ns: IntArray,
     cam_x_m: FloatArray, cam_y_m: FloatArray, *, max_gap_s: float, crs: str, projected: bool,
-    cam_grade: Sequence[str] | None = None,
+    cam_grade: Sequence[str] | None = None, origin: tuple[float, float] | None = None,
 ) -> str:
     """Trajectory coloured by quality with the camera positions (outlined in their grade's
-    colour when ``cam_grade`` is given), in the output CRS."""
+    colour when ``cam_grade`` is given), in the output CRS; in metres from ``origin`` (the
+    base, drawn as a triangle where it falls in the frame) when it is given."""
+    if origin is not None:
+        x_m, y_m = x_m - origin[0], y_m - origin[1]
+        cam_x_m, cam_y_m = cam_x_m - origin[0], cam_y_m - origin[1]
     ok = np.isfinite(x_m) & np.isfinite(y_m)
     cam_ok = np.isfinite(cam_x_m) & np.isfinite(cam_y_m)
     xs = np.concatenate([x_m[ok], cam_x_m[cam_ok]])
@@ -168,9 +172,22 @@ def trajectory(
         ax.autoscale_view()
         ax.apply_aspect()  # the final limits, which the scale bar and the corners depend on
         ax.ticklabel_format(useOffset=False, style="plain")
-        unit = "m" if projected else "deg"
-        ax.set_xlabel(f"Easting ({unit})" if projected else "Longitude (deg)")
-        ax.set_ylabel(f"Northing ({unit})" if projected else "Latitude (deg)")
+        if origin is not None:
+            # (the frame stays the flight's: a base far off is not drawn)
+            ax.plot([0.0], [0.0], ls="", marker="^", ms=8, mfc="white", mec="black", mew=1.2,
+                    zorder=4, scalex=False, scaley=False)
+            if _inside(ax, 0.0, 0.0):
+                ax.annotate("base", (0.0, 0.0), xytext=(6, -4), textcoords="offset points",
+                            fontsize=8, va="top", zorder=4,
+                            bbox={"facecolor": "white", "edgecolor": "none", "alpha": 0.8,
+                                  "pad": 0.5})
+            ax.set_xlabel("Easting from the base (m)" if projected
+                          else "Longitude from the base (deg)")
+            ax.set_ylabel("Northing from the base (m)" if projected
+                          else "Latitude from the base (deg)")
+        else:
+            ax.set_xlabel("Easting (m)" if projected else "Longitude (deg)")
+            ax.set_ylabel("Northing (m)" if projected else "Latitude (deg)")
         ax.set_title(crs, fontsize=9, loc="left")
         ax.tick_params(labelsize=9)
         ax.tick_params(axis="y", labelrotation=90)
@@ -195,6 +212,12 @@ def trajectory(
             _scale_bar(ax, corners[0])
         _north_arrow(ax, projected, corners[1])
         return to_svg(fig, "trajectory")
+
+
+def _inside(ax: Axes, x: float, y: float) -> bool:
+    """The point falls within the axes' limits."""
+    (x0, x1), (y0, y1) = sorted(ax.get_xlim()), sorted(ax.get_ylim())
+    return x0 <= x <= x1 and y0 <= y <= y1
 
 
 _CORNERS = {"ll": (0.04, 0.05), "lr": (0.76, 0.05), "ul": (0.04, 0.83), "ur": (0.76, 0.83)}

@@ -16,7 +16,8 @@ from __future__ import annotations
 
 import html
 import math
-from collections.abc import Sequence
+import re
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -433,67 +434,105 @@ def _marks_table(inp: ReportInput) -> str:
             f"<tbody>{''.join(body)}</tbody></table>")
 
 
-def _figures(inp: ReportInput) -> list[tuple[str, str, str]]:
-    """(title, svg, caption) of every figure."""
-    from groundstation.solve import figures  # matplotlib: loaded when a report is drawn
+FIGURE_KEYS = ("trajectory", "trajectory-from-base", "quality", "satellites", "sigmas",
+               "timing", "lever")
+"""The figures by key (the trajectory drawn in the CRS's coordinates, or from the base)."""
+KEPT_BY_REBASE = frozenset(FIGURE_KEYS) - {"trajectory"}
+"""The figures a re-base keeps: a rigid move of the base and the flight leaves each of them as
+it was (the map drawn from the base, times, qualities, satellites, relative sigmas, residuals).
+A map in the CRS's own coordinates moves: drawn again."""
+_FIGURE_RE = re.compile(
+    r'<figure data-fig="([a-z-]+)"><h3>[^<]*</h3>(<svg.*?</svg>\s*)<figcaption>', re.S)
 
+
+def figures_in(page: str) -> dict[str, str]:
+    """The figures a re-base may keep from a report this module rendered, by key (none from
+    a page of another layout: they are drawn again)."""
+    return {k: svg for k, svg in _FIGURE_RE.findall(page) if k in KEPT_BY_REBASE}
+
+
+def _figures(inp: ReportInput) -> list[tuple[str, str, str, str]]:
+    """(key, title, svg, caption) of every figure (kept ones from ``inp.kept_figures``)."""
     rows = inp.rows
     cam_x = np.array([r.x_m for r in rows], dtype=np.float64)
     cam_y = np.array([r.y_m for r in rows], dtype=np.float64)
     t_rows = np.array([r.t_gps_ns for r in rows], dtype=np.int64)
-    out = [(
-        "Trajectory",
-        figures.trajectory(inp.track_x_m, inp.track_y_m, inp.track_quality, inp.track_t_gps_ns,
-                           cam_x, cam_y, max_gap_s=inp.max_gap_s,
-                           crs=f"EPSG:{inp.epsg} {inp.crs_name}", projected=inp.projected,
-                           cam_grade=[r.grade for r in rows]),
-        ("Antenna trajectory in the output CRS, coloured by solution quality (fixed: fixed and "
-        "checked); circles are the camera positions (after the lever arm) in their grade's "
-        "colour. Equal scale on both axes; north arrow points to grid north."),
-    ), (
-        "Quality over time",
-        figures.quality_timeline(inp.track_t_gps_ns, inp.track_quality,
-                                 max_gap_s=inp.max_gap_s, radio_gaps=inp.radio_gaps,
-                                 outages=inp.source_outages, mark_t_gps_ns=t_rows,
-                                 events_recorded=inp.station_events,
-                                 mark_grade=[r.grade for r in rows]),
-        ("Solution quality per epoch (hatched: no solved epoch for longer than the gap limit), "
-        "radio dropouts and source outages recorded by the ground station, and the camera "
-        "positions in their grade's colour. Bottom axis UTC, top axis GPS seconds of week."),
-    )]
-    sats = inp.satellites
-    if sats is not None:
-        out.append((
-            "Satellites",
-            figures.satellites(sats.sat, sats.t_gps_ns, sats.cno_dbhz, sats.slip, sats.half,
-                               sats.repaired),
-            ("Rover satellites over time: colour is C/N0, red ticks are cycle slips (loss of "
-            "lock), orange marks epochs with the half-cycle ambiguity unresolved."),
-        ))
     sd = np.array([(r.sd_e_m, r.sd_n_m, r.sd_u_m) for r in rows], dtype=np.float64).reshape(-1, 3)
     qual = np.array([r.quality for r in rows], dtype=np.int64)
-    out.append((
-        "Standard deviations at the camera positions",
-        figures.sigmas(t_rows, sd, qual),
+    sats = inp.satellites
+    origin = inp.map_origin
+    # key, title, how to draw it (figures: matplotlib, loaded only when one is drawn), caption
+    todo: list[tuple[str, str, Callable[[Any], str], str]] = [(
+        "trajectory" if origin is None else "trajectory-from-base", "Trajectory",
+        lambda f: f.trajectory(inp.track_x_m, inp.track_y_m, inp.track_quality,
+                               inp.track_t_gps_ns, cam_x, cam_y, max_gap_s=inp.max_gap_s,
+                               crs=f"EPSG:{inp.epsg} {inp.crs_name}", projected=inp.projected,
+                               cam_grade=[r.grade for r in rows], origin=origin),
+        ("Antenna trajectory in the output CRS, coloured by solution quality (fixed: fixed and "
+         "checked); circles are the camera positions (after the lever arm) in their grade's "
+         "colour. Equal scale on both axes; north arrow points to grid north."
+         + ("" if origin is None else
+            f" Axes in metres from the base (the triangle, where it falls within the frame), "
+            f"which is at {_map_origin_text(inp)}.")),
+    ), (
+        "quality", "Quality over time",
+        lambda f: f.quality_timeline(inp.track_t_gps_ns, inp.track_quality,
+                                     max_gap_s=inp.max_gap_s, radio_gaps=inp.radio_gaps,
+                                     outages=inp.source_outages, mark_t_gps_ns=t_rows,
+                                     events_recorded=inp.station_events,
+                                     mark_grade=[r.grade for r in rows]),
+        ("Solution quality per epoch (hatched: no solved epoch for longer than the gap limit), "
+         "radio dropouts and source outages recorded by the ground station, and the camera "
+         "positions in their grade's colour. Bottom axis UTC, top axis GPS seconds of week."),
+    )]
+    if sats is not None:
+        todo.append((
+            "satellites", "Satellites",
+            lambda f: f.satellites(sats.sat, sats.t_gps_ns, sats.cno_dbhz, sats.slip, sats.half,
+                                   sats.repaired),
+            ("Rover satellites over time: colour is C/N0, red ticks are cycle slips (loss of "
+             "lock), orange marks epochs with the half-cycle ambiguity unresolved."),
+        ))
+    todo.append((
+        "sigmas", "Standard deviations at the camera positions",
+        lambda f: f.sigmas(t_rows, sd, qual),
         ("σ east, north and up of every camera position, as given by the engine and carried "
-        "through the interpolation; red circles: not ambiguity-fixed."),
+         "through the interpolation; red circles: not ambiguity-fixed."),
     ))
     if inp.pair_residual_s.size:
-        out.append((
-            "Photo timing residuals",
-            figures.timing_residuals(inp.pair_t_gps_ns, inp.pair_residual_s,
-                                     inp.pair_window_s or math.nan,
-                                     clockoffset.residual_sigma_s(inp.pair_residual_s)),
-            ("Time of each mark minus the photo's EXIF time corrected by the camera clock offset. "
-            "Whole-second EXIF times spread over ±500 ms; sub-second times sit near zero."),
+        todo.append((
+            "timing", "Photo timing residuals",
+            lambda f: f.timing_residuals(inp.pair_t_gps_ns, inp.pair_residual_s,
+                                         inp.pair_window_s or math.nan,
+                                         clockoffset.residual_sigma_s(inp.pair_residual_s)),
+            ("Time of each mark minus the photo's EXIF time corrected by the camera clock "
+             "offset. Whole-second EXIF times spread over ±500 ms; sub-second times sit near "
+             "zero."),
         ))
     if inp.lever_residual_m.size:
-        out.append((
-            "Lever-arm residuals",
-            figures.lever_residuals(inp.lever_residual_m, inp.lever_outlier),
+        todo.append((
+            "lever", "Lever-arm residuals",
+            lambda f: f.lever_residuals(inp.lever_residual_m, inp.lever_outlier),
             "Lever arm estimated per image from the exterior orientation file, minus the mean.",
         ))
+    out = []
+    for key, title, draw, caption in todo:
+        svg = inp.kept_figures.get(key)
+        if svg is None:
+            from groundstation.solve import figures
+
+            svg = draw(figures)
+        out.append((key, title, svg, caption))
     return out
+
+
+def _map_origin_text(inp: ReportInput) -> str:
+    """Where the map's origin (the base) is, in the output CRS."""
+    assert inp.map_origin is not None
+    x, y = inp.map_origin
+    if inp.projected:
+        return f"E {x:.3f}, N {y:.3f} m in EPSG:{inp.epsg}"
+    return f"longitude {x:.8f}°, latitude {y:.8f}°"
 
 
 def render_html(inp: ReportInput) -> str:
@@ -504,8 +543,9 @@ def render_html(inp: ReportInput) -> str:
         else '<p class="ok">Nothing to report: every camera position is fixed, no gaps.</p>'
     )
     figs = "".join(
-        f"<figure><h3>{_e(title)}</h3>{svg}<figcaption>{_e(cap)}</figcaption></figure>"
-        for title, svg, cap in _figures(inp)
+        f'<figure data-fig="{key}"><h3>{_e(title)}</h3>{svg}<figcaption>{_e(cap)}'
+        "</figcaption></figure>"
+        for key, title, svg, cap in _figures(inp)
     )
     unmatched = "".join(f"<li>{_e(n)}: {_e(why)}</li>" for n, why in inp.photos_unmatched)
     notes = "".join(f"<li>{_e(n)}</li>" for n in inp.notes)

@@ -137,6 +137,12 @@ class ReportInput:
     integrity: dict[str, Any] | None = None
     """The integrity stage's summary (``engine.json``'s ``integrity``), None when it did not
     run."""
+    map_origin: tuple[float, float] | None = None
+    """The base in the output CRS: the map is drawn from it (None: in the CRS's coordinates),
+    so that moving the base and the flight alike leaves the map as it was."""
+    kept_figures: Mapping[str, str] = field(default_factory=dict)
+    """Figures kept from the result a re-base moves, by key (``report.FIGURE_KEYS``): a rigid
+    move leaves them as they were, so they are not drawn again."""
 
 
 QUALITY_KEYS = {Q_FIX: "fixed", Q_FLOAT: "float", Q_SBAS: "sbas", Q_DGPS: "dgps",

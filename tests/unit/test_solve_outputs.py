@@ -182,6 +182,19 @@ def test_write_all_and_report(out: outputs.SolveOutput, tmp_path: Path) -> None:
     assert report_data.warnings(inp)[0] == "P" + amb[1:]
     html = report.render_html(inp)
     assert "GPS − camera +17.630 s = 18 s leap seconds (GPS − UTC) -0.370 s (UTC − camera)" in html
+    # A re-base keeps every figure a rigid move leaves as it was, read back from the page: the
+    # map only when it is drawn from the base (in the CRS's own coordinates it moves)
+    kept = report.figures_in(html)
+    assert set(kept) == {"quality", "sigmas", "timing", "lever"}
+    assert all(svg.startswith("<svg") and svg.rstrip().endswith("</svg>") for svg in kept.values())
+    from_base = replace(inp, map_origin=(500010.0, 5538010.0))
+    page = report.render_html(from_base)
+    assert "Easting from the base (m)" in page and "E 500010.000, N 5538010.000 m" in page
+    kept = report.figures_in(page)
+    assert set(kept) == {"trajectory-from-base", "quality", "sigmas", "timing", "lever"}
+    mark = {k: f'<svg class="fig" aria-label="{k}"><text>kept {k}</text></svg>' for k in kept}
+    again = report.render_html(replace(from_base, kept_figures=mark))
+    assert report.figures_in(again) == mark  # taken as they were, none drawn again
 
 
 def test_output_dir_inside_photos_is_refused(tmp_path: Path) -> None:
