@@ -393,19 +393,49 @@ positions nothing (5 km: no solution rows) or a result shifted by the same dista
 :data:`BASE_DOUBTFUL_M` and this, the solve runs and warns."""
 
 
+@dataclass(frozen=True, slots=True)
+class OwnFixes:
+    """The mean of a base receiver's own fixes (None without any) and how many there are."""
+
+    mean_ecef_m: tuple[float, float, float] | None
+    count: int
+
+
+def own_fixes(base: Path) -> OwnFixes | None:
+    """The base receiver's own fixes in a u-blox base recording, averaged (None: RINEX or not
+    a recording).
+
+    Raises:
+        GroundstationError: the recording cannot be read.
+    """
+    if detect_recording(base) is None:
+        return None
+    return _mean_of([n.ecef_m for n in read_flight(base).nav if n.fix_ok and n.ecef_m])
+
+
+def _mean_of(fixes_ecef_m: Sequence[tuple[float, float, float]]) -> OwnFixes:
+    fixes = np.asarray(fixes_ecef_m, dtype=np.float64).reshape(-1, 3)
+    if not fixes.size:
+        return OwnFixes(None, 0)
+    x, y, z = (float(v) for v in fixes.mean(axis=0))
+    return OwnFixes((x, y, z), len(fixes))
+
+
 def check_base(
     base: Path | None,
     base_ecef_m: tuple[float, float, float] | None,
     traj: Trajectory | None,
     positions_file: Path | None,
     how: str = "given with --base-xyz",
+    own: OwnFixes | None = None,
 ) -> tuple[str, bool]:
     """How the base coordinates were checked: (text, doubtful); ``how`` says how they were
     given.
 
     Given coordinates are compared with the mean of the base receiver's own fixes in a u-blox
-    base recording (before the engine runs: ``traj`` is not needed then); an imported
-    solution's reference position is taken from its header.
+    base recording (``own``: as read before, by :func:`own_fixes`; before the engine runs:
+    ``traj`` is not needed then); an imported solution's reference position is taken from its
+    header.
 
     Raises:
         ConfigError: naming ``--base-xyz``: far from the base receiver's fixes
@@ -419,13 +449,14 @@ def check_base(
             return ("reference position from the header of the imported solution; not checked "
                     "against a base recording"), False
         return "unknown (the imported solution does not state its base)", True
-    if base is None or detect_recording(base) is None:
+    if own is None and base is not None:
+        try:
+            own = own_fixes(base)
+        except GroundstationError as err:
+            return f"{how}; not checked ({err})", True
+    if base is None or own is None:
         return f"{how}; not checked (no u-blox base recording)", False
-    try:
-        fixes = [n.ecef_m for n in read_flight(base).nav if n.fix_ok and n.ecef_m]
-    except GroundstationError as err:
-        return f"{how}; not checked ({err})", True
-    return compare_base(fixes, base_ecef_m, how)
+    return compare_base(own, base_ecef_m, how)
 
 
 def detect_recording(path: Path) -> str | None:
@@ -439,7 +470,7 @@ def detect_recording(path: Path) -> str | None:
 
 
 def compare_base(
-    base_fixes_ecef_m: Sequence[tuple[float, float, float]],
+    base_fixes_ecef_m: Sequence[tuple[float, float, float]] | OwnFixes,
     base_ecef_m: tuple[float, float, float],
     how_given: str,
     fixes_are: str = "the base receiver's own {n} fixes",
@@ -451,9 +482,12 @@ def compare_base(
     Raises:
         ConfigError: naming ``--base-xyz``: more than :data:`BASE_REFUSED_M` away.
     """
-    if not base_fixes_ecef_m:
+    if not isinstance(base_fixes_ecef_m, OwnFixes):
+        base_fixes_ecef_m = _mean_of(base_fixes_ecef_m)
+    count = base_fixes_ecef_m.count
+    if base_fixes_ecef_m.mean_ecef_m is None:
         return f"{how_given}; not checked (the base recording has no receiver fix)", False
-    mean = np.mean(np.asarray(base_fixes_ecef_m, dtype=np.float64), axis=0)
+    mean = np.array(base_fixes_ecef_m.mean_ecef_m)
     d = float(np.linalg.norm(mean - np.asarray(base_ecef_m)))
     given = re.search(r"given with (\S+)", how_given)
     key = given.group(1) if given else "--base-xyz"  # the option (or key) the user gave
@@ -462,12 +496,12 @@ def compare_base(
                 "llh": " Latitude and longitude swapped?"}.get(key.rsplit("-", 1)[-1]
                                                               .removeprefix("base_"), "")
         raise ConfigError(key, (
-            f"{d / 1000:.2f} km from where {fixes_are.format(n=len(base_fixes_ecef_m))} "
+            f"{d / 1000:.2f} km from where {fixes_are.format(n=count)} "
             f"put the base ({mean[0]:.1f},{mean[1]:.1f},{mean[2]:.1f}; stand-alone fixes "
             f"are good to a few metres): not this base's coordinates (another day's or "
             f"site's?).{hint}"))
     text = (f"{how_given}; {d:.1f} m from the mean of "
-            f"{fixes_are.format(n=len(base_fixes_ecef_m))} (stand-alone, metre level)")
+            f"{fixes_are.format(n=count)} (stand-alone, metre level)")
     lat, lon, h_m = ecef_to_llh(*(float(v) for v in mean))
     e, n, u = np.asarray(enu_rotation(lat, lon)) @ (np.asarray(base_ecef_m) - mean)
     if d > BASE_DOUBTFUL_M:

@@ -15,8 +15,9 @@ photos carry at least the uniform spread of their second (1/√12 s).
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 import numpy.typing as npt
@@ -24,7 +25,12 @@ import numpy.typing as npt
 from groundstation.rules.marks import Mark, count_jump
 from groundstation.solve.trajectory import Trajectory
 
+if TYPE_CHECKING:
+    from groundstation.solve.interpolate import MarkPositions
+
 FloatArray = npt.NDArray[np.float64]
+Interpolate = Callable[[Trajectory, Sequence[int | None], str, float], "MarkPositions"]
+"""Positions at instants (:func:`groundstation.solve.interpolate.interpolate`'s signature)."""
 
 OUTLIER_SIGMAS = 5.0
 """Pairs whose residual is further than this many robust sigmas from the fit are left out."""
@@ -189,6 +195,7 @@ VELOCITY_STEP_NS = 100_000_000
 def position_photos(
     traj: Trajectory, clock: CameraClock, photo_s: FloatArray, precise: npt.NDArray[np.bool_],
     photos: Sequence[int], method: str, max_gap_s: float,
+    interpolate: Interpolate | None = None,
 ) -> ClockPositions:
     """The antenna at each photo's clock time, its sigma widened by the timing sigma times the
     velocity there (a fixed epoch's photo whose sigma is then no longer a centimetre one is
@@ -201,9 +208,10 @@ def position_photos(
     idx = [i for i in photos if math.isfinite(photo_s[i])]
     t_ns = [round(clock.gps_s(float(photo_s[i])) * 1e9) for i in idx]
     sd_t = np.array([clock.sigma_s(float(photo_s[i]), bool(precise[i])) for i in idx])
-    at = mi.interpolate(traj, t_ns, method, max_gap_s)
-    before = mi.interpolate(traj, [t - VELOCITY_STEP_NS for t in t_ns], "linear", max_gap_s)
-    after = mi.interpolate(traj, [t + VELOCITY_STEP_NS for t in t_ns], "linear", max_gap_s)
+    at_times = interpolate or mi.interpolate
+    at = at_times(traj, t_ns, method, max_gap_s)
+    before = at_times(traj, [t - VELOCITY_STEP_NS for t in t_ns], "linear", max_gap_s)
+    after = at_times(traj, [t + VELOCITY_STEP_NS for t in t_ns], "linear", max_gap_s)
     step_s = VELOCITY_STEP_NS / 1e9
     v_ecef = (after.ecef_m - before.ecef_m) / (2 * step_s)
     # at an end of the trajectory (or of a gap), one side only

@@ -9,15 +9,17 @@ too); everything downstream, the report included, takes its :class:`FlightRecord
 from __future__ import annotations
 
 import json
+import zipfile
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import numpy.typing as npt
 
 from groundstation import gpstime
+from groundstation.errors import InputError
 from groundstation.offline.rinex.observations import obs_from_raw, obs_from_rawx
 from groundstation.records import Frame, NavSolution, TimeMark
 from groundstation.rules.epochs import find_gaps, nominal_interval_ns
@@ -132,6 +134,85 @@ class FlightRecords:
         """Why a pulse at this time never arrived (:func:`groundstation.rules.marks.lost_cause`)."""
         holes, iv = self.holes()
         return lost_cause(t_gps_ns, holes, [(t, t) for t in self.damage_t_gps_ns], iv)
+
+
+_NONE = np.iinfo(np.int64).min
+"""Stands for None in a saved time mark's integer columns."""
+_TIMEMARK_FIELDS = tuple(f.name for f in fields(TimeMark))
+
+
+def save_npz(rec: FlightRecords, path: Path) -> None:
+    """Write what a re-base takes from the flight (:func:`load_npz`): the time marks, the
+    epochs and damage that explain lost marks, and the observations the report shows. The
+    receiver's fixes are not kept. Plain arrays, no pickled objects."""
+    cols = np.array([[_NONE if (v := getattr(tm, k)) is None else int(v)
+                      for k in _TIMEMARK_FIELDS] for tm in rec.timemarks],
+                    dtype=np.int64).reshape(-1, len(_TIMEMARK_FIELDS))
+    arrays: dict[str, Any] = {
+        "timemarks": cols, "timemark_fields": np.array(_TIMEMARK_FIELDS),
+        "counts": np.array([rec.frames, rec.damaged], dtype=np.int64),
+        "epoch_t_gps_ns": np.array(rec.epoch_t_gps_ns, dtype=np.int64),
+        "damage_t_gps_ns": np.array(rec.damage_t_gps_ns, dtype=np.int64),
+    }
+    obs = rec.observed
+    if obs is not None:
+        arrays["radio_gaps"] = _spans_array(obs.radio_gaps)
+        arrays["source_outages"] = _spans_array(obs.source_outages)
+        arrays["station_events"] = np.array(obs.station_events)
+        sats = obs.satellites
+        if sats is not None:
+            arrays.update(sat=np.array(sats.sat, dtype=np.str_), sat_t_gps_ns=sats.t_gps_ns,
+                          sat_cno_dbhz=sats.cno_dbhz, sat_slip=sats.slip, sat_half=sats.half)
+            if sats.repaired is not None:
+                arrays["sat_repaired"] = sats.repaired
+    with path.open("wb") as f:
+        np.savez_compressed(f, **arrays)
+
+
+def load_npz(path: Path) -> FlightRecords:
+    """The flight's records :func:`save_npz` wrote (without the receiver's fixes).
+
+    Raises:
+        InputError: unreadable, or not what :func:`save_npz` writes.
+    """
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            a = {k: z[k] for k in z.files}
+        names = tuple(str(v) for v in a["timemark_fields"])
+        if names != _TIMEMARK_FIELDS:
+            raise ValueError(f"time-mark fields {names}")
+        flags = {f.name: f.type == "bool" for f in fields(TimeMark)}
+        rows: list[dict[str, Any]] = [
+            {k: (None if v == _NONE else bool(v) if flags[k] else v)
+             for k, v in zip(names, row, strict=True)}
+            for row in a["timemarks"].reshape(-1, len(names)).tolist()]
+        tms = tuple(TimeMark(**r) for r in rows)
+        frames, damaged = (int(v) for v in a["counts"])
+        observed = None
+        if "station_events" in a:
+            sats = None
+            if "sat" in a:
+                sats = SatelliteObs(
+                    sat=tuple(str(s) for s in a["sat"]), t_gps_ns=a["sat_t_gps_ns"],
+                    cno_dbhz=a["sat_cno_dbhz"], slip=a["sat_slip"], half=a["sat_half"],
+                    repaired=a.get("sat_repaired"))
+            observed = FlightObservations(sats, _spans(a["radio_gaps"]),
+                                          _spans(a["source_outages"]),
+                                          bool(a["station_events"]))
+        return FlightRecords(tms, (), frames, damaged,
+                             tuple(int(t) for t in a["epoch_t_gps_ns"]),
+                             tuple(int(t) for t in a["damage_t_gps_ns"]), observed)
+    except (OSError, ValueError, KeyError, TypeError, EOFError, zipfile.BadZipFile) as err:
+        raise InputError(f"{path}: not flight records this program wrote ({err})") from err
+
+
+def _spans_array(spans: Sequence[Span]) -> IntArray:
+    return np.array([(s.start_gps_ns, s.end_gps_ns) for s in spans],
+                    dtype=np.int64).reshape(-1, 2)
+
+
+def _spans(a: IntArray) -> tuple[Span, ...]:
+    return tuple(Span(int(s), int(e)) for s, e in a.reshape(-1, 2).tolist())
 
 
 def read_flight(path: Path, progress: Progress | None = None, *,

@@ -8,14 +8,16 @@ Quality per mark is RTKLIB's rule: the worse (larger Q) of the two bracketing ep
 
 from __future__ import annotations
 
+import zipfile
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Literal
+from pathlib import Path
+from typing import Any, Literal
 
 import numpy as np
 import numpy.typing as npt
 
-from groundstation.errors import ConfigError
+from groundstation.errors import ConfigError, InputError
 from groundstation.geodesy import ecef_to_llh, enu_rotation
 from groundstation.rules.marks import edge_time_ns
 from groundstation.solve.integrity import grade as gr
@@ -109,6 +111,49 @@ class MarkPositions:
     @property
     def positioned(self) -> int:
         return int(np.sum(np.isfinite(self.ecef_m[:, 0])))
+
+
+_SAVED = ("t_gps_ns", "ecef_m", "sd_enu_m", "quality", "bracket_s", "flags", "grade", "check")
+
+
+def save_npz(positions: Sequence[MarkPositions], path: Path) -> None:
+    """Write several sets of positions as one NumPy ``.npz`` (plain arrays, no pickled
+    objects: :func:`load_npz`)."""
+    arrays: dict[str, Any] = {"count": np.array(len(positions))}
+    for i, mp in enumerate(positions):
+        arrays[f"{i}_method"] = np.array(mp.method)
+        arrays.update({f"{i}_{k}": getattr(mp, k) for k in _SAVED})
+    with path.open("wb") as f:
+        np.savez_compressed(f, **arrays)
+
+
+def load_npz(path: Path) -> list[MarkPositions]:
+    """The sets of positions :func:`save_npz` wrote.
+
+    Raises:
+        InputError: unreadable, or not what :func:`save_npz` writes.
+    """
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            a = {k: z[k] for k in z.files}
+        out = []
+        for i in range(int(a["count"])):
+            n = int(a[f"{i}_t_gps_ns"].size)
+
+            def col(k: str, shape: tuple[int, ...], dtype: type, i: int = i) -> Any:
+                return a[f"{i}_{k}"].astype(dtype).reshape(shape)
+
+            out.append(MarkPositions(
+                t_gps_ns=col("t_gps_ns", (n,), np.int64),
+                ecef_m=col("ecef_m", (n, 3), np.float64),
+                sd_enu_m=col("sd_enu_m", (n, 3), np.float64),
+                quality=col("quality", (n,), np.int64),
+                bracket_s=col("bracket_s", (n,), np.float64),
+                flags=col("flags", (n,), np.int64), method=str(a[f"{i}_method"]),
+                grade=col("grade", (n,), np.int64), check=col("check", (n,), np.int64)))
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as err:
+        raise InputError(f"{path}: not positions this program wrote ({err})") from err
+    return out
 
 
 @dataclass(frozen=True, slots=True)

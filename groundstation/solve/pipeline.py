@@ -44,10 +44,12 @@ from groundstation.solve import (
 )
 from groundstation.solve import interpolate as mi
 from groundstation.solve.base import (
+    OwnFixes,
     base_from_own_fixes,
     check_base,
     check_distance,
     check_pairing,
+    own_fixes,
 )
 from groundstation.solve.engine import is_rinex_obs_name
 from groundstation.solve.flight import FlightObservations, FlightRecords, read_flight
@@ -82,6 +84,10 @@ class SolveResult:
     epsg: int | str
     notes: tuple[str, ...] = field(default_factory=tuple)
     reconciliation: tuple[str, ...] = field(default_factory=tuple)
+    flight: FlightRecords | None = None
+    """What was taken from the flight recording (kept in the run's record for a re-base)."""
+    interpolations: record.Interpolations | None = None
+    """The positions interpolated from the trajectory (kept in the run's record)."""
 
     def summary(self) -> dict[str, object]:
         """Counts as plain JSON values (for the service's ``solution`` message)."""
@@ -118,7 +124,7 @@ def _validate(s: SolveSettings) -> tuple[SolveSettings, BaseCheck | None, Flight
 
     def flight() -> FlightRecords:
         if not read:
-            read.append(read_flight(s.flight, observations=True))
+            read.append(_flight_records(s))
         return read[0]
 
     if s.interp not in mi.INTERPOLATORS:
@@ -164,16 +170,37 @@ def _validate(s: SolveSettings) -> tuple[SolveSettings, BaseCheck | None, Flight
         return s, None, (read[0] if read else None)
     # Before the engine: coordinates kilometres off give no solution at all, and a half hour
     # of engine work before saying so (base.BASE_REFUSED_M).
-    text, doubtful = (s.base_given, False) if own else check_base(
-        s.base, s.base_ecef_m, None, s.positions, s.base_given)
+    base, base_ecef_m = s.base, s.base_ecef_m
+    if own:
+        text, doubtful = s.base_given, False
+    else:
+        s, fixes = _base_own_fixes(s)
+        text, doubtful = check_base(base, base_ecef_m, None, s.positions, s.base_given, fixes)
     if s.positions is None and s.rebase is None:  # (a re-based result was checked so)
         # The same for a base of another day, the flight's own recording, or a base hundreds
         # of kilometres away.
-        covered = check_pairing(s.flight, s.base)
-        check_distance(s.base_ecef_m, [
+        covered = check_pairing(s.flight, base)
+        check_distance(base_ecef_m, [
             n.ecef_m for n in flight().nav if n.fix_ok and n.ecef_m])
         text = f"{text}; {covered}" if covered else text
     return s, (text, doubtful), (read[0] if read else None)
+
+
+def _base_own_fixes(s: SolveSettings) -> tuple[SolveSettings, OwnFixes | None]:
+    """The mean of the base receiver's own fixes: as the settings keep it (a re-base's
+    record), else read now and kept in the settings; None when there are none to read (no
+    u-blox base recording, or one that cannot be read: the base check says why)."""
+    if s.base_fix_count >= 0:
+        return s, OwnFixes(s.base_fix_mean_m, s.base_fix_count)
+    if s.base is None:
+        return s, None
+    try:
+        fixes = own_fixes(s.base)
+    except GroundstationError:
+        return s, None
+    if fixes is None:
+        return s, None
+    return replace(s, base_fix_mean_m=fixes.mean_ecef_m, base_fix_count=fixes.count), fixes
 
 
 def _base_from_own_fixes(path: Path, s: SolveSettings) -> SolveSettings:
@@ -233,7 +260,8 @@ def solve(settings: SolveSettings, progress: Progress | None = None) -> SolveRes
         if s.rebase is not None:
             record.carry_engine_files(s.rebase, stage)
         result = _solve(replace(s, out_dir=stage), progress, base_check, rec)
-        record.write(s, result.trajectory, stage, s.out_dir)
+        record.write(s, result.trajectory, result.interpolations or record.Interpolations(),
+                     result.flight, stage, s.out_dir)
     return _relocated(result, stage, s.out_dir)
 
 
@@ -271,7 +299,8 @@ def _solve(s: SolveSettings, progress: Progress | None,
     notes: list[str] = [s.merged_from] if s.merged_from else []
     rec, marks = _marks(s, progress, rec_read)
     traj = _positions(s, rec, notes, progress)
-    times, mp = _positions_at_marks(s, traj, marks, notes, progress)
+    interp = record.Interpolations.of(s)
+    times, mp = _positions_at_marks(s, traj, marks, notes, progress, interp)
     if mp.positioned == 0:  # every export would be empty: a failed run, nothing written
         raise NothingPositionedError(_why_nothing(s, traj, marks, times))
     photo_list, match, recon = _photos(s, times, progress)
@@ -282,7 +311,7 @@ def _solve(s: SolveSettings, progress: Progress | None,
     if s.photos is None:
         notes.append(f"no photos given: marks named {outputs.MARK_NAME_PREFIX}NNNN (the "
                      "receiver's mark count) in geo.txt, reference.csv, pix4d.csv")
-    by_clock, numbers = _clock_photos(s, traj, marks, times, match, notes)
+    by_clock, numbers = _clock_photos(s, traj, marks, times, match, notes, interp)
     lost = rec.lost_by_cause(marks, by_clock.t_gps_ns.tolist() if by_clock else ())
     # photos no count jump accounts for (before the first received mark, after the last, or
     # never counted): lost on the link where their epoch was, else never counted
@@ -312,13 +341,14 @@ def _solve(s: SolveSettings, progress: Progress | None,
         notes.append(f"EXIF GPS tags written to copies in {s.out_dir / 'photos'}")
     return SolveResult(
         cams.rows, marks, mp, traj, match, cams.lever, tuple(files), cams.epsg, tuple(notes),
-        tuple(recon),
+        tuple(recon), rec, interp,
     )
 
 
 def _clock_photos(
     s: SolveSettings, traj: Trajectory, marks: tuple[Mark, ...],
     times: list[int | None], match: photos.MatchResult | None, notes: list[str],
+    interp: record.Interpolations,
 ) -> tuple[camclock.ClockPositions | None, dict[int, int]]:
     """Stage 4b: the photos without a received mark, positioned at their own time through the
     camera clock fitted on the paired ones, and the lost marks' numbers they stand for (where a
@@ -338,7 +368,7 @@ def _clock_photos(
     if clock is None or not timed:
         return None, {}
     by_clock = camclock.position_photos(traj, clock, match.photo_s, precise, timed,
-                                        s.interp, s.max_gap_s)
+                                        s.interp, s.max_gap_s, interp)
     gps_s = [float(t) / 1e9 for t in by_clock.t_gps_ns]
     numbers = {by_clock.photo[j]: n for j, n in camclock.lost_numbers(
         gps_s, marks, mark_s.tolist()).items()}
@@ -374,7 +404,7 @@ def _marks(s: SolveSettings, progress: Progress | None, rec: FlightRecords | Non
            ) -> tuple[FlightRecords, tuple[Mark, ...]]:
     """Stage 1: the flight's TIM-TM2 records (and receiver fixes) and the marks they make
     (``rec``: already read by the checks)."""
-    rec = rec if rec is not None else read_flight(s.flight, progress, observations=True)
+    rec = rec if rec is not None else _flight_records(s, progress)
     marks = tuple(build_marks(rec.timemarks))
     if not marks and s.photos is None:
         raise InputError(f"{s.flight}: no camera marks in this flight: nothing to position "
@@ -383,6 +413,13 @@ def _marks(s: SolveSettings, progress: Progress | None, rec: FlightRecords | Non
     log.info("%s: %d camera marks (%d time-mark records)", s.flight.name, len(marks),
              len(rec.timemarks))
     return rec, marks
+
+
+def _flight_records(s: SolveSettings, progress: Progress | None = None) -> FlightRecords:
+    """The flight's records: a re-based result's own (what its solve read), else read from
+    the recording."""
+    kept = record.flight_records(s.rebase) if s.rebase is not None else None
+    return kept if kept is not None else read_flight(s.flight, progress, observations=True)
 
 
 def _positions(
@@ -417,13 +454,13 @@ def _positions(
 
 def _positions_at_marks(
     s: SolveSettings, traj: Trajectory, marks: tuple[Mark, ...], notes: list[str],
-    progress: Progress | None,
+    progress: Progress | None, interp: record.Interpolations,
 ) -> tuple[list[int | None], mi.MarkPositions]:
     """Stage 3: each mark's exposure time (edge and shutter delay) and the antenna there."""
     times = _mark_times(s, marks)
     if progress is not None:
         progress(f"interpolate ({s.interp})", 0.0)
-    mp = mi.interpolate(traj, times, s.interp, s.max_gap_s)
+    mp = interp(traj, times, s.interp, s.max_gap_s)
     if progress is not None:
         progress(f"interpolate ({s.interp})", 1.0)
     notes.append(
@@ -700,6 +737,8 @@ def _report(
         lever_outlier=lever_est.outlier if lever_est else np.zeros(0, bool),
         metre_level=traj.metre_level, notes=tuple(notes),
         integrity=(positions.engine_info(traj) or {}).get("integrity"),
+        map_origin=_map_origin(s, proj),
+        kept_figures=record.kept_figures(s.rebase) if s.rebase is not None else {},
     )
     cond = positions.conditioning_of(traj)
     if cond is not None:  # the receiver's flags plus the slips hidden in radio gaps
@@ -707,6 +746,16 @@ def _report(
     elif data.satellites is not None:
         data = replace(data, slips_found=int(data.satellites.slip.sum()))
     return report.write_report(data, s.out_dir, pdf=s.report_pdf)
+
+
+def _map_origin(s: SolveSettings, proj: outputs.Projector) -> tuple[float, float] | None:
+    """The base in a projected output CRS, where the report's map is drawn from (None: no
+    base, or a geographic CRS, whose map stays in degrees)."""
+    if s.base_ecef_m is None or not proj.projected:
+        return None
+    lat, lon, _ = ecef_to_llh(*s.base_ecef_m)
+    x, y = proj.forward(np.array([lat]), np.array([lon]))
+    return float(x[0]), float(y[0])
 
 
 def _apply_enu(

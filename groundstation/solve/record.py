@@ -1,11 +1,17 @@
 """A solve's record, and re-basing a finished result without solving again.
 
 Every solve that used a base position leaves beside its exports ``solve.json`` (the settings it
-ran with, the recordings by absolute path, the base position and how it was given) and
-``trajectory.npz`` (the antenna trajectory after the integrity stage: positions, sigmas,
-qualities, grades). ``solve --rebase DIR`` with new base coordinates reads both, moves the
-trajectory by the base's move and runs the rest of the chain as a solve does (marks, positions
-at marks, photos, lever arm, exports, report) without the engine.
+ran with, the recordings by absolute path, the base position and how it was given, the mean of
+the base receiver's own fixes), ``trajectory.npz`` (the antenna trajectory after the integrity
+stage: positions, sigmas, qualities, grades), ``marks.npz`` (the antenna interpolated at the
+marks and at photos timed by the camera clock) and ``flight.npz`` (what was read from the flight
+recording: marks, epochs, damage, satellites, station events). ``solve --rebase DIR`` with new
+base coordinates takes them, moves the trajectory and the interpolated positions by the base's
+move and runs the rest of the chain as a solve does (photos, lever arm, exports, report) without
+the engine, without reading the recordings again and without drawing again the report's figures
+a rigid move leaves as they were (``report.KEPT_BY_REBASE``, taken from the result's page).
+A result without ``marks.npz`` or ``flight.npz`` (made before they were kept) is interpolated
+and read again: the same result, slower.
 
 Why a shift is enough: the engine positions the rover relative to the base (double
 differences), so moving the base by d moves every rover position by d. What does not move
@@ -28,15 +34,26 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 from groundstation import jsonio
 from groundstation.errors import ConfigError
 from groundstation.geodesy import ecef_to_llh, enu_rotation
+from groundstation.solve import flight as fl
+from groundstation.solve import interpolate as mi
 from groundstation.solve import trajectory as tr
+from groundstation.solve.report import figures_in
 from groundstation.solve.settings import SolveSettings
 
 RECORD_NAME = "solve.json"
 TRAJECTORY_NAME = "trajectory.npz"
+MARKS_NAME = "marks.npz"
+"""The antenna at every mark (and photo timed by the camera clock), as interpolated (a re-base
+moves them as the trajectory)."""
+FLIGHT_NAME = "flight.npz"
+"""What the solve took from the flight recording (marks, epochs, observations): a re-base
+takes it instead of reading the recording again."""
+REPORT_NAME = "report.html"
 ENGINE_DIR = "rtklib"
 """The engine's files (solution, options, conditioning): carried over into a re-based result."""
 FORMAT = "groundstation solve record 1"
@@ -49,12 +66,15 @@ _HERE = "{result}/"
 
 _PATHS = ("flight", "out_dir", "positions", "base", "photos", "eo", "geoid", "rtk_conf",
           "rebase", "antex")
-_TRIPLES = ("base_ecef_m", "base_sd_enu_m", "lever_arm_m")
+_TRIPLES = ("base_ecef_m", "base_sd_enu_m", "lever_arm_m", "base_fix_mean_m")
 _NOT_RECORDED = ("flight_copies", "recordings", "merged_from", "rebase", "previous_bases")
 
 
-def write(s: SolveSettings, traj: tr.Trajectory, out_dir: Path, final_dir: Path) -> None:
-    """Write the run's record into ``out_dir`` (the staging folder of ``final_dir``)."""
+def write(s: SolveSettings, traj: tr.Trajectory, made: Interpolations,
+          flight: fl.FlightRecords | None, out_dir: Path, final_dir: Path) -> None:
+    """Write the run's record into ``out_dir`` (the staging folder of ``final_dir``): the
+    settings, the trajectory, the positions interpolated from it and what was taken from the
+    flight."""
     settings: dict[str, Any] = {}
     for f in fields(SolveSettings):
         if f.name in _NOT_RECORDED:
@@ -77,6 +97,9 @@ def write(s: SolveSettings, traj: tr.Trajectory, out_dir: Path, final_dir: Path)
     # that a result moved elsewhere is still re-based whole
     notes = tuple(n.replace(f"{out_dir}/", _HERE) for n in traj.notes)
     tr.save_npz(replace(traj, notes=notes), out_dir / TRAJECTORY_NAME)
+    mi.save_npz(made.made, out_dir / MARKS_NAME)
+    if flight is not None:
+        fl.save_npz(flight, out_dir / FLIGHT_NAME)
 
 
 BasePosition = tuple[tuple[float, float, float], str, tuple[float, float, float] | None]
@@ -177,6 +200,70 @@ def carry_engine_files(result: Path, stage: Path) -> None:
         shutil.copytree(src, stage / ENGINE_DIR, symlinks=True)
 
 
+def _move(s: SolveSettings) -> npt.NDArray[np.float64]:
+    """The base's move from the result's base to the new one (ECEF, m)."""
+    assert s.base_ecef_m is not None and s.previous_bases
+    return np.asarray(np.array(s.base_ecef_m) - np.array(s.previous_bases[-1][0]),
+                      dtype=np.float64)
+
+
+class Interpolations:
+    """Positions interpolated from the trajectory (at the marks, at photos timed by the camera
+    clock), each kept for the run's record; for a re-base, those the finished result kept are
+    taken again moved by the base's move (interpolation is linear in the positions: the moved
+    trajectory gives the moved positions), not computed again."""
+
+    def __init__(self, kept: Sequence[mi.MarkPositions] = (),
+                 move: npt.NDArray[np.float64] | None = None) -> None:
+        self._kept = list(kept)
+        self._move = np.zeros(3) if move is None else move
+        self.made: list[mi.MarkPositions] = []
+
+    @classmethod
+    def of(cls, s: SolveSettings) -> Interpolations:
+        """A solve's (nothing kept), or a re-base's (what its result kept, if anything).
+
+        Raises:
+            InputError: the kept positions cannot be read.
+        """
+        if s.rebase is None or not (s.rebase / MARKS_NAME).is_file():
+            return cls()
+        return cls(mi.load_npz(s.rebase / MARKS_NAME), _move(s))
+
+    def __call__(self, traj: tr.Trajectory, times: Sequence[int | None], method: str,
+                 max_gap_s: float) -> mi.MarkPositions:
+        want = np.array([-1 if t is None else t for t in times], dtype=np.int64)
+        for mp in self._kept:
+            if mp.method == method and np.array_equal(
+                    np.where(mp.t_gps_ns >= 0, mp.t_gps_ns, -1), want):
+                out = replace(mp, ecef_m=mp.ecef_m + self._move)
+                break
+        else:
+            out = mi.interpolate(traj, times, method, max_gap_s)
+        self.made.append(out)
+        return out
+
+
+def flight_records(result: Path) -> fl.FlightRecords | None:
+    """What ``result``'s solve took from the flight recording (None when it kept nothing:
+    read the recording again).
+
+    Raises:
+        InputError: the kept records cannot be read.
+    """
+    path = result / FLIGHT_NAME
+    return fl.load_npz(path) if path.is_file() else None
+
+
+def kept_figures(result: Path) -> dict[str, str]:
+    """The figures of ``result``'s report a re-base keeps as they are (none when the report
+    is gone or of another layout: they are drawn again)."""
+    try:
+        return figures_in((result / REPORT_NAME).read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError):
+        return {}
+
+
 def shifted_trajectory(s: SolveSettings, stage: Path) -> tuple[tr.Trajectory, str]:
     """The re-based result's trajectory moved by the base's move, its notes naming the new
     staging folder; and a note saying what moved.
@@ -187,7 +274,7 @@ def shifted_trajectory(s: SolveSettings, stage: Path) -> tuple[tr.Trajectory, st
     assert s.rebase is not None and s.base_ecef_m is not None and s.previous_bases
     traj = tr.load_npz(s.rebase / TRAJECTORY_NAME)
     old_xyz, old_given = s.previous_bases[-1]
-    move = np.array(s.base_ecef_m) - np.array(old_xyz)
+    move = _move(s)
     lat, lon, _ = ecef_to_llh(*old_xyz)
     east, north, up = (round(v, 4) + 0.0 for v in (np.array(enu_rotation(lat, lon)) @ move))
     notes = tuple(t.replace(_HERE, f"{stage}/") for t in traj.notes)

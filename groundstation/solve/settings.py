@@ -35,6 +35,11 @@ class SolveSettings:
     """How the base antenna stood over the coordinates given (the height from the mark, its
     type and the ANTEX file of its offset): already in ``base_ecef_m``; kept for a re-base,
     which takes them again for the new coordinates (:mod:`.record`)."""
+    base_fix_mean_m: tuple[float, float, float] | None = None
+    base_fix_count: int = -1
+    """The mean of the base receiver's own fixes (None: it has none) and how many (-1: not
+    read yet, or no u-blox base recording): what the base position is checked against, kept
+    for a re-base."""
     source: str | None = None
     photos: Path | None = None
     lever_arm_m: tuple[float, float, float] | None = None

@@ -30,7 +30,7 @@ def _result(d: Path, **settings: object) -> Path:
                          "base_ecef_m": (3774696.5547, -596647.9083, 5089485.6511),
                          **settings})  # type: ignore[arg-type]
     traj = make_trajectory([0, 200_000_000], np.zeros((2, 3)), [1, 1], source="rover.pos")
-    record.write(s, traj, done, done)
+    record.write(s, traj, record.Interpolations(), None, done, done)
     return done
 
 
@@ -95,7 +95,7 @@ def test_a_move_too_large_for_the_baselines_is_refused(tmp_path: Path) -> None:
     traj = make_trajectory([k * 200_000_000 for k in range(11)], np.array(far), [1] * 11)
     s = SolveSettings(flight=tmp_path / "r.ubx", out_dir=done, base=tmp_path / "b.ubx",
                       base_ecef_m=base)
-    record.write(s, traj, done, done)
+    record.write(s, traj, record.Interpolations(), None, done, done)
     for step_m, refused in ((10.0, True), (1.0, False)):
         new = enu_to_ecef((step_m, 0.0, 0.0), base)
         rb = SolveSettings(flight=tmp_path / "r.ubx", out_dir=tmp_path / "o", base_ecef_m=new,

@@ -11,6 +11,7 @@ then y, then z axis (active right-handed rotations) is ``Mᵀ`` of DOMAIN.md §7
 from __future__ import annotations
 
 import csv
+import shutil
 import subprocess
 import sys
 from dataclasses import dataclass
@@ -31,6 +32,7 @@ from groundstation.solve import interpolate as mi
 from groundstation.solve import leverarm
 from groundstation.solve.photosim import photos_at_times, write_photo_set
 from groundstation.solve.pipeline import SolveResult, solve
+from groundstation.solve.report import figures_in
 from groundstation.solve.settings import SolveSettings
 from groundstation.solve.trajectory import Q_FIX
 
@@ -306,11 +308,16 @@ def test_rebase_moves_every_camera_with_the_base_without_solving_again(
     lat, lon, _ = ecef_to_llh(*old.tolist())
     move = np.array(enu_rotation(lat, lon)).T @ np.array([0.5, -0.3, 0.2])
     new = old + move
-    proc = subprocess.run(
-        [sys.executable, "-m", "groundstation.cli", "solve", "--no-pdf", "--rebase", str(done),
-         "--base-xyz", ",".join(f"{v:.4f}" for v in new.tolist()), "--out-dir", "moved"],
-        cwd=tmp_path, env=cli_env(), capture_output=True, text=True, timeout=300, check=False)
-    assert proc.returncode == 0, proc.stderr
+    # In-process, to see what it loaded: no engine, no smoother, no figure drawn, the
+    # recording not read again (the record keeps what a re-base needs)
+    code = ("import sys\nfrom groundstation.cli import main\n"
+            f"rc = main(['solve', '--no-pdf', '--rebase', {str(done)!r}, '--base-xyz', "
+            f"{','.join(f'{v:.4f}' for v in new.tolist())!r}, '--out-dir', 'moved'])\n"
+            "print('LOADED', rc, sorted(m for m in ('matplotlib', 'filterpy', "
+            "'groundstation.solve.integrity.assess') if m in sys.modules))\n")
+    proc = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, env=cli_env(),
+                          capture_output=True, text=True, timeout=300, check=False)
+    assert proc.stdout.splitlines()[-1] == "LOADED 0 []", (proc.stdout, proc.stderr)
     assert "re-based without solving again" in proc.stdout
     assert "dynamics" not in proc.stderr  # the engine did not run
     after = _cameras_csv(tmp_path / "moved")
@@ -330,6 +337,26 @@ def test_rebase_moves_every_camera_with_the_base_without_solving_again(
     report = (tmp_path / "moved" / "report.html").read_text()
     assert "re-based (solve --rebase); solved with ECEF" in report
     assert "(given with --base-xyz)" in report
+    # the figures kept as they were: the map is drawn from the base, which moved with the flight
+    kept = figures_in((done / "report.html").read_text())
+    assert {"trajectory-from-base", "quality", "sigmas"} <= set(kept)
+    assert figures_in(report) == kept
+    assert "Axes in metres from the base" in report
+    # A result whose record kept neither the marks' positions nor the flight's records, nor a
+    # report to take figures from (made before they were kept): interpolated, read and drawn
+    # again, to the same cameras
+    old_style = tmp_path / "old_style"
+    shutil.copytree(done, old_style)
+    for name in ("marks.npz", "flight.npz", "report.html"):
+        (old_style / name).unlink()
+    proc = subprocess.run(
+        [sys.executable, "-m", "groundstation.cli", "solve", "--no-pdf", "--rebase",
+         str(old_style), "--base-xyz", ",".join(f"{v:.4f}" for v in new.tolist()),
+         "--out-dir", "moved_again"],
+        cwd=tmp_path, env=cli_env(), capture_output=True, text=True, timeout=300, check=False)
+    assert proc.returncode == 0, proc.stderr
+    assert _cameras_csv(tmp_path / "moved_again") == after
+    assert figures_in((tmp_path / "moved_again" / "report.html").read_text()).keys() == kept.keys()
 
 
 def test_the_base_antennas_phase_centre_offset_moves_every_camera(

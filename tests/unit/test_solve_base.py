@@ -27,6 +27,7 @@ from groundstation.solve.base import (
     BASE_FAR_REFUSED_M,
     BASE_KEYS,
     OWN_FIX_FLOOR_ENU_M,
+    OwnFixes,
     base_from_own_fixes,
     base_position,
     check_distance,
@@ -243,3 +244,16 @@ def test_the_base_check_names_the_form_given_and_what_the_difference_looks_like(
         compare_base(fixes, swapped, "given with --base-xyz")
     assert err.value.key == "--base-xyz" and "swapped" not in err.value.message
 
+
+
+def test_the_base_check_from_the_fixes_mean_kept_for_a_rebase_says_the_same() -> None:
+    """A solve keeps the mean of the base receiver's fixes (``solve.json``): a re-base checks
+    the new coordinates against it without reading the base recording, in the same words."""
+    fixes = [(XYZ[0] + d, XYZ[1] - d, XYZ[2] + 2 * d) for d in (-3.0, 0.5, 1.0, 4.0)]
+    x, y, z = np.mean(np.array(fixes), axis=0).tolist()
+    kept = OwnFixes((x, y, z), len(fixes))
+    for near in (XYZ, llh_to_ecef(*np.add(ecef_to_llh(*XYZ), (0.0, 0.0, 30.0)))):
+        assert compare_base(kept, near, "given with --base-xyz") == compare_base(
+            fixes, near, "given with --base-xyz")
+    assert "(the base recording has no receiver fix)" in compare_base(
+        OwnFixes(None, 0), XYZ, "given with --base-xyz")[0]

@@ -3,12 +3,13 @@
 from __future__ import annotations
 
 import dataclasses
+from pathlib import Path
 
 import numpy as np
 import numpy.typing as npt
 import pytest
 
-from groundstation.errors import ConfigError
+from groundstation.errors import ConfigError, InputError
 from groundstation.geodesy import enu_rotation, llh_to_ecef
 from groundstation.solve import interpolate as ip
 from groundstation.solve.integrity import grade as gr
@@ -203,3 +204,43 @@ def test_every_method_and_every_check_has_words_for_the_printout() -> None:
 
     assert set(METHOD_TEXT) == set(INTERPOLATORS)
     assert set(CHECK_TEXT) == {c for c in CHECK_NAMES if c}
+
+
+@pytest.mark.parametrize("method", sorted(ip.INTERPOLATORS))
+def test_every_method_moves_with_the_trajectory(method: str) -> None:
+    """What a re-base rests on (``solve --rebase`` takes the finished result's positions at
+    the marks moved with the base instead of interpolating again): the trajectory moved by a
+    vector gives the positions moved by that vector, the same sigmas, flags and grades."""
+    rng = np.random.default_rng(5)
+    t_ep = np.round(np.concatenate([np.arange(0.0, 20.0, 0.2), np.arange(21.4, 40.0, 0.2)]), 3)
+    sd = (0.005, 0.005, 0.01)
+    traj = dataclasses.replace(
+        traj_from_enu(t_ep, truth_enu(t_ep) + rng.normal(0, 1, (t_ep.size, 3)) * sd, sd),
+        grade=np.full(t_ep.size, gr.FIXED, np.int64))
+    marks = [T0 + round(t * 1e9) for t in (0.1, 5.55, 20.7, 33.333)] + [None]
+    move = ROT.T @ np.array([0.8, -0.6, 1.2])  # a base moved 1.6 m
+    a = ip.interpolate(traj, marks, method)
+    b = ip.interpolate(dataclasses.replace(traj, ecef_m=traj.ecef_m + move), marks, method)
+    ok = np.isfinite(a.ecef_m[:, 0])
+    assert ok.sum() == 4 and np.array_equal(ok, np.isfinite(b.ecef_m[:, 0]))
+    assert np.max(np.abs(b.ecef_m[ok] - a.ecef_m[ok] - move)) < 1e-6
+    assert np.allclose(a.sd_enu_m[ok], b.sd_enu_m[ok], rtol=0, atol=1e-9)
+    for k in ("quality", "flags", "grade", "check", "t_gps_ns"):
+        assert np.array_equal(getattr(a, k), getattr(b, k)), k
+
+
+def test_positions_written_and_read_back_are_the_same(tmp_path: Path) -> None:
+    t_ep = np.arange(0.0, 10.0, 0.2)
+    traj = traj_from_enu(t_ep, truth_enu(t_ep), (0.01, 0.01, 0.02))
+    sets = [ip.interpolate(traj, [T0 + 3_100_000_000, None, T0 + 99 * 10**9], m)
+            for m in ("smoother", "linear")]
+    ip.save_npz(sets, tmp_path / "p.npz")
+    back = ip.load_npz(tmp_path / "p.npz")
+    assert len(back) == 2
+    for a, b in zip(sets, back, strict=True):
+        for f in dataclasses.fields(ip.MarkPositions):
+            x, y = getattr(a, f.name), getattr(b, f.name)
+            assert (x == y if isinstance(x, str) else np.array_equal(x, y, equal_nan=True)), f
+    (tmp_path / "bad.npz").write_bytes(b"not a zip")
+    with pytest.raises(InputError, match="not positions this program wrote"):
+        ip.load_npz(tmp_path / "bad.npz")
