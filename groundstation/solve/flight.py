@@ -9,7 +9,6 @@ too); everything downstream, the report included, takes its :class:`FlightRecord
 from __future__ import annotations
 
 import json
-import zipfile
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, fields
 from pathlib import Path
@@ -24,6 +23,7 @@ from groundstation.offline.rinex.observations import obs_from_raw, obs_from_rawx
 from groundstation.records import Frame, NavSolution, TimeMark
 from groundstation.rules.epochs import find_gaps, nominal_interval_ns
 from groundstation.rules.marks import Mark, lost_by_cause, lost_cause
+from groundstation.solve.arrays import read_npz, write_npz
 from groundstation.storage.reading import Recording
 from groundstation.ubx import fastraw
 from groundstation.ubx.decode import (
@@ -165,8 +165,7 @@ def save_npz(rec: FlightRecords, path: Path) -> None:
                           sat_cno_dbhz=sats.cno_dbhz, sat_slip=sats.slip, sat_half=sats.half)
             if sats.repaired is not None:
                 arrays["sat_repaired"] = sats.repaired
-    with path.open("wb") as f:
-        np.savez_compressed(f, **arrays)
+    write_npz(path, arrays)
 
 
 def load_npz(path: Path) -> FlightRecords:
@@ -175,9 +174,8 @@ def load_npz(path: Path) -> FlightRecords:
     Raises:
         InputError: unreadable, or not what :func:`save_npz` writes.
     """
+    a = read_npz(path, "flight records")
     try:
-        with np.load(path, allow_pickle=False) as z:
-            a = {k: z[k] for k in z.files}
         names = tuple(str(v) for v in a["timemark_fields"])
         if names != _TIMEMARK_FIELDS:
             raise ValueError(f"time-mark fields {names}")
@@ -202,8 +200,8 @@ def load_npz(path: Path) -> FlightRecords:
         return FlightRecords(tms, (), frames, damaged,
                              tuple(int(t) for t in a["epoch_t_gps_ns"]),
                              tuple(int(t) for t in a["damage_t_gps_ns"]), observed)
-    except (OSError, ValueError, KeyError, TypeError, EOFError, zipfile.BadZipFile) as err:
-        raise InputError(f"{path}: not flight records this program wrote ({err})") from err
+    except (ValueError, KeyError, TypeError) as err:
+        raise InputError(f"{path}: not flight records this program wrote ({err!r})") from err
 
 
 def _spans_array(spans: Sequence[Span]) -> IntArray:

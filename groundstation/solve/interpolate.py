@@ -8,7 +8,6 @@ Quality per mark is RTKLIB's rule: the worse (larger Q) of the two bracketing ep
 
 from __future__ import annotations
 
-import zipfile
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -20,6 +19,7 @@ import numpy.typing as npt
 from groundstation.errors import ConfigError, InputError
 from groundstation.geodesy import ecef_to_llh, enu_rotation
 from groundstation.rules.marks import edge_time_ns
+from groundstation.solve.arrays import read_npz, write_npz
 from groundstation.solve.integrity import grade as gr
 from groundstation.solve.trajectory import Q_FIX, Q_FLOAT, Q_SINGLE, Trajectory
 
@@ -123,8 +123,7 @@ def save_npz(positions: Sequence[MarkPositions], path: Path) -> None:
     for i, mp in enumerate(positions):
         arrays[f"{i}_method"] = np.array(mp.method)
         arrays.update({f"{i}_{k}": getattr(mp, k) for k in _SAVED})
-    with path.open("wb") as f:
-        np.savez_compressed(f, **arrays)
+    write_npz(path, arrays)
 
 
 def load_npz(path: Path) -> list[MarkPositions]:
@@ -133,9 +132,8 @@ def load_npz(path: Path) -> list[MarkPositions]:
     Raises:
         InputError: unreadable, or not what :func:`save_npz` writes.
     """
+    a = read_npz(path, "positions")
     try:
-        with np.load(path, allow_pickle=False) as z:
-            a = {k: z[k] for k in z.files}
         out = []
         for i in range(int(a["count"])):
             n = int(a[f"{i}_t_gps_ns"].size)
@@ -151,8 +149,8 @@ def load_npz(path: Path) -> list[MarkPositions]:
                 bracket_s=col("bracket_s", (n,), np.float64),
                 flags=col("flags", (n,), np.int64), method=str(a[f"{i}_method"]),
                 grade=col("grade", (n,), np.int64), check=col("check", (n,), np.int64)))
-    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as err:
-        raise InputError(f"{path}: not positions this program wrote ({err})") from err
+    except (ValueError, KeyError) as err:
+        raise InputError(f"{path}: not positions this program wrote ({err!r})") from err
     return out
 
 

@@ -27,6 +27,7 @@ they were, relative to the base the engine used.
 
 from __future__ import annotations
 
+import logging
 import shutil
 from collections.abc import Callable, Sequence
 from dataclasses import fields, replace
@@ -37,13 +38,15 @@ import numpy as np
 import numpy.typing as npt
 
 from groundstation import jsonio
-from groundstation.errors import ConfigError
+from groundstation.errors import ConfigError, InputError
 from groundstation.geodesy import ecef_to_llh, enu_rotation
 from groundstation.solve import flight as fl
 from groundstation.solve import interpolate as mi
 from groundstation.solve import trajectory as tr
 from groundstation.solve.report import figures_in
 from groundstation.solve.settings import SolveSettings
+
+log = logging.getLogger("groundstation.solve")
 
 RECORD_NAME = "solve.json"
 TRAJECTORY_NAME = "trajectory.npz"
@@ -221,14 +224,15 @@ class Interpolations:
 
     @classmethod
     def of(cls, s: SolveSettings) -> Interpolations:
-        """A solve's (nothing kept), or a re-base's (what its result kept, if anything).
-
-        Raises:
-            InputError: the kept positions cannot be read.
-        """
+        """A solve's (nothing kept), or a re-base's (what its result kept, if anything: kept
+        positions that cannot be read are said in a warning and interpolated again)."""
         if s.rebase is None or not (s.rebase / MARKS_NAME).is_file():
             return cls()
-        return cls(mi.load_npz(s.rebase / MARKS_NAME), _move(s))
+        try:
+            return cls(mi.load_npz(s.rebase / MARKS_NAME), _move(s))
+        except InputError as err:
+            log.warning("%s: interpolated again instead", err)
+            return cls()
 
     def __call__(self, traj: tr.Trajectory, times: Sequence[int | None], method: str,
                  max_gap_s: float) -> mi.MarkPositions:
@@ -245,14 +249,16 @@ class Interpolations:
 
 
 def flight_records(result: Path) -> fl.FlightRecords | None:
-    """What ``result``'s solve took from the flight recording (None when it kept nothing:
-    read the recording again).
-
-    Raises:
-        InputError: the kept records cannot be read.
-    """
+    """What ``result``'s solve took from the flight recording (None when it kept nothing, or
+    what it kept cannot be read, said in a warning: read the recording again)."""
     path = result / FLIGHT_NAME
-    return fl.load_npz(path) if path.is_file() else None
+    if not path.is_file():
+        return None
+    try:
+        return fl.load_npz(path)
+    except InputError as err:
+        log.warning("%s: the recording is read again instead", err)
+        return None
 
 
 def kept_figures(result: Path) -> dict[str, str]:

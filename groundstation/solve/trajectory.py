@@ -7,7 +7,6 @@ dynamics pass and everything after them; it imports none of them.
 
 from __future__ import annotations
 
-import zipfile
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -17,6 +16,7 @@ import numpy as np
 import numpy.typing as npt
 
 from groundstation.errors import InputError
+from groundstation.solve.arrays import read_npz, write_npz
 from groundstation.solve.integrity import grade as gr
 
 Q_FIX, Q_FLOAT, Q_SBAS, Q_DGPS, Q_SINGLE, Q_PPP = 1, 2, 3, 4, 5, 6
@@ -136,8 +136,7 @@ def save_npz(traj: Trajectory, path: Path) -> None:
         arrays["grade"] = traj.grade
     if traj.check is not None:
         arrays["check"] = traj.check
-    with path.open("wb") as f:
-        np.savez_compressed(f, **arrays)
+    write_npz(path, arrays)
 
 
 def load_npz(path: Path) -> Trajectory:
@@ -146,9 +145,8 @@ def load_npz(path: Path) -> Trajectory:
     Raises:
         InputError: unreadable, or not a trajectory (a key missing or of the wrong shape).
     """
+    a = read_npz(path, "a trajectory")
     try:
-        with np.load(path, allow_pickle=False) as z:
-            a = {k: z[k] for k in z.files}
         n = int(a["t_gps_ns"].size)
         return make_trajectory(
             a["t_gps_ns"], a["ecef_m"], a["quality"], sd_enu_m=a["sd_enu_m"], ns=a["ns"],
@@ -156,5 +154,5 @@ def load_npz(path: Path) -> Trajectory:
             notes=[str(v) for v in a["notes"].reshape(-1)],
             grade=a["grade"].reshape(n) if "grade" in a else None,
             check=a["check"].reshape(n) if "check" in a else None)
-    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as err:
-        raise InputError(f"{path}: not a trajectory this program wrote ({err})") from err
+    except (ValueError, KeyError) as err:
+        raise InputError(f"{path}: not a trajectory this program wrote ({err!r})") from err

@@ -342,19 +342,22 @@ def test_rebase_moves_every_camera_with_the_base_without_solving_again(
     assert {"trajectory-from-base", "quality", "sigmas"} <= set(kept)
     assert figures_in(report) == kept
     assert "Axes in metres from the base" in report
-    # A result whose record kept neither the marks' positions nor the flight's records, nor a
-    # report to take figures from (made before they were kept): interpolated, read and drawn
-    # again, to the same cameras
+    # A result whose record kept neither the marks' positions nor a report to take figures
+    # from (made before they were kept), its flight's records damaged: interpolated, read and
+    # drawn again, to the same cameras, the damage said
     old_style = tmp_path / "old_style"
     shutil.copytree(done, old_style)
-    for name in ("marks.npz", "flight.npz", "report.html"):
+    for name in ("marks.npz", "report.html"):
         (old_style / name).unlink()
+    (old_style / "flight.npz").write_bytes(b"damaged")
     proc = subprocess.run(
         [sys.executable, "-m", "groundstation.cli", "solve", "--no-pdf", "--rebase",
          str(old_style), "--base-xyz", ",".join(f"{v:.4f}" for v in new.tolist()),
          "--out-dir", "moved_again"],
         cwd=tmp_path, env=cli_env(), capture_output=True, text=True, timeout=300, check=False)
     assert proc.returncode == 0, proc.stderr
+    assert "flight.npz: not flight records this program wrote (not a NumPy .npz archive): " \
+        "the recording is read again instead" in proc.stderr
     assert _cameras_csv(tmp_path / "moved_again") == after
     assert figures_in((tmp_path / "moved_again" / "report.html").read_text()).keys() == kept.keys()
 

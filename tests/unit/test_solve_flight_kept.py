@@ -67,9 +67,15 @@ def test_what_a_solve_keeps_of_the_flight_reads_back_the_same(tmp_path: Path) ->
 
 
 def test_kept_records_that_are_not_ours_are_an_input_error(tmp_path: Path) -> None:
+    """One line each, saying what is wrong (never numpy's advice to load pickles)."""
     (tmp_path / "flight.npz").write_bytes(b"PK\x03\x04 not really")
-    with pytest.raises(InputError, match="not flight records this program wrote"):
+    with pytest.raises(InputError, match=r"not flight records this program wrote \(not a "
+                       r"NumPy .npz archive\)"):
         fl.load_npz(tmp_path / "flight.npz")
+    np.savez(tmp_path / "objects.npz", timemarks=np.array([{"a": 1}], dtype=object))
+    with pytest.raises(InputError, match=r"\(holds objects, not plain arrays\)"):
+        fl.load_npz(tmp_path / "objects.npz")
     np.savez(tmp_path / "other.npz", timemarks=np.zeros((1, 3)), timemark_fields=np.array(["a"]))
-    with pytest.raises(InputError, match="not flight records this program wrote"):
+    with pytest.raises(InputError, match="not flight records this program wrote") as err:
         fl.load_npz(tmp_path / "other.npz")
+    assert "\n" not in str(err.value)
