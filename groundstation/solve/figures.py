@@ -173,9 +173,10 @@ def trajectory(
         ax.apply_aspect()  # the final limits, which the scale bar and the corners depend on
         ax.ticklabel_format(useOffset=False, style="plain")
         if origin is not None:
-            # (the frame stays the flight's: a base far off is not drawn)
-            ax.plot([0.0], [0.0], ls="", marker="^", ms=8, mfc="white", mec="black", mew=1.2,
-                    zorder=4, scalex=False, scaley=False)
+            # an artist outside the data limits: the frame stays the flight's, a base far
+            # off is not drawn
+            ax.add_artist(Line2D([0.0], [0.0], ls="", marker="^", ms=8, mfc="white",
+                                 mec="black", mew=1.2, zorder=4))
             if _inside(ax, 0.0, 0.0):
                 ax.annotate("base", (0.0, 0.0), xytext=(6, -4), textcoords="offset points",
                             fontsize=8, va="top", zorder=4,

@@ -356,8 +356,9 @@ def test_rebase_moves_every_camera_with_the_base_without_solving_again(
          "--out-dir", "moved_again"],
         cwd=tmp_path, env=cli_env(), capture_output=True, text=True, timeout=300, check=False)
     assert proc.returncode == 0, proc.stderr
-    assert "flight.npz: not flight records this program wrote (not a NumPy .npz archive): " \
-        "the recording is read again instead" in proc.stderr
+    said = ("flight.npz: not flight records this program wrote (not a NumPy .npz archive): "
+            "the recording is read again instead")
+    assert said in proc.stderr
     assert _cameras_csv(tmp_path / "moved_again") == after
     assert figures_in((tmp_path / "moved_again" / "report.html").read_text()).keys() == kept.keys()
 
