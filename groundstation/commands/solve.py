@@ -37,8 +37,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--rebase", metavar="RESULT_DIR",
                         help="move a finished result to new base coordinates (--base-xyz, "
                         "--base-llh, --base-en or --base-position) without solving again: its "
-                        "exports and report are rewritten (in RESULT_DIR, or --out-dir); the "
-                        "recordings it was made from must still be where they were")
+                        "exports and report are rewritten (in RESULT_DIR, or --out-dir); its "
+                        "record stands for the recordings (they may have been archived), its "
+                        "photos, EO file or geoid grid must still be where they were")
     parser.add_argument("--positions", metavar="FILE",
                         help="RTKLIB solution (.pos, .pos.gz); no base needed")
     parser.add_argument("--base", metavar="FILE",

@@ -150,10 +150,12 @@ def _validate(s: SolveSettings) -> tuple[SolveSettings, BaseCheck | None, Flight
     outputs.check_output_dir(s.out_dir, [s.photos, s.flight, s.positions, s.base, s.eo])
     # The inputs' contents, before anything is created: a JPEG or a text file given as the
     # flight or the base gets inspect's verdict, not a later "no camera marks" or half a run.
-    require_ubx_frames(s.flight)
+    # (a re-base's recordings were checked when it was solved; its record may stand for them)
+    if s.rebase is None:
+        require_ubx_frames(s.flight)
     if s.positions is not None:
         posfile.check_pos_file(s.positions)
-    if s.base is not None:
+    if s.base is not None and s.rebase is None:
         if is_rinex_obs_name(s.base):
             _require_rinex_obs(s.base)
         else:

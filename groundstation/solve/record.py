@@ -146,14 +146,20 @@ def rebase_settings(
     if not (result / TRAJECTORY_NAME).is_file():
         raise ConfigError("--rebase", f"{result}: {TRAJECTORY_NAME} is missing (the record "
                           "is incomplete: solve again)")
-    needed = [*recordings, old.base, old.photos, old.eo, old.geoid]
+    # What the record keeps need not be read again: the recordings (flight.npz) and the base
+    # recording (the mean of its fixes in solve.json). Photos, EO file and geoid grid are.
+    kept = (result / FLIGHT_NAME).is_file()
+    needed = [*(() if kept else recordings),
+              None if kept and old.base_fix_count >= 0 else old.base,
+              old.photos, old.eo, old.geoid]
     for p in needed:
         if p is not None and not p.exists():
             raise ConfigError("--rebase", f"{p}: no longer there; the result was made from "
                               "it, and the marks, photos and report are drawn from it again")
     base_ecef_m, base_given, base_sd_enu_m = position(old)
     return replace(
-        old, flight=recordings[0], flight_copies=tuple(recordings[1:]), out_dir=out_dir,
+        old, flight=recordings[0], flight_copies=tuple(recordings[1:]) if not kept else (),
+        recordings=tuple(recordings) if kept else (), out_dir=out_dir,
         base_ecef_m=base_ecef_m, base_given=base_given, base_sd_enu_m=base_sd_enu_m,
         base_estimated=False, rebase=result,
         previous_bases=(*previous, (old.base_ecef_m, _short(old.base_given))))

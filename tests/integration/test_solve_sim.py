@@ -11,6 +11,7 @@ then y, then z axis (active right-handed rotations) is ``Mᵀ`` of DOMAIN.md §7
 from __future__ import annotations
 
 import csv
+import json
 import shutil
 import subprocess
 import sys
@@ -342,6 +343,21 @@ def test_rebase_moves_every_camera_with_the_base_without_solving_again(
     assert {"trajectory-from-base", "quality", "sigmas"} <= set(kept)
     assert figures_in(report) == kept
     assert "Axes in metres from the base" in report
+    # The recordings archived elsewhere: the record stands for them (the flight's records, the
+    # mean of the base receiver's fixes), the same cameras
+    archived = tmp_path / "archived"
+    shutil.copytree(done, archived)
+    doc = json.loads((archived / "solve.json").read_text())
+    doc["recordings"] = [str(tmp_path / "gone" / Path(p).name) for p in doc["recordings"]]
+    doc["settings"]["base"] = str(tmp_path / "gone" / "base.ubx")
+    (archived / "solve.json").write_text(json.dumps(doc))
+    proc = subprocess.run(
+        [sys.executable, "-m", "groundstation.cli", "solve", "--no-pdf", "--rebase",
+         str(archived), "--base-xyz", ",".join(f"{v:.4f}" for v in new.tolist()),
+         "--out-dir", "from_archive"],
+        cwd=tmp_path, env=cli_env(), capture_output=True, text=True, timeout=300, check=False)
+    assert proc.returncode == 0, proc.stderr
+    assert _cameras_csv(tmp_path / "from_archive") == after
     # A result whose record kept neither the marks' positions nor a report to take figures
     # from (made before they were kept), its flight's records damaged: interpolated, read and
     # drawn again, to the same cameras, the damage said
