@@ -24,17 +24,14 @@ from groundstation import __version__
 from groundstation.commands import COMMANDS, EXAMPLES, HELP
 from groundstation.errors import ConfigError, GroundstationError, InputError
 from groundstation.invocation import examples
+from groundstation.launch import EXIT_INTERRUPTED as EXIT_INTERRUPTED
 
 EXIT_OK = 0
 EXIT_FAILURE = 1
 EXIT_CONFIG = 2
-EXIT_INTERRUPTED = 130
 FINISH_UNREAD = frozenset({"solve", "rinex", "locate-base", "simulate"})
 """Commands whose work is files: they finish it when nobody reads what they print any more
 (``| head``, a pager quit early), instead of stopping half-way with nothing written."""
-"""Ctrl-C or SIGTERM ended a command that ends by itself (``demo``, ``replay``, the offline
-commands). For the commands that run until stopped (``run``, ``watch``, ``dashboard``,
-``solver``, ``router``, ``rtk``) Ctrl-C is the normal end: status 0."""
 INTERRUPTS = frozenset({"SIGINT", "SIGTERM"})
 """The pipeline's ``stopped_by`` when a signal ended it."""
 

@@ -9,12 +9,16 @@ skipped; CSV exports neutralise formulas; the dashboard answers only its own Hos
 from __future__ import annotations
 
 import http.client
+import subprocess
+import sys
 import threading
+import tomllib
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import pytest
+from peers import cli_env
 from poison import POISON, looping_exif_jpeg
 from test_dashboard import FakeBus, event, mark, status
 from test_solve_outputs import out  # noqa: F401 (the fixture)
@@ -31,6 +35,7 @@ from groundstation.view.dashboard.server import Dashboard, DashboardSettings, ho
 from groundstation.view.dashboard.state import StationView
 from groundstation.view.watch import WatchState, _draw, render
 
+REPO = Path(__file__).resolve().parents[2]
 XYZ = (4_000_000.0, 600_000.0, 4_900_000.0)
 
 
@@ -370,3 +375,24 @@ def test_ctrl_c_while_a_command_is_still_starting_is_one_line_and_130(
     assert capsys.readouterr().err == "groundstation replay: interrupted\n"
     assert cli.main(["--speed", "1"]) == 130
     assert capsys.readouterr().err == "groundstation: interrupted\n"
+
+
+def test_ctrl_c_while_the_command_line_itself_loads_is_one_line_and_130(tmp_path: Path) -> None:
+    """Before :func:`groundstation.cli.main` runs, its own modules load: a Ctrl-C there was a
+    traceback. The program's entry point (``pyproject.toml``) catches it."""
+    with (REPO / "pyproject.toml").open("rb") as f:
+        assert tomllib.load(f)["project"]["scripts"]["groundstation"] == \
+            "groundstation.launch:main"
+    code = (
+        "import sys\n"
+        "class Ctrl_C:\n"
+        "    def find_spec(self, name, path=None, target=None):\n"
+        "        if name == 'groundstation.cli':\n"
+        "            raise KeyboardInterrupt\n"
+        "sys.meta_path.insert(0, Ctrl_C())\n"
+        "from groundstation.launch import main\n"
+        "print('STATUS', main())\n")
+    proc = subprocess.run([sys.executable, "-c", code, "solve"], cwd=tmp_path, env=cli_env(),
+                          capture_output=True, text=True, timeout=60, check=False)
+    assert proc.stdout == "STATUS 130\n", proc
+    assert proc.stderr == "groundstation: interrupted\n"
