@@ -5,6 +5,7 @@ not what it should be."""
 from __future__ import annotations
 
 import zipfile
+import zlib
 from pathlib import Path
 from typing import Any
 
@@ -26,10 +27,11 @@ def read_npz(path: Path, what: str) -> dict[str, Any]:
         InputError: unreadable, or not a NumPy archive of plain arrays (``what`` names what
             it should hold).
     """
+    if not zipfile.is_zipfile(path):  # (a lone .npy array, text, nothing)
+        raise InputError(f"{path}: not {what} this program wrote (not a NumPy .npz archive)")
     try:
         with np.load(path, allow_pickle=False) as z:
             return {k: z[k] for k in z.files}
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as err:
-        why = ("not a NumPy .npz archive" if not zipfile.is_zipfile(path)
-               else "holds objects, not plain arrays" if "pickle" in str(err) else str(err))
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile, zlib.error) as err:
+        why = "holds objects, not plain arrays" if "pickle" in str(err) else str(err)
         raise InputError(f"{path}: not {what} this program wrote ({why})") from err

@@ -149,7 +149,7 @@ def load_npz(path: Path) -> list[MarkPositions]:
                 bracket_s=col("bracket_s", (n,), np.float64),
                 flags=col("flags", (n,), np.int64), method=str(a[f"{i}_method"]),
                 grade=col("grade", (n,), np.int64), check=col("check", (n,), np.int64)))
-    except (ValueError, KeyError) as err:
+    except (ValueError, KeyError, TypeError) as err:
         raise InputError(f"{path}: not positions this program wrote ({err!r})") from err
     return out
 

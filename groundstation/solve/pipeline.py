@@ -218,7 +218,8 @@ def _base_from_own_fixes(path: Path, s: SolveSettings) -> SolveSettings:
     xyz, sd, n = base_from_own_fixes(
         n.ecef_m for n in read_flight(path).nav if n.fix_ok and n.ecef_m)
     sd_text = "/".join(f"{v:.1f}" for v in sd)
-    return replace(s, base_ecef_m=xyz, base_sd_enu_m=sd, base_estimated=True, base_given=(
+    return replace(s, base_ecef_m=xyz, base_sd_enu_m=sd, base_estimated=True,
+                   base_fix_mean_m=xyz, base_fix_count=n, base_given=(
         f"not given: the mean of the base receiver's own {n} stand-alone fixes, σ east/north/"
         f"up {sd_text} m (camera positions are relative to a base known to metres only; give "
         "--base-xyz or --base-llh for a surveyed point)"))

@@ -9,7 +9,8 @@ recording: marks, epochs, damage, satellites, station events). ``solve --rebase 
 base coordinates takes them, moves the trajectory and the interpolated positions by the base's
 move and runs the rest of the chain as a solve does (photos, lever arm, exports, report) without
 the engine, without reading the recordings again and without drawing again the report's figures
-a rigid move leaves as they were (``report.KEPT_BY_REBASE``, taken from the result's page).
+whose inputs are as they were (``report.figures_in``: taken from the result's page; the map,
+drawn from the base, moves rigidly with it).
 A result without ``marks.npz`` or ``flight.npz`` (made before they were kept) is interpolated
 and read again: the same result, slower.
 
@@ -43,6 +44,7 @@ from groundstation.geodesy import ecef_to_llh, enu_rotation
 from groundstation.solve import flight as fl
 from groundstation.solve import interpolate as mi
 from groundstation.solve import trajectory as tr
+from groundstation.solve.engine import is_rinex_obs_name
 from groundstation.solve.report import figures_in
 from groundstation.solve.settings import SolveSettings
 
@@ -70,7 +72,7 @@ _HERE = "{result}/"
 _PATHS = ("flight", "out_dir", "positions", "base", "photos", "eo", "geoid", "rtk_conf",
           "rebase", "antex")
 _TRIPLES = ("base_ecef_m", "base_sd_enu_m", "lever_arm_m", "base_fix_mean_m")
-_NOT_RECORDED = ("flight_copies", "recordings", "merged_from", "rebase", "previous_bases")
+_NOT_RECORDED = ("flight_copies", "recordings", "rebase", "previous_bases")
 
 
 def write(s: SolveSettings, traj: tr.Trajectory, made: Interpolations,
@@ -134,7 +136,7 @@ def rebase_settings(
             kwargs[f.name] = (Path(v) if f.name in _PATHS and v is not None else
                               _triple(v) if f.name in _TRIPLES and v is not None else
                               tuple((str(k), str(x)) for k, x in v) if f.name == "rtk_options"
-                              else v)
+                              else _count(v) if f.name == "base_fix_count" else v)
         old = SolveSettings(**kwargs)
     except (KeyError, TypeError, ValueError) as err:
         raise ConfigError("--rebase", f"{result / RECORD_NAME}: not a record this program "
@@ -149,8 +151,8 @@ def rebase_settings(
     # What the record keeps need not be read again: the recordings (flight.npz) and the base
     # recording (the mean of its fixes in solve.json). Photos, EO file and geoid grid are.
     kept = (result / FLIGHT_NAME).is_file()
-    needed = [*(() if kept else recordings),
-              None if kept and old.base_fix_count >= 0 else old.base,
+    base_kept = old.base_fix_count >= 0 or is_rinex_obs_name(old.base)  # (RINEX: no fixes)
+    needed = [*(() if kept else recordings), None if kept and base_kept else old.base,
               old.photos, old.eo, old.geoid]
     for p in needed:
         if p is not None and not p.exists():
@@ -194,6 +196,12 @@ def _read(result: Path) -> dict[str, Any]:
     if not isinstance(doc, dict) or doc.get("format") != FORMAT:
         raise ConfigError("--rebase", f"{path}: not a record this program wrote")
     return doc
+
+
+def _count(v: Any) -> int:
+    if not isinstance(v, int) or isinstance(v, bool):
+        raise TypeError(f"base_fix_count {v!r}")
+    return v
 
 
 def _triple(v: Sequence[Any]) -> tuple[float, float, float]:

@@ -14,6 +14,7 @@ instead).
 
 from __future__ import annotations
 
+import hashlib
 import html
 import math
 import re
@@ -437,37 +438,75 @@ def _marks_table(inp: ReportInput) -> str:
 FIGURE_KEYS = ("trajectory", "trajectory-from-base", "quality", "satellites", "sigmas",
                "timing", "lever")
 """The figures by key (the trajectory drawn in the CRS's coordinates, or from the base)."""
-KEPT_BY_REBASE = frozenset(FIGURE_KEYS) - {"trajectory"}
-"""The figures a re-base keeps: a rigid move of the base and the flight leaves each of them as
-it was (the map drawn from the base, times, qualities, satellites, relative sigmas, residuals).
-A map in the CRS's own coordinates moves: drawn again."""
+MOVES_WITH_BASE = frozenset({"trajectory"})
+"""Figures never kept by a re-base: the map in the CRS's own coordinates moves with the base."""
 _FIGURE_RE = re.compile(
-    r'<figure data-fig="([a-z-]+)"><h3>[^<]*</h3>(<svg.*?</svg>\s*)<figcaption>', re.S)
+    r'<figure data-fig="([a-z-]+)" data-inputs="([0-9a-f]+)"><h3>[^<]*</h3>(<svg.*?</svg>\s*)'
+    r"<figcaption>", re.S)
 
 
 def figures_in(page: str) -> dict[str, str]:
-    """The figures a re-base may keep from a report this module rendered, by key (none from
-    a page of another layout: they are drawn again)."""
-    return {k: svg for k, svg in _FIGURE_RE.findall(page) if k in KEPT_BY_REBASE}
+    """The figures a re-base may keep from a report this module rendered, as
+    ``key@digest of their inputs`` -> SVG (none from a page of another layout)."""
+    return {f"{k}@{d}": svg for k, d, svg in _FIGURE_RE.findall(page)
+            if k not in MOVES_WITH_BASE}
 
 
-def _figures(inp: ReportInput) -> list[tuple[str, str, str, str]]:
-    """(key, title, svg, caption) of every figure (kept ones from ``inp.kept_figures``)."""
+DIGEST_DECIMALS = 4
+"""Floats enter a figure's digest rounded to this many decimals (a tenth of a millimetre, of a
+millisecond: below what any figure shows; above what a re-base's arithmetic changes, such as
+the sigma of a photo timed by the camera clock, widened by the velocity along directions taken
+at the moved position: 1e-8 m for a base moved 1 m)."""
+
+
+def _digest(*values: Any) -> str:
+    """A digest of a figure's inputs (arrays by dtype, shape and bytes; the rest by repr)."""
+    h = hashlib.sha256()
+    for v in values:
+        if isinstance(v, np.ndarray):
+            if v.dtype.kind == "f":
+                v = np.round(v, DIGEST_DECIMALS) + 0.0  # (+0.0: no negative zero)
+            h.update(f"{v.dtype}{v.shape}".encode())
+            h.update(np.ascontiguousarray(v).tobytes())
+        else:
+            h.update(repr(round(v, DIGEST_DECIMALS) if isinstance(v, float) else v).encode())
+        h.update(b"|")
+    return h.hexdigest()[:20]
+
+
+def _figures(inp: ReportInput) -> list[tuple[str, str, str, str, str]]:
+    """(key, digest of its inputs, title, svg, caption) of every figure; one whose key and
+    digest are in ``inp.kept_figures`` is taken from there, not drawn again.
+
+    What a re-base may keep: a figure whose every input is as it was, but for the positions
+    of the map drawn from the base (a re-base moves them rigidly with the base: the picture
+    is the same)."""
     rows = inp.rows
     cam_x = np.array([r.x_m for r in rows], dtype=np.float64)
     cam_y = np.array([r.y_m for r in rows], dtype=np.float64)
     t_rows = np.array([r.t_gps_ns for r in rows], dtype=np.int64)
     sd = np.array([(r.sd_e_m, r.sd_n_m, r.sd_u_m) for r in rows], dtype=np.float64).reshape(-1, 3)
     qual = np.array([r.quality for r in rows], dtype=np.int64)
+    grades = [r.grade for r in rows]
+    # where the lever arm put each camera: an EO file's attitude as given; one taken from the
+    # track moves with it (a re-base changes its grid bearing by micro-degrees: not an input)
+    attitude = [(r.attitude, (r.omega_deg, r.phi_deg, r.kappa_deg) if r.attitude == "eo"
+                 else None) for r in rows]
     sats = inp.satellites
     origin = inp.map_origin
-    # key, title, how to draw it (figures: matplotlib, loaded only when one is drawn), caption
-    todo: list[tuple[str, str, Callable[[Any], str], str]] = [(
-        "trajectory" if origin is None else "trajectory-from-base", "Trajectory",
+    crs = f"EPSG:{inp.epsg} {inp.crs_name}"
+    # key, inputs, title, how to draw it (figures: matplotlib, loaded only when one is
+    # drawn), caption
+    todo: list[tuple[str, tuple[Any, ...], str, Callable[[Any], str], str]] = [(
+        "trajectory" if origin is None else "trajectory-from-base",
+        (inp.track_t_gps_ns, inp.track_quality, np.isfinite(inp.track_x_m), t_rows,
+         np.isfinite(cam_x), grades, attitude, inp.lever_arm_m, inp.max_gap_s, crs,
+         inp.projected),
+        "Trajectory",
         lambda f: f.trajectory(inp.track_x_m, inp.track_y_m, inp.track_quality,
                                inp.track_t_gps_ns, cam_x, cam_y, max_gap_s=inp.max_gap_s,
-                               crs=f"EPSG:{inp.epsg} {inp.crs_name}", projected=inp.projected,
-                               cam_grade=[r.grade for r in rows], origin=origin),
+                               crs=crs, projected=inp.projected, cam_grade=grades,
+                               origin=origin),
         ("Antenna trajectory in the output CRS, coloured by solution quality (fixed: fixed and "
          "checked); circles are the camera positions (after the lever arm) in their grade's "
          "colour. Equal scale on both axes; north arrow points to grid north."
@@ -475,33 +514,38 @@ def _figures(inp: ReportInput) -> list[tuple[str, str, str, str]]:
             f" Axes in metres from the base (the triangle, where it falls within the frame), "
             f"which is at {_map_origin_text(inp)}.")),
     ), (
-        "quality", "Quality over time",
+        "quality",
+        (inp.track_t_gps_ns, inp.track_quality, inp.max_gap_s, inp.radio_gaps,
+         inp.source_outages, t_rows, inp.station_events, grades),
+        "Quality over time",
         lambda f: f.quality_timeline(inp.track_t_gps_ns, inp.track_quality,
                                      max_gap_s=inp.max_gap_s, radio_gaps=inp.radio_gaps,
                                      outages=inp.source_outages, mark_t_gps_ns=t_rows,
-                                     events_recorded=inp.station_events,
-                                     mark_grade=[r.grade for r in rows]),
+                                     events_recorded=inp.station_events, mark_grade=grades),
         ("Solution quality per epoch (hatched: no solved epoch for longer than the gap limit), "
          "radio dropouts and source outages recorded by the ground station, and the camera "
          "positions in their grade's colour. Bottom axis UTC, top axis GPS seconds of week."),
     )]
     if sats is not None:
         todo.append((
-            "satellites", "Satellites",
+            "satellites",
+            (sats.sat, sats.t_gps_ns, sats.cno_dbhz, sats.slip, sats.half, sats.repaired),
+            "Satellites",
             lambda f: f.satellites(sats.sat, sats.t_gps_ns, sats.cno_dbhz, sats.slip, sats.half,
                                    sats.repaired),
             ("Rover satellites over time: colour is C/N0, red ticks are cycle slips (loss of "
              "lock), orange marks epochs with the half-cycle ambiguity unresolved."),
         ))
     todo.append((
-        "sigmas", "Standard deviations at the camera positions",
+        "sigmas", (t_rows, sd, qual), "Standard deviations at the camera positions",
         lambda f: f.sigmas(t_rows, sd, qual),
         ("σ east, north and up of every camera position, as given by the engine and carried "
          "through the interpolation; red circles: not ambiguity-fixed."),
     ))
     if inp.pair_residual_s.size:
         todo.append((
-            "timing", "Photo timing residuals",
+            "timing", (inp.pair_t_gps_ns, inp.pair_residual_s, inp.pair_window_s),
+            "Photo timing residuals",
             lambda f: f.timing_residuals(inp.pair_t_gps_ns, inp.pair_residual_s,
                                          inp.pair_window_s or math.nan,
                                          clockoffset.residual_sigma_s(inp.pair_residual_s)),
@@ -511,18 +555,19 @@ def _figures(inp: ReportInput) -> list[tuple[str, str, str, str]]:
         ))
     if inp.lever_residual_m.size:
         todo.append((
-            "lever", "Lever-arm residuals",
+            "lever", (inp.lever_residual_m, inp.lever_outlier), "Lever-arm residuals",
             lambda f: f.lever_residuals(inp.lever_residual_m, inp.lever_outlier),
             "Lever arm estimated per image from the exterior orientation file, minus the mean.",
         ))
     out = []
-    for key, title, draw, caption in todo:
-        svg = inp.kept_figures.get(key)
+    for key, inputs, title, draw, caption in todo:
+        digest = _digest(*inputs)
+        svg = inp.kept_figures.get(f"{key}@{digest}")
         if svg is None:
             from groundstation.solve import figures
 
             svg = draw(figures)
-        out.append((key, title, svg, caption))
+        out.append((key, digest, title, svg, caption))
     return out
 
 
@@ -543,9 +588,9 @@ def render_html(inp: ReportInput) -> str:
         else '<p class="ok">Nothing to report: every camera position is fixed, no gaps.</p>'
     )
     figs = "".join(
-        f'<figure data-fig="{key}"><h3>{_e(title)}</h3>{svg}<figcaption>{_e(cap)}'
-        "</figcaption></figure>"
-        for key, title, svg, cap in _figures(inp)
+        f'<figure data-fig="{key}" data-inputs="{digest}"><h3>{_e(title)}</h3>{svg}'
+        f"<figcaption>{_e(cap)}</figcaption></figure>"
+        for key, digest, title, svg, cap in _figures(inp)
     )
     unmatched = "".join(f"<li>{_e(n)}: {_e(why)}</li>" for n, why in inp.photos_unmatched)
     notes = "".join(f"<li>{_e(n)}</li>" for n in inp.notes)

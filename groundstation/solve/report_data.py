@@ -141,8 +141,8 @@ class ReportInput:
     """The base in the output CRS: the map is drawn from it (None: in the CRS's coordinates),
     so that moving the base and the flight alike leaves the map as it was."""
     kept_figures: Mapping[str, str] = field(default_factory=dict)
-    """Figures kept from the result a re-base moves, by key (``report.FIGURE_KEYS``): a rigid
-    move leaves them as they were, so they are not drawn again."""
+    """Figures of the result a re-base moves, as ``key@digest of their inputs`` -> SVG
+    (``report.figures_in``): a figure whose inputs are as they were is not drawn again."""
 
 
 QUALITY_KEYS = {Q_FIX: "fixed", Q_FLOAT: "float", Q_SBAS: "sbas", Q_DGPS: "dgps",

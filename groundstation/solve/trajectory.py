@@ -154,5 +154,5 @@ def load_npz(path: Path) -> Trajectory:
             notes=[str(v) for v in a["notes"].reshape(-1)],
             grade=a["grade"].reshape(n) if "grade" in a else None,
             check=a["check"].reshape(n) if "check" in a else None)
-    except (ValueError, KeyError) as err:
+    except (ValueError, KeyError, TypeError) as err:
         raise InputError(f"{path}: not a trajectory this program wrote ({err!r})") from err

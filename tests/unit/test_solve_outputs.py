@@ -185,16 +185,27 @@ def test_write_all_and_report(out: outputs.SolveOutput, tmp_path: Path) -> None:
     # A re-base keeps every figure a rigid move leaves as it was, read back from the page: the
     # map only when it is drawn from the base (in the CRS's own coordinates it moves)
     kept = report.figures_in(html)
-    assert set(kept) == {"quality", "sigmas", "timing", "lever"}
+    assert {k.split("@")[0] for k in kept} == {"quality", "sigmas", "timing", "lever"}
     assert all(svg.startswith("<svg") and svg.rstrip().endswith("</svg>") for svg in kept.values())
     from_base = replace(inp, map_origin=(500010.0, 5538010.0))
     page = report.render_html(from_base)
     assert "Easting from the base (m)" in page and "E 500010.000, N 5538010.000 m" in page
     kept = report.figures_in(page)
-    assert set(kept) == {"trajectory-from-base", "quality", "sigmas", "timing", "lever"}
+    assert {k.split("@")[0] for k in kept} == {"trajectory-from-base", "quality", "sigmas",
+                                               "timing", "lever"}
     mark = {k: f'<svg class="fig" aria-label="{k}"><text>kept {k}</text></svg>' for k in kept}
     again = report.render_html(replace(from_base, kept_figures=mark))
     assert report.figures_in(again) == mark  # taken as they were, none drawn again
+    # the flight and its base moved alike: every figure kept; anything else changed (a row's
+    # grade, a residual): the figures that show it are drawn again
+    moved = replace(from_base, map_origin=(500011.0, 5538009.5), kept_figures=mark,
+                    track_x_m=from_base.track_x_m + 1.0, track_y_m=from_base.track_y_m - 0.5)
+    assert report.figures_in(report.render_html(moved)) == mark
+    other = replace(from_base, kept_figures=mark, lever_residual_m=np.array([0.002, 0.2]),
+                    rows=(replace(from_base.rows[0], grade="float"), *from_base.rows[1:]))
+    redrawn = {k.split("@")[0] for k, svg in report.figures_in(report.render_html(other)).items()
+               if svg not in mark.values()}
+    assert redrawn == {"trajectory-from-base", "quality", "lever"}
 
 
 def test_output_dir_inside_photos_is_refused(tmp_path: Path) -> None:
