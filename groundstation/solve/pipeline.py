@@ -461,11 +461,13 @@ def _positions_at_marks(
 ) -> tuple[list[int | None], mi.MarkPositions]:
     """Stage 3: each mark's exposure time (edge and shutter delay) and the antenna there."""
     times = _mark_times(s, marks)
+    stage = ("positions at the marks, moved with the base" if s.rebase is not None
+             else f"interpolate ({s.interp})")
     if progress is not None:
-        progress(f"interpolate ({s.interp})", 0.0)
+        progress(stage, 0.0)
     mp = interp(traj, times, s.interp, s.max_gap_s)
     if progress is not None:
-        progress(f"interpolate ({s.interp})", 1.0)
+        progress(stage, 1.0)
     notes.append(
         f"marks: {len(marks)}, positioned {mp.positioned}, edge {s.edge}, shutter delay "
         f"{s.shutter_delay_ms:g} ms, interpolation {mi.METHOD_TEXT[s.interp]} (--interp), "
