@@ -298,6 +298,13 @@ def _cameras_csv(out: Path) -> list[dict[str, str]]:
     return list(csv.DictReader(lines))
 
 
+def _rebase(result: Path, base: FloatArray, out: Path) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "groundstation.cli", "solve", "--no-pdf", "--rebase", str(result),
+         "--base-xyz", ",".join(f"{v:.4f}" for v in base.tolist()), "--out-dir", str(out)],
+        cwd=out.parent, env=cli_env(), capture_output=True, text=True, timeout=300, check=False)
+
+
 def test_rebase_moves_every_camera_with_the_base_without_solving_again(
         flight: Flight, tmp_path: Path) -> None:
     """``solve --rebase`` with the base moved 0.5 m east, 0.3 m south and 0.2 m up: every
@@ -338,9 +345,9 @@ def test_rebase_moves_every_camera_with_the_base_without_solving_again(
     report = (tmp_path / "moved" / "report.html").read_text()
     assert "re-based (solve --rebase); solved with ECEF" in report
     assert "(given with --base-xyz)" in report
-    # the figures kept as they were: the map is drawn from the base, which moved with the flight
-    # the figures kept as they were, but the lever arm's: the EO file's projection centres
-    # stay where they are while the antenna moves, so its residuals change (drawn again)
+    # the figures kept as they were (the map is drawn from the base), but the lever arm's:
+    # the EO file's projection centres stay where they are while the antenna moves, so its
+    # residuals change (drawn again)
     kept = figures_in((done / "report.html").read_text())
     now = figures_in(report)
     assert {"trajectory-from-base", "quality", "sigmas", "timing", "lever"} <= {
@@ -357,11 +364,7 @@ def test_rebase_moves_every_camera_with_the_base_without_solving_again(
     doc["recordings"] = [str(tmp_path / "gone" / Path(p).name) for p in doc["recordings"]]
     doc["settings"]["base"] = str(tmp_path / "gone" / "base.ubx")
     (archived / "solve.json").write_text(json.dumps(doc))
-    proc = subprocess.run(
-        [sys.executable, "-m", "groundstation.cli", "solve", "--no-pdf", "--rebase",
-         str(archived), "--base-xyz", ",".join(f"{v:.4f}" for v in new.tolist()),
-         "--out-dir", "from_archive"],
-        cwd=tmp_path, env=cli_env(), capture_output=True, text=True, timeout=300, check=False)
+    proc = _rebase(archived, new, tmp_path / "from_archive")
     assert proc.returncode == 0, proc.stderr
     assert _cameras_csv(tmp_path / "from_archive") == after
     # a result whose base was the mean of its receiver's own fixes keeps that mean too
@@ -376,11 +379,7 @@ def test_rebase_moves_every_camera_with_the_base_without_solving_again(
     for name in ("marks.npz", "report.html"):
         (old_style / name).unlink()
     (old_style / "flight.npz").write_bytes(b"damaged")
-    proc = subprocess.run(
-        [sys.executable, "-m", "groundstation.cli", "solve", "--no-pdf", "--rebase",
-         str(old_style), "--base-xyz", ",".join(f"{v:.4f}" for v in new.tolist()),
-         "--out-dir", "moved_again"],
-        cwd=tmp_path, env=cli_env(), capture_output=True, text=True, timeout=300, check=False)
+    proc = _rebase(old_style, new, tmp_path / "moved_again")
     assert proc.returncode == 0, proc.stderr
     said = ("flight.npz: not flight records this program wrote (not a NumPy .npz archive): "
             "the recording is read again instead")
