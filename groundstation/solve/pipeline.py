@@ -422,7 +422,13 @@ def _flight_records(s: SolveSettings, progress: Progress | None = None) -> Fligh
     """The flight's records: a re-based result's own (what its solve read), else read from
     the recording."""
     kept = record.flight_records(s.rebase) if s.rebase is not None else None
-    return kept if kept is not None else read_flight(s.flight, progress, observations=True)
+    if kept is not None:
+        return kept
+    if s.rebase is not None and not s.flight.exists():
+        raise ConfigError("--rebase", (
+            f"{s.rebase / record.FLIGHT_NAME} cannot stand for the recording, and "
+            f"{s.flight}: no longer there: put the recording back where it was"))
+    return read_flight(s.flight, progress, observations=True)
 
 
 def _positions(

@@ -156,8 +156,14 @@ def rebase_settings(
               old.photos, old.eo, old.geoid]
     for p in needed:
         if p is not None and not p.exists():
+            why = ("" if p not in (*recordings, old.base) else
+                   f" ({result / FLIGHT_NAME}, which would stand for the recordings, is missing: "
+                   "a result made before it was kept, or removed)" if not kept else
+                   f" ({RECORD_NAME} keeps no mean of its receiver's fixes: a result made "
+                   "before it was kept)")
             raise ConfigError("--rebase", f"{p}: no longer there; the result was made from "
-                              "it, and the marks, photos and report are drawn from it again")
+                              f"it, and the marks, photos and report are drawn from it again"
+                              f"{why}: put it back where it was")
     base_ecef_m, base_given, base_sd_enu_m = position(old)
     return replace(
         old, flight=recordings[0], flight_copies=tuple(recordings[1:]) if not kept else (),

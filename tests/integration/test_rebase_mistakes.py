@@ -79,6 +79,7 @@ def test_a_result_without_a_base_or_whose_recording_has_gone_is_refused(
     proc = _rebase(tmp_path, "--rebase", str(gone), "--base-xyz", XYZ)
     assert proc.returncode == 2, proc.stderr
     assert f"{tmp_path.resolve()}/b/rover.ubx: no longer there" in proc.stderr
+    assert "flight.npz, which would stand for the recordings, is missing" in proc.stderr
     assert len(proc.stderr.strip().splitlines()) == 1
 
 
