@@ -249,7 +249,8 @@ def _rebase_settings(args: argparse.Namespace) -> SolveSettings:
     for dest, default in _SOLVE_ONLY.items():
         if getattr(args, dest) != default:
             name = "the flight" if dest == "flight" else "--" + dest.replace("_", "-")
-            raise ConfigError("--rebase", f"takes only the new base position (and --out-dir); "
+            raise ConfigError("--rebase", "takes only the new base position (with its sigma, "
+                              "antenna height and type) and --out-dir, --no-pdf; "
                               f"{name} was given: the result keeps the options it was solved "
                               "with (solve again to change them)")
     if all(v is None for v in (args.base_xyz, args.base_llh, args.base_en, args.base_position)):

@@ -46,9 +46,11 @@ def _rebase(cwd: Path, *args: str) -> subprocess.CompletedProcess[str]:
     (["--rebase", "empty", "--base-xyz", XYZ, "--out-dir", "out"],
      "--rebase: empty: no solve.json in it"),
     (["--rebase", "done", "--base-xyz", XYZ, "--photos", "empty", "--out-dir", "out"],
-     "--rebase: takes only the new base position (and --out-dir); --photos was given"),
+     ("--rebase: takes only the new base position (with its sigma, antenna height and type) "
+     "and --out-dir, --no-pdf; --photos was given")),
     (["--rebase", "done", "rover.ubx", "--base-xyz", XYZ, "--out-dir", "out"],
-     "--rebase: takes only the new base position (and --out-dir); the flight was given"),
+     ("--rebase: takes only the new base position (with its sigma, antenna height and type) "
+     "and --out-dir, --no-pdf; the flight was given")),
     (["--rebase", "done", "--out-dir", "out"],
      "--rebase: give the new base position: --base-xyz X,Y,Z"),
     (["--out-dir", "out"], "flight: give the rover's recording"),
