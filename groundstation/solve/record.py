@@ -45,7 +45,7 @@ from groundstation.solve import flight as fl
 from groundstation.solve import interpolate as mi
 from groundstation.solve import trajectory as tr
 from groundstation.solve.engine import is_rinex_obs_name
-from groundstation.solve.report import figures_in
+from groundstation.solve.report import HTML_NAME, figures_in
 from groundstation.solve.settings import SolveSettings
 
 log = logging.getLogger("groundstation.solve")
@@ -58,7 +58,6 @@ moves them as the trajectory)."""
 FLIGHT_NAME = "flight.npz"
 """What the solve took from the flight recording (marks, epochs, observations): a re-base
 takes it instead of reading the recording again."""
-REPORT_NAME = "report.html"
 ENGINE_DIR = "rtklib"
 """The engine's files (solution, options, conditioning): carried over into a re-based result."""
 FORMAT = "groundstation solve record 1"
@@ -285,7 +284,7 @@ def kept_figures(result: Path) -> dict[str, str]:
     """The figures of ``result``'s report a re-base keeps as they are (none when the report
     is gone or of another layout: they are drawn again)."""
     try:
-        return figures_in((result / REPORT_NAME).read_text(encoding="utf-8"))
+        return figures_in((result / HTML_NAME).read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError):
         return {}
 

@@ -435,11 +435,11 @@ def _marks_table(inp: ReportInput) -> str:
             f"<tbody>{''.join(body)}</tbody></table>")
 
 
-FIGURE_KEYS = ("trajectory", "trajectory-from-base", "quality", "satellites", "sigmas",
-               "timing", "lever")
-"""The figures by key (the trajectory drawn in the CRS's coordinates, or from the base)."""
+HTML_NAME = "report.html"
 MOVES_WITH_BASE = frozenset({"trajectory"})
-"""Figures never kept by a re-base: the map in the CRS's own coordinates moves with the base."""
+"""Figures never kept by a re-base: the map in the CRS's own coordinates moves with the base
+(the other keys: ``trajectory-from-base``, ``quality``, ``satellites``, ``sigmas``, ``timing``,
+``lever``)."""
 _FIGURE_RE = re.compile(
     r'<figure data-fig="([a-z-]+)" data-inputs="([0-9a-f]+)"><h3>[^<]*</h3>(<svg.*?</svg>\s*)'
     r"<figcaption>", re.S)
@@ -630,7 +630,7 @@ def write_report(inp: ReportInput, out_dir: Path, *, pdf: bool = True,
     can show them.
     """
     out_dir.mkdir(parents=True, exist_ok=True)
-    hp = out_dir / "report.html"
+    hp = out_dir / HTML_NAME
     hp.write_text(render_html(inp), encoding="utf-8")
     paths, notes = [hp], []
     if not pdf:
