@@ -43,6 +43,7 @@ from groundstation.errors import ConfigError, GroundstationError, InputError
 from groundstation.geodesy import ecef_to_llh, enu_rotation, enu_to_ecef, llh_to_ecef
 from groundstation.gpstime import gps_calendar_ns, utc_span
 from groundstation.offline.rinex.convert import observations_of, read_frames
+from groundstation.records import NavSolution
 from groundstation.rules.plausible import span_text
 from groundstation.solve.antex import antenna_name, l1_offset
 from groundstation.solve.engine import is_rinex_obs_name
@@ -401,6 +402,11 @@ class OwnFixes:
     count: int
 
 
+def fix_positions(nav: Iterable[NavSolution]) -> list[tuple[float, float, float]]:
+    """The ECEF positions of a receiver's own valid fixes (those with a position)."""
+    return [n.ecef_m for n in nav if n.fix_ok and n.ecef_m]
+
+
 def own_fixes(base: Path) -> OwnFixes | None:
     """The base receiver's own fixes in a u-blox base recording, averaged (None: RINEX or not
     a recording).
@@ -410,7 +416,7 @@ def own_fixes(base: Path) -> OwnFixes | None:
     """
     if detect_recording(base) is None:
         return None
-    return _mean_of([n.ecef_m for n in read_flight(base).nav if n.fix_ok and n.ecef_m])
+    return _mean_of(fix_positions(read_flight(base).nav))
 
 
 def _mean_of(fixes_ecef_m: Sequence[tuple[float, float, float]]) -> OwnFixes:

@@ -49,6 +49,7 @@ from groundstation.solve.base import (
     check_base,
     check_distance,
     check_pairing,
+    fix_positions,
     own_fixes,
 )
 from groundstation.solve.engine import is_rinex_obs_name
@@ -182,8 +183,7 @@ def _validate(s: SolveSettings) -> tuple[SolveSettings, BaseCheck | None, Flight
         # The same for a base of another day, the flight's own recording, or a base hundreds
         # of kilometres away.
         covered = check_pairing(s.flight, base)
-        check_distance(base_ecef_m, [
-            n.ecef_m for n in flight().nav if n.fix_ok and n.ecef_m])
+        check_distance(base_ecef_m, fix_positions(flight().nav))
         text = f"{text}; {covered}" if covered else text
     return s, (text, doubtful), (read[0] if read else None)
 
@@ -215,8 +215,7 @@ def _base_from_own_fixes(path: Path, s: SolveSettings) -> SolveSettings:
         raise ConfigError("--base-xyz", (
             f"the coordinates of the base {path.name} are needed (--base-xyz X,Y,Z or --base-llh "
             "LAT,LON,H): RINEX observations carry no receiver fixes to average instead"))
-    xyz, sd, n = base_from_own_fixes(
-        n.ecef_m for n in read_flight(path).nav if n.fix_ok and n.ecef_m)
+    xyz, sd, n = base_from_own_fixes(fix_positions(read_flight(path).nav))
     sd_text = "/".join(f"{v:.1f}" for v in sd)
     return replace(s, base_ecef_m=xyz, base_sd_enu_m=sd, base_estimated=True,
                    base_fix_mean_m=xyz, base_fix_count=n, base_given=(
