@@ -7,6 +7,7 @@ Run: python benchmarks/bench_ppk.py [--seed-s 1200] [--seeds 1,2,3] [--severitie
          0.5,1,1.5,2] [--sweep-faults SPEC] [--real-seeds 1-5] [--interp METHOD]
          [--out FILE.jsonl]
      python benchmarks/bench_ppk.py --why-real
+     python benchmarks/bench_ppk.py --why-gaps [--real-seeds 1-5]
 
 ``--sweep`` (issue 22): the whole ``solve`` (engine, integrity stage, marks) on many flights,
 judged at the camera positions: the seed profile's default 50-min flight at each severity for
@@ -40,6 +41,11 @@ whole ``run_engine`` call (RINEX conversion, conditioning, engine).
 ``--why-real`` (issue 22, item 5): where the real flights' fixes go as a LEA-6T (camera
 positions per grade, untouched with and without GLONASS and rewritten), and what the
 one-direction fixes the grading holds back would have given (:func:`why_real`).
+
+``--why-gaps`` (issue 22): what the real flights' radio gaps cost, per fault seed: the
+conditioning's bridges across them judged by the same flight without faults, and the whole-arc
+solution on the flight without faults, on it at the link's epochs only, and through the link
+(:func:`why_gaps`).
 
 ``--hour``: a 1-hour seed flight (severity 1): our conditioning + the dynamics pass + demo5
 combined (forward and backward) from the UBX recordings against b34's combined mode on the RINEX
@@ -623,6 +629,135 @@ def sweep(args: argparse.Namespace) -> None:
     _summary(rows)
 
 
+def _observations(path: Path, work: Path) -> tuple[Any, list[Any]]:
+    """(observations, ephemerides) of a recording, as the engine's RINEX conversion sees them."""
+    got: list[tuple[Any, list[Any]]] = []
+
+    def hook(obs: Any, ephs: Any, approx: Any) -> Any:
+        got.append((obs, list(ephs)))
+        return obs
+
+    rinex.convert(path, work, rinex.RinexOptions(version="3.04"), None, hook)
+    return got[0]
+
+
+def _keep_epochs(obs: Any, keep_t: set[int]) -> Any:
+    """``obs`` (conditioned) at the epochs of ``keep_t`` only; a start of an ambiguity (LLI
+    bit 0) at a dropped epoch moves to the satellite's next kept epoch."""
+    from dataclasses import replace
+
+    kept = np.array([t in keep_t for t in obs.t_gps_ns.tolist()])
+    new_index = np.cumsum(kept) - 1
+    lli = obs.lli.copy()
+    order = np.lexsort((obs.t_gps_ns[obs.epoch], obs.prn, obs.sys))
+    carry: dict[tuple[str, int], bool] = {}
+    for i in order.tolist():
+        key = (str(obs.sys[i]), int(obs.prn[i]))
+        if not kept[obs.epoch[i]]:
+            carry[key] = carry.get(key, False) or bool(lli[i] & 1)
+        elif carry.pop(key, False):
+            lli[i] |= 1
+    rows = kept[obs.epoch]
+    return replace(obs, t_gps_ns=obs.t_gps_ns[kept], leap_s=obs.leap_s[kept],
+                   epoch=new_index[obs.epoch[rows]], sys=obs.sys[rows], prn=obs.prn[rows],
+                   code=obs.code[rows], pr_m=obs.pr_m[rows], cp_cyc=obs.cp_cyc[rows],
+                   do_hz=obs.do_hz[rows], cno_dbhz=obs.cno_dbhz[rows], lli=lli[rows])
+
+
+def _bridges(clean: Any, faulty: Any) -> dict[str, int]:
+    """The conditioning's bridges across the faulty stream's radio gaps, judged by the clean
+    stream (the same receiver's phase, every epoch there): per satellite and pair of
+    consecutive faulty epochs more than 1.5 intervals apart where neither stream started the
+    ambiguity again, whether the two conditioned phases still differ by the same amount."""
+    def table(o: Any) -> dict[tuple[int, int], int]:
+        g = np.flatnonzero((o.sys == "G") & (o.cp_cyc != 0.0))
+        t = o.t_gps_ns[o.epoch[g]]
+        return {(int(a), int(b)): int(i) for a, b, i in zip(t, o.prn[g], g, strict=True)}
+
+    mc, mf = table(clean), table(faulty)
+    nominal = float(np.median(np.diff(np.unique(faulty.t_gps_ns))))
+    starts: dict[int, npt.NDArray[np.int64]] = {}
+    for (t, p), i in mc.items():
+        if clean.lli[i] & 1:
+            starts.setdefault(p, np.zeros(0, dtype=np.int64))
+            starts[p] = np.append(starts[p], t)
+    out = {"bridges": 0, "right": 0, "half_cycle_off": 0, "cycles_off": 0}
+    by_sv: dict[int, list[int]] = {}
+    for t, p in mf:
+        if (t, p) in mc:
+            by_sv.setdefault(p, []).append(t)
+    for p, ts in by_sv.items():
+        ts.sort()
+        for t_prev, t in zip(ts, ts[1:], strict=False):
+            if t - t_prev <= 1.5 * nominal or faulty.lli[mf[(t, p)]] & 1:
+                continue
+            st = starts.get(p, np.zeros(0, dtype=np.int64))
+            if np.any((st > t_prev) & (st <= t)):
+                continue
+            d = ((faulty.cp_cyc[mf[(t, p)]] - clean.cp_cyc[mc[(t, p)]])
+                 - (faulty.cp_cyc[mf[(t_prev, p)]] - clean.cp_cyc[mc[(t_prev, p)]]))
+            out["bridges"] += 1
+            if abs(d) < 0.1:
+                out["right"] += 1
+            elif abs(abs(d) - 0.5) < 0.1:
+                out["half_cycle_off"] += 1
+            else:
+                out["cycles_off"] += 1
+    return out
+
+
+def why_gaps(work: Path, name: str, fault_seeds: list[int]) -> list[dict[str, Any]]:
+    """What a real flight's radio gaps cost the whole-arc solution (issue 22), per fault seed
+    of the seed link: the conditioning's bridges across the gaps judged by the same flight
+    without faults (:func:`_bridges`), and the whole-arc solution (gaps judged, fixed epochs)
+    on three streams: without faults; without faults but only at the epochs the link let
+    through (the phase every satellite kept, the gaps alone); through the link."""
+    from groundstation.sim.faults import FaultConfig
+    from groundstation.sim.rewrite import RewriteConfig, rewrite
+    from groundstation.solve import conditioning
+    from groundstation.solve.integrity.assess import arcs_stage
+
+    day, rover, base, base_xyz = JD_SWEEP[name]
+    src = SHARED / "real" / "jdesbonnet__GNSS_RTK_data" / day
+    work.mkdir(parents=True, exist_ok=True)
+    (work / "base.ubx").write_bytes(rewrite(src / f"{base}.ubx.gz", RewriteConfig()).data)
+    base_obs, base_ephs = _observations(work / "base.ubx", work / "base")
+
+    def stream(seed: int) -> tuple[Any, list[Any]]:
+        faults = FaultConfig.none() if seed == 0 else FaultConfig.seed()
+        rv = work / f"rover-{seed}.ubx"
+        rv.write_bytes(rewrite(src / f"{rover}.ubx.gz",
+                               RewriteConfig(faults=faults, seed=max(seed, 1))).data)
+        obs, ephs = _observations(rv, work / f"rover-{seed}")
+        approx = (float(base_xyz[0]), float(base_xyz[1]), float(base_xyz[2]))
+        return conditioning.condition(obs, ephs, approx)[0], ephs
+
+    def solved(obs: Any, ephs: list[Any]) -> dict[str, Any]:
+        have = set(ephs)
+        arcs = arcs_stage(obs, base_obs, ephs + [e for e in base_ephs if e not in have],
+                          base_xyz)
+        if arcs is None:
+            return {"epochs": 0}
+        doubts = arcs.resolution.gap_doubts
+        return {"epochs": int(arcs.t_ns.size), "fixed_epochs": int(arcs.fixed.sum()),
+                "arcs": int(arcs.resolution.tab.n_arcs),
+                "gaps_contradicted": sum(d.contradicted for d in doubts),
+                "gaps_could_hide": sum(not d.contradicted for d in doubts)}
+
+    clean, clean_ephs = stream(0)
+    rows = [{"flight": name, "seed": 0, "stream": "no faults", **solved(clean, clean_ephs)}]
+    for seed in fault_seeds:
+        faulty, ephs = stream(seed)
+        kept = set(faulty.t_gps_ns.tolist())
+        rows.append({"flight": name, "seed": seed, "stream": "no faults, link's epochs only",
+                     **solved(_keep_epochs(clean, kept), clean_ephs)})
+        rows.append({"flight": name, "seed": seed, "stream": "seed link",
+                     **solved(faulty, ephs), **_bridges(clean, faulty)})
+    for r in rows:
+        print(r, flush=True)
+    return rows
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
     ap.add_argument("--seed-s", type=float, default=1200.0)
@@ -646,6 +781,8 @@ def main() -> None:
                     "(default: solve's)")
     ap.add_argument("--why-real", action="store_true", help="where the real flights' fixes "
                     "go as a LEA-6T (see why_real)")
+    ap.add_argument("--why-gaps", action="store_true", help="what the real flights' radio "
+                    "gaps cost the whole-arc solution, for each of --real-seeds (see why_gaps)")
     args = ap.parse_args()
     if args.interp:
         INTERP.append(args.interp)
@@ -653,6 +790,10 @@ def main() -> None:
         with tempfile.TemporaryDirectory(prefix="bench-why-") as tmp:
             for name in JD_SWEEP:
                 why_real(Path(tmp) / name.replace(" ", "_"), name)
+    elif args.why_gaps:
+        with tempfile.TemporaryDirectory(prefix="bench-gaps-") as tmp:
+            for name in JD_SWEEP:
+                why_gaps(Path(tmp) / name.replace(" ", "_"), name, _span(args.real_seeds))
     elif args.hour:
         hour(args)
     elif args.sweep:
