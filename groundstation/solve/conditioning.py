@@ -32,8 +32,11 @@ of bit 1 leaves room for a jump (otherwise the receiver would have flagged it):
 Half cycles (LLI bit 1): a satellite whose ambiguity continues through a repaired loss keeps the
 phase it had before, already free of the half cycle, so bit 1 is cleared. A satellite that had
 to start again keeps bit 1 until the receiver clears it; the jump made there (0 or half a cycle,
-measured like any other) is then put on the earlier part of that lock instead, and bit 1 is
-cleared back to its start: the whole lock is one resolved ambiguity. demo5 keeps the phases that
+measured like any other) tells the half cycle of the phase since its last loss, and with the
+half cycles the repairs since the lock began took up (a loss repaired while bit 1 stayed set
+carries the new lock's half cycle in its jump), that of the lock's start. That is put on the
+earlier part of the lock, the phase goes on from there without it, and bit 1 is cleared back
+to its start: the whole lock is one resolved ambiguity. demo5 keeps the phases that
 still carry bit 1 out of ambiguity resolution on any input, RINEX included (``ddidx``: a
 satellite with ``slip & LLI_HALFC`` is not fixed), and resets the ambiguity when bit 1 changes
 (``detslp_ll``); after conditioning, bit 1 is left only where it is still unresolved.
@@ -450,9 +453,16 @@ def _bridge(
     determined = (good and sig < MAX_JUMP_SIGMA_CYC
                   and abs(w - half) < min(noise, DETERMINE_CYC))
     if determined and not resolved[j] and half_cleared and not flagged and abs(half) in (0, 0.5):
-        # The half cycle resolved: the lock so far was off by this jump (0 or half a cycle).
-        # Put it on the earlier part instead, so the whole lock is one resolved ambiguity.
-        out_cp[lock_start[j]:e, j] += half
+        # The half cycle resolved: the phase since the last loss was off by minus this jump
+        # (0 or half a cycle). The repairs since the lock began carried the phase through
+        # every loss in between with whatever half cycle each new lock had, so the output
+        # so far is off by the lock's *first* half cycle: this one less the half cycles
+        # those repairs took up (their sum is -corr). Put that on the earlier part, and
+        # carry the phase on from here without it: the whole lock is one resolved ambiguity.
+        # (With no half-odd repair since the lock began, this is the jump itself.)
+        first = float((corr[j] - half) % 1.0)
+        out_cp[lock_start[j]:e, j] -= first
+        corr[j] -= half + first
         out_lli[lock_start[j]:e, j] &= ~LLI_HALF_CYCLE
         resolved[j] = True
         sr.half_resolved += 1

@@ -40,6 +40,7 @@ class Conditioned:
     work: Path
     before: list[ObsSet] = field(default_factory=list)
     report: list[conditioning.ConditioningReport] = field(default_factory=list)
+    after: list[ObsSet] = field(default_factory=list)
 
     @property
     def truth(self) -> dict[str, Any]:
@@ -58,6 +59,7 @@ def _conditioned(sim: SimResult, work: Path) -> Conditioned:
         out.before.append(obs)
         new, rep = conditioning.condition(obs, ephs, approx)
         out.report.append(rep)
+        out.after.append(new)
         return new
 
     rinex.convert(work / "rover.ubx", work / "rinex", obs_hook=hook)
@@ -92,6 +94,50 @@ def test_every_repair_takes_out_the_true_jump(flight: Conditioned) -> None:
     rep = flight.report[0]
     assert rep.applied and rep.repairs
     _assert_every_repair_is_the_true_jump(flight)
+
+
+def _inverted(truth: dict[str, Any]) -> dict[int, list[tuple[int, int]]]:
+    """Per satellite: the spans [start, end) GPS ns in which the simulated receiver's phase
+    carries a wrong half cycle (its loop locked with inverted polarity and has not yet resolved
+    it; a new loss ends the span, the new lock's own polarity taking over)."""
+    by_sv: dict[int, list[dict[str, Any]]] = defaultdict(list)
+    for e in truth["receivers"]["rover"]["lock_events"]:
+        by_sv[e["sv"]].append(e)
+    spans: dict[int, list[tuple[int, int]]] = defaultdict(list)
+    for sv, evs in by_sv.items():
+        evs.sort(key=lambda e: e["t_rx_ns"])
+        for k, e in enumerate(evs):
+            if not e["half_cycle_inverted"]:
+                continue
+            end = e["resolve_t_rx_ns"]
+            nxt = evs[k + 1]["t_rx_ns"] if k + 1 < len(evs) else None
+            if end is None or (nxt is not None and nxt < end):
+                end = nxt if nxt is not None else 2**62
+            spans[sv].append((int(e["t_rx_ns"]), int(end)))
+    return spans
+
+
+def test_every_resolved_phase_is_on_the_whole_cycle_lattice(flight: Conditioned) -> None:
+    # A squaring loop may lock half a cycle off; the receiver flags that (LLI bit 1) until it
+    # has read the navigation data's polarity, then jumps back. Where the conditioning clears
+    # bit 1, the phase it leaves must be the true one plus whole cycles: the engine and the
+    # whole-arc solution fix it on the whole-cycle lattice. Until 2026-11-29 a lock whose flag
+    # stayed set through further repaired losses was shifted by the last lock's half cycle,
+    # not its first's (severity 2, seed 1311: 16 arcs half a cycle off the others).
+    before, after = flight.before[0], flight.after[0]
+    inv = _inverted(flight.truth)
+    g = np.flatnonzero((after.sys == "G") & (after.cp_cyc != 0.0)
+                       & ((after.lli & 2) == 0))
+    t = after.t_gps_ns[after.epoch[g]]
+    moved = after.cp_cyc[g] - before.cp_cyc[g]  # what the conditioning added, cycles
+    half = np.array([any(lo <= tt < hi for lo, hi in inv.get(int(sv), ()))
+                     for tt, sv in zip(t.tolist(), after.prn[g].tolist(), strict=True)])
+    off = (moved + 0.5 * half) % 1.0
+    wrong = np.minimum(off, 1.0 - off) > 1e-3
+    assert g.size > 10_000 and half.any()
+    assert not wrong.any(), (
+        f"{int(wrong.sum())} of {g.size} phases half a cycle off, e.g. "
+        f"{sorted({f'G{int(s):02d}' for s in after.prn[g][wrong]})}")
 
 
 def test_slips_hidden_in_radio_gaps_are_found_and_mostly_repaired(flight: Conditioned) -> None:
