@@ -62,6 +62,31 @@ def test_a_half_cycle_lattice_takes_half_cycles() -> None:
     assert one.fixed_combinations < 7  # on a whole-cycle lattice the half cycles stay float
 
 
+def test_arcs_checked_whole_take_the_whole_cycle_lattice_among_themselves() -> None:
+    # RXM-RAW: every pair on half cycles, except between arcs whose half cycle rests on the
+    # receivers alone or on decisions of ours that passed their test (PhaseTable.arc_whole).
+    # A float of 0.07 cycle is not sure on half cycles (0.14 step) but is on whole ones.
+    rng = np.random.default_rng(6)
+    truth = 0.3 + rng.integers(-40, 40, 8).astype(float)
+    truth[6:] += 0.5  # two arcs half a cycle off the rest: not checked whole
+    a, q = _float_constants(truth, 0.05, rng)
+    whole = np.array([True] * 6 + [False] * 2)
+    half = resolve_lattice(a, q, np.ones(8, bool), 0.5)
+    assert half.fixed_combinations == 0
+    lat = resolve_lattice(a, q, np.ones(8, bool), 0.5, whole)
+    assert lat.fixed_combinations == 5 and lat.contradictions == 0
+    d = lat.constants - lat.constants[0]
+    assert np.allclose(d[:6], (truth - truth[0])[:6], atol=1e-6)
+    assert np.all(np.diag(lat.cov)[6:] > 1e-4)  # the others stay float
+    # an arc said whole but half a cycle off: a sure pair off the lattice is never rounded
+    a2, q2 = _float_constants(truth, 0.01, rng)
+    lie = resolve_lattice(a2, q2, np.ones(8, bool), 0.5, np.ones(8, bool))
+    d2 = lie.constants - lie.constants[0]
+    assert lie.contradictions >= 1
+    assert np.allclose(d2[:6], (truth - truth[0])[:6], atol=1e-6)
+    assert np.all(np.abs(d2[6:] - (truth - truth[0])[6:]) < 1e-6)  # tied on half cycles
+
+
 def test_nothing_unsure_is_fixed() -> None:
     rng = np.random.default_rng(4)
     truth = 0.0 + rng.integers(-9, 9, 6).astype(float)

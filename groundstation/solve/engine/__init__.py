@@ -40,6 +40,7 @@ DEFAULT_ENGINE = "demo5"
 if TYPE_CHECKING:
     from groundstation.offline.rinex.convert import ObsHook as rinex_hook
     from groundstation.offline.rinex.observations import ObsSet
+    from groundstation.solve.conditioning import ConditioningReport
     from groundstation.solve.integrity.assess import Arcs, EngineSolution, IntegrityResult
 
 
@@ -354,7 +355,7 @@ def run_engine(
     arcs: Arcs | None = None
     arcs_note = ""
     if integrity and base_ecef_m is not None:
-        arcs, arcs_note = _arcs(seen, base_ecef_m, progress)
+        arcs, arcs_note = _arcs(seen, base_ecef_m, progress, cond_report)
     dyn_info: dict[str, object] | None = None
     if dynamics:
         user_keys = set(overrides or {})
@@ -435,9 +436,12 @@ def engine_solution(pos: Path) -> EngineSolution | None:
 def _arcs(
     seen: Mapping[str, tuple[ObsSet, Sequence[BroadcastEphemeris]]],
     base_ecef_m: tuple[float, float, float], progress: Progress | None,
+    cond: ConditioningReport | None = None,
 ) -> tuple[Arcs | None, str]:
     """The integrity stage's whole-arc solution, from the observations alone (before the
-    engine); None and why when it cannot run (an input given as RINEX)."""
+    engine); None and why when it cannot run (an input given as RINEX). ``cond``: what the
+    conditioning did (the phases it carried on its own decisions, which the whole-arc solution
+    tests)."""
     from groundstation.solve.integrity.assess import arcs_stage
 
     if "rover" not in seen or "base" not in seen:
@@ -448,7 +452,8 @@ def _arcs(
     base_obs, base_ephs = seen["base"]
     have = set(rover_ephs)
     ephs = list(rover_ephs) + [e for e in base_ephs if e not in have]
-    arcs = arcs_stage(rover_obs, base_obs, ephs, base_ecef_m)
+    arcs = arcs_stage(rover_obs, base_obs, ephs, base_ecef_m,
+                      None if cond is None else cond.decisions)
     if progress is not None:
         progress("integrity: whole-arc solution", 1.0)
     return arcs, "" if arcs is not None else "no rover epochs"

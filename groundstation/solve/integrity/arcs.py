@@ -101,6 +101,10 @@ def resolve(tab: PhaseTable, x0: FloatArray) -> Resolution:
         if phase_fac > 1.0:
             system = normal.epoch_system(tab, x, code_infl, np.sqrt(phase_fac))
             fl = normal.float_arcs(tab, system)
+        if tab.arc_whole is not None:
+            whole = tab.arc_whole.copy()
+            whole[steps.unverified(tab, system, fl)] = False
+            tab = replace(tab, arc_whole=whole)
         lat, sol, suspects = _fix(tab, x, fl, fl.informed.copy(), code_infl, phase_fac)
         # A sure difference off the lattice proves the model wrong somewhere. The gaps were
         # judged on the model before their own splits: a gap whose reliability came from arcs
@@ -177,7 +181,7 @@ def _fix(tab: PhaseTable, x: FloatArray, fl: normal.FloatArcs, usable: npt.NDArr
     usable = usable.copy()
     suspects: list[int] = []
     for _ in range(rounds):
-        lat = resolve_lattice(fl.a, fl.q, usable, tab.lattice_cyc)
+        lat = resolve_lattice(fl.a, fl.q, usable, tab.lattice_cyc, tab.arc_whole)
         sol = solve_epochs(tab, x, lat, code_infl, phase_fac)
         bad = arc_misfits(tab, sol)
         if not bad:

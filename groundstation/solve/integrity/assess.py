@@ -123,14 +123,16 @@ class Arcs:
 def arcs_stage(
     rover: ObsSet, base: ObsSet, ephemerides: Sequence[BroadcastEphemeris],
     base_ecef_m: tuple[float, float, float],
+    decisions: Sequence[tuple[int, str]] | None = None,
 ) -> Arcs | None:
     """Our whole-arc solution (:func:`groundstation.solve.integrity.arcs.resolve`, smoothed), from
     the observations alone: linearised at the code's positions, so it can run before the
     engine (and give the engine its motion model). None without rover epochs or without a
-    phase shared with the base (another day's base)."""
+    phase shared with the base (another day's base). ``decisions``: the conditioning's
+    (:func:`table.build_table`)."""
     t0 = time.perf_counter()
     base_x = np.asarray(base_ecef_m, dtype=np.float64)
-    tab = build_table(rover, base, ephemerides, base_ecef_m)
+    tab = build_table(rover, base, ephemerides, base_ecef_m, decisions=decisions)
     if tab.t_ns.size == 0 or tab.n_arcs == 0:  # no epoch, or no phase shared with the base
         return None
     start = code_positions(tab, base_x)
@@ -166,6 +168,8 @@ def _arcs_of(res: Resolution, base_x: FloatArray, t0: float) -> Arcs:
         "satellites": [f"G{s:02d}" for s in res.tab.svs],
         "arcs": res.tab.n_arcs,
         "lattice_cycles": res.tab.lattice_cyc,
+        "arcs_on_whole_cycles": (None if res.tab.arc_whole is None
+                                 else int(res.tab.arc_whole.sum())),
         "integer_combinations": lat_res.combinations,
         "fixed_combinations": lat_res.fixed_combinations,
         "stopped_by": lat_res.stopped_by,

@@ -172,7 +172,7 @@ class Lattice:
 
 
 def resolve_lattice(a: FloatArray, q: FloatArray, informed: BoolArray,
-                    step_cyc: float) -> Lattice:
+                    step_cyc: float, whole: BoolArray | None = None) -> Lattice:
     """Pairwise integer bootstrapping of the constants ``a`` (covariance ``q``) on a lattice
     of ``step_cyc`` cycles.
 
@@ -186,6 +186,11 @@ def resolve_lattice(a: FloatArray, q: FloatArray, informed: BoolArray,
     of its arcs is wrong somewhere) and the next pair is tried; the first pair not sure enough
     ends the fixing. The pairs fixed form a spanning forest of the arcs: within a group every
     difference is known, between groups nothing is claimed.
+
+    ``whole``: the arcs two of which differ by whole cycles on a half-cycle lattice
+    (:attr:`~groundstation.solve.integrity.table.PhaseTable.arc_whole`); a pair of them is
+    rounded on the whole-cycle lattice (a float half as sure will do, and half a cycle is no
+    value), any other pair on ``step_cyc``. The decorrelated stage stays on ``step_cyc``.
     """
     na = a.size
     ok = np.flatnonzero(informed)
@@ -195,6 +200,8 @@ def resolve_lattice(a: FloatArray, q: FloatArray, informed: BoolArray,
     x = np.nan_to_num(a[ok]).copy()
     c = np.array(q[np.ix_(ok, ok)], dtype=np.float64, copy=True)
     n = ok.size
+    w_ok = np.zeros(n, dtype=bool) if whole is None else np.asarray(whole, dtype=bool)[ok]
+    pair_step = np.where(w_ok[:, None] & w_ok[None, :], 2.0 * step_cyc, step_cyc)
     group = np.arange(n)
     skip = np.zeros((n, n), dtype=bool)
     fixed_n = 0
@@ -205,16 +212,18 @@ def resolve_lattice(a: FloatArray, q: FloatArray, informed: BoolArray,
         dg = np.diag(c)
         var = dg[:, None] + dg[None, :] - 2.0 * c
         same = group[:, None] == group[None, :]
-        var = np.where(same | skip, np.inf, var)
+        # in lattice steps of each pair: the surest next, whichever its lattice
+        var = np.where(same | skip, np.inf, var) / (pair_step * pair_step)
         k = int(np.argmin(var))
         i, j = divmod(k, n)
         if not np.isfinite(var[i, j]):
             break
-        s = float(np.sqrt(max(var[i, j], 0.0))) / step_cyc
+        step = float(pair_step[i, j])
+        s = float(np.sqrt(max(var[i, j], 0.0)))
         if s >= FIX_SIGMA:
             stopped, first_float = "sigma", s
             break
-        d = (x[i] - x[j]) / step_cyc
+        d = (x[i] - x[j]) / step
         r = round(d)
         if abs(d - r) >= FIX_DISTANCE:
             skip[i, j] = skip[j, i] = True
@@ -225,7 +234,7 @@ def resolve_lattice(a: FloatArray, q: FloatArray, informed: BoolArray,
         cg = c @ g
         den = float(g @ cg)
         gain = cg / den
-        x = x + gain * (r * step_cyc - (x[i] - x[j]))
+        x = x + gain * (r * step - (x[i] - x[j]))
         c = c - np.outer(gain, cg)
         c = 0.5 * (c + c.T)
         gi, gj = group[i], group[j]

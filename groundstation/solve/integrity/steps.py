@@ -80,6 +80,8 @@ def step_tests(tab: PhaseTable, sys: EpochSystem, fl: FloatArcs,
             if rows.size < 2 * SPLIT_MIN_EPOCHS:
                 continue
             gaps = np.flatnonzero(np.diff(t_s[rows]) > 1.5 * nominal_s) + 1
+            if tab.decided is not None:  # a phase carried on a decision: a candidate too
+                gaps = np.union1d(gaps, np.flatnonzero(tab.decided[rows, j]))
             gaps = gaps[(gaps >= SPLIT_MIN_EPOCHS) & (gaps <= rows.size - SPLIT_MIN_EPOCHS)]
             if gaps.size == 0:
                 continue
@@ -110,7 +112,11 @@ def split_arcs(tab: PhaseTable, steps: list[tuple[int, int]]) -> PhaseTable:
         arc[m] = n
         sv.append(int(tab.arc_sv[a]))
         n += 1
-    return replace(tab, arc=arc, n_arcs=n, arc_sv=np.asarray(sv, dtype=np.int64))
+    # a piece split off may have stepped by half a cycle: it is on the half-cycle lattice
+    whole = (None if tab.arc_whole is None
+             else np.concatenate([tab.arc_whole, np.zeros(n - tab.n_arcs, dtype=bool)]))
+    return replace(tab, arc=arc, n_arcs=n, arc_sv=np.asarray(sv, dtype=np.int64),
+                   arc_whole=whole)
 
 
 
@@ -163,6 +169,59 @@ def _patterns(n: int) -> FloatArray:
     return out
 
 
+@lru_cache(maxsize=64)
+def _needed(dof: int) -> tuple[float, float]:
+    """A joint test of ``dof`` degrees of freedom at the tail probability of :data:`STEP_W`:
+    (its threshold, the non-centrality it detects with probability :data:`POWER`)."""
+    # scipy.special's tails are the functions scipy.stats wraps; importing scipy.stats would
+    # cost every solve about 0.6 s of CPU
+    from scipy import optimize, special
+
+    p_tail = 2.0 * float(special.ndtr(-STEP_W))
+    th = float(special.chdtri(dof, p_tail))
+    lam = float(optimize.brentq(
+        lambda lam_: 1.0 - float(special.chndtr(th, dof, lam_)) - POWER, 1e-6, 1e6))
+    return th, lam
+
+
+def unverified(tab: PhaseTable, sys: EpochSystem, fl: FloatArcs) -> list[int]:
+    """Arcs holding a phase carried on a decision of the conditioning (:attr:`PhaseTable.
+    decided`) that the data could not check: a step of half a cycle there (the decision
+    wrong by the smallest amount a squaring loop allows) would not reach the step test's
+    threshold with probability :data:`POWER`, or the test sees a step there.
+
+    The receivers resolve a squaring loop's half cycle from the navigation data; a phase
+    resting on nothing else differs from another such by whole cycles. Our decisions round to
+    half cycles, and one wrong among them leaves the rest of its arc half a cycle off (on the
+    simulator, whose receiver always resolves its half cycles right, every arc half a cycle
+    off the others held such a repair: severity 2, seed 1311, 5 of 108). Checked, they are as
+    good as the receiver's."""
+    if tab.decided is None:
+        return []
+    red, rhs = reduced(sys)
+    arc = np.where(sys.phase_used, tab.arc, -1)
+    na = tab.n_arcs
+    a_hat = np.nan_to_num(fl.a)
+    lam_needed = _needed(1)[1]
+    out: list[int] = []
+    for j in range(arc.shape[1]):
+        col = arc[:, j]
+        for a in np.unique(col[col >= 0]).tolist():
+            rows = np.flatnonzero(col == a)
+            # (a decision at the arc's first phase is its constant's own: nothing tests it)
+            k = np.flatnonzero(tab.decided[rows, j])
+            if k.size == 0:
+                continue
+            cum, bcum = _from_on(red, rhs, arc, rows, j, na)
+            c = cum[k]
+            var = c[:, a] - np.einsum("ki,ij,kj->k", c, fl.q, c)
+            var = np.maximum(var, 1e-12)
+            w = (bcum[k] - c @ a_hat) / np.sqrt(var)
+            if np.any(0.25 * var < lam_needed) or np.any(np.abs(w) > STEP_W):
+                out.append(int(a))
+    return out
+
+
 @dataclass(frozen=True, slots=True)
 class GapDoubt:
     """A gap across which the arcs' continuity is not to be relied on.
@@ -204,8 +263,6 @@ def gap_doubts(tab: PhaseTable, sys: EpochSystem, fl: FloatArcs,
     patterns of one lattice unit (:func:`_patterns`) must give the test the non-centrality
     that detects them with probability :data:`POWER`. A gap that fails either is a gap where
     the whole-arc solution cannot rely on the arcs being continuous."""
-    from scipy import optimize, special
-
     red, rhs = reduced(sys)
     arc = np.where(sys.phase_used, tab.arc, -1)
     t_s = (tab.t_ns - tab.t_ns[0]) / 1e9
@@ -217,18 +274,6 @@ def gap_doubts(tab: PhaseTable, sys: EpochSystem, fl: FloatArcs,
         return []
     na = tab.n_arcs
     a_hat = np.nan_to_num(fl.a)
-    p_tail = 2.0 * float(special.ndtr(-STEP_W))
-    lam_cache: dict[int, tuple[float, float]] = {}
-
-    def needed(dof: int) -> tuple[float, float]:
-        if dof not in lam_cache:
-            th = float(special.chdtri(dof, p_tail))
-            lam = float(optimize.brentq(
-                lambda lam_: 1.0 - float(special.chndtr(th, dof, lam_)) - POWER, 1e-6, 1e6))
-            # scipy.special's tails are the functions scipy.stats wraps; importing scipy.stats
-            # would cost every solve about 0.6 s of CPU
-            lam_cache[dof] = (th, lam)
-        return lam_cache[dof]
 
     # per arc crossing a gap: its normal columns (and right-hand side) summed from each gap on
     cols: dict[int, dict[int, tuple[FloatArray, float]]] = {}
@@ -262,10 +307,10 @@ def gap_doubts(tab: PhaseTable, sys: EpochSystem, fl: FloatArcs,
         wd = basis.T @ w
         try:
             chi2 = float(wd @ np.linalg.solve(vd, wd))
-            weakest, weak = _unverifiable(v, tab.lattice_cyc, lambda m: needed(m)[1])
+            weakest, weak = _unverifiable(v, tab.lattice_cyc, lambda m: _needed(m)[1])
         except np.linalg.LinAlgError:
             chi2, weakest, weak = float("inf"), 0.0, list(range(n))
-        th, lam = needed(n - 1)
+        th, lam = _needed(n - 1)
         if chi2 > th or weakest < lam:
             arcs = tuple(int(a) for a in s_arcs)
             cut = arcs if chi2 > th else tuple(arcs[k] for k in sorted(weak))

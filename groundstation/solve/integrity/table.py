@@ -112,6 +112,13 @@ class PhaseTable:
             1 cycle, or half a cycle when either receiver sends RXM-RAW (a squaring loop's
             half-cycle ambiguity is resolved by the receiver or the conditioning, and a wrong
             resolution leaves a whole arc half a cycle off).
+        arc_whole: on a half-cycle table, the arcs two of which differ by whole cycles: the
+            receivers resolve a squaring loop's half cycle from the navigation data, and
+            where a phase rests on a decision of ours, that decision passed a test that would
+            have seen it half a cycle wrong (``integrity.steps.unverified``); a piece split
+            off an arc is not one. None: every arc on ``lattice_cyc``.
+        decided: (n_ep, n_sv) the rover phases the conditioning carried on a decision of its
+            own (a repair, a continuity across a loss or a gap, a half cycle put back).
     """
 
     t_ns: IntArray
@@ -126,6 +133,8 @@ class PhaseTable:
     base_age_s: FloatArray
     geo: SatGeometry
     lattice_cyc: float = 1.0
+    arc_whole: BoolArray | None = None
+    decided: BoolArray | None = None
 
     @property
     def n_epochs(self) -> int:
@@ -172,6 +181,7 @@ def _troposphere_m(x: FloatArray, los: FloatArray) -> FloatArray:
 def build_table(
     rover: ObsSet, base: ObsSet, ephemerides: Sequence[BroadcastEphemeris],
     base_ecef_m: tuple[float, float, float], approx_ecef_m: FloatArray | None = None,
+    decisions: Sequence[tuple[int, str]] | None = None,
 ) -> PhaseTable:
     """The table of a rover (conditioned observations) against its base.
 
@@ -182,6 +192,11 @@ def build_table(
         approx_ecef_m: the rover's approximate position per rover epoch (n_ep, 3), for the
             elevation mask; default the base's (a baseline of kilometres changes an elevation
             by hundredths of a degree).
+        decisions: (GPS ns, satellite name) of every rover phase the conditioning carried on
+            a decision of its own (:attr:`~groundstation.solve.conditioning.
+            ConditioningReport.decisions`): marked in :attr:`PhaseTable.decided`, tested as
+            possible steps; given on a half-cycle table, every arc starts on the whole-cycle
+            lattice (:attr:`PhaseTable.arc_whole`) until a decision in it fails its test.
     """
     svs = sorted(set(rover.prn[(rover.sys == "G")].tolist())
                  & set(base.prn[(base.sys == "G")].tolist()))
@@ -235,10 +250,30 @@ def build_table(
         arc_sv = uniq[:, 0].astype(np.int64)
     else:
         arc_sv = np.zeros(0, dtype=np.int64)
+    lattice = 0.5 if "RXM-RAW" in (rover.source, base.source) else 1.0
+    decided = np.zeros((n_ep, n_sv), dtype=bool)
+    col = {f"G{sv:02d}": j for j, sv in enumerate(svs)}
+    row_of = {int(t): i for i, t in enumerate(r.t_ns.tolist())}
+    for t, name in decisions or ():
+        if name in col and int(t) in row_of:
+            decided[row_of[int(t)], col[name]] = True
+    whole = None
+    if lattice < 1.0 and decisions is not None:
+        whole = np.ones(int(arc_sv.size), dtype=bool)
+        # An arc rests on every decision made in its rover lock before its last phase: one
+        # before its first phase in the table, or at a phase the table does not take, shifts
+        # it untested.
+        for a in range(int(arc_sv.size)):
+            j = int(arc_sv[a])
+            rows = np.flatnonzero(arc[:, j] == a)
+            lock = np.flatnonzero((rc[:, j] == uniq[a, 1]) & ~np.isnan(r.phase[:, j]))
+            lock = lock[lock <= rows[-1]]
+            if np.any(decided[np.setdiff1d(lock, rows), j]):
+                whole[a] = False
     return PhaseTable(
         t_ns=r.t_ns, svs=tuple(svs), sd_cyc=sd, sd_code_m=sdc,
         sigma_cyc=PHASE_SIGMA_45_CYC * scale, sigma_code_m=CODE_SIGMA_45_M * scale,
         arc=arc, n_arcs=int(arc_sv.size), arc_sv=arc_sv,
         base_age_s=np.where(near, age, np.nan), geo=rover_geo,
-        lattice_cyc=0.5 if "RXM-RAW" in (rover.source, base.source) else 1.0,
+        lattice_cyc=lattice, arc_whole=whole, decided=decided,
     )
