@@ -1,7 +1,6 @@
 """The integrity stage on a real flight as a LEA-6T would have sent it (GPS L1 RXM-RAW, no
-lock times), judged against the untouched u-blox 8 recording's own fixed solution: the check
-that carries checked fixes along the arcs confirms what it can, and nothing it confirms is
-wrong."""
+lock times), judged against the untouched u-blox 8 recording's own fixed solution: nothing
+fixed is wrong, and nothing the check that carries checked fixes along the arcs confirms."""
 
 from __future__ import annotations
 
@@ -48,7 +47,10 @@ def test_fixes_confirmed_along_the_arcs_are_right(
              if mp.quality[k] == Q_FIX and m.number in truth]
     err = np.array([np.linalg.norm(mp.ecef_m[k] - truth[n]) for k, n in fixed])
     by_arcs = np.array([mp.check[k] == C_BY_ARCS for k, _ in fixed])
-    assert len(fixed) >= 260, len(fixed)  # 277; 248 without the check
-    assert by_arcs.sum() >= 15, by_arcs.sum()  # 27 on this flight
+    # 307; 277 until 2026-11-29, 27 of them carried along the arcs (248 without that check); since
+    # the arcs checked whole take the whole-cycle lattice, the whole-arc solution fixes those
+    # epochs itself (1 166 epochs, as on the untouched recording; 660 before) and the carry
+    # has nothing left to confirm here (its rules: tests/unit/test_integrity_carry.py)
+    assert len(fixed) >= 290, len(fixed)
     assert err.max() <= 0.10, f"a fixed camera position {err.max():.3f} m off"
-    assert err[by_arcs].max() <= 0.10
+    assert not by_arcs.any() or err[by_arcs].max() <= 0.10
