@@ -243,6 +243,15 @@ INTEGRITY_TEXT = (
 """The rule, as the report states it (docs/integrity.md has the details)."""
 
 
+def _whole_arcs(arcs: dict[str, Any]) -> str:
+    """On a half-cycle lattice: how many arcs were checked whole (their pairs on whole
+    cycles), or nothing."""
+    n = arcs.get("arcs_on_whole_cycles")
+    if n is None:
+        return ""
+    return f", 1 cycle between the {n} arcs whose half cycles were checked"
+
+
 def _gap_splits(gaps: dict[str, Any]) -> str:
     """The radio gaps across which arcs were split, in words."""
     found = int(gaps.get("steps_found", 0))
@@ -293,7 +302,8 @@ def _integrity(inp: ReportInput) -> str:
         ("Whole-arc solution", _e(
             f"{arcs.get('arcs')} arcs of GPS phase; {arcs.get('fixed_combinations')} of "
             f"{arcs.get('integer_combinations')} integer combinations fixed (lattice "
-            f"{arcs.get('lattice_cycles')} cycle; stopped: {arcs.get('stopped_by')}); "
+            f"{arcs.get('lattice_cycles')} cycle{_whole_arcs(arcs)}; stopped: "
+            f"{arcs.get('stopped_by')}); "
             f"{arcs.get('epochs_fixed_precise')} epochs fixed by it; {len(steps)} slip(s) "
             f"nobody flagged found and split off; {_gap_splits(gaps)}"
             + _judged_again(arcs))),
