@@ -206,8 +206,11 @@ def unverified(tab: PhaseTable, sys: EpochSystem, fl: FloatArcs) -> list[int]:
     out: list[int] = []
     for j in range(arc.shape[1]):
         col = arc[:, j]
-        for a in np.unique(col[col >= 0]).tolist():
+        for a in np.unique(tab.arc[:, j][tab.arc[:, j] >= 0]).tolist():
             rows = np.flatnonzero(col == a)
+            if np.any(tab.decided[(tab.arc[:, j] == a) & (col != a), j]):
+                out.append(int(a))  # a decision at a phase the system did not take
+                continue
             # (a decision at the arc's first phase is its constant's own: nothing tests it)
             k = np.flatnonzero(tab.decided[rows, j])
             if k.size == 0:
