@@ -664,6 +664,23 @@ def _keep_epochs(obs: Any, keep_t: set[int]) -> Any:
                    do_hz=obs.do_hz[rows], cno_dbhz=obs.cno_dbhz[rows], lli=lli[rows])
 
 
+def _moved_on(decisions: list[tuple[int, str, int]], obs: Any) -> list[tuple[int, str, int]]:
+    """The conditioning's decisions on observations thinned to fewer epochs: one at a dropped
+    epoch moves to the satellite's next phase kept (its step shows there), as a restart does
+    in :func:`_keep_epochs`; a put-back keeps the first phase it moved."""
+    g = (obs.sys == "G") & (obs.cp_cyc != 0.0)
+    times: dict[str, npt.NDArray[np.int64]] = {}
+    for sv in sorted(set(obs.prn[g].tolist())):
+        times[f"G{sv:02d}"] = np.sort(obs.t_gps_ns[obs.epoch[g & (obs.prn == sv)]])
+    out = []
+    for t, name, first in decisions:
+        ts = times.get(name)
+        k = int(np.searchsorted(ts, t)) if ts is not None else 0
+        if ts is not None and k < ts.size:
+            out.append((int(ts[k]), name, first if first < t else int(ts[k])))
+    return out
+
+
 def _bridges(clean: Any, faulty: Any) -> dict[str, int]:
     """The conditioning's bridges across the faulty stream's radio gaps, judged by the clean
     stream (the same receiver's phase, every epoch there): per satellite and pair of
@@ -723,19 +740,21 @@ def why_gaps(work: Path, name: str, fault_seeds: list[int]) -> list[dict[str, An
     (work / "base.ubx").write_bytes(rewrite(src / f"{base}.ubx.gz", RewriteConfig()).data)
     base_obs, base_ephs = _observations(work / "base.ubx", work / "base")
 
-    def stream(seed: int) -> tuple[Any, list[Any]]:
+    def stream(seed: int) -> tuple[Any, list[Any], list[tuple[int, str, int]]]:
         faults = FaultConfig.none() if seed == 0 else FaultConfig.seed()
         rv = work / f"rover-{seed}.ubx"
         rv.write_bytes(rewrite(src / f"{rover}.ubx.gz",
                                RewriteConfig(faults=faults, seed=max(seed, 1))).data)
         obs, ephs = _observations(rv, work / f"rover-{seed}")
         approx = (float(base_xyz[0]), float(base_xyz[1]), float(base_xyz[2]))
-        return conditioning.condition(obs, ephs, approx)[0], ephs
+        out, rep = conditioning.condition(obs, ephs, approx)
+        return out, ephs, rep.decisions
 
-    def solved(obs: Any, ephs: list[Any]) -> dict[str, Any]:
+    def solved(obs: Any, ephs: list[Any], decisions: list[tuple[int, str, int]],
+               ) -> dict[str, Any]:
         have = set(ephs)
         arcs = arcs_stage(obs, base_obs, ephs + [e for e in base_ephs if e not in have],
-                          base_xyz)
+                          base_xyz, decisions)
         if arcs is None:
             return {"epochs": 0}
         doubts = arcs.resolution.gap_doubts
@@ -744,15 +763,17 @@ def why_gaps(work: Path, name: str, fault_seeds: list[int]) -> list[dict[str, An
                 "gaps_contradicted": sum(d.contradicted for d in doubts),
                 "gaps_could_hide": sum(not d.contradicted for d in doubts)}
 
-    clean, clean_ephs = stream(0)
-    rows = [{"flight": name, "seed": 0, "stream": "no faults", **solved(clean, clean_ephs)}]
+    clean, clean_ephs, clean_dec = stream(0)
+    rows = [{"flight": name, "seed": 0, "stream": "no faults",
+             **solved(clean, clean_ephs, clean_dec)}]
     for seed in fault_seeds:
-        faulty, ephs = stream(seed)
+        faulty, ephs, dec = stream(seed)
         kept = set(faulty.t_gps_ns.tolist())
+        thinned = _keep_epochs(clean, kept)
         rows.append({"flight": name, "seed": seed, "stream": "no faults, link's epochs only",
-                     **solved(_keep_epochs(clean, kept), clean_ephs)})
+                     **solved(thinned, clean_ephs, _moved_on(clean_dec, thinned))})
         rows.append({"flight": name, "seed": seed, "stream": "seed link",
-                     **solved(faulty, ephs), **_bridges(clean, faulty)})
+                     **solved(faulty, ephs, dec), **_bridges(clean, faulty)})
     for r in rows:
         print(r, flush=True)
     return rows

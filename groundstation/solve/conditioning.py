@@ -131,11 +131,12 @@ class ConditioningReport:
     """(epoch time GPS ns, satellite) of every flagged loss."""
     applied: bool = False
     note: str = ""
-    decisions: list[tuple[int, str]] = field(default_factory=list)
-    """(epoch time GPS ns, satellite) of every phase carried on a decision of ours: a jump
-    repaired, a continuity taken across a loss, a gap or a change of the half-cycle flag, a
-    half cycle put back. The whole-arc solution tests each as a possible step
-    (``integrity.steps``)."""
+    decisions: list[tuple[int, str, int]] = field(default_factory=list)
+    """(epoch time GPS ns, satellite, time of the first phase it moved) of every phase carried
+    on a decision of ours: a jump repaired, a continuity taken across a loss, a gap or a change
+    of the half-cycle flag (each moves that phase and the later ones: the third is the first),
+    a half cycle put back (it moves the lock's phases before it: the third is the lock's
+    start). The whole-arc solution tests each as a possible step (``integrity.steps``)."""
 
     def totals(self) -> dict[str, int]:
         keys = ("receiver_slips", "hidden_found", "repaired", "flagged", "half_resolved",
@@ -415,7 +416,7 @@ def condition(
                     # The geometric fit failed, but the receiver saw no loss and the Doppler
                     # sees no jump: keep the phase rather than reset every satellite at once.
                     rep.satellites[names[j]].kept_by_doppler += 1
-                    rep.decisions.append((int(t_ns[e]), names[j]))
+                    rep.decisions.append((int(t_ns[e]), names[j], int(t_ns[e])))
                     continue
                 _bridge(e, p, j, w, float(sig[i]), good and agree, lli, out_lli,
                         corr, lock_start, resolved, out_cp, rep, names[j], t_ns)
@@ -472,12 +473,12 @@ def _bridge(
         out_lli[lock_start[j]:e, j] &= ~LLI_HALF_CYCLE
         resolved[j] = True
         sr.half_resolved += 1
-        rep.decisions.append((int(t_ns[e]), name))
+        rep.decisions.append((int(t_ns[e]), name, int(t_ns[lock_start[j]])))
         return
     if abs(w) < noise and good and sig < MAX_JUMP_SIGMA_CYC:
         if flagged:
             sr.repaired += 1
-        rep.decisions.append((int(t_ns[e]), name))
+        rep.decisions.append((int(t_ns[e]), name, int(t_ns[e])))
         return
     if determined:
         if not flagged and not half_cleared:
@@ -485,7 +486,7 @@ def _bridge(
         corr[j] -= half
         sr.repaired += 1
         rep.repairs.append((int(t_ns[p]), int(t_ns[e]), name, half, not flagged))
-        rep.decisions.append((int(t_ns[e]), name))
+        rep.decisions.append((int(t_ns[e]), name, int(t_ns[e])))
         return
     if not flagged and good and np.isfinite(w) and abs(w) >= noise:
         # A jump measured (a good fit) where the receiver said nothing: hidden by a gap. A jump

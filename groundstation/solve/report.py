@@ -244,12 +244,12 @@ INTEGRITY_TEXT = (
 
 
 def _whole_arcs(arcs: dict[str, Any]) -> str:
-    """On a half-cycle lattice: how many arcs were checked whole (their pairs on whole
-    cycles), or nothing."""
+    """On a half-cycle lattice: how many arcs were checked whole (no decision of the
+    conditioning they rest on left untested: their pairs on whole cycles), or nothing."""
     n = arcs.get("arcs_on_whole_cycles")
     if n is None:
         return ""
-    return f", 1 cycle between the {n} arcs whose half cycles were checked"
+    return f", 1 cycle between the {n} arcs checked whole"
 
 
 def _gap_splits(gaps: dict[str, Any]) -> str:

@@ -217,3 +217,54 @@ def test_an_arc_whose_continuity_nothing_checks_is_split_alone(stepped: tuple[in
     assert d.cut == (6,) and len(d.arcs) == 7
     assert all(np.unique(res.tab.arc[:, j]).size == 1 for j in range(6))
     assert wrong == 0 and fixed >= 0.99 * tab.n_epochs
+
+
+def _decided(tab: PhaseTable, at_s: float, sats: tuple[int, ...], put_back: bool = False,
+             ) -> PhaseTable:
+    """``tab`` with the conditioning's decisions at the first epoch from ``at_s`` on for
+    ``sats`` (put-backs: they moved the phases before them), every arc checked whole so far."""
+    decided = np.zeros(tab.arc.shape, dtype=bool)
+    row = int(np.searchsorted(tab.t_ns, at_s * 1e9))
+    decided[row, list(sats)] = True
+    return replace(tab, decided=decided, put_back=decided if put_back else None,
+                   arc_whole=np.ones(tab.n_arcs, dtype=bool))
+
+
+def test_arcs_whose_decisions_pass_their_test_are_checked_whole() -> None:
+    tab, x = _flight_with(7, [], 600.0)
+    res = arcs.resolve(_decided(tab, 200.0, (0, 1)), x + 0.5)
+    assert res.tab.arc_whole is not None and res.tab.arc_whole.all()
+    assert res.lattice.contradictions == 0
+
+
+def test_a_decision_half_a_cycle_wrong_takes_its_arc_off_the_whole_cycle_lattice() -> None:
+    tab, x = _flight_with(7, [], 600.0)
+    after = tab.t_ns >= 200e9
+    tab = replace(tab, sd_cyc=tab.sd_cyc + np.where(after[:, None], [0.5] + [0.0] * 6, 0.0))
+    res = arcs.resolve(_decided(tab, 200.0, (0, 1)), x + 0.5)
+    whole = res.tab.arc_whole
+    assert whole is not None
+    # G1's arc was split at its decision: both of its parts stay on half cycles (the
+    # later one is a piece; the earlier one is its own arc again and checked whole); G2's
+    # decision passed
+    g1 = [a for a in range(res.tab.n_arcs) if res.tab.arc_sv[a] == 0]
+    assert len(g1) == 2 and whole[min(g1)] and not whole[max(g1)]
+    assert whole[1] and whole[2:7].all()
+    err = np.linalg.norm(res.solution.x - x, axis=1)
+    assert not np.any(res.solution.fixed & (err > 0.05))
+
+
+def test_a_half_cycle_put_back_wrongly_leaves_the_part_before_it_on_half_cycles() -> None:
+    # A put-back moves the lock's phases *before* it: when it was wrong, the part before the
+    # step is the one off, and the cut there must not leave it checked whole.
+    tab, x = _flight_with(7, [], 600.0)
+    before = tab.t_ns < 200e9
+    tab = replace(tab, sd_cyc=tab.sd_cyc + np.where(before[:, None], [0.5] + [0.0] * 6, 0.0))
+    res = arcs.resolve(_decided(tab, 200.0, (0,), put_back=True), x + 0.5)
+    whole = res.tab.arc_whole
+    assert whole is not None
+    g1 = [a for a in range(res.tab.n_arcs) if res.tab.arc_sv[a] == 0]
+    assert len(g1) == 2 and not whole[g1].any()
+    assert whole[1:7].all()
+    err = np.linalg.norm(res.solution.x - x, axis=1)
+    assert not np.any(res.solution.fixed & (err > 0.05))

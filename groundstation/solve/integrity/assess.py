@@ -123,7 +123,7 @@ class Arcs:
 def arcs_stage(
     rover: ObsSet, base: ObsSet, ephemerides: Sequence[BroadcastEphemeris],
     base_ecef_m: tuple[float, float, float],
-    decisions: Sequence[tuple[int, str]] | None = None,
+    decisions: Sequence[tuple[int, str, int]] | None = None,
 ) -> Arcs | None:
     """Our whole-arc solution (:func:`groundstation.solve.integrity.arcs.resolve`, smoothed), from
     the observations alone: linearised at the code's positions, so it can run before the

@@ -68,8 +68,6 @@ def step_tests(tab: PhaseTable, sys: EpochSystem, fl: FloatArcs,
     """
     red, rhs = reduced(sys)
     arc = np.where(sys.phase_used, tab.arc, -1)
-    na = tab.n_arcs
-    a_hat = np.nan_to_num(fl.a)
     n_ep, n_sv = arc.shape
     t_s = (tab.t_ns - tab.t_ns[0]) / 1e9
     out: list[tuple[int, int, float, float]] = []
@@ -85,18 +83,24 @@ def step_tests(tab: PhaseTable, sys: EpochSystem, fl: FloatArcs,
             gaps = gaps[(gaps >= SPLIT_MIN_EPOCHS) & (gaps <= rows.size - SPLIT_MIN_EPOCHS)]
             if gaps.size == 0:
                 continue
-            cum, bcum = _from_on(red, rhs, arc, rows, j, na)
-            c = cum[gaps]  # (n_gaps, na)
-            g = bcum[gaps] - c @ a_hat
-            nss = c[:, a]
-            var = nss - np.einsum("ki,ij,kj->k", c, fl.q, c)
-            var = np.maximum(var, 1e-12)
-            w = g / np.sqrt(var)
-            size = g / var
+            w, info, g = _step_w(red, rhs, arc, rows, j, a, gaps, fl)
+            size = g / info
             k = int(np.argmax(np.abs(w)))
             if abs(w[k]) > STEP_W and abs(size[k]) > SPLIT_MIN_CYC:
                 out.append((a, int(rows[gaps[k]]), float(w[k]), float(size[k])))
     return out
+
+
+def _step_w(red: FloatArray, rhs: FloatArray, arc: IntArray, rows: IntArray, j: int, a: int,
+            at: IntArray, fl: FloatArcs) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Steps of arc ``a`` (slot ``j``, at ``rows``) from each of its rows ``at`` on, tested
+    against the whole-flight float system: (Baarda's w, the step's information [1/cycle^2]:
+    its variance's inverse, the step's right-hand side)."""
+    cum, bcum = _from_on(red, rhs, arc, rows, j, fl.a.size)
+    c = cum[at]  # (n_at, na)
+    g = bcum[at] - c @ np.nan_to_num(fl.a)
+    info = np.maximum(c[:, a] - np.einsum("ki,ij,kj->k", c, fl.q, c), 1e-12)
+    return g / np.sqrt(info), info, g
 
 
 def split_arcs(tab: PhaseTable, steps: list[tuple[int, int]]) -> PhaseTable:
@@ -112,15 +116,23 @@ def split_arcs(tab: PhaseTable, steps: list[tuple[int, int]]) -> PhaseTable:
         arc[m] = n
         sv.append(int(tab.arc_sv[a]))
         n += 1
-    # a piece split off may have stepped by half a cycle: it is on the half-cycle lattice
+    # a piece split off may have stepped by half a cycle: it is on the half-cycle lattice; so
+    # is the part before a cut at a half cycle put back (that moved the phases before it)
     whole = (None if tab.arc_whole is None
              else np.concatenate([tab.arc_whole, np.zeros(n - tab.n_arcs, dtype=bool)]))
+    if whole is not None and tab.put_back is not None:
+        for a, row in steps:
+            if tab.put_back[row, int(tab.arc_sv[a])]:
+                whole[a] = False
     return replace(tab, arc=arc, n_arcs=n, arc_sv=np.asarray(sv, dtype=np.int64),
                    arc_whole=whole)
 
 
 
 
+HALF_CYCLE = 0.5
+"""The smallest amount by which a decision of the conditioning can be wrong [cycles]: a
+squaring loop's half cycle."""
 POWER = 0.8
 """Probability with which a step must be detected for an arc's continuity across a gap to be
 relied on (Baarda's reliability; the usual 80 %)."""
@@ -200,27 +212,21 @@ def unverified(tab: PhaseTable, sys: EpochSystem, fl: FloatArcs) -> list[int]:
         return []
     red, rhs = reduced(sys)
     arc = np.where(sys.phase_used, tab.arc, -1)
-    na = tab.n_arcs
-    a_hat = np.nan_to_num(fl.a)
     lam_needed = _needed(1)[1]
     out: list[int] = []
     for j in range(arc.shape[1]):
         col = arc[:, j]
         for a in np.unique(tab.arc[:, j][tab.arc[:, j] >= 0]).tolist():
             rows = np.flatnonzero(col == a)
-            if np.any(tab.decided[(tab.arc[:, j] == a) & (col != a), j]):
-                out.append(int(a))  # a decision at a phase the system did not take
-                continue
-            # (a decision at the arc's first phase is its constant's own: nothing tests it)
             k = np.flatnonzero(tab.decided[rows, j])
+            if (np.any(tab.decided[(tab.arc[:, j] == a) & (col != a), j])  # phase not taken
+                    or (k.size and k[0] == 0)):  # the arc's first: its constant's own
+                out.append(int(a))
+                continue
             if k.size == 0:
                 continue
-            cum, bcum = _from_on(red, rhs, arc, rows, j, na)
-            c = cum[k]
-            var = c[:, a] - np.einsum("ki,ij,kj->k", c, fl.q, c)
-            var = np.maximum(var, 1e-12)
-            w = (bcum[k] - c @ a_hat) / np.sqrt(var)
-            if np.any(0.25 * var < lam_needed) or np.any(np.abs(w) > STEP_W):
+            w, info, _ = _step_w(red, rhs, arc, rows, j, a, k, fl)
+            if np.any(HALF_CYCLE**2 * info < lam_needed) or np.any(np.abs(w) > STEP_W):
                 out.append(int(a))
     return out
 

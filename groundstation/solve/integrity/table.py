@@ -119,6 +119,8 @@ class PhaseTable:
             off an arc is not one. None: every arc on ``lattice_cyc``.
         decided: (n_ep, n_sv) the rover phases the conditioning carried on a decision of its
             own (a repair, a continuity across a loss or a gap, a half cycle put back).
+        put_back: (n_ep, n_sv) those where it put a half cycle back on the lock's phases
+            before them (a wrong one moved the phases before the step, not after).
     """
 
     t_ns: IntArray
@@ -135,6 +137,7 @@ class PhaseTable:
     lattice_cyc: float = 1.0
     arc_whole: BoolArray | None = None
     decided: BoolArray | None = None
+    put_back: BoolArray | None = None
 
     @property
     def n_epochs(self) -> int:
@@ -181,7 +184,7 @@ def _troposphere_m(x: FloatArray, los: FloatArray) -> FloatArray:
 def build_table(
     rover: ObsSet, base: ObsSet, ephemerides: Sequence[BroadcastEphemeris],
     base_ecef_m: tuple[float, float, float], approx_ecef_m: FloatArray | None = None,
-    decisions: Sequence[tuple[int, str]] | None = None,
+    decisions: Sequence[tuple[int, str, int]] | None = None,
 ) -> PhaseTable:
     """The table of a rover (conditioned observations) against its base.
 
@@ -192,11 +195,13 @@ def build_table(
         approx_ecef_m: the rover's approximate position per rover epoch (n_ep, 3), for the
             elevation mask; default the base's (a baseline of kilometres changes an elevation
             by hundredths of a degree).
-        decisions: (GPS ns, satellite name) of every rover phase the conditioning carried on
-            a decision of its own (:attr:`~groundstation.solve.conditioning.
-            ConditioningReport.decisions`): marked in :attr:`PhaseTable.decided`, tested as
-            possible steps; given on a half-cycle table, every arc starts on the whole-cycle
-            lattice (:attr:`PhaseTable.arc_whole`) until a decision in it fails its test.
+        decisions: (GPS ns, satellite name, first phase moved) of every rover phase the
+            conditioning carried on a decision of its own (:attr:`~groundstation.solve.
+            conditioning.ConditioningReport.decisions`): marked in :attr:`PhaseTable.decided`,
+            tested as possible steps. Given on a half-cycle table, an arc is on the whole-cycle
+            lattice (:attr:`PhaseTable.arc_whole`) unless a decision it rests on falls outside
+            its own phases; the whole-arc solution takes that away too from an arc where a
+            decision fails its test (``integrity.steps.unverified``).
     """
     svs = sorted(set(rover.prn[(rover.sys == "G")].tolist())
                  & set(base.prn[(base.sys == "G")].tolist()))
@@ -252,16 +257,22 @@ def build_table(
         arc_sv = np.zeros(0, dtype=np.int64)
     lattice = 0.5 if "RXM-RAW" in (rover.source, base.source) else 1.0
     decided = np.zeros((n_ep, n_sv), dtype=bool)
+    put_back = np.zeros((n_ep, n_sv), dtype=bool)
+    backs: list[tuple[int, int, int]] = []  # (first row moved, row, column) of put-backs
     col = {f"G{sv:02d}": j for j, sv in enumerate(svs)}
-    row_of = {int(t): i for i, t in enumerate(r.t_ns.tolist())}
-    for t, name in decisions or ():
-        if name in col and int(t) in row_of:
-            decided[row_of[int(t)], col[name]] = True
+    for t, name, t_first in decisions or ():
+        e = int(np.searchsorted(r.t_ns, t))
+        if name not in col or e >= n_ep or int(r.t_ns[e]) != int(t):
+            continue
+        decided[e, col[name]] = True
+        if t_first < t:
+            put_back[e, col[name]] = True
+            backs.append((int(np.searchsorted(r.t_ns, t_first)), e, col[name]))
     whole = None
     if lattice < 1.0 and decisions is not None:
         whole = np.ones(int(arc_sv.size), dtype=bool)
         # An arc rests on every decision made in its rover lock before its last phase: one
-        # before its first phase in the table, or at a phase the table does not take, shifts
+        # before its first phase in the table, or at a phase the table does not take, moved
         # it untested.
         for a in range(int(arc_sv.size)):
             j = int(arc_sv[a])
@@ -270,10 +281,17 @@ def build_table(
             lock = lock[lock <= rows[-1]]
             if np.any(decided[np.setdiff1d(lock, rows), j]):
                 whole[a] = False
+        # ... and on every half cycle put back on its phases: tested only where the put-back
+        # falls on one of its own phases (the step there)
+        for first, e, j in backs:
+            moved = arc[first:e, j]
+            for a in np.unique(moved[moved >= 0]).tolist():
+                if arc[e, j] != a:
+                    whole[a] = False
     return PhaseTable(
         t_ns=r.t_ns, svs=tuple(svs), sd_cyc=sd, sd_code_m=sdc,
         sigma_cyc=PHASE_SIGMA_45_CYC * scale, sigma_code_m=CODE_SIGMA_45_M * scale,
         arc=arc, n_arcs=int(arc_sv.size), arc_sv=arc_sv,
         base_age_s=np.where(near, age, np.nan), geo=rover_geo,
-        lattice_cyc=lattice, arc_whole=whole, decided=decided,
+        lattice_cyc=lattice, arc_whole=whole, decided=decided, put_back=put_back,
     )
