@@ -291,8 +291,11 @@ class MarkTracker:
         if r.new_rising and rising is not None and rising not in self._seen_rising:
             self._seen_rising.add(rising)
             op = self._open
+            # The rising edge of the open mark's own pulse: after its falling edge, and
+            # counted with it (a record of a later pulse, whose falling-edge record and the
+            # open pulse's rising-edge record were lost on the link, is a pulse of its own).
             if op is not None and op[1].falling_t_gps_ns is not None and (
-                rising >= op[1].falling_t_gps_ns
+                rising >= op[1].falling_t_gps_ns and mark_number(r) == op[1].number
             ):
                 m = op[1]
                 done = _make(r, m.falling_t_gps_ns, rising, m.lost_before)

@@ -41,6 +41,41 @@ def test_tracker_pairs_numbers_and_counts() -> None:
     assert [u.recovered for u in ups] == [False, False, False, False, False, True, False]
 
 
+def _pulse_records(n: int, rising_first: bool) -> list[TimeMark]:
+    """The two TIM-TM2 records of pulse ``n`` (count = rising edges so far): a camera whose
+    contact falls first (falling at 2n s, rising 15 ms later), or one whose pulse rises first
+    (rising at 2n s, falling 1 s later, as in the jdesbonnet recordings)."""
+    if rising_first:
+        r, f, f_before = 2 * n * S, 2 * n * S + S, 2 * (n - 1) * S + S
+        return [rec(n, f_before, r, False, True), rec(n, f, r, True, False)]
+    f, r, r_before = 2 * n * S, 2 * n * S + 15_000_000, 2 * (n - 1) * S + 15_000_000
+    return [rec(n, f, r_before, True, False), rec(n + 1, f, r, False, True)]
+
+
+@pytest.mark.parametrize("rising_first", [False, True])
+def test_a_later_pulses_rising_record_does_not_complete_an_earlier_mark(
+        rising_first: bool) -> None:
+    """The records between pulse 3's falling-edge record and pulse 5's rising-edge record were
+    lost on the link (pulse 3's rising edge, pulse 4's falling edge). Pulse 5's rising-edge
+    record must not complete pulse 3's mark: that named pulse 3's position mark 4 and lost
+    pulse 4, whose falling edge the record repeats (seen on the 2018-10-09 flight replayed
+    through the seed link: 3-10 photos per flight matched to the pulse before theirs)."""
+    records = [r for n in range(1, 7) for r in _pulse_records(n, rising_first)]
+    if rising_first:
+        # pulse 3's falling record arrives; pulse 4's two records are lost
+        lost = records[6:8]
+    else:
+        # pulse 3's rising record and pulse 4's falling record are lost
+        lost = records[5:7]
+    got, tracker = marks.track_marks([r for r in records if r not in lost])
+    fall = {m.number: m.falling_t_gps_ns for m in got}
+    # (a rising-first stream's first record repeats the falling edge of the pulse before)
+    assert [m.number for m in got] == list(range(0 if rising_first else 1, 7))
+    for n in range(1, 7):  # each pulse under its own number, at its own falling edge
+        assert fall[n] == (2 * n * S + S if rising_first else 2 * n * S)
+    assert tracker.missed == 0
+
+
 @pytest.mark.parametrize(("edge", "want"), [
     ("falling", 10 * S + 5), ("both", 10 * S + 5), ("rising", 10 * S + 20 + 5),
     ("mid", 10 * S + 10 + 5),
