@@ -65,6 +65,10 @@ class RinexOptions:
     marks: marks_mod.MarkEdge = "falling"
     shutter_delay_ns: int = 0
     marker: str | None = None
+    events: bool = True
+    """Write each mark as an event epoch (flag 5) of the observations; the marks are in
+    ``<stem>.marks.csv`` either way. The PPK engine's copy leaves them out
+    (:func:`groundstation.solve.engine.run_engine`)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -296,7 +300,8 @@ def convert(
         int(obs.t_gps_ns[0]))
     tms, marks_implausible = _time_marks(data, index, leap_by_offset, times)
     mark_list = marks_mod.build_marks(tms)
-    events = marks_mod.event_times_ns(mark_list, opt.marks, opt.shutter_delay_ns)
+    events = (marks_mod.event_times_ns(mark_list, opt.marks, opt.shutter_delay_ns)
+              if opt.events else [])
     rec_type, rec_vers = _receiver(data, index, obs.source)
     approx = _approx_position(data, index, times) or (0.0, 0.0, 0.0)
     week_hint = int(obs.t_gps_ns[0] // gpstime.NS_PER_WEEK)
@@ -310,7 +315,8 @@ def convert(
     comments = (
         f"converted from {src.name}",
         f"observations: {obs.source}; LLI bit 0 slip, bit 1 half cycle unresolved",
-        f"events (flag 5): {opt.marks} edge + shutter delay {opt.shutter_delay_ns / 1e6:g} ms",
+        (f"events (flag 5): {opt.marks} edge + shutter delay {opt.shutter_delay_ns / 1e6:g} ms"
+         if opt.events else f"events: none written (the marks are in {stem}.marks.csv)"),
     )
     info = HeaderInfo(
         marker=opt.marker or stem,

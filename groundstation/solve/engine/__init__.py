@@ -130,7 +130,13 @@ def _to_rinex(
         if progress is not None:
             progress(f"rinex {path.name}: {stage}", frac)
 
-    res = rinex.convert(path, work, rinex.RinexOptions(version="3.04"), prog, hook)
+    # No event epochs: RTKLIB's RINEX reader (rinex.c, readrnxobs) reads the epoch after an
+    # event and drops it when its spacing from the epoch before differs from the spacing
+    # before that, then takes the next; after a radio gap every epoch that follows a mark can
+    # go that way, one in two on a 1 Hz flight with a photo every 2 s. The engine's positions
+    # at the marks are not used (the marks are interpolated from its trajectory).
+    res = rinex.convert(path, work, rinex.RinexOptions(version="3.04", events=False), prog,
+                        hook)
     return res.obs_path, [res.nav_path] if res.ephemerides or res.other_ephemerides else []
 
 
