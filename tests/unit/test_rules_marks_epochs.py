@@ -59,14 +59,11 @@ def test_a_later_pulses_rising_record_does_not_complete_an_earlier_mark(
     lost on the link (pulse 3's rising edge, pulse 4's falling edge). Pulse 5's rising-edge
     record must not complete pulse 3's mark: that named pulse 3's position mark 4 and lost
     pulse 4, whose falling edge the record repeats (seen on the 2018-10-09 flight replayed
-    through the seed link: 3-10 photos per flight matched to the pulse before theirs)."""
+    through the seed link: 3-13 photos per flight matched to the pulse before theirs)."""
     records = [r for n in range(1, 7) for r in _pulse_records(n, rising_first)]
-    if rising_first:
-        # pulse 3's falling record arrives; pulse 4's two records are lost
-        lost = records[6:8]
-    else:
-        # pulse 3's rising record and pulse 4's falling record are lost
-        lost = records[5:7]
+    # rising first: pulse 4's two records lost (pulse 3's falling record arrived);
+    # falling first: pulse 3's rising record and pulse 4's falling record lost
+    lost = records[6:8] if rising_first else records[5:7]
     got, tracker = marks.track_marks([r for r in records if r not in lost])
     fall = {m.number: m.falling_t_gps_ns for m in got}
     # (a rising-first stream's first record repeats the falling edge of the pulse before)
