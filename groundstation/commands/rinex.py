@@ -44,6 +44,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="MS",
         help="added to every event time (camera shutter lag after the hot-shoe edge)",
     )
+    parser.add_argument("--no-events", action="store_true",
+                        help="write no event epochs (the marks stay in the marks table): "
+                        "RTKLIB's RINEX reader drops the epoch after an event where the "
+                        "epochs' spacing changed, as after radio gaps")
     parser.add_argument("--marker", default=None,
                         help="MARKER NAME, 1 to 60 characters, written in ASCII (accents taken "
                         "off; default: input stem)")
@@ -85,6 +89,7 @@ def run(args: argparse.Namespace) -> int:
         marks=args.marks,
         shutter_delay_ns=round(args.shutter_delay_ms * 1e6),
         marker=args.marker,
+        events=not args.no_events,
     )
     inputs = [Path(p) for p in args.input]
     # a missing, non-regular or unreadable input: one line

@@ -285,6 +285,36 @@ def test_convert_accepts_every_edge_choice(tmp_path: Path, edge: mk.MarkEdge) ->
     assert np.isclose(res.ephemerides, 0)
 
 
+def test_convert_without_events_keeps_the_marks(tmp_path: Path) -> None:
+    recs = rawx([[meas(5)], [meas(5, lock_ms=10200)], [meas(5, lock_ms=10400)]])
+    tm = L.TIM_TM2.frame(
+        flags=0x4D | 0x80, count=1, wnR=WEEK, wnF=WEEK, towMsR=60000_210, towSubMsR=5,
+        towMsF=60000_200, towSubMsF=7, accEst=9,
+    )
+    src = tmp_path / "flight.ubx"
+    cut = len(recs) // 3 * 2
+    src.write_bytes(recs[:cut] + tm + recs[cut:])
+    res = rinex.convert(src, tmp_path / "out", rinex.RinexOptions(events=False))
+    assert res.epochs == 3 and res.marks == 1 and res.events == 0
+    heads = [ln for ln in res.obs_path.read_text().splitlines() if ln.startswith(">")]
+    assert len(heads) == 3 and all(ln[31] == "0" for ln in heads)
+    assert len(res.marks_path.read_text().splitlines()) == 2  # the header and the mark
+
+
+def test_events_after_a_change_of_the_epochs_spacing() -> None:
+    """RTKLIB's reader drops the epoch after an event when its spacing from the epoch before
+    differs from that epoch's own: after a gap, and at the first epoch after one."""
+    s = 1_000_000_000
+    epochs = [t * s for t in (0, 1, 2, 3, 6, 7, 8, 9)]  # epochs 4 and 5 lost
+    events = [t * s // 2 for t in (1, 5, 10, 13, 17)]  # 0.5, 2.5, 5, 6.5, 8.5 s
+    # 0.5 s: nothing before to compare; 2.5: 1 s after 1 s; 5: 3 s after 1 s (the gap);
+    # 6.5: 1 s after 3 s; 8.5: 1 s after 1 s
+    assert rinex.events_after_spacing_change(epochs, events) == 2
+    jitter = [e + 10_000_000 * (k % 2) for k, e in enumerate(epochs[:4])]  # 20 ms < 25
+    assert rinex.events_after_spacing_change(jitter, events[:2]) == 0
+    assert rinex.events_after_spacing_change(epochs[:2], events) == 0
+
+
 def test_vectorised_field_formatting_equals_python_formatting() -> None:
     import numpy as np
 

@@ -11,6 +11,7 @@ from groundstation.offline.rinex.convert import (
     RinexOptions,
     RinexResult,
     convert,
+    events_after_spacing_change,
     read_frames,
     read_recording,
 )
@@ -27,6 +28,7 @@ __all__ = [
     "RinexOptions",
     "RinexResult",
     "convert",
+    "events_after_spacing_change",
     "obs_from_raw",
     "obs_from_rawx",
     "read_obs3",

@@ -1,9 +1,10 @@
 """UBX recording -> RINEX observation and navigation files and the time-mark table.
 
-Every falling edge (or the chosen edge) becomes an event epoch, frames after damage are
-recovered, and AID-EPH gives a navigation file. Epochs, marks and fixes whose time cannot belong
-to the session (:mod:`groundstation.rules.plausible`: the decoder's verdicts, in bulk) are left
-out, counted (``RinexResult.implausible``) and logged.
+Every falling edge (or the chosen edge) becomes an event epoch (unless
+``RinexOptions.events`` is off), frames after damage are recovered, and AID-EPH gives a
+navigation file. Epochs, marks and fixes whose time cannot belong to the session
+(:mod:`groundstation.rules.plausible`: the decoder's verdicts, in bulk) are left out, counted
+(``RinexResult.implausible``) and logged.
 """
 
 from __future__ import annotations
@@ -53,6 +54,26 @@ from groundstation.ubx.timemark import timemark_from_fields
 log = logging.getLogger("groundstation.rinex")
 IMPLAUSIBLE_LOGGED = 20
 """Implausible messages of one type logged one by one; after that one line per 1000."""
+
+RTKLIB_DTTOL_NS = 25_000_000
+"""RTKLIB's tolerance on the spacing of epochs (``DTTOL`` in ``rtklib.h``, 0.025 s)."""
+
+
+def events_after_spacing_change(epochs_ns: Sequence[int], events_ns: Sequence[int]) -> int:
+    """Event epochs whose next observation epoch comes at another spacing from the epoch
+    before it than that epoch's own spacing (by :data:`RTKLIB_DTTOL_NS`), as after a radio gap.
+    RTKLIB's RINEX reader (``rinex.c``, ``readrnxobs``) drops that epoch and takes the next;
+    the spacing it then compares with is two epochs long, so the epoch after each later mark
+    can go the same way until the marks pause."""
+    w = np.asarray(epochs_ns, dtype=np.int64)
+    e = np.asarray(events_ns, dtype=np.int64)
+    if w.size < 3 or e.size == 0:
+        return 0
+    k = np.searchsorted(w, e, side="right")  # the epoch written after each event
+    k = k[(k >= 2) & (k < w.size)]
+    change = np.abs((w[k] - w[k - 1]) - (w[k - 1] - w[k - 2])) >= RTKLIB_DTTOL_NS
+    return int(np.count_nonzero(change))
+
 
 # -- the whole conversion ---------------------------------------------------------------------
 
@@ -352,6 +373,14 @@ def convert(
         ]
         if unknown:
             notes.append("signals without a RINEX 3.04 code here, left out: " + ", ".join(unknown))
+    after_change = events_after_spacing_change(written, events)
+    if after_change:
+        notes.append(
+            f"{after_change} of the {len(events)} event epochs come where the epochs' spacing "
+            "changed (radio gaps): RTKLIB's RINEX reader drops the observation epoch after such "
+            "an event, and can go on dropping the one after every later mark; for RTKLIB, "
+            f"convert with --no-events (the marks stay in {marks_path.name}). groundstation "
+            "solve gives its engine no events")
     if math.isfinite(approx[0]) and approx == (0.0, 0.0, 0.0):
         notes.append("the receiver recorded no position of its own: APPROX POSITION XYZ is zero")
     if not nav.ephemerides:
