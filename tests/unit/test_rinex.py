@@ -268,8 +268,8 @@ def test_marks_pairing_events_and_dropouts() -> None:
     assert row["pulse_ms"] == "14.000000" and row["in_dropout"] == "0"
 
 
-@pytest.mark.parametrize("edge", mk.MARK_EDGES)
-def test_convert_accepts_every_edge_choice(tmp_path: Path, edge: mk.MarkEdge) -> None:
+def _flight_with_one_mark(tmp_path: Path) -> Path:
+    """Three RXM-RAWX epochs with one TIM-TM2 mark between the second and the third."""
     recs = rawx([[meas(5)], [meas(5, lock_ms=10200)], [meas(5, lock_ms=10400)]])
     tm = L.TIM_TM2.frame(
         flags=0x4D | 0x80, count=1, wnR=WEEK, wnF=WEEK, towMsR=60000_210, towSubMsR=5,
@@ -278,6 +278,12 @@ def test_convert_accepts_every_edge_choice(tmp_path: Path, edge: mk.MarkEdge) ->
     src = tmp_path / "flight.ubx"
     cut = len(recs) // 3 * 2
     src.write_bytes(recs[:cut] + tm + recs[cut:])
+    return src
+
+
+@pytest.mark.parametrize("edge", mk.MARK_EDGES)
+def test_convert_accepts_every_edge_choice(tmp_path: Path, edge: mk.MarkEdge) -> None:
+    src = _flight_with_one_mark(tmp_path)
     res = rinex.convert(src, tmp_path / "out", rinex.RinexOptions(marks=edge))
     assert res.epochs == 3 and res.marks == 1
     assert res.events == (2 if edge == "both" else 1)
@@ -286,14 +292,7 @@ def test_convert_accepts_every_edge_choice(tmp_path: Path, edge: mk.MarkEdge) ->
 
 
 def test_convert_without_events_keeps_the_marks(tmp_path: Path) -> None:
-    recs = rawx([[meas(5)], [meas(5, lock_ms=10200)], [meas(5, lock_ms=10400)]])
-    tm = L.TIM_TM2.frame(
-        flags=0x4D | 0x80, count=1, wnR=WEEK, wnF=WEEK, towMsR=60000_210, towSubMsR=5,
-        towMsF=60000_200, towSubMsF=7, accEst=9,
-    )
-    src = tmp_path / "flight.ubx"
-    cut = len(recs) // 3 * 2
-    src.write_bytes(recs[:cut] + tm + recs[cut:])
+    src = _flight_with_one_mark(tmp_path)
     res = rinex.convert(src, tmp_path / "out", rinex.RinexOptions(events=False))
     assert res.epochs == 3 and res.marks == 1 and res.events == 0
     heads = [ln for ln in res.obs_path.read_text().splitlines() if ln.startswith(">")]
